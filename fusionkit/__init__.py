@@ -1,0 +1,62 @@
+"""fusionkit: inertial attitude estimation, filters picked by name, compared side by side.
+
+Public API::
+
+    import fusionkit as fk
+    fk.available()                          # registered plugins by kind
+    rec = fk.Recording(gyr=..., acc=..., mag=None, rate=285.7)
+    rec = fk.load("trial.hdf5")             # BROAD .hdf5 or CSV
+    f = fk.make("poisson", frame="NED")     # any registered plugin, parameters validated
+    res = f.run(rec)                        # res.quat (N, 4) w-x-y-z body->frame, res.flags
+    print(fk.describe("poisson"))
+
+Conventions: :mod:`fusionkit.conventions`.
+"""
+
+from . import conventions, rotations, sim
+from .config import AlignmentConfig, PipelineConfig, PluginSpec, load_config
+from .errors import ConfigError, FusionkitError, InputError, PluginError
+from .io import load
+from .protocols import Corrector, Detector, Estimator, Filter
+from .registry import available, default_registry, describe, get, make, register
+from .types import Flag, Gnss, Recording, Result
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "AlignmentConfig",
+    "ConfigError",
+    "Corrector",
+    "Detector",
+    "Estimator",
+    "Filter",
+    "Flag",
+    "FusionkitError",
+    "Gnss",
+    "InputError",
+    "PipelineConfig",
+    "PluginError",
+    "PluginSpec",
+    "Recording",
+    "Result",
+    "available",
+    "conventions",
+    "default_registry",
+    "describe",
+    "get",
+    "load",
+    "load_config",
+    "make",
+    "pipeline",
+    "register",
+    "rotations",
+    "sim",
+    "__version__",
+]
+
+
+def pipeline(config) -> Filter:
+    """Build a :class:`~fusionkit.pipeline.Pipeline` from a dict, a JSON/TOML file or string."""
+    from .pipeline import Pipeline
+
+    return Pipeline(load_config(config))

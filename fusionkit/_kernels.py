@@ -1,0 +1,130 @@
+"""Scalar numba kernels of the rotation math in :mod:`fusionkit.rotations` and of the alignment.
+
+Private: plain floats and preallocated float64 arrays in, results written into ``out``; no
+allocation, no Python objects. Each function mirrors a reference function (named in its
+docstring) and ``tests/test_kernels.py`` compares the pair.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ._numba import njit
+
+
+@njit
+def qmul_into(p0, p1, p2, p3, q0, q1, q2, q3, out):
+    """``out = p (x) q`` (rotations.quat_mul)."""
+    out[0] = p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3
+    out[1] = p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2
+    out[2] = p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1
+    out[3] = p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0
+
+
+@njit
+def qnormalize(q):
+    """Normalise the first four entries of ``q`` in place (rotations.quat_normalize)."""
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    q[0] /= n
+    q[1] /= n
+    q[2] /= n
+    q[3] /= n
+
+
+@njit
+def rotvec_quat(r0, r1, r2, out):
+    """Exact quaternion of a rotation vector (rotations.quat_from_rotvec)."""
+    a = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    if a < 1e-8:
+        k = 0.5 - a * a / 48.0
+    else:
+        k = math.sin(0.5 * a) / a
+    out[0] = math.cos(0.5 * a)
+    out[1] = k * r0
+    out[2] = k * r1
+    out[3] = k * r2
+
+
+@njit
+def quat_to_dcm(q, c):
+    """Row-major rotation matrix of ``q`` into ``c[0:9]`` (rotations.quat_to_matrix)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    c[0] = 1 - 2 * (y * y + z * z)
+    c[1] = 2 * (x * y - w * z)
+    c[2] = 2 * (x * z + w * y)
+    c[3] = 2 * (x * y + w * z)
+    c[4] = 1 - 2 * (x * x + z * z)
+    c[5] = 2 * (y * z - w * x)
+    c[6] = 2 * (x * z - w * y)
+    c[7] = 2 * (y * z + w * x)
+    c[8] = 1 - 2 * (x * x + y * y)
+
+
+@njit
+def dcm_to_quat(c, out):
+    """Unit quaternion (w >= 0) of the row-major matrix ``c[0:9]`` (rotations.matrix_to_quat)."""
+    r00, r01, r02 = c[0], c[1], c[2]
+    r10, r11, r12 = c[3], c[4], c[5]
+    r20, r21, r22 = c[6], c[7], c[8]
+    tr = r00 + r11 + r22
+    if tr >= max(r00, max(r11, r22)):
+        s = 2.0 * math.sqrt(1.0 + tr)
+        out[0] = 0.25 * s
+        out[1] = (r21 - r12) / s
+        out[2] = (r02 - r20) / s
+        out[3] = (r10 - r01) / s
+    elif r00 >= r11 and r00 >= r22:
+        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        out[0] = (r21 - r12) / s
+        out[1] = 0.25 * s
+        out[2] = (r01 + r10) / s
+        out[3] = (r02 + r20) / s
+    elif r11 >= r22:
+        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        out[0] = (r02 - r20) / s
+        out[1] = (r01 + r10) / s
+        out[2] = 0.25 * s
+        out[3] = (r12 + r21) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        out[0] = (r10 - r01) / s
+        out[1] = (r02 + r20) / s
+        out[2] = (r12 + r21) / s
+        out[3] = 0.25 * s
+    if out[0] < 0:
+        out[0] = -out[0]
+        out[1] = -out[1]
+        out[2] = -out[2]
+        out[3] = -out[3]
+    qnormalize(out)
+
+
+@njit
+def alignment_quat(a0, a1, a2, m0, m1, m2, use_mag, q_frame, out):
+    """Body->frame alignment quaternion (navigation.alignment.alignment_quat).
+
+    ``q_frame`` rotates NUE into the target frame; ``use_mag`` != 0 takes the heading from the
+    magnetometer ``m``.
+    """
+    theta = math.atan2(a0, math.sqrt(a1 * a1 + a2 * a2))
+    gamma = math.atan2(-a2, a1)
+    # q = q_z(theta) (x) q_x(gamma): the y (heading) rotation is identity for psi = 0
+    ct, st = math.cos(0.5 * theta), math.sin(0.5 * theta)
+    cg, sg = math.cos(0.5 * gamma), math.sin(0.5 * gamma)
+    q0 = ct * cg
+    q1 = ct * sg
+    q2 = st * sg
+    q3 = st * cg
+    if use_mag != 0:
+        # magnetometer in NUE: R(q) m; heading rotation about Up by beta = atan2(m_E, m_N)
+        mn = (1 - 2 * (q2 * q2 + q3 * q3)) * m0 + 2 * (q1 * q2 - q0 * q3) * m1 + 2 * (q1 * q3 + q0 * q2) * m2
+        me = 2 * (q1 * q3 - q0 * q2) * m0 + 2 * (q2 * q3 + q0 * q1) * m1 + (1 - 2 * (q1 * q1 + q2 * q2)) * m2
+        beta = math.atan2(me, mn)
+        cb, sb = math.cos(0.5 * beta), math.sin(0.5 * beta)
+        r0 = cb * q0 - sb * q2
+        r1 = cb * q1 + sb * q3
+        r2 = cb * q2 + sb * q0
+        r3 = cb * q3 - sb * q1
+        q0, q1, q2, q3 = r0, r1, r2, r3
+    qmul_into(q_frame[0], q_frame[1], q_frame[2], q_frame[3], q0, q1, q2, q3, out)
+    qnormalize(out)

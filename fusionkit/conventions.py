@@ -1,0 +1,186 @@
+"""Every convention of fusionkit, written once.
+
+Quaternions
+    ``[w, x, y, z]`` (scalar first), Hamilton product, unit norm. A result quaternion ``q``
+    rotates body-frame vectors into the earth frame: ``v_earth = R(q) v_body``. scipy's
+    ``Rotation`` is scalar-last: use :func:`to_scipy` / :func:`from_scipy`.
+
+Units
+    gyroscope rad/s; accelerometer m/s^2 as *specific force* (reads about +g along "up" at
+    rest); magnetometer any unit (only its direction is used); time s; angles rad unless a name
+    ends in ``_deg``.
+
+Earth frames (:data:`FRAMES`)
+    ``"ENU"`` (default): x East, y North, z Up.
+    ``"NED"``: x North, y East, z Down.
+    ``"NWU"``: x North, y West, z Up.
+    ``"NUE"``: source 000's geographic frame Me: axis 1 North, axis 2 Up, axis 3 East.
+
+Euler angles (:func:`quat_to_euler`, :func:`euler_to_quat`), always returned as
+``(heading, pitch, roll)`` in rad:
+    ENU, NED, NWU: intrinsic z-y'-x'' (yaw about the frame's z axis, then pitch about the new y,
+    then roll about the new x): ``R = Rz(yaw) Ry(pitch) Rx(roll)``.
+    NUE: source 000's sequence Me -(psi about axis 2)-> -(theta about axis 3)-> -(gamma about
+    axis 1)-> Mr, i.e. ``R = Ry(psi) Rz(theta) Rx(gamma)`` (intrinsic y-z'-x''). The document's
+    matrix L (its eq. 1) maps earth to body, ``L = R^T``; see :func:`source000_matrix`.
+
+Gravity
+    ``GRAVITY`` = 9.780327 m/s^2, source 000's model (the equatorial normal gravity).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+from .errors import ConfigError
+from .rotations import matrix_to_quat, quat_conj, quat_from_axis_angle, quat_mul, quat_to_matrix
+
+__all__ = [
+    "FRAMES",
+    "Frame",
+    "GRAVITY",
+    "DEFAULT_FRAME",
+    "check_frame",
+    "frame_matrix",
+    "up_vector",
+    "north_vector",
+    "change_frame",
+    "quat_to_euler",
+    "euler_to_quat",
+    "source000_matrix",
+    "source000_quat",
+    "source000_euler",
+    "to_scipy",
+    "from_scipy",
+]
+
+Frame = Literal["ENU", "NED", "NWU", "NUE"]
+FRAMES: tuple[str, ...] = ("ENU", "NED", "NWU", "NUE")
+DEFAULT_FRAME = "ENU"
+#: source 000's gravity model, m/s^2
+GRAVITY = 9.780327
+
+# Rows: the frame's axes expressed in ENU coordinates, so v_frame = M @ v_enu.
+_FROM_ENU = {
+    "ENU": np.eye(3),
+    "NED": np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]),
+    "NWU": np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
+    "NUE": np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
+}
+
+
+def check_frame(frame: str) -> str:
+    """Return ``frame`` if it is a known earth frame, else raise :class:`ConfigError`."""
+    if frame not in _FROM_ENU:
+        raise ConfigError(f"frame must be one of {FRAMES}, got {frame!r}")
+    return frame
+
+
+def frame_matrix(src: str, dst: str) -> np.ndarray:
+    """Matrix ``M`` with ``v_dst = M @ v_src`` for earth-frame vectors."""
+    return _FROM_ENU[check_frame(dst)] @ _FROM_ENU[check_frame(src)].T
+
+
+def up_vector(frame: str) -> np.ndarray:
+    """The unit "up" vector in ``frame`` coordinates."""
+    return frame_matrix("ENU", frame) @ np.array([0.0, 0.0, 1.0])
+
+
+def north_vector(frame: str) -> np.ndarray:
+    """The unit "north" vector in ``frame`` coordinates."""
+    return frame_matrix("ENU", frame) @ np.array([0.0, 1.0, 0.0])
+
+
+def change_frame(quat, src: str, dst: str) -> np.ndarray:
+    """Re-express body->``src`` quaternions as body->``dst`` quaternions."""
+    q_dst_src = matrix_to_quat(frame_matrix(src, dst))
+    return quat_mul(q_dst_src, np.asarray(quat, dtype=float))
+
+
+def _axis_quat(axis: int, angle):
+    e = np.zeros(3)
+    e[axis] = 1.0
+    return quat_from_axis_angle(e, np.asarray(angle, dtype=float))
+
+
+def euler_to_quat(heading, pitch, roll, frame: str = DEFAULT_FRAME) -> np.ndarray:
+    """Body->``frame`` quaternion from ``(heading, pitch, roll)`` in rad (see module doc)."""
+    check_frame(frame)
+    if frame == "NUE":
+        return source000_quat(heading, pitch, roll)
+    q = quat_mul(_axis_quat(2, heading), _axis_quat(1, pitch))
+    return quat_mul(q, _axis_quat(0, roll))
+
+
+def quat_to_euler(quat, frame: str = DEFAULT_FRAME) -> np.ndarray:
+    """``(..., 3)`` array of ``(heading, pitch, roll)`` in rad of body->``frame`` quaternions."""
+    check_frame(frame)
+    if frame == "NUE":
+        return source000_euler(quat)
+    r = quat_to_matrix(quat)
+    yaw = np.arctan2(r[..., 1, 0], r[..., 0, 0])
+    pitch = np.arcsin(np.clip(-r[..., 2, 0], -1.0, 1.0))
+    roll = np.arctan2(r[..., 2, 1], r[..., 2, 2])
+    return np.stack([yaw, pitch, roll], axis=-1)
+
+
+def source000_matrix(psi, theta, gamma) -> np.ndarray:
+    """Source 000's matrix L (eq. 1), earth (N, Up, E) to body: ``V_r = L V_e``. Angles in rad."""
+    sp, cp = np.sin(psi), np.cos(psi)
+    st, ct = np.sin(theta), np.cos(theta)
+    sg, cg = np.sin(gamma), np.cos(gamma)
+    return np.array(
+        [
+            [cp * ct, st, -sp * ct],
+            [sp * sg - cp * st * cg, ct * cg, cp * sg + sp * st * cg],
+            [sp * cg + cp * st * sg, -ct * sg, cp * cg - sp * st * sg],
+        ]
+    )
+
+
+def source000_quat(psi, theta, gamma) -> np.ndarray:
+    """Body->NUE quaternion of source 000's angles, derived from matrix (1): ``R(q) = L^T``.
+
+    As extracted, the document's own quaternion formulas (2) and (3) disagree with each other
+    and with (1) in the order and sign of the vector components (for a pure pitch (3) puts
+    -sin(theta/2) in the third component, (2) in the first; rotation about axis 3 by +theta has
+    +sin(theta/2) in the third). Matrix (1) is self-consistent (it is R1(gamma) R3(theta)
+    R2(psi) of frame rotations), so the quaternion is built as y-z'-x'' intrinsic rotations,
+    which ``tests/test_conventions.py`` checks against (1).
+    """
+    q = quat_mul(_axis_quat(1, psi), _axis_quat(2, theta))
+    return quat_mul(q, _axis_quat(0, gamma))
+
+
+def source000_euler(quat) -> np.ndarray:
+    """``(psi, theta, gamma)`` of body->NUE quaternions, by source 000's Appendix 1.
+
+    With ``L = R(q)^T``: ``sin(theta) = l12``, ``tan(gamma) = -l32 / l22``,
+    ``tan(psi) = -l13 / l11`` (1-based indices of L; the cos(theta) factors cancel in atan2).
+    """
+    lt = quat_to_matrix(quat)  # = L^T, so l_ij = lt[..., j, i]
+    theta = np.arcsin(np.clip(lt[..., 1, 0], -1.0, 1.0))
+    gamma = np.arctan2(-lt[..., 1, 2], lt[..., 1, 1])
+    psi = np.arctan2(-lt[..., 2, 0], lt[..., 0, 0])
+    return np.stack([psi, theta, gamma], axis=-1)
+
+
+def to_scipy(quat):
+    """scipy ``Rotation`` of ``[w, x, y, z]`` quaternions."""
+    from scipy.spatial.transform import Rotation
+
+    q = np.asarray(quat, dtype=float)
+    return Rotation.from_quat(q[..., [1, 2, 3, 0]])
+
+
+def from_scipy(rotation) -> np.ndarray:
+    """``[w, x, y, z]`` quaternions of a scipy ``Rotation``."""
+    q = rotation.as_quat()
+    return np.asarray(q)[..., [3, 0, 1, 2]]
+
+
+def inverse(quat) -> np.ndarray:
+    """Inverse of unit quaternions (alias of the conjugate)."""
+    return quat_conj(quat)

@@ -1,0 +1,1 @@
+"""Detectors: turn the sensor stream into per-sample events and flags."""

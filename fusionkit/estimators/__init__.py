@@ -1,0 +1,1 @@
+"""Estimators: propagate orientation from gyroscope rates."""

@@ -1,0 +1,1 @@
+"""Filters: complete algorithms users pick by name."""

@@ -1,0 +1,119 @@
+"""Read recordings: BROAD ``.hdf5`` trials and a documented CSV layout.
+
+CSV layout (comma separated, one header line, ``#`` comment lines allowed before it):
+
+=================  ==========================================================
+column             meaning
+=================  ==========================================================
+``t``              time in s (optional if ``rate=`` is given to :func:`load`)
+``gyr_x..gyr_z``   angular rate, rad/s
+``acc_x..acc_z``   specific force, m/s^2
+``mag_x..mag_z``   magnetic field, any unit (optional)
+``qw,qx,qy,qz``    reference orientation body->ENU (optional)
+=================  ==========================================================
+
+A comment line ``# rate=285.7`` gives the rate when there is no ``t`` column.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..types import Recording
+
+__all__ = ["load", "load_broad", "load_csv", "write_csv"]
+
+_VEC = {k: [f"{k}_{a}" for a in "xyz"] for k in ("gyr", "acc", "mag")}
+
+
+def load(path, **kwargs) -> Recording:
+    """Read a recording: ``.hdf5``/``.h5`` BROAD trial, or ``.csv`` (see module doc)."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"no such file: {str(p)!r}")
+    suffix = p.suffix.lower()
+    if suffix in (".hdf5", ".h5"):
+        return load_broad(p, **kwargs)
+    if suffix == ".csv":
+        return load_csv(p, **kwargs)
+    raise InputError(f"cannot read {p.name!r}: supported are .hdf5/.h5 (BROAD) and .csv")
+
+
+def load_broad(path) -> Recording:
+    """One BROAD trial: gyr, acc, mag, ``opt_quat`` as truth (body->ENU) and the ``movement`` mask."""
+    try:
+        import h5py
+    except ImportError as exc:  # pragma: no cover
+        raise InputError("reading .hdf5 needs h5py (pip install h5py)") from exc
+    p = Path(path)
+    with h5py.File(p, "r") as f:
+        missing = [k for k in ("imu_gyr", "imu_acc", "sampling_rate") if k not in f and k not in f.attrs]
+        if missing:
+            raise InputError(f"{p.name}: not a BROAD trial, missing {missing}")
+        rate = float(np.asarray(f.attrs["sampling_rate"]).reshape(-1)[0])
+        return Recording(
+            gyr=f["imu_gyr"][:], acc=f["imu_acc"][:], mag=f["imu_mag"][:] if "imu_mag" in f else None,
+            rate=rate, truth=f["opt_quat"][:] if "opt_quat" in f else None, truth_frame="ENU",
+            movement=f["movement"][:] if "movement" in f else None, name=p.stem,
+            meta={"path": str(p), "dataset": "BROAD"},
+        )
+
+
+def load_csv(path, rate: float | None = None) -> Recording:
+    """A CSV file in the layout of the module doc."""
+    p = Path(path)
+    header, comment_rate, skip = None, None, 0
+    with open(p) as fh:
+        for line in fh:
+            skip += 1
+            s = line.strip()
+            if s.startswith("#"):
+                body = s.lstrip("#").strip()
+                if body.startswith("rate="):
+                    comment_rate = float(body.split("=", 1)[1])
+                continue
+            header = [c.strip() for c in s.split(",")]
+            break
+    if header is None:
+        raise InputError(f"{p.name}: empty CSV file")
+    for k in ("gyr", "acc"):
+        if not all(c in header for c in _VEC[k]):
+            raise InputError(f"{p.name}: missing columns {_VEC[k]} (header is {header})")
+    data = np.loadtxt(p, delimiter=",", skiprows=skip, ndmin=2)
+    if data.shape[1] != len(header):
+        raise InputError(f"{p.name}: {data.shape[1]} columns of data but {len(header)} names in the header")
+    col = {c: i for i, c in enumerate(header)}
+
+    def pick(names):
+        return data[:, [col[c] for c in names]]
+
+    t = data[:, col["t"]] if "t" in col else None
+    rate = rate if rate is not None else comment_rate
+    if t is None and rate is None:
+        raise InputError(f"{p.name}: no 't' column and no rate: pass rate= or add '# rate=...'")
+    return Recording(
+        gyr=pick(_VEC["gyr"]), acc=pick(_VEC["acc"]),
+        mag=pick(_VEC["mag"]) if all(c in col for c in _VEC["mag"]) else None,
+        t=None if rate is not None else t, rate=rate,
+        truth=pick(["qw", "qx", "qy", "qz"]) if all(c in col for c in ("qw", "qx", "qy", "qz")) else None,
+        name=p.stem, meta={"path": str(p)},
+    )
+
+
+def write_csv(rec: Recording, path) -> None:
+    """Write a recording in the CSV layout :func:`load_csv` reads."""
+    cols, names = [rec.time[:, None]], ["t"]
+    for k in ("gyr", "acc", "mag"):
+        v = getattr(rec, k)
+        if v is not None:
+            cols.append(v)
+            names += _VEC[k]
+    if rec.truth is not None:
+        from ..conventions import change_frame
+
+        cols.append(change_frame(rec.truth, rec.truth_frame, "ENU"))
+        names += ["qw", "qx", "qy", "qz"]
+    np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt="%.10g")

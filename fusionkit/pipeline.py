@@ -1,0 +1,496 @@
+"""The pipeline: a filter composed from an estimator, correctors and detectors.
+
+Per sample, in this fixed order:
+
+1. **validity**: a non-finite gyr sample is flagged GYR_INVALID (state held), a non-finite or
+   all-zero acc / mag sample ACC_INVALID / MAG_INVALID (their use skipped); axes at or above
+   ``gyr_range`` / ``acc_range`` are flagged SATURATED (and still used).
+2. **detectors** (each on samples with valid gyr and acc): a nonzero criteria mask sets the
+   detector's flag.
+3. **alignment** while it runs (source 000): the sample is added to the means and the output is
+   the current alignment attitude (flag ALIGNING). Mode ``motion`` ends it on the first MOTION
+   sample after the mandatory ``duration`` (that sample is navigated, not averaged); mode
+   ``fixed`` after ``duration``; mode ``none`` skips it. On the end, the estimator starts from
+   the alignment attitude and the mean gyro output becomes the bias.
+4. **propagation**: ``estimator.propagate(gyr - bias + correction_rate, dt)``.
+5. **correctors**, in order; rate correctors' outputs are summed into the next correction rate.
+
+Two paths run this: the readable reference (:meth:`Pipeline._step`) and, when every plugin has
+a numba kernel (an estimator, at most one detector, no corrector yet), one compiled loop built
+by closing over the plugins' kernels (:func:`_build_loop`). ``Result.diagnostics["backend"]``
+says which ran; the tests hold the two to 1e-9 on every sample.
+
+``quat[k]`` is the orientation after sample ``k`` has been processed; sample ``k``'s rate is
+held over ``dt[k] = t[k] - t[k-1]``.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import sys
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ._kernels import alignment_quat as _k_alignment_quat
+from ._numba import HAVE_NUMBA, njit, resolve_backend
+from .config import PipelineConfig
+from .conventions import change_frame
+from .errors import ConfigError, InputError
+from .navigation.alignment import alignment_quat
+from .protocols import Detector, DetectionResult, Filter, Sample
+from .registry import Registry, default_registry
+from .types import Flag, Recording, Result
+from .validation import as_vector, check_finite, check_positive
+
+__all__ = ["Pipeline", "run_detector"]
+
+# alignment state layout
+_PHASE, _SEEN, _NACC, _SACC, _NGYR, _SGYR, _NMAG, _SMAG, _BIAS, _END, _DISTURBED, _RCORR = (
+    0, 1, 2, 3, 6, 7, 10, 11, 14, 17, 18, 19)
+_ALIGN_SIZE = 22
+_MODES = {"none": 0.0, "fixed": 1.0, "motion": 2.0}
+_CHUNK = 200_000
+
+
+class Pipeline(Filter):
+    """A filter composed from registered plugins by a :class:`~fusionkit.config.PipelineConfig`.
+
+    >>> f = Pipeline({"estimator": "poisson-quat", "detectors": ["motion"]})  # doctest: +SKIP
+    """
+
+    name: ClassVar[str] = "pipeline"
+    Config = PipelineConfig
+    source: ClassVar[str] = "fusionkit (composition of plugins)"
+    summary: ClassVar[str] = "estimator + correctors + detectors + alignment, composed from a config"
+
+    def __init__(self, config=None, *, registry: Registry | None = None, **params: Any) -> None:
+        super().__init__(config, **params)
+        spec = self.pipeline_config()
+        reg = registry or default_registry()
+        self.spec = spec
+        self.estimator = reg.make(spec.estimator.name, "estimator", spec.estimator.params)
+        self.correctors = [reg.make(c.name, "corrector", c.params) for c in spec.correctors]
+        self.detectors = [reg.make(d.name, "detector", d.params) for d in spec.detectors]
+        if spec.alignment.mode == "motion" and not any(d.flag & Flag.MOTION for d in self.detectors):
+            raise ConfigError(
+                "alignment mode 'motion' ends on a MOTION flag, but no detector sets it: add the "
+                "'motion' detector or use mode 'fixed'"
+            )
+        self._q_frame = change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "NUE", spec.frame)
+        self._stream: dict[str, Any] | None = None
+        self.last_flags = 0
+
+    def pipeline_config(self) -> PipelineConfig:
+        """The composition this filter runs (presets override this)."""
+        return self.config
+
+    # -- state -----------------------------------------------------------------------------
+    def new_state(self, dt: float) -> dict[str, Any]:
+        """A fresh run state for nominal sample interval ``dt``."""
+        al = np.zeros(_ALIGN_SIZE)
+        al[_END] = -1.0
+        q0 = np.array(self.spec.alignment.initial_quat)
+        if self.spec.alignment.mode == "none":
+            al[_PHASE] = 1.0
+        return {
+            "dt": float(dt),
+            "x": self.estimator.initial_state(q0),
+            "det": [d.initial_state(dt) for d in self.detectors],
+            "cor": [c.initial_state(dt) for c in self.correctors],
+            "align": al,
+        }
+
+    @property
+    def state(self) -> dict[str, Any] | None:
+        """A deep copy of the streaming state (None before the first ``update``)."""
+        return copy.deepcopy(self._stream)
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Restore a state from :attr:`state` or ``Result.diagnostics["state"]``."""
+        self._stream = self._check_state(copy.deepcopy(state))
+
+    def _check_state(self, st: dict[str, Any]) -> dict[str, Any]:
+        keys = {"dt", "x", "det", "cor", "align"}
+        if not isinstance(st, dict) or set(st) != keys:
+            raise InputError(f"state must be a dict with keys {sorted(keys)}")
+        ref = self.new_state(st["dt"])
+        for k in ("x", "align"):
+            if np.shape(st[k]) != ref[k].shape:
+                raise InputError(f"state[{k!r}] has shape {np.shape(st[k])}, expected {ref[k].shape}")
+        if len(st["det"]) != len(ref["det"]) or len(st["cor"]) != len(ref["cor"]):
+            raise InputError("state does not belong to this pipeline (detector/corrector count differs)")
+        return st
+
+    def reset(self) -> None:
+        self._stream = None
+
+    # -- the readable reference path -------------------------------------------------------
+    def _step(self, st, gyr, acc, mag, dt, has_mag) -> tuple[np.ndarray, int, int]:
+        """Process one sample; returns (quat body->frame, flags, first detector's criteria)."""
+        cfg, al = self.spec, st["align"]
+        gyr_ok = bool(np.isfinite(gyr).all())
+        acc_ok = bool(np.isfinite(acc).all() and np.any(acc != 0.0))
+        mag_ok = has_mag and bool(np.isfinite(mag).all() and np.any(mag != 0.0))
+        flags = 0
+        if not gyr_ok:
+            flags |= Flag.GYR_INVALID
+        elif cfg.gyr_range is not None and np.max(np.abs(gyr)) >= cfg.gyr_range:
+            flags |= Flag.GYR_SATURATED
+        if not acc_ok:
+            flags |= Flag.ACC_INVALID
+        elif cfg.acc_range is not None and np.max(np.abs(acc)) >= cfg.acc_range:
+            flags |= Flag.ACC_SATURATED
+        if has_mag and not mag_ok:
+            flags |= Flag.MAG_INVALID
+        sample = Sample(gyr, acc if acc_ok else None, mag if mag_ok else None, dt)
+
+        # 2. detectors
+        crit0 = 0
+        for i, det in enumerate(self.detectors):
+            if gyr_ok and acc_ok:
+                bits = det.step(st["det"][i], sample)
+                if i == 0:
+                    crit0 = bits
+                if bits:
+                    flags |= det.flag
+        # 3. alignment
+        if al[_PHASE] == 0.0:
+            mode, n_align = cfg.alignment.mode, self._n_align(st["dt"])
+            if mode == "motion" and al[_SEEN] >= n_align and flags & Flag.MOTION:
+                self._finish_alignment(st)
+            else:
+                if mode == "motion" and flags & Flag.MOTION:
+                    al[_DISTURBED] = 1.0
+                if acc_ok:
+                    al[_NACC] += 1.0
+                    al[_SACC:_SACC + 3] += acc
+                if gyr_ok:
+                    al[_NGYR] += 1.0
+                    al[_SGYR:_SGYR + 3] += gyr
+                if mag_ok:
+                    al[_NMAG] += 1.0
+                    al[_SMAG:_SMAG + 3] += mag
+                al[_SEEN] += 1.0
+                q = self._alignment_attitude(al)
+                if mode == "fixed" and al[_SEEN] >= n_align:
+                    self._finish_alignment(st)
+                return q, flags | Flag.ALIGNING, crit0
+        # 4. propagation
+        al[_SEEN] += 1.0
+        if gyr_ok:
+            self.estimator.propagate(st["x"], gyr - al[_BIAS:_BIAS + 3] + al[_RCORR:_RCORR + 3], dt)
+        # 5. correctors
+        if self.correctors:
+            rate = np.zeros(3)
+            for i, cor in enumerate(self.correctors):
+                out = cor.correct(self.estimator, st["x"], st["cor"][i], sample, flags)
+                flags |= out.flags
+                if out.rate is not None:
+                    rate += out.rate
+            al[_RCORR:_RCORR + 3] = rate
+        return self.estimator.quat(st["x"]), flags, crit0
+
+    def _n_align(self, dt: float) -> int:
+        return max(1, int(round(self.spec.alignment.duration / dt)))
+
+    def _alignment_attitude(self, al) -> np.ndarray:
+        if al[_NACC] == 0:
+            return np.array(self.spec.alignment.initial_quat)
+        use_mag = self.spec.alignment.heading == "magnetometer" and al[_NMAG] > 0
+        mag = al[_SMAG:_SMAG + 3] / al[_NMAG] if use_mag else None
+        return alignment_quat(al[_SACC:_SACC + 3] / al[_NACC], mag, self.spec.frame)
+
+    def _finish_alignment(self, st) -> None:
+        al = st["align"]
+        if self.spec.alignment.estimate_bias and al[_NGYR] > 0:
+            al[_BIAS:_BIAS + 3] = al[_SGYR:_SGYR + 3] / al[_NGYR]
+        st["x"] = self.estimator.initial_state(self._alignment_attitude(al))
+        al[_END] = al[_SEEN]
+        al[_PHASE] = 1.0
+
+    # -- the compiled path -----------------------------------------------------------------
+    def _kernels(self):
+        if self.correctors or len(self.detectors) > 1:
+            return None
+        ek = self.estimator.kernel()
+        dk = self.detectors[0].kernel() if self.detectors else None
+        if ek is None or (self.detectors and dk is None):
+            return None
+        return ek, dk
+
+    def _align_params(self, dt: float) -> np.ndarray:
+        a = self.spec.alignment
+        ap = np.zeros(15)
+        ap[0] = _MODES[a.mode]
+        ap[1] = self._n_align(dt)
+        ap[2] = float(a.heading == "magnetometer")
+        ap[3:7] = self._q_frame
+        ap[7:11] = a.initial_quat
+        ap[11] = float(a.estimate_bias)
+        ap[12] = self.spec.gyr_range if self.spec.gyr_range is not None else math.inf
+        ap[13] = self.spec.acc_range if self.spec.acc_range is not None else math.inf
+        ap[14] = float(Flag.MOTION)
+        return ap
+
+    def _run_compiled(self, st, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop) -> None:
+        ek, dk = self._kernels()
+        loop = _get_loop(ek, dk)
+        det_state = st["det"][0] if dk is not None else np.zeros(1)
+        det_params = dk.params if dk is not None else np.zeros(1)
+        det_flag = float(self.detectors[0].flag) if dk is not None else 0.0
+        x = st["x"]
+        loop(gyr, acc, mag, dt, has_mag, x, ek.params, det_state, det_params, det_flag,
+             st["align"], self._align_params(st["dt"]), out_q, out_f, out_c, start, stop)
+
+    # -- public ----------------------------------------------------------------------------
+    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
+            state: dict[str, Any] | None = None) -> Result:
+        """Process ``rec``; start from ``state`` (``Result.diagnostics["state"]`` of an earlier
+        run) to continue a split recording."""
+        if not isinstance(rec, Recording):
+            raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
+        n = len(rec)
+        policy = self.spec.nan_policy
+        check_finite("gyr", rec.gyr, policy)
+        check_finite("acc", rec.acc, policy)
+        has_mag = rec.mag is not None
+        if has_mag:
+            check_finite("mag", rec.mag, policy)
+        if self.spec.alignment.heading == "magnetometer" and not has_mag:
+            raise InputError("alignment heading='magnetometer' needs mag in the recording")
+        kernels = self._kernels()
+        used = resolve_backend(backend, kernels is not None)
+        st = self._check_state(copy.deepcopy(state)) if state is not None else self.new_state(rec.nominal_dt)
+        mag = rec.mag if has_mag else np.zeros((n, 3))
+        dt = rec.dt
+        out_q = np.empty((n, 4))
+        out_f = np.zeros(n, dtype=np.uint32)
+        out_c = np.zeros(n, dtype=np.uint32)
+        bar = _progress(n, progress, f"{self.name}")
+        for start in range(0, n, _CHUNK):
+            stop = min(n, start + _CHUNK)
+            if used == "numba":
+                self._run_compiled(st, rec.gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop)
+            else:
+                for k in range(start, stop):
+                    q, f, c = self._step(st, rec.gyr[k], rec.acc[k], mag[k], dt[k], has_mag)
+                    out_q[k], out_f[k], out_c[k] = q, f, c
+            if bar is not None:
+                bar.update(stop - start)
+        if bar is not None:
+            bar.close()
+        return Result(out_q, out_f, self.spec.frame, self._diagnostics(st, out_f, out_c, used))
+
+    def _diagnostics(self, st, flags, crit, backend) -> dict[str, Any]:
+        al = st["align"]
+        d: dict[str, Any] = {"backend": backend, "filter": self.name, "config": self.config.model_dump()}
+        d["bias"] = al[_BIAS:_BIAS + 3].copy()
+        d["alignment_end_index"] = None if al[_END] < 0 else int(al[_END])
+        d["alignment_disturbed"] = bool(al[_DISTURBED])
+        if self.detectors:
+            fired = np.flatnonzero(crit)
+            d["criteria"] = crit
+            d["criteria_names"] = self.detectors[0].criteria_names
+            d["onset_index"] = int(fired[0]) if fired.size else None
+        d["state"] = copy.deepcopy(st)
+        return d
+
+    def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
+        """Process one sample of a stream (``dt`` in s is required); same numbers as :meth:`run`
+        with the reference backend. ``last_flags`` holds the sample's flags."""
+        if dt is None:
+            raise InputError("update() needs dt, the sample interval in s")
+        dt = check_positive("dt", dt)
+        g = as_vector("gyr", gyr)
+        a = as_vector("acc", acc)
+        has_mag = mag is not None
+        m = as_vector("mag", mag) if has_mag else np.zeros(3)
+        if self.spec.nan_policy == "raise":
+            for nm, v in (("gyr", g), ("acc", a), ("mag", m)):
+                if not np.isfinite(v).all():
+                    raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
+        if self._stream is None:
+            self._stream = self.new_state(dt)
+        q, f, _ = self._step(self._stream, g, a, m, dt, has_mag)
+        self.last_flags = int(f)
+        return q
+
+
+def _progress(n: int, progress: bool | None, desc: str):
+    """A tqdm bar for long runs: always with ``progress=True``, on a terminal above 1M samples
+    with ``None``."""
+    if progress is False or (progress is None and (n < 1_000_000 or not sys.stderr.isatty())):
+        return None
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover
+        return None
+    return tqdm(total=n, desc=desc, unit="sample", unit_scale=True, leave=False)
+
+
+# ---- the compiled loop ------------------------------------------------------------------------
+
+_LOOPS: dict[tuple, Any] = {}
+
+
+@njit
+def _no_detector(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
+    return 0
+
+
+def _get_loop(ek, dk):
+    key = (ek.propagate, ek.to_quat, ek.from_quat, None if dk is None else dk.step)
+    if key not in _LOOPS:
+        _LOOPS[key] = _build_loop(ek.propagate, ek.to_quat, ek.from_quat,
+                                  _no_detector if dk is None else dk.step)
+    return _LOOPS[key]
+
+
+def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step):
+    """One compiled loop over a recording for an estimator and a detector kernel
+    (the same steps as :meth:`Pipeline._step`)."""
+    if not HAVE_NUMBA:  # pragma: no cover
+        raise ConfigError("numba is not installed")
+
+    @njit(cache=False)
+    def loop(gyr, acc, mag, dt, has_mag, x, ep, ds, dp, det_flag, al, ap, out_q, out_f, out_c, start, stop):
+        q = np.empty(4)
+        motion = int(ap[14])
+        dflag = int(det_flag)
+        for k in range(start, stop):
+            g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
+            a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
+            m0, m1, m2 = mag[k, 0], mag[k, 1], mag[k, 2]
+            gyr_ok = math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)
+            acc_ok = (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(a2)
+                      and (a0 != 0.0 or a1 != 0.0 or a2 != 0.0))
+            mag_ok = has_mag and (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(m2)
+                                  and (m0 != 0.0 or m1 != 0.0 or m2 != 0.0))
+            flags = 0
+            if not gyr_ok:
+                flags |= 4
+            elif max(abs(g0), max(abs(g1), abs(g2))) >= ap[12]:
+                flags |= 32
+            if not acc_ok:
+                flags |= 8
+            elif max(abs(a0), max(abs(a1), abs(a2))) >= ap[13]:
+                flags |= 64
+            if has_mag and not mag_ok:
+                flags |= 16
+            crit = 0
+            if gyr_ok and acc_ok:
+                crit = det_step(ds, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt[k], dp)
+                if crit != 0:
+                    flags |= dflag
+            out_c[k] = crit
+            navigate = al[_PHASE] != 0.0
+            if not navigate:
+                mode = ap[0]
+                if mode == 2.0 and al[_SEEN] >= ap[1] and (flags & motion) != 0:
+                    _finish(al, ap, q)
+                    est_from_quat(q, x)
+                    navigate = True
+                else:
+                    if mode == 2.0 and (flags & motion) != 0:
+                        al[_DISTURBED] = 1.0
+                    if acc_ok:
+                        al[_NACC] += 1.0
+                        al[_SACC] += a0
+                        al[_SACC + 1] += a1
+                        al[_SACC + 2] += a2
+                    if gyr_ok:
+                        al[_NGYR] += 1.0
+                        al[_SGYR] += g0
+                        al[_SGYR + 1] += g1
+                        al[_SGYR + 2] += g2
+                    if mag_ok:
+                        al[_NMAG] += 1.0
+                        al[_SMAG] += m0
+                        al[_SMAG + 1] += m1
+                        al[_SMAG + 2] += m2
+                    al[_SEEN] += 1.0
+                    _attitude(al, ap, q)
+                    out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
+                    out_f[k] = flags | 1
+                    if mode == 1.0 and al[_SEEN] >= ap[1]:
+                        _finish(al, ap, q)
+                        est_from_quat(q, x)
+            if navigate:
+                al[_SEEN] += 1.0
+                if gyr_ok:
+                    est_propagate(x, g0 - al[_BIAS] + al[_RCORR], g1 - al[_BIAS + 1] + al[_RCORR + 1],
+                                  g2 - al[_BIAS + 2] + al[_RCORR + 2], dt[k], ep)
+                est_to_quat(x, q)
+                out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
+                out_f[k] = flags
+
+    return loop
+
+
+@njit
+def _attitude(al, ap, q):
+    if al[_NACC] == 0.0:
+        q[0], q[1], q[2], q[3] = ap[7], ap[8], ap[9], ap[10]
+        return
+    n = al[_NACC]
+    use_mag = ap[2] != 0.0 and al[_NMAG] > 0.0
+    nm = al[_NMAG] if use_mag else 1.0
+    _k_alignment_quat(al[_SACC] / n, al[_SACC + 1] / n, al[_SACC + 2] / n, al[_SMAG] / nm, al[_SMAG + 1] / nm,
+                      al[_SMAG + 2] / nm, 1 if use_mag else 0, ap[3:7], q)
+
+
+@njit
+def _finish(al, ap, q):
+    """End the alignment: bias, final attitude into ``q`` (the caller starts the estimator from it)."""
+    if ap[11] != 0.0 and al[_NGYR] > 0.0:
+        al[_BIAS] = al[_SGYR] / al[_NGYR]
+        al[_BIAS + 1] = al[_SGYR + 1] / al[_NGYR]
+        al[_BIAS + 2] = al[_SGYR + 2] / al[_NGYR]
+    _attitude(al, ap, q)
+    al[_END] = al[_SEEN]
+    al[_PHASE] = 1.0
+
+
+# ---- detectors on their own -------------------------------------------------------------------
+
+_DET_LOOPS: dict[Any, Any] = {}
+
+
+def _get_det_loop(step):
+    if step not in _DET_LOOPS:
+
+        @njit(cache=False)
+        def loop(gyr, acc, mag, dt, ok, s, p, out):
+            for k in range(gyr.shape[0]):
+                if ok[k]:
+                    out[k] = step(s, gyr[k, 0], gyr[k, 1], gyr[k, 2], acc[k, 0], acc[k, 1], acc[k, 2],
+                                  mag[k, 0], mag[k, 1], mag[k, 2], dt[k], p)
+
+        _DET_LOOPS[step] = loop
+    return _DET_LOOPS[step]
+
+
+def run_detector(det: Detector, rec: Recording, *, nan_policy: str = "raise", backend: str = "auto") -> DetectionResult:
+    """Run one detector over a recording (see :meth:`Detector.run`)."""
+    if not isinstance(rec, Recording):
+        raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
+    ok = check_finite("gyr", rec.gyr, nan_policy) & check_finite("acc", rec.acc, nan_policy)
+    ok &= np.any(rec.acc != 0.0, axis=1)
+    kernel = det.kernel()
+    used = resolve_backend(backend, kernel is not None)
+    s = det.initial_state(rec.nominal_dt)
+    n = len(rec)
+    out = np.zeros(n, dtype=np.uint32)
+    mag = rec.mag if rec.mag is not None else np.zeros((n, 3))
+    dt = rec.dt
+    if used == "numba":
+        _get_det_loop(kernel.step)(rec.gyr, rec.acc, mag, dt, ok, s, kernel.params, out)
+    else:
+        for k in range(n):
+            if ok[k]:
+                m = mag[k] if rec.mag is not None else None
+                out[k] = det.step(s, Sample(rec.gyr[k], rec.acc[k], m, dt[k]))
+    fired = np.flatnonzero(out)
+    return DetectionResult(out, int(fired[0]) if fired.size else None, det.criteria_names, used)

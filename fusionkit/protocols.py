@@ -1,0 +1,214 @@
+"""The plugin protocols: :class:`Estimator`, :class:`Corrector`, :class:`Detector`, :class:`Filter`.
+
+A plugin class declares ``name`` (unique within its kind), ``kind``, its ``Config`` (a
+:class:`~fusionkit.config.PluginConfig`), ``source`` (the document it implements) and a one-line
+``summary``, and implements its protocol's methods. Plugins are registered through entry points
+(group ``fusionkit.<kind>s``, see :mod:`fusionkit.registry`).
+
+State is a flat ``float64`` array owned by the caller (the pipeline): plugins are stateless
+beyond their config, so a state can be copied, split and restored, and the same array feeds the
+numba kernels. ``kernel()`` returns the plugin's compiled counterparts, or None when it has none
+(the pipeline then runs the readable reference path).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Callable, ClassVar, Literal, NamedTuple
+
+import numpy as np
+
+from .config import PluginConfig, build_config
+from .types import Flag
+
+__all__ = [
+    "Plugin",
+    "Estimator",
+    "Corrector",
+    "Detector",
+    "Filter",
+    "Sample",
+    "Correction",
+    "EstimatorKernel",
+    "DetectorKernel",
+    "DetectionResult",
+    "KINDS",
+]
+
+KINDS = ("filter", "estimator", "corrector", "detector")
+
+
+class Plugin:
+    """Common base: a validated, frozen ``config`` built from a model, a mapping or keywords."""
+
+    name: ClassVar[str] = ""
+    kind: ClassVar[str] = ""
+    Config: ClassVar[type[PluginConfig]] = PluginConfig
+    source: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
+
+    def __init__(self, config: PluginConfig | Mapping[str, Any] | None = None, **params: Any) -> None:
+        self.config = build_config(type(self).Config, config, params, where=f"{self.kind} {self.name!r}")
+
+    def __repr__(self) -> str:
+        changed = {k: v for k, v in self.config.model_dump().items() if v != type(self).Config.model_fields[k].default}
+        args = ", ".join(f"{k}={v!r}" for k, v in changed.items())
+        return f"{type(self).__name__}({args})"
+
+
+class Sample(NamedTuple):
+    """One input sample as the reference paths see it (``mag`` is None when absent or invalid)."""
+
+    gyr: np.ndarray
+    acc: np.ndarray | None
+    mag: np.ndarray | None
+    dt: float
+
+
+class EstimatorKernel(NamedTuple):
+    """numba counterparts of an estimator: ``propagate(x, w0, w1, w2, dt, params)``,
+    ``to_quat(x, out4)``, ``from_quat(q4, x)``, and the parameter vector."""
+
+    propagate: Callable
+    to_quat: Callable
+    from_quat: Callable
+    params: np.ndarray
+
+
+class DetectorKernel(NamedTuple):
+    """numba counterpart of a detector: ``step(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, params)
+    -> int`` (the criteria bitmask), and the parameter vector."""
+
+    step: Callable
+    params: np.ndarray
+
+
+class Correction(NamedTuple):
+    """What a corrector returns for one sample: a correction rate (rad/s, body frame, added to the
+    gyroscope on the next propagation) for ``mode == "rate"`` correctors, None for
+    ``mode == "state"`` ones (they changed the estimator state in place), and flag bits."""
+
+    rate: np.ndarray | None
+    flags: int = 0
+
+
+class Estimator(Plugin, ABC):
+    """Propagates orientation from gyroscope rates; owns the orientation state."""
+
+    kind: ClassVar[str] = "estimator"
+
+    @abstractmethod
+    def initial_state(self, quat: np.ndarray) -> np.ndarray:
+        """A fresh state array holding the body->earth orientation ``quat``."""
+
+    @abstractmethod
+    def propagate(self, state: np.ndarray, gyr: np.ndarray, dt: float) -> None:
+        """Advance ``state`` in place by the body rate ``gyr`` (rad/s, bias removed) over ``dt`` s."""
+
+    @abstractmethod
+    def quat(self, state: np.ndarray) -> np.ndarray:
+        """The orientation of ``state`` as a unit quaternion ``[w, x, y, z]`` body->earth."""
+
+    def set_quat(self, state: np.ndarray, quat: np.ndarray) -> None:
+        """Overwrite the orientation in ``state`` (used by state-updating correctors)."""
+        state[:] = self.initial_state(quat)
+
+    def kernel(self) -> EstimatorKernel | None:
+        return None
+
+
+class Corrector(Plugin, ABC):
+    """Pulls the estimate towards what an aiding sensor says.
+
+    ``mode = "rate"``: returns a correction rate fed into the next propagation (Mahony/GST
+    style). ``mode = "state"``: updates the estimator state directly (gradient step, DCM column
+    replacement) and returns ``Correction(None, flags)``.
+    """
+
+    kind: ClassVar[str] = "corrector"
+    mode: ClassVar[Literal["rate", "state"]] = "rate"
+
+    def initial_state(self, dt: float) -> np.ndarray:
+        """The corrector's own state (empty by default); ``dt`` is the nominal sample interval."""
+        return np.zeros(0)
+
+    @abstractmethod
+    def correct(self, estimator: Estimator, est_state: np.ndarray, state: np.ndarray, sample: Sample,
+                flags: int) -> Correction:
+        """Correct after the propagation of ``sample``; ``flags`` are the sample's flags so far."""
+
+
+@dataclass
+class DetectionResult:
+    """A detector run over a recording: per-sample ``criteria`` bitmask (0 = quiet), ``fired``
+    (``criteria != 0``), ``onset_index`` (the first firing sample, None if never), the names of
+    the criteria bits, and the backend that ran."""
+
+    criteria: np.ndarray
+    onset_index: int | None
+    criteria_names: tuple[str, ...]
+    backend: str = "reference"
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def fired(self) -> np.ndarray:
+        return self.criteria != 0
+
+    def which(self, i: int) -> list[str]:
+        """Names of the criteria that fired on sample ``i``."""
+        c = int(self.criteria[i])
+        return [n for b, n in enumerate(self.criteria_names) if c & (1 << b)]
+
+
+class Detector(Plugin, ABC):
+    """Turns the sensor stream into events; never changes the orientation state.
+
+    ``step`` returns a criteria bitmask (bit ``b`` = ``criteria_names[b]``); a nonzero value
+    sets ``flag`` on the sample, and the pipeline reacts (e.g. MOTION ends the alignment).
+    """
+
+    kind: ClassVar[str] = "detector"
+    flag: ClassVar[Flag] = Flag.NONE
+    criteria_names: ClassVar[tuple[str, ...]] = ()
+
+    @abstractmethod
+    def initial_state(self, dt: float) -> np.ndarray:
+        """A fresh state; ``dt`` is the nominal sample interval (sizes the windows)."""
+
+    @abstractmethod
+    def step(self, state: np.ndarray, sample: Sample) -> int:
+        """Process one sample (gyr and acc valid), return its criteria bitmask."""
+
+    def kernel(self) -> DetectorKernel | None:
+        return None
+
+    def run(self, rec, *, nan_policy: str = "raise", backend: str = "auto") -> DetectionResult:
+        """Run over a :class:`~fusionkit.types.Recording`; samples with a non-finite gyr or acc
+        raise (``nan_policy="raise"``) or are skipped with criteria 0 (``"skip"``)."""
+        from .pipeline import run_detector
+
+        return run_detector(self, rec, nan_policy=nan_policy, backend=backend)
+
+
+class Filter(Plugin, ABC):
+    """A complete algorithm users pick by name.
+
+    ``run(rec)`` processes a recording; ``update(gyr, acc, mag, dt)`` processes one sample of a
+    stream and gives the same numbers; ``state`` / ``set_state`` copy and restore the full state.
+    """
+
+    kind: ClassVar[str] = "filter"
+
+    @abstractmethod
+    def run(self, rec, *, backend: str = "auto", progress: bool | None = None):
+        """Process a whole recording; returns a :class:`~fusionkit.types.Result`."""
+
+    @abstractmethod
+    def reset(self) -> None:
+        """Forget the streaming state."""
+
+    @abstractmethod
+    def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
+        """Process one sample, return the orientation quaternion after it."""

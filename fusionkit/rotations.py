@@ -1,0 +1,180 @@
+"""Quaternion, rotation-matrix and rotation-vector math: the readable reference.
+
+Conventions (see :mod:`fusionkit.conventions`): quaternions are ``[w, x, y, z]``, Hamilton
+product, and a quaternion ``q`` rotates body-frame vectors into the earth frame,
+``v_earth = q (x) v_body (x) q*``, so ``quat_to_matrix(q) @ v_body == v_earth``. Matrices act on
+column vectors. Every function accepts a single item (``(4,)``, ``(3,)``, ``(3, 3)``) or a stack
+(``(N, 4)``, ...) and broadcasts like numpy.
+
+The numba kernels in :mod:`fusionkit._kernels` implement the same operations on scalars; the
+tests compare the two.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "quat_mul",
+    "quat_conj",
+    "quat_normalize",
+    "quat_from_rotvec",
+    "quat_to_rotvec",
+    "quat_from_axis_angle",
+    "quat_to_matrix",
+    "matrix_to_quat",
+    "quat_rotate",
+    "quat_angle",
+    "small_rotation_quat",
+    "skew",
+    "rodrigues",
+    "orthonormalize",
+]
+
+_SMALL = 1e-8  # below this rotation angle (rad) the Taylor branches are exact to double precision
+
+
+def quat_mul(p, q):
+    """Hamilton product ``p (x) q`` (source 000, "quaternion operations")."""
+    p = np.asarray(p, dtype=float)
+    q = np.asarray(q, dtype=float)
+    p0, p1, p2, p3 = np.moveaxis(p, -1, 0)
+    q0, q1, q2, q3 = np.moveaxis(q, -1, 0)
+    return np.stack(
+        [
+            p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3,
+            p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2,
+            p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1,
+            p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conj(q):
+    """Conjugate ``[w, -x, -y, -z]`` (the inverse of a unit quaternion)."""
+    q = np.asarray(q, dtype=float)
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_normalize(q):
+    """Scale to unit norm."""
+    q = np.asarray(q, dtype=float)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def quat_from_axis_angle(axis, angle):
+    """Quaternion of a rotation by ``angle`` (rad) about the unit vector ``axis``."""
+    axis = np.asarray(axis, dtype=float)
+    angle = np.asarray(angle, dtype=float)
+    axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+    half = 0.5 * angle[..., None]
+    return np.concatenate([np.cos(half), np.sin(half) * axis], axis=-1)
+
+
+def quat_from_rotvec(rv):
+    """Exact quaternion of the rotation vector ``rv`` (axis times angle, rad)."""
+    rv = np.asarray(rv, dtype=float)
+    angle = np.linalg.norm(rv, axis=-1, keepdims=True)
+    small = angle < _SMALL
+    safe = np.where(small, 1.0, angle)
+    # sin(a/2)/a, with its Taylor series 1/2 - a^2/48 for tiny angles
+    k = np.where(small, 0.5 - angle**2 / 48.0, np.sin(0.5 * safe) / safe)
+    return np.concatenate([np.cos(0.5 * angle), k * rv], axis=-1)
+
+
+def quat_to_rotvec(q):
+    """Rotation vector (axis times angle in [0, pi]) of a unit quaternion."""
+    q = np.asarray(q, dtype=float)
+    q = np.where(q[..., :1] < 0, -q, q)  # the shorter of q and -q
+    v = q[..., 1:]
+    s = np.linalg.norm(v, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, q[..., :1])
+    small = s < _SMALL
+    k = np.where(small, 2.0 / np.where(small, q[..., :1], 1.0), angle / np.where(small, 1.0, s))
+    return k * v
+
+
+def small_rotation_quat(rv):
+    """Source 000's first-order small-rotation quaternion ``[1, rv/2]`` (not normalised)."""
+    rv = np.asarray(rv, dtype=float)
+    return np.concatenate([np.ones(rv.shape[:-1] + (1,)), 0.5 * rv], axis=-1)
+
+
+def quat_to_matrix(q):
+    """Rotation matrix of a unit quaternion: ``quat_to_matrix(q) @ v_body == v_earth``."""
+    q = np.asarray(q, dtype=float)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+def matrix_to_quat(m):
+    """Unit quaternion (with ``w >= 0``) of a rotation matrix, Shepperd's method."""
+    m = np.asarray(m, dtype=float)
+    single = m.ndim == 2
+    m = m.reshape(-1, 3, 3)
+    out = np.empty((m.shape[0], 4))
+    for i, r in enumerate(m):
+        tr = r[0, 0] + r[1, 1] + r[2, 2]
+        if tr >= max(r[0, 0], r[1, 1], r[2, 2]):
+            s = 2.0 * np.sqrt(1.0 + tr)
+            out[i] = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
+        elif r[0, 0] >= r[1, 1] and r[0, 0] >= r[2, 2]:
+            s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+            out[i] = [(r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s]
+        elif r[1, 1] >= r[2, 2]:
+            s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
+            out[i] = [(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s]
+        else:
+            s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
+            out[i] = [(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s]
+    out = np.where(out[:, :1] < 0, -out, out)
+    out /= np.linalg.norm(out, axis=-1, keepdims=True)
+    return out[0] if single else out.reshape(m.shape[:-2] + (4,))
+
+
+def quat_rotate(q, v):
+    """Rotate body vectors ``v`` into the earth frame: ``q (x) v (x) q*``."""
+    return np.einsum("...ij,...j->...i", quat_to_matrix(q), np.asarray(v, dtype=float))
+
+
+def quat_angle(p, q):
+    """Rotation angle (rad, in [0, pi]) between two orientations."""
+    d = np.abs(np.sum(quat_normalize(p) * quat_normalize(q), axis=-1))
+    return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
+
+
+def skew(v):
+    """Skew-symmetric matrix ``[v x]`` with ``skew(a) @ b == cross(a, b)``."""
+    v = np.asarray(v, dtype=float)
+    z = np.zeros(v.shape[:-1])
+    x, y, w = np.moveaxis(v, -1, 0)
+    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
+
+
+def rodrigues(rv):
+    """Source 004's exact DCM increment ``I + sin(s)/s B + (1 - cos(s))/s^2 B^2``, ``B = [rv x]``.
+
+    ``s = |rv|``; for tiny ``s`` the Taylor series of both coefficients is used.
+    """
+    rv = np.asarray(rv, dtype=float)
+    s = np.linalg.norm(rv, axis=-1)[..., None, None]
+    small = s < 1e-4
+    safe = np.where(small, 1.0, s)
+    a = np.where(small, 1.0 - s**2 / 6.0 + s**4 / 120.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - s**2 / 24.0 + s**4 / 720.0, (1.0 - np.cos(safe)) / safe**2)
+    bm = skew(rv)
+    return np.eye(3) + a * bm + b * (bm @ bm)
+
+
+def orthonormalize(c):
+    """One symmetric (Bjorck) step ``C <- C - C (C^T C - I) / 2`` towards the nearest rotation."""
+    c = np.asarray(c, dtype=float)
+    return c - 0.5 * c @ (np.swapaxes(c, -1, -2) @ c - np.eye(3))

@@ -1,0 +1,235 @@
+"""Data types: :class:`Recording` (input), :class:`Gnss` (aiding stream), :class:`Result` (output)
+and the per-sample :class:`Flag` bitmask."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .conventions import DEFAULT_FRAME, change_frame, check_frame, quat_to_euler, to_scipy
+from .errors import InputError
+from .validation import as_vectors, check_positive, check_time
+
+
+class Flag(enum.IntFlag):
+    """Per-sample flags of a :class:`Result` (a bitmask, ``Result.flags`` is ``uint32``).
+
+    Each bit says why a sample was treated specially; ``Result.flag_names(i)`` spells them out.
+    """
+
+    NONE = 0
+    ALIGNING = 1 << 0  #: initial alignment still running: output is the alignment attitude
+    MOTION = 1 << 1  #: the motion detector fires on this sample
+    GYR_INVALID = 1 << 2  #: gyroscope sample not finite: state held, not propagated
+    ACC_INVALID = 1 << 3  #: accelerometer sample not finite or zero: its correction skipped
+    MAG_INVALID = 1 << 4  #: magnetometer sample not finite or zero: its correction skipped
+    GYR_SATURATED = 1 << 5  #: a gyroscope axis at or above the configured range
+    ACC_SATURATED = 1 << 6  #: an accelerometer axis at or above the configured range
+    REST = 1 << 7  #: a rest detector says the sensor is still
+    MAG_DISTURBED = 1 << 8  #: a magnetic disturbance detector rejects the magnetometer
+    ACC_REJECTED = 1 << 9  #: accelerometer correction rejected (dynamic acceleration)
+    GNSS_GAP = 1 << 10  #: no usable GNSS on this sample
+
+
+def flag_names(value: int) -> list[str]:
+    """Names of the :class:`Flag` bits set in ``value``."""
+    return [f.name for f in Flag if f.value and (int(value) & f.value)]
+
+
+_GYR_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
+_ACC_UNITS = {"m/s^2": 1.0, "g": 9.80665}
+
+
+@dataclass
+class Gnss:
+    """A GNSS stream at its own rate: time (s, IMU clock), velocity (m/s) in ``frame``, validity.
+
+    Epochs with ``valid == False`` or a non-finite velocity are gaps, not errors.
+    """
+
+    t: np.ndarray
+    vel: np.ndarray
+    valid: np.ndarray | None = None
+    frame: str = "NED"
+    pos: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        self.vel = as_vectors("gnss.vel", self.vel)
+        n = self.vel.shape[0]
+        self.t = check_time(self.t, n)
+        check_frame(self.frame)
+        valid = np.ones(n, bool) if self.valid is None else np.asarray(self.valid).astype(bool).reshape(-1)
+        if valid.shape[0] != n:
+            raise InputError(f"gnss.valid has {valid.shape[0]} epochs but gnss.vel has {n}")
+        self.valid = valid & np.isfinite(self.vel).all(axis=1)
+        if self.pos is not None:
+            self.pos = as_vectors("gnss.pos", self.pos, n)
+
+
+@dataclass
+class Recording:
+    """One IMU recording.
+
+    Parameters
+    ----------
+    gyr : (N, 3) angular rate, rad/s (or ``gyr_unit="deg/s"``).
+    acc : (N, 3) specific force, m/s^2 (or ``acc_unit="g"``); about +g on "up" at rest.
+    mag : (N, 3) magnetic field in any unit, optional.
+    rate : sampling rate in Hz, or
+    t : (N,) timestamps in s, strictly increasing (one of the two is required).
+    gnss : optional :class:`Gnss` stream.
+    truth : optional (N, 4) reference orientation, body -> ``truth_frame``, ``[w, x, y, z]``.
+    movement : optional (N,) bool mask of the samples the metrics are computed on.
+    name, meta : free description.
+
+    Values are converted to the library's units on construction; a unit mistake that is
+    obvious from the data (an accelerometer reading in g, a gyroscope in deg/s) raises
+    :class:`InputError` naming the argument to pass. Non-finite samples are kept: each filter
+    handles them by its ``nan_policy``.
+    """
+
+    gyr: np.ndarray
+    acc: np.ndarray
+    mag: np.ndarray | None = None
+    rate: float | None = None
+    t: np.ndarray | None = None
+    gnss: Gnss | None = None
+    truth: np.ndarray | None = None
+    truth_frame: str = DEFAULT_FRAME
+    movement: np.ndarray | None = None
+    name: str = ""
+    meta: dict[str, Any] = field(default_factory=dict)
+    gyr_unit: str = "rad/s"
+    acc_unit: str = "m/s^2"
+
+    def __post_init__(self) -> None:
+        self.gyr = as_vectors("gyr", self.gyr)
+        n = self.gyr.shape[0]
+        if n == 0:
+            raise InputError("gyr is empty: a recording needs at least one sample")
+        self.acc = as_vectors("acc", self.acc, n)
+        if self.mag is not None:
+            self.mag = as_vectors("mag", self.mag, n)
+        if self.gyr_unit not in _GYR_UNITS:
+            raise InputError(f"gyr_unit must be one of {list(_GYR_UNITS)}, got {self.gyr_unit!r}")
+        if self.acc_unit not in _ACC_UNITS:
+            raise InputError(f"acc_unit must be one of {list(_ACC_UNITS)}, got {self.acc_unit!r}")
+        self.gyr = self.gyr * _GYR_UNITS[self.gyr_unit]
+        self.acc = self.acc * _ACC_UNITS[self.acc_unit]
+        self.gyr_unit, self.acc_unit = "rad/s", "m/s^2"
+        self._check_units()
+        if (self.rate is None) == (self.t is None):
+            raise InputError("give exactly one of rate= (Hz) or t= (timestamps in s)")
+        if self.rate is not None:
+            self.rate = check_positive("rate", self.rate)
+        else:
+            self.t = check_time(self.t, n)
+        if self.truth is not None:
+            self.truth = as_vectors("truth", self.truth, n, width=4)
+            check_frame(self.truth_frame)
+        if self.movement is not None:
+            self.movement = np.asarray(self.movement).astype(bool).reshape(-1)
+            if self.movement.shape[0] != n:
+                raise InputError(f"movement has {self.movement.shape[0]} samples but gyr has {n}")
+
+    def _check_units(self) -> None:
+        norm = np.linalg.norm(self.acc, axis=1)
+        norm = norm[np.isfinite(norm) & (norm > 0)]
+        if norm.size and 0.3 < np.median(norm) < 3.0:
+            raise InputError(
+                f"acc looks like it is in g (median norm {np.median(norm):.3g}); fusionkit expects "
+                "m/s^2: pass acc_unit='g' to convert"
+            )
+        w = np.abs(self.gyr[np.isfinite(self.gyr).all(axis=1)])
+        if w.size and np.median(w) > 2.0 * np.pi:
+            raise InputError(
+                f"gyr looks like it is in deg/s (median |component| {np.median(w):.3g} > 2 pi rad/s); "
+                "fusionkit expects rad/s: pass gyr_unit='deg/s' to convert"
+            )
+
+    def __len__(self) -> int:
+        return self.gyr.shape[0]
+
+    @property
+    def dt(self) -> np.ndarray:
+        """(N,) sample intervals in s: ``dt[k] = t[k] - t[k-1]`` (``dt[0] = dt[1]``).
+
+        Sample ``k``'s rate is held over the interval that ends at ``t[k]``, the way a
+        streaming filter sees it.
+        """
+        n = len(self)
+        if self.rate is not None:
+            return np.full(n, 1.0 / self.rate)
+        if n == 1:
+            return np.array([0.01])
+        d = np.diff(self.t)
+        return np.concatenate([d[:1], d])
+
+    @property
+    def nominal_dt(self) -> float:
+        """The typical sample interval in s (``1/rate``, or the median of ``dt``)."""
+        return 1.0 / self.rate if self.rate is not None else float(np.median(self.dt))
+
+    @property
+    def time(self) -> np.ndarray:
+        """(N,) sample times in s (from ``t``, or ``k / rate``)."""
+        return self.t if self.t is not None else np.arange(len(self)) / self.rate
+
+    def slice(self, start: int | None = None, stop: int | None = None) -> "Recording":
+        """A new recording of samples ``[start, stop)`` (GNSS is dropped)."""
+        s = slice(start, stop)
+        return Recording(
+            gyr=self.gyr[s], acc=self.acc[s], mag=None if self.mag is None else self.mag[s],
+            rate=self.rate, t=None if self.t is None else self.t[s],
+            truth=None if self.truth is None else self.truth[s], truth_frame=self.truth_frame,
+            movement=None if self.movement is None else self.movement[s], name=self.name,
+            meta=dict(self.meta),
+        )
+
+
+@dataclass
+class Result:
+    """Output of a filter run: one row per input sample.
+
+    ``quat`` (N, 4) ``[w, x, y, z]`` body -> ``frame``; ``flags`` (N,) ``uint32`` :class:`Flag`
+    bits; ``diagnostics`` holds the run's extras (``backend``, ``onset_index``, the gyro bias,
+    ...).
+    """
+
+    quat: np.ndarray
+    flags: np.ndarray
+    frame: str = DEFAULT_FRAME
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return self.quat.shape[0]
+
+    def euler(self, frame: str | None = None) -> np.ndarray:
+        """(N, 3) heading, pitch, roll in rad, in ``frame``'s convention (default: the result's)."""
+        frame = frame or self.frame
+        return quat_to_euler(self.to_frame(frame), frame)
+
+    def to_frame(self, frame: str) -> np.ndarray:
+        """The quaternions re-expressed body -> ``frame``."""
+        return change_frame(self.quat, self.frame, frame) if frame != self.frame else self.quat
+
+    def to_scipy(self):
+        """The orientations as one scipy ``Rotation`` (body -> ``frame``)."""
+        return to_scipy(self.quat)
+
+    def flag_names(self, i: int) -> list[str]:
+        return flag_names(int(self.flags[i]))
+
+    def to_csv(self, path, time: np.ndarray | None = None) -> None:
+        """Write ``t`` (if given), ``qw, qx, qy, qz``, heading/pitch/roll (deg) and ``flags``."""
+        eul = np.degrees(self.euler())
+        cols = [self.quat, eul, self.flags[:, None].astype(float)]
+        names = ["qw", "qx", "qy", "qz", "heading_deg", "pitch_deg", "roll_deg", "flags"]
+        if time is not None:
+            cols.insert(0, np.asarray(time, dtype=float)[:, None])
+            names.insert(0, "t")
+        fmt = ["%.9g"] * (len(names) - 1) + ["%d"]
+        np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt=fmt)
