@@ -40,6 +40,7 @@ __all__ = [
     "Recording",
     "Result",
     "available",
+    "compose",
     "conventions",
     "default_registry",
     "describe",
@@ -47,7 +48,6 @@ __all__ = [
     "load",
     "load_config",
     "make",
-    "pipeline",
     "register",
     "rotations",
     "sim",
@@ -55,7 +55,7 @@ __all__ = [
 ]
 
 
-def pipeline(config) -> Filter:
+def compose(config) -> Filter:
     """Build a :class:`~fusionkit.pipeline.Pipeline` from a dict, a JSON/TOML file or string."""
     from .pipeline import Pipeline
 

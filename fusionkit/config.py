@@ -188,12 +188,22 @@ def load_config(source: Any) -> dict[str, Any]:
         raise ConfigError(f"config is not valid TOML: {exc}") from None
 
 
+_OPS = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}
+
+
+def _constraint_text(m: Any) -> str:
+    for attr, op in _OPS.items():
+        if getattr(m, attr, None) is not None:
+            return f"{op} {getattr(m, attr)}"
+    return str(m)
+
+
 def describe_config(cls: type[PluginConfig]) -> list[dict[str, Any]]:
     """One dict per field: name, default, unit, description, constraints."""
     rows = []
     for name, f in cls.model_fields.items():
         extra = f.json_schema_extra if isinstance(f.json_schema_extra, dict) else {}
-        constraints = [str(m) for m in f.metadata]
+        constraints = [_constraint_text(m) for m in f.metadata]
         default = f.default
         if isinstance(default, BaseModel):
             default = default.model_dump()

@@ -42,7 +42,7 @@ from .navigation.alignment import alignment_quat
 from .protocols import Detector, DetectionResult, Filter, Sample
 from .registry import Registry, default_registry
 from .types import Flag, Recording, Result
-from .validation import as_vector, check_finite, check_positive
+from .validation import as_vector, check_finite_all, check_positive
 
 __all__ = ["Pipeline", "run_detector"]
 
@@ -98,7 +98,7 @@ class Pipeline(Filter):
             "dt": float(dt),
             "x": self.estimator.initial_state(q0),
             "det": [d.initial_state(dt) for d in self.detectors],
-            "cor": [c.initial_state(dt) for c in self.correctors],
+            "cor": [c.initial_state(dt, self.spec.frame) for c in self.correctors],
             "align": al,
         }
 
@@ -252,12 +252,8 @@ class Pipeline(Filter):
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         n = len(rec)
-        policy = self.spec.nan_policy
-        check_finite("gyr", rec.gyr, policy)
-        check_finite("acc", rec.acc, policy)
+        check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}, self.spec.nan_policy)
         has_mag = rec.mag is not None
-        if has_mag:
-            check_finite("mag", rec.mag, policy)
         if self.spec.alignment.heading == "magnetometer" and not has_mag:
             raise InputError("alignment heading='magnetometer' needs mag in the recording")
         kernels = self._kernels()
@@ -476,7 +472,8 @@ def run_detector(det: Detector, rec: Recording, *, nan_policy: str = "raise", ba
     """Run one detector over a recording (see :meth:`Detector.run`)."""
     if not isinstance(rec, Recording):
         raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
-    ok = check_finite("gyr", rec.gyr, nan_policy) & check_finite("acc", rec.acc, nan_policy)
+    check_finite_all({"gyr": rec.gyr, "acc": rec.acc}, nan_policy)
+    ok = np.isfinite(rec.gyr).all(axis=1) & np.isfinite(rec.acc).all(axis=1)
     ok &= np.any(rec.acc != 0.0, axis=1)
     kernel = det.kernel()
     used = resolve_backend(backend, kernel is not None)

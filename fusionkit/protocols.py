@@ -130,8 +130,9 @@ class Corrector(Plugin, ABC):
     kind: ClassVar[str] = "corrector"
     mode: ClassVar[Literal["rate", "state"]] = "rate"
 
-    def initial_state(self, dt: float) -> np.ndarray:
-        """The corrector's own state (empty by default); ``dt`` is the nominal sample interval."""
+    def initial_state(self, dt: float, frame: str) -> np.ndarray:
+        """The corrector's own state (empty by default); ``dt`` is the nominal sample interval,
+        ``frame`` the pipeline's earth frame (for its reference vectors)."""
         return np.zeros(0)
 
     @abstractmethod

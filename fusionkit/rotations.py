@@ -146,9 +146,13 @@ def quat_rotate(q, v):
 
 
 def quat_angle(p, q):
-    """Rotation angle (rad, in [0, pi]) between two orientations."""
-    d = np.abs(np.sum(quat_normalize(p) * quat_normalize(q), axis=-1))
-    return 2.0 * np.arccos(np.clip(d, 0.0, 1.0))
+    """Rotation angle (rad, in [0, pi]) between two orientations.
+
+    ``2 atan2(|vec(e)|, |w(e)|)`` of ``e = p* (x) q``: accurate for tiny angles, where
+    ``2 acos(|p.q|)`` loses half the digits.
+    """
+    e = quat_mul(quat_conj(quat_normalize(p)), quat_normalize(q))
+    return 2.0 * np.arctan2(np.linalg.norm(e[..., 1:], axis=-1), np.abs(e[..., 0]))
 
 
 def skew(v):

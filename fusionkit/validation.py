@@ -54,6 +54,20 @@ def check_finite(name: str, x: np.ndarray, policy: str) -> np.ndarray:
     return ok
 
 
+def check_finite_all(arrays: dict, policy: str) -> None:
+    """Like :func:`check_finite` for several sensors; ``"raise"`` names the earliest bad sample."""
+    bad = []
+    for name, x in arrays.items():
+        if x is None:
+            continue
+        ok = check_finite(name, x, "skip" if policy == "raise" else policy)
+        if not ok.all():
+            bad.append((int(np.argmin(ok)), name, x))
+    if policy == "raise" and bad:
+        _, name, x = min(bad, key=lambda b: b[0])
+        check_finite(name, x, "raise")
+
+
 def check_time(t, n: int) -> np.ndarray:
     """Timestamps as float64 ``(n,)``, finite and strictly increasing."""
     t = np.asarray(t, dtype=np.float64).reshape(-1)

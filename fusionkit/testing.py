@@ -1,0 +1,193 @@
+"""Contract checks for plugin authors: ``fusionkit.testing.check_plugin(MyPlugin)`` in one test.
+
+Each check raises ``AssertionError`` with a message saying which rule broke. They run on a
+seeded simulated recording (:mod:`fusionkit.sim`) and take a few seconds.
+
+Rules for every plugin: a name and a kind, a ``Config`` that rejects unknown keys and documents
+every field (description and unit), default construction works. Filters: one unit quaternion
+per input sample, ``run`` equals a loop of ``update``, a run split in two with the state carried
+over equals one run, a NaN sample raises ``InputError`` naming it (``nan_policy="raise"``) or
+is held and flagged (``"skip"``), a wrong shape raises ``InputError``, and the numba backend
+(when the filter has one) matches the reference to 1e-9. Estimators: the state round-trips a
+quaternion and the kernel matches the reference. Detectors: one criteria value per sample and
+kernel == reference. Correctors: they run inside a pipeline with finite unit output.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import numpy as np
+
+from ._numba import HAVE_NUMBA
+from .config import PluginConfig
+from .errors import ConfigError, InputError
+from .protocols import KINDS, Corrector, Detector, Estimator, Filter, Plugin, Sample
+from .registry import default_registry
+from .types import Flag, Recording
+
+__all__ = ["check_plugin", "contract_recording"]
+
+TOL = 1e-9
+
+
+def contract_recording(seed: int = 0, rate: float = 100.0) -> Recording:
+    """A short seeded recording: 3 s rest, rotations about three axes, a translation, rest."""
+    from . import sim
+
+    segs = [sim.Rest(3.0), sim.Rotate((0, 0, 1), 1.2, 1.0), sim.Rotate((1, 0, 0), -0.7, 0.8),
+            sim.Translate((1, 1, 0), 0.3, 1.0), sim.Rotate((0, 1, 0), 0.9, 0.7), sim.Rest(0.5)]
+    return sim.simulate(segs, rate=rate, noise=sim.Noise.mems(), seed=seed, name="contract")
+
+
+def _resolve(plugin) -> type[Plugin]:
+    if isinstance(plugin, str):
+        return default_registry().get(plugin)
+    if isinstance(plugin, Plugin):
+        return type(plugin)
+    return plugin
+
+
+def check_plugin(plugin, params: dict[str, Any] | None = None, rec: Recording | None = None) -> None:
+    """Check a plugin class (or registered name) against its kind's contract."""
+    cls = _resolve(plugin)
+    params = params or {}
+    _check_common(cls, params)
+    rec = rec or contract_recording()
+    if issubclass(cls, Filter):
+        _check_filter(cls, params, rec)
+    elif issubclass(cls, Estimator):
+        _check_estimator(cls(**params))
+    elif issubclass(cls, Detector):
+        _check_detector(cls(**params), rec)
+    elif issubclass(cls, Corrector):
+        _check_corrector(cls, params, rec)
+
+
+def _check_common(cls, params) -> None:
+    assert isinstance(cls, type) and issubclass(cls, Plugin), f"{cls!r} is not a fusionkit Plugin subclass"
+    assert cls.name, f"{cls.__name__} has no name"
+    assert cls.kind in KINDS, f"{cls.__name__}.kind must be one of {KINDS}, got {cls.kind!r}"
+    assert issubclass(cls.Config, PluginConfig), f"{cls.__name__}.Config must subclass PluginConfig"
+    for fname, f in cls.Config.model_fields.items():
+        assert f.description, f"{cls.name}: config field {fname!r} has no description"
+        extra = f.json_schema_extra if isinstance(f.json_schema_extra, dict) else {}
+        assert "unit" in extra, f"{cls.name}: config field {fname!r} has no unit (use fusionkit.config.param)"
+    try:
+        cls(**params, no_such_parameter_xyz=1)
+    except ConfigError as exc:
+        assert "no_such_parameter_xyz" in str(exc), f"{cls.name}: the error does not name the unknown key: {exc}"
+    else:
+        raise AssertionError(f"{cls.name}: an unknown parameter was accepted")
+    cls(**params)
+
+
+def _assert_unit_quats(name, q, n) -> None:
+    assert q.shape == (n, 4), f"{name}: quat has shape {q.shape}, expected ({n}, 4)"
+    assert np.isfinite(q).all(), f"{name}: non-finite quaternion at sample {int(np.argmin(np.isfinite(q).all(1)))}"
+    err = np.abs(np.linalg.norm(q, axis=1) - 1.0).max()
+    assert err < 1e-6, f"{name}: quaternions are not unit norm (max deviation {err:.2e})"
+
+
+def _check_filter(cls, params, rec) -> None:
+    n = len(rec)
+    f = cls(**params)
+    res = f.run(rec, backend="reference")
+    _assert_unit_quats(cls.name, res.quat, n)
+    assert res.flags.shape == (n,), f"{cls.name}: flags has shape {res.flags.shape}, expected ({n},)"
+
+    # run == a loop of update
+    g = cls(**params)
+    dt = rec.dt
+    mag = rec.mag
+    streamed = np.array([g.update(rec.gyr[k], rec.acc[k], None if mag is None else mag[k], dt[k]) for k in range(n)])
+    d = np.abs(streamed - res.quat).max()
+    assert d < TOL, f"{cls.name}: run() and a loop of update() differ by {d:.2e}"
+
+    # split run with the state carried over == one run
+    if "state" in f.run.__code__.co_varnames:
+        h = n // 2
+        first = f.run(rec.slice(0, h), backend="reference")
+        second = f.run(rec.slice(h, None), backend="reference", state=first.diagnostics["state"])
+        d = np.abs(np.vstack([first.quat, second.quat]) - res.quat).max()
+        assert d < TOL, f"{cls.name}: a split run differs from one run by {d:.2e}"
+
+    # numba == reference, on every sample
+    if HAVE_NUMBA:
+        try:
+            fast = f.run(rec, backend="numba")
+        except ConfigError:
+            fast = None  # the filter has no kernel
+        if fast is not None:
+            d = np.abs(fast.quat - res.quat).max()
+            assert d < TOL, f"{cls.name}: numba and reference differ by {d:.2e}"
+            assert np.array_equal(fast.flags, res.flags), f"{cls.name}: numba and reference flags differ"
+
+    # bad input
+    bad = rec.acc.copy()
+    bad[77] = np.nan
+    nan_rec = Recording(gyr=rec.gyr, acc=bad, mag=rec.mag, rate=rec.rate, t=rec.t)
+    if "nan_policy" in cls.Config.model_fields:
+        try:
+            cls(**{**params, "nan_policy": "raise"}).run(nan_rec)
+        except InputError as exc:
+            assert re.search(r"acc\[77\]", str(exc)), f"{cls.name}: the NaN error does not name acc[77]: {exc}"
+        else:
+            raise AssertionError(f"{cls.name}: a NaN sample did not raise with nan_policy='raise'")
+        out = cls(**{**params, "nan_policy": "skip"}).run(nan_rec)
+        _assert_unit_quats(cls.name + " (nan_policy='skip')", out.quat, n)
+        assert out.flags[77] & Flag.ACC_INVALID, f"{cls.name}: the NaN sample was not flagged ACC_INVALID"
+    try:
+        f.run("not a recording")  # type: ignore[arg-type]
+    except InputError:
+        pass
+    else:
+        raise AssertionError(f"{cls.name}: run() accepted a str instead of a Recording")
+    try:
+        f.update(np.zeros(2), np.zeros(3), None, 0.01)
+    except InputError as exc:
+        assert "(3,)" in str(exc), f"{cls.name}: the shape error does not state the expected shape: {exc}"
+    else:
+        raise AssertionError(f"{cls.name}: update() accepted a gyr of shape (2,)")
+
+
+def _check_estimator(est: Estimator) -> None:
+    rng = np.random.default_rng(1)
+    q0 = rng.normal(size=4)
+    q0 /= np.linalg.norm(q0)
+    x = est.initial_state(q0)
+    q = est.quat(x)
+    assert min(np.abs(q - q0).max(), np.abs(q + q0).max()) < 1e-12, f"{est.name}: state does not round-trip {q0}"
+    k = est.kernel()
+    y = x.copy()
+    out = np.empty(4)
+    for _ in range(500):
+        w = rng.normal(scale=2.0, size=3)
+        est.propagate(x, w, 0.01)
+        if k is not None and HAVE_NUMBA:
+            k.propagate(y, w[0], w[1], w[2], 0.01, k.params)
+    if k is not None and HAVE_NUMBA:
+        k.to_quat(y, out)
+        d = np.abs(out - est.quat(x)).max()
+        assert d < TOL, f"{est.name}: kernel and reference differ by {d:.2e}"
+
+
+def _check_detector(det: Detector, rec: Recording) -> None:
+    ref = det.run(rec, backend="reference")
+    assert ref.criteria.shape == (len(rec),), f"{det.name}: criteria has shape {ref.criteria.shape}"
+    if det.kernel() is not None and HAVE_NUMBA:
+        fast = det.run(rec, backend="numba")
+        assert np.array_equal(fast.criteria, ref.criteria), f"{det.name}: kernel and reference criteria differ"
+    s = det.initial_state(rec.nominal_dt)
+    bits = det.step(s, Sample(rec.gyr[0], rec.acc[0], None, rec.nominal_dt))
+    assert isinstance(bits, (int, np.integer)), f"{det.name}: step() must return an int bitmask"
+
+
+def _check_corrector(cls, params, rec) -> None:
+    from .pipeline import Pipeline
+
+    p = Pipeline({"estimator": "poisson-quat", "correctors": [{"name": cls.name, "params": params}],
+                  "alignment": {"mode": "fixed", "duration": 1.0}})
+    res = p.run(rec, backend="reference")
+    _assert_unit_quats(cls.name + " in a pipeline", res.quat, len(rec))

@@ -1,0 +1,72 @@
+import numpy as np
+import pytest
+
+from fusionkit import conventions as cv
+from fusionkit.navigation.alignment import alignment_angles, alignment_quat
+from fusionkit.rotations import quat_to_matrix
+
+G = cv.GRAVITY
+
+
+def still_specific_force(psi, theta, gamma):
+    """f_r = -L g_e with g_e = [0, -g, 0] in source 000's N-Up-E frame (eq. 1)."""
+    return cv.source000_matrix(psi, theta, gamma) @ np.array([0.0, G, 0.0])
+
+
+@pytest.mark.parametrize("gamma_deg", [30.0, 120.0, -150.0, -60.0, 0.0, 180.0])
+@pytest.mark.parametrize("theta_deg", [-70.0, -10.0, 0.0, 25.0, 80.0])
+def test_round_trip_all_roll_quadrants(gamma_deg, theta_deg):
+    theta, gamma = np.radians(theta_deg), np.radians(gamma_deg)
+    f = still_specific_force(0.7, theta, gamma)  # the heading does not matter for f... except through L
+    f0 = still_specific_force(0.0, theta, gamma)
+    np.testing.assert_allclose(f, f0, atol=1e-12)  # f is heading-invariant
+    th, ga = alignment_angles(f)
+    assert th == pytest.approx(theta, abs=1e-12)
+    assert np.angle(np.exp(1j * (ga - gamma))) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_printed_roll_formula_has_the_wrong_sign():
+    """The document's gamma = atan(f3/f2) returns -gamma: the sign of f3 contradicts matrix (1)."""
+    f = still_specific_force(0.0, 0.1, np.radians(30.0))
+    assert np.arctan(f[2] / f[1]) == pytest.approx(-np.radians(30.0))
+    assert alignment_angles(f)[1] == pytest.approx(np.radians(30.0))
+
+
+@pytest.mark.parametrize("frame", cv.FRAMES)
+def test_alignment_quat_explains_the_specific_force(frame):
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        f = rng.normal(size=3)
+        f *= 9.81 / np.linalg.norm(f)
+        q = alignment_quat(f, frame=frame)
+        # at rest R(q) f points up with magnitude |f|
+        np.testing.assert_allclose(quat_to_matrix(q) @ f, 9.81 * cv.up_vector(frame), atol=1e-9)
+
+
+@pytest.mark.parametrize("frame", ["ENU", "NED"])
+def test_magnetometer_heading(frame):
+    rng = np.random.default_rng(2)
+    m_enu = np.array([0.0, 18.964, -46.962])  # north and down
+    for _ in range(10):
+        q_true = cv.euler_to_quat(rng.uniform(-3, 3), rng.uniform(-1, 1), rng.uniform(-3, 3), "ENU")
+        r = quat_to_matrix(q_true)
+        f, m = r.T @ [0, 0, 9.81], r.T @ m_enu
+        q = alignment_quat(f, m, frame="ENU")
+        np.testing.assert_allclose(quat_to_matrix(q) @ m, m_enu, atol=1e-9)  # full attitude recovered
+        if frame == "NED":
+            q2 = alignment_quat(f, m, frame="NED")
+            np.testing.assert_allclose(q2, cv.change_frame(q, "ENU", "NED") * np.sign(q2[0] * cv.change_frame(q, "ENU", "NED")[0]), atol=1e-9)
+
+
+def test_kernel_matches_reference():
+    from fusionkit._kernels import alignment_quat as kq
+
+    rng = np.random.default_rng(9)
+    out = np.empty(4)
+    for frame in cv.FRAMES:
+        q_frame = cv.change_frame(np.array([1.0, 0, 0, 0]), "NUE", frame)
+        for use_mag in (0, 1):
+            f, m = rng.normal(size=3) * 5, rng.normal(size=3)
+            kq(*f, *m, use_mag, q_frame, out)
+            ref = alignment_quat(f, m if use_mag else None, frame)
+            assert min(np.abs(out - ref).max(), np.abs(out + ref).max()) < 1e-12

@@ -1,0 +1,46 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+from fusionkit.cli import main
+
+
+def test_list_and_describe(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    assert "filter     poisson" in out and "detector   motion" in out
+    assert main(["describe", "poisson"]) == 0
+    assert "alignment_duration = 10.0 [s]" in capsys.readouterr().out
+    assert main(["describe", "nope"]) == 2
+    assert "unknown plugin 'nope'" in capsys.readouterr().err
+
+
+def test_run_on_a_simulated_recording(tmp_path, capsys):
+    out = tmp_path / "o.csv"
+    assert main(["run", "poisson", "sim:slow-rotation", "-o", str(out), "--param", "step=exact",
+                 "--param", "motion.window=0.2"]) == 0
+    text = capsys.readouterr().out
+    assert "samples/s" in text and "RMS error vs truth" in text
+    data = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert data.shape[1] == 9 and np.isfinite(data).all()
+
+
+def test_run_with_a_config_file_and_bad_input(tmp_path, capsys):
+    cfg = tmp_path / "p.json"
+    cfg.write_text(json.dumps({"estimator": "poisson-dcm", "alignment": {"mode": "fixed", "duration": 2.0}}))
+    assert main(["run", str(cfg), "sim:translation", "-o", str(tmp_path / "o.csv")]) == 0
+    assert main(["run", "poisson", "sim:nope", "-o", str(tmp_path / "o.csv")]) == 2
+    assert "unknown simulated recording" in capsys.readouterr().err
+    assert main(["run", "poisson", "sim:translation", "-o", str(tmp_path / "o.csv"), "--param", "step=x"]) == 2
+    assert "step" in capsys.readouterr().err
+
+
+def test_demo_runs_and_plots(tmp_path):
+    png = tmp_path / "demo.png"
+    out = subprocess.run([sys.executable, "-m", "fusionkit.cli", "demo", "--plot", str(png)], capture_output=True,
+                         text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert "poisson" in out.stdout and "slow-rotation" in out.stdout
+    assert png.stat().st_size > 10_000

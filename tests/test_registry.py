@@ -1,0 +1,162 @@
+"""Entry-point discovery, look-up errors, broken and duplicate plugins, the example package."""
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import fusionkit as fk
+from fusionkit.errors import PluginError
+from fusionkit.registry import Registry
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def fake_distribution(root: Path, name: str, entry_points: str, module: str | None = None, code: str = "") -> None:
+    """A minimal installed distribution (a dist-info folder) on ``root``."""
+    info = root / f"{name.replace('-', '_')}-0.1.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(textwrap.dedent(entry_points))
+    if module:
+        (root / f"{module}.py").write_text(textwrap.dedent(code))
+
+
+@pytest.fixture
+def on_path(tmp_path, monkeypatch):
+    monkeypatch.syspath_prepend(str(tmp_path))
+    return tmp_path
+
+
+def test_builtins_are_registered_through_entry_points():
+    av = fk.available()
+    assert {"poisson", "pipeline"} <= set(av["filters"])
+    assert {"poisson-quat", "poisson-dcm"} <= set(av["estimators"])
+    assert "motion" in av["detectors"]
+    assert fk.available("detector") == av["detectors"]
+    assert ("filter", "poisson", "fusionkit") in fk.default_registry().info()
+
+
+def test_make_resolves_filters_first_and_other_kinds_by_name():
+    assert fk.make("poisson").kind == "filter"
+    assert fk.make("motion").kind == "detector"  # unique name in another kind
+    assert fk.make("poisson-dcm", kind="estimators").kind == "estimator"
+    with pytest.raises(PluginError, match="kind must be one of"):
+        fk.make("poisson", kind="smoother")
+
+
+def test_unknown_names_list_close_matches():
+    with pytest.raises(PluginError, match="did you mean 'poisson'"):
+        fk.make("poison")
+    with pytest.raises(PluginError, match="unknown detector plugin 'moton'.*'motion'"):
+        fk.make("moton", kind="detector")
+
+
+def test_describe_lists_parameters_with_units_and_defaults():
+    info = fk.describe("motion")
+    rows = {p["name"]: p for p in info.parameters}
+    assert rows["angle_threshold"]["default"] == 0.01 and rows["angle_threshold"]["unit"] == "rad"
+    assert rows["gyr_norm_sigma"]["default"] == 20.0
+    assert "000" in info.source
+    text = str(info)
+    assert "velocity_threshold = 0.02 [m/s] (> 0)" in text
+
+
+def test_broken_plugin_is_reported_with_its_distribution_and_others_still_work(on_path):
+    fake_distribution(on_path, "fake-broken", """
+        [fusionkit.filters]
+        broken = fake_broken_mod:Nope
+        """, "fake_broken_mod", "raise ImportError('missing dependency xyz')\n")
+    reg = Registry()
+    assert "broken" in reg.names("filter")
+    with pytest.raises(PluginError, match="'broken' from distribution 'fake-broken'.*missing dependency xyz"):
+        reg.make("broken")
+    assert reg.make("poisson").name == "poisson"
+    errors = reg.check_all()
+    assert list(errors) == ["filter:broken"]
+
+
+def test_non_plugin_object_is_rejected(on_path):
+    fake_distribution(on_path, "fake-notaplugin", """
+        [fusionkit.detectors]
+        notaplugin = fake_np_mod:thing
+        """, "fake_np_mod", "thing = 42\n")
+    with pytest.raises(PluginError, match="not a fusionkit detector class"):
+        Registry().get("notaplugin", "detector")
+
+
+def test_duplicate_names_are_an_error_naming_both(on_path):
+    fake_distribution(on_path, "fake-dup", """
+        [fusionkit.filters]
+        poisson = fake_dup_mod:Other
+        """, "fake_dup_mod", "Other = None\n")
+    with pytest.raises(PluginError, match=r"duplicate filter name 'poisson'") as info:
+        Registry().names()
+    assert "fusionkit.filters.poisson:PoissonFilter from fusionkit" in str(info.value)
+    assert "fake_dup_mod:Other from fake-dup" in str(info.value)
+
+
+def test_register_in_code():
+    from fusionkit.estimators.poisson import PoissonQuat
+
+    class Mine(PoissonQuat):
+        name = "mine"
+
+    reg = Registry(use_entry_points=False)
+    reg.register(Mine)
+    assert reg.names() == ["mine"] and reg.get("mine") is Mine
+    with pytest.raises(PluginError, match="not a plugin class"):
+        reg.register(int)
+
+
+@pytest.fixture(scope="module")
+def example_plugin_installed(tmp_path_factory):
+    """pip-install examples/plugin into a temporary target folder and put it on sys.path."""
+    target = tmp_path_factory.mktemp("site")
+    cmd = [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
+           "--target", str(target), str(REPO / "examples" / "plugin")]
+    out = subprocess.run(cmd, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    sys.path.insert(0, str(target))
+    fk.default_registry().refresh()
+    yield target
+    sys.path.remove(str(target))
+    for mod in [m for m in sys.modules if m.startswith("fusionkit_example_plugin")]:
+        del sys.modules[mod]
+    fk.default_registry().refresh()
+
+
+def test_example_plugin_package_installs_and_passes_its_tests(example_plugin_installed):
+    info = {(k, n): d for k, n, d in fk.default_registry().info()}
+    assert info[("corrector", "example-tilt")] == "fusionkit-example-plugin"
+    assert info[("filter", "example-complementary")] == "fusionkit-example-plugin"
+    from fusionkit.testing import check_plugin
+
+    check_plugin("example-tilt")
+    check_plugin("example-complementary")
+    # the plugin's own test file, run as its author would
+    env_path = f"{example_plugin_installed}:{REPO}"
+    out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
+                          str(REPO / "examples" / "plugin" / "tests")], capture_output=True, text=True,
+                         env={**__import__("os").environ, "PYTHONPATH": env_path})
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "2 passed" in out.stdout
+
+
+def test_example_corrector_reduces_drift(example_plugin_installed):
+    """The third-party corrector really corrects: after a gyro bias change (after the alignment
+    estimated the bias) the tilt loop holds the inclination where gyro integration alone drifts."""
+    from fusionkit import sim
+    from fusionkit.bench.metrics import rms_errors
+
+    rec = sim.simulate([sim.Rest(2), sim.Rotate((0, 0, 1), 2.0, 10.0), sim.Rest(20)], rate=100.0,
+                       noise=sim.Noise(gyr_noise=0.002, acc_noise=0.02), seed=4)
+    bias_step = np.where(rec.time[:, None] > 2.0, [0.01, -0.01, 0.0], 0.0)
+    drifting = fk.Recording(gyr=rec.gyr + bias_step, acc=rec.acc, rate=100.0, truth=rec.truth,
+                            movement=rec.movement)
+    comp = rms_errors(fk.make("example-complementary").run(drifting), drifting)["inclination"]
+    gyro = rms_errors(fk.make("poisson", alignment="fixed", alignment_duration=1.0).run(drifting), drifting)["inclination"]
+    assert comp < 0.5 < gyro

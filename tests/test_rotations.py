@@ -1,0 +1,81 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from fusionkit import _kernels as K
+from fusionkit.rotations import (
+    matrix_to_quat, orthonormalize, quat_angle, quat_conj, quat_from_rotvec, quat_mul, quat_normalize,
+    quat_rotate, quat_to_matrix, quat_to_rotvec, rodrigues, skew, small_rotation_quat,
+)
+
+rng = np.random.default_rng(42)
+R = Rotation.random(200, random_state=7)
+Q = R.as_quat()[:, [3, 0, 1, 2]]
+
+
+def test_quat_to_matrix_matches_scipy():
+    np.testing.assert_allclose(quat_to_matrix(Q), R.as_matrix(), atol=1e-12)
+
+
+def test_matrix_to_quat_roundtrip_all_branches():
+    # include rotations near 180 deg about each axis so every Shepperd branch runs
+    extra = Rotation.from_rotvec(np.array([[3.1, 0, 0], [0, 3.1, 0], [0, 0, 3.1], [0.1, 0.2, 0.3]]))
+    for rot in (R, extra):
+        q = matrix_to_quat(rot.as_matrix())
+        assert np.all(quat_angle(q, rot.as_quat()[:, [3, 0, 1, 2]]) < 1e-7)
+        assert np.all(q[:, 0] >= 0)
+
+
+def test_hamilton_product_composes_like_matrices():
+    a, b = Q[:100], Q[100:]
+    np.testing.assert_allclose(quat_to_matrix(quat_mul(a, b)), quat_to_matrix(a) @ quat_to_matrix(b), atol=1e-12)
+
+
+def test_rotvec_roundtrip_and_scipy():
+    rv = rng.normal(size=(100, 3))
+    rv[:5] *= 1e-10  # small-angle branch
+    q = quat_from_rotvec(rv)
+    np.testing.assert_allclose(quat_to_matrix(q), Rotation.from_rotvec(rv).as_matrix(), atol=1e-12)
+    big = np.linalg.norm(rv, axis=1) < np.pi
+    np.testing.assert_allclose(quat_to_rotvec(q)[big], rv[big], atol=1e-9)
+
+
+def test_rotate_and_conj():
+    v = rng.normal(size=(200, 3))
+    np.testing.assert_allclose(quat_rotate(Q, v), R.apply(v), atol=1e-12)
+    np.testing.assert_allclose(quat_rotate(quat_conj(Q), quat_rotate(Q, v)), v, atol=1e-12)
+
+
+def test_rodrigues_is_exponential_map():
+    for rv in (rng.normal(size=3), 1e-6 * rng.normal(size=3), np.zeros(3)):
+        np.testing.assert_allclose(rodrigues(rv), Rotation.from_rotvec(rv).as_matrix(), atol=1e-13)
+    assert np.allclose(skew([1, 2, 3]) @ [4, 5, 6], np.cross([1, 2, 3], [4, 5, 6]))
+
+
+def test_orthonormalize_reduces_error_quadratically():
+    c = R[0].as_matrix() + 1e-4 * rng.normal(size=(3, 3))
+    e0 = np.abs(c.T @ c - np.eye(3)).max()
+    e1 = np.abs(orthonormalize(c).T @ orthonormalize(c) - np.eye(3)).max()
+    assert e1 < 10 * e0**2
+
+
+def test_small_rotation_quat_is_first_order():
+    rv = np.array([1e-3, -2e-3, 5e-4])
+    q = quat_normalize(small_rotation_quat(rv))
+    assert quat_angle(q, quat_from_rotvec(rv)) < 1e-8  # O(|rv|^3)
+
+
+@pytest.mark.parametrize("i", range(20))
+def test_kernels_match_reference(i):
+    p, q = Q[i], Q[100 + i]
+    out = np.empty(4)
+    K.qmul_into(*p, *q, out)
+    np.testing.assert_allclose(out, quat_mul(p, q), atol=1e-15)
+    c = np.empty(9)
+    K.quat_to_dcm(p, c)
+    np.testing.assert_allclose(c.reshape(3, 3), quat_to_matrix(p), atol=1e-15)
+    K.dcm_to_quat(c, out)
+    np.testing.assert_allclose(out, matrix_to_quat(quat_to_matrix(p)), atol=1e-12)
+    rv = rng.normal(size=3) * (1e-9 if i % 2 else 1.0)
+    K.rotvec_quat(*rv, out)
+    np.testing.assert_allclose(out, quat_from_rotvec(rv), atol=1e-15)

@@ -1,0 +1,96 @@
+import numpy as np
+import pytest
+
+import fusionkit as fk
+from fusionkit import sim
+from fusionkit.errors import InputError
+from fusionkit.io import load_csv, write_csv
+
+
+def rec(**kw):
+    n = kw.pop("n", 10)
+    base = dict(gyr=np.zeros((n, 3)), acc=np.tile([0, 0, 9.81], (n, 1)), rate=100.0)
+    base.update(kw)
+    return fk.Recording(**base)
+
+
+def test_shapes_and_lengths_are_checked():
+    with pytest.raises(InputError, match=r"gyr must have shape \(N, 3\), got \(10, 4\)"):
+        rec(gyr=np.zeros((10, 4)))
+    with pytest.raises(InputError, match="acc has 9 samples but gyr has 10"):
+        rec(acc=np.zeros((9, 3)) + 9.81)
+    with pytest.raises(InputError, match="truth must have shape"):
+        rec(truth=np.zeros((10, 3)))
+    with pytest.raises(InputError, match="exactly one of rate"):
+        rec(rate=None)
+    with pytest.raises(InputError, match="rate must be a finite number > 0"):
+        rec(rate=-5)
+    with pytest.raises(InputError, match="numeric"):
+        rec(gyr=[["a", "b", "c"]] * 10)
+
+
+def test_time_must_increase():
+    with pytest.raises(InputError, match=r"strictly increasing, but t\[3\]"):
+        rec(rate=None, t=[0, 1, 2, 2, 4, 5, 6, 7, 8, 9])
+    r = rec(rate=None, t=np.arange(10) * 0.01 + 5)
+    np.testing.assert_allclose(r.dt, 0.01)
+    assert r.nominal_dt == pytest.approx(0.01)
+
+
+def test_units_are_checked_and_converted():
+    with pytest.raises(InputError, match="acc_unit='g'"):
+        rec(acc=np.tile([0, 0, 1.0], (10, 1)))
+    r = rec(acc=np.tile([0, 0, 1.0], (10, 1)), acc_unit="g")
+    assert r.acc[0, 2] == pytest.approx(9.80665)
+    with pytest.raises(InputError, match="gyr_unit='deg/s'"):
+        rec(gyr=np.full((10, 3), 45.0))
+    r = rec(gyr=np.full((10, 3), 45.0), gyr_unit="deg/s")
+    assert r.gyr[0, 0] == pytest.approx(np.pi / 4)
+
+
+def test_nan_is_kept_for_the_filters_policy():
+    g = np.zeros((10, 3))
+    g[4] = np.nan
+    assert np.isnan(rec(gyr=g).gyr[4]).all()
+
+
+def test_csv_round_trip(tmp_path):
+    r = sim.simulate([sim.Rest(1), sim.Rotate((0, 0, 1), 1, 1)], rate=50.0, seed=0)
+    write_csv(r, tmp_path / "r.csv")
+    back = fk.load(tmp_path / "r.csv")
+    np.testing.assert_allclose(back.gyr, r.gyr, atol=1e-8)
+    np.testing.assert_allclose(back.truth, r.truth, atol=1e-8)
+    np.testing.assert_allclose(back.time, r.time, atol=1e-9)
+    (tmp_path / "bad.csv").write_text("a,b\n1,2\n")
+    with pytest.raises(InputError, match="missing columns"):
+        load_csv(tmp_path / "bad.csv")
+    (tmp_path / "norate.csv").write_text("gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z\n0,0,0,0,0,9.8\n")
+    with pytest.raises(InputError, match="no 't' column and no rate"):
+        load_csv(tmp_path / "norate.csv")
+    (tmp_path / "rate.csv").write_text("# rate=200\ngyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z\n0,0,0,0,0,9.8\n0,0,0,0,0,9.8\n")
+    assert load_csv(tmp_path / "rate.csv").rate == 200.0
+
+
+def test_load_errors(tmp_path):
+    with pytest.raises(InputError, match="no such file"):
+        fk.load(tmp_path / "nope.hdf5")
+    (tmp_path / "x.bin").write_text("")
+    with pytest.raises(InputError, match="supported are"):
+        fk.load(tmp_path / "x.bin")
+
+
+def test_result_helpers(imu_rec, tmp_path):
+    res = fk.make("poisson").run(imu_rec)
+    assert res.euler().shape == (len(imu_rec), 3)
+    assert res.flag_names(0) == ["ALIGNING"]
+    np.testing.assert_allclose(res.to_scipy().as_quat()[:, [3, 0, 1, 2]], res.quat)
+    res.to_csv(tmp_path / "o.csv", time=imu_rec.time)
+    data = np.loadtxt(tmp_path / "o.csv", delimiter=",", skiprows=1)
+    assert data.shape == (len(imu_rec), 9)
+
+
+def test_broad_trial_loads(broad_dir):
+    r = fk.load(sorted(broad_dir.glob("*.hdf5"))[0])
+    assert r.rate == pytest.approx(285.71, abs=0.01)
+    assert r.mag is not None and r.truth is not None and r.movement.any()
+    assert r.truth_frame == "ENU"
