@@ -15,6 +15,7 @@ kernel == reference. Correctors: they run inside a pipeline with finite unit out
 
 from __future__ import annotations
 
+import inspect
 import re
 from typing import Any
 
@@ -106,7 +107,7 @@ def _check_filter(cls, params, rec) -> None:
     assert d < TOL, f"{cls.name}: run() and a loop of update() differ by {d:.2e}"
 
     # split run with the state carried over == one run
-    if "state" in f.run.__code__.co_varnames:
+    if "state" in inspect.signature(f.run).parameters:
         h = n // 2
         first = f.run(rec.slice(0, h), backend="reference")
         second = f.run(rec.slice(h, None), backend="reference", state=first.diagnostics["state"])

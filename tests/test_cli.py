@@ -44,3 +44,12 @@ def test_demo_runs_and_plots(tmp_path):
     assert out.returncode == 0, out.stderr
     assert "poisson" in out.stdout and "slow-rotation" in out.stdout
     assert png.stat().st_size > 10_000
+
+
+def test_progress_bar_on_request(capsys, imu_rec):
+    import fusionkit as fk
+
+    fk.make("poisson").run(imu_rec, progress=True)
+    assert "sample" in capsys.readouterr().err  # tqdm writes its bar to stderr
+    fk.make("poisson").run(imu_rec)  # short input, not a terminal: no bar
+    assert capsys.readouterr().err == ""
