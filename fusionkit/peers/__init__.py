@@ -1,0 +1,377 @@
+"""Other libraries' filters as fusionkit plugins, for side-by-side comparison.
+
+Installed with the ``peers`` extra (``pip install "fusionkit[peers]"``) and registered through
+entry points in fusionkit's ``pyproject.toml`` exactly as a third party would register them.
+Each adapter maps the peer's units and frames to fusionkit's (verified against the BROAD
+reference and, in ``tests/test_peers.py``, against calling the peer directly):
+
+=================  ==========================  ==============================================
+name               peer                        conventions mapped
+=================  ==========================  ==============================================
+``vqf``            ``vqf.VQF`` (C++, online)   rad/s, m/s^2; quaternion body->ENU
+``vqf-offline``    ``vqf.offlineVQF``          same; batch only (uses future samples)
+``vqf-basic``      ``vqf.BasicVQF``            same
+``imufusion``      ``imufusion.Ahrs``          deg/s, g; convention set as a *property*
+                                               (the ``AhrsSettings`` constructor ignores it)
+``ahrs-madgwick``  ``ahrs.filters.Madgwick``   rad/s, m/s^2; body->NWU
+``ahrs-mahony``    ``ahrs.filters.Mahony``     rad/s, m/s^2; body->ENU
+``ahrs-ekf``       ``ahrs.filters.EKF``        frame 'NED' takes the gravity vector: acc is
+                                               negated; body->NED
+=================  ==========================  ==============================================
+
+A peer sees only finite samples: with ``nan_policy="skip"`` a sample with any non-finite sensor
+value is not passed to it, the previous orientation is held and the sample flagged (the offline
+VQF, which cannot skip, gets the last valid sample repeated instead).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+
+from ..config import FilterConfig, param
+from ..conventions import change_frame
+from ..errors import InputError, PluginError
+from ..protocols import Filter
+from ..types import Flag, Recording, Result
+from ..validation import as_vector, check_finite_all, check_positive, finite_rows
+
+__all__ = ["PeerFilter", "VqfFilter", "VqfOffline", "VqfBasic", "ImufusionFilter", "AhrsMadgwick", "AhrsMahony",
+           "AhrsEkf"]
+
+
+class PeerConfig(FilterConfig):
+    mode: Literal["auto", "6D", "9D"] = param(
+        "auto", unit="-", description="'auto': 9D when the recording has mag, else 6D; '6D' ignores mag"
+    )
+
+
+class PeerFilter(Filter):
+    """Base of the peer adapters: validation, NaN policy, frames, streaming."""
+
+    package: ClassVar[str] = ""
+    peer_frame: ClassVar[str] = "ENU"
+    streaming: ClassVar[bool] = True
+    Config = PeerConfig
+
+    def __init__(self, config=None, **params: Any) -> None:
+        super().__init__(config, **params)
+        self._stream: dict[str, Any] | None = None
+        self.last_flags = 0
+
+    def peer(self):
+        """The peer's module, or a PluginError saying how to install it."""
+        try:
+            return importlib.import_module(self.package)
+        except ImportError as exc:
+            raise PluginError(
+                f"filter {self.name!r} needs the {self.package!r} package: pip install 'fusionkit[peers]' ({exc})"
+            ) from None
+
+    def version(self) -> str:
+        from importlib import metadata
+
+        try:
+            return metadata.version(self.package)
+        except metadata.PackageNotFoundError:  # pragma: no cover
+            return "?"
+
+    # -- to implement ----------------------------------------------------------------------
+    def _batch(self, gyr, acc, mag, rate) -> np.ndarray:
+        """Quaternions (peer frame) for finite arrays; default: a loop of the streaming step."""
+        obj = self._new(rate, mag is not None)
+        return np.array([self._step(obj, gyr[k], acc[k], None if mag is None else mag[k], 1.0 / rate)
+                         for k in range(gyr.shape[0])])
+
+    def _new(self, rate: float, use_mag: bool):
+        raise NotImplementedError
+
+    def _step(self, obj, g, a, m, dt) -> np.ndarray:
+        raise NotImplementedError
+
+    # -- public ----------------------------------------------------------------------------
+    def _use_mag(self, has_mag: bool) -> bool:
+        if self.config.mode == "9D" and not has_mag:
+            raise InputError(f"{self.name}: mode '9D' needs mag in the recording")
+        return has_mag and self.config.mode != "6D"
+
+    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None) -> Result:
+        if not isinstance(rec, Recording):
+            raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
+        if backend not in ("auto", "reference"):
+            from ..errors import ConfigError
+
+            raise ConfigError(f"{self.name} runs the peer's own code: backend must be 'auto' or 'reference'")
+        self.peer()
+        use_mag = self._use_mag(rec.mag is not None)
+        mag = rec.mag if use_mag else None
+        check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": mag}, self.config.nan_policy)
+        n = len(rec)
+        rate = rec.rate if rec.rate is not None else 1.0 / rec.nominal_dt
+        flags = np.zeros(n, dtype=np.uint32)
+        flags[~finite_rows(rec.gyr)] |= np.uint32(Flag.GYR_INVALID)
+        flags[~finite_rows(rec.acc)] |= np.uint32(Flag.ACC_INVALID)
+        if mag is not None:
+            flags[~finite_rows(mag)] |= np.uint32(Flag.MAG_INVALID)
+        ok = flags == 0
+        if ok.all():
+            q = self._batch(rec.gyr, rec.acc, mag, rate)
+        elif not self.streaming:  # a batch filter cannot skip: hold the last valid input instead
+            if not ok.any():
+                raise InputError(f"{self.name}: no sample with all sensors finite")
+            idx = np.maximum.accumulate(np.where(ok, np.arange(n), -1))
+            idx[idx < 0] = int(np.argmax(ok))
+            q = self._batch(rec.gyr[idx], rec.acc[idx], None if mag is None else mag[idx], rate)
+        else:  # hold the orientation over the samples the peer must not see
+            obj = self._new(rate, use_mag)
+            q = np.empty((n, 4))
+            last = np.array([1.0, 0.0, 0.0, 0.0])
+            for k in range(n):
+                if ok[k]:
+                    last = self._step(obj, rec.gyr[k], rec.acc[k], None if mag is None else mag[k], 1.0 / rate)
+                q[k] = last
+        q = change_frame(np.asarray(q, dtype=float), self.peer_frame, self.config.frame)
+        diag = {"backend": f"peer:{self.package} {self.version()}", "filter": self.name,
+                "config": self.config.model_dump(), "mode": "9D" if use_mag else "6D"}
+        return Result(q, flags, self.config.frame, diag)
+
+    def reset(self) -> None:
+        self._stream = None
+
+    def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
+        if not self.streaming:
+            raise PluginError(f"{self.name} is an offline (batch) filter: use run()")
+        if dt is None:
+            raise InputError("update() needs dt, the sample interval in s")
+        dt = check_positive("dt", dt)
+        g, a = as_vector("gyr", gyr), as_vector("acc", acc)
+        use_mag = self._use_mag(mag is not None)
+        m = as_vector("mag", mag) if use_mag else None
+        bad = (0 if np.isfinite(g).all() else Flag.GYR_INVALID) | (0 if np.isfinite(a).all() else Flag.ACC_INVALID)
+        if m is not None and not np.isfinite(m).all():
+            bad |= Flag.MAG_INVALID
+        if bad and self.config.nan_policy == "raise":
+            raise InputError(f"non-finite sample ({', '.join(f.name for f in Flag if f & bad)}); "
+                             "pass nan_policy='skip' to hold and flag")
+        if self._stream is None:
+            self._stream = {"obj": self._new(1.0 / dt, use_mag), "q": np.array([1.0, 0.0, 0.0, 0.0])}
+        if not bad:
+            self._stream["q"] = self._step(self._stream["obj"], g, a, m, dt)
+        self.last_flags = int(bad)
+        return change_frame(np.asarray(self._stream["q"], dtype=float), self.peer_frame, self.config.frame)
+
+
+# ---- VQF -----------------------------------------------------------------------------------
+
+
+class VqfConfig(PeerConfig):
+    tau_acc: float = param(3.0, unit="s", description="VQF tauAcc: accelerometer low-pass time constant", gt=0)
+    tau_mag: float = param(9.0, unit="s", description="VQF tauMag: magnetometer time constant", gt=0)
+    motion_bias_est: bool = param(True, unit="-", description="VQF motionBiasEstEnabled")
+    rest_bias_est: bool = param(True, unit="-", description="VQF restBiasEstEnabled")
+    mag_dist_rejection: bool = param(True, unit="-", description="VQF magDistRejectionEnabled")
+
+
+def _vqf_params(c) -> dict:
+    return {"tauAcc": c.tau_acc, "tauMag": c.tau_mag, "motionBiasEstEnabled": c.motion_bias_est,
+            "restBiasEstEnabled": c.rest_bias_est, "magDistRejectionEnabled": c.mag_dist_rejection}
+
+
+def _c(x):
+    return np.ascontiguousarray(x, dtype=np.float64)
+
+
+class VqfFilter(PeerFilter):
+    """VQF (Laidig and Seel, Information Fusion 2023, doi:10.1016/j.inffus.2022.10.014), C++ online."""
+
+    name: ClassVar[str] = "vqf"
+    package: ClassVar[str] = "vqf"
+    Config = VqfConfig
+    source: ClassVar[str] = "peer: vqf (doi:10.1016/j.inffus.2022.10.014)"
+    summary: ClassVar[str] = "peer: VQF online (C++), rest and motion bias estimation, magnetic rejection"
+
+    def _make(self, rate):
+        return self.peer().VQF(1.0 / rate, **_vqf_params(self.config))
+
+    def _batch(self, gyr, acc, mag, rate):
+        out = self._make(rate).updateBatch(_c(gyr), _c(acc), None if mag is None else _c(mag))
+        return out["quat9D" if mag is not None else "quat6D"]
+
+    def _new(self, rate, use_mag):
+        return self._make(rate)
+
+    def _step(self, obj, g, a, m, dt):
+        obj.update(_c(g), _c(a), None if m is None else _c(m))
+        return obj.getQuat9D() if m is not None else obj.getQuat6D()
+
+
+class VqfOffline(VqfFilter):
+    name: ClassVar[str] = "vqf-offline"
+    streaming: ClassVar[bool] = False
+    summary: ClassVar[str] = "peer: VQF offline (acausal, uses future samples)"
+
+    def _batch(self, gyr, acc, mag, rate):
+        out = self.peer().offlineVQF(_c(gyr), _c(acc), None if mag is None else _c(mag), 1.0 / rate,
+                                     _vqf_params(self.config))
+        return out["quat9D" if mag is not None else "quat6D"]
+
+    def _new(self, rate, use_mag):
+        raise PluginError(f"{self.name} is an offline filter: it cannot skip samples or stream; clean the data")
+
+
+class VqfBasicConfig(PeerConfig):
+    tau_acc: float = param(3.0, unit="s", description="BasicVQF tauAcc", gt=0)
+    tau_mag: float = param(9.0, unit="s", description="BasicVQF tauMag", gt=0)
+
+
+class VqfBasic(VqfFilter):
+    name: ClassVar[str] = "vqf-basic"
+    Config = VqfBasicConfig
+    summary: ClassVar[str] = "peer: BasicVQF (no bias estimation, no magnetic rejection)"
+
+    def _make(self, rate):
+        return self.peer().BasicVQF(1.0 / rate, tauAcc=self.config.tau_acc, tauMag=self.config.tau_mag)
+
+
+# ---- imufusion -----------------------------------------------------------------------------
+
+
+class ImufusionConfig(PeerConfig):
+    gain: float = param(0.5, unit="-", description="Fusion AHRS gain (recommended 0.5)", ge=0)
+    gyroscope_range: float = param(2000.0, unit="deg/s", description="gyroscope range", gt=0)
+    acceleration_rejection: float = param(10.0, unit="deg", description="acceleration rejection threshold", ge=0)
+    magnetic_rejection: float = param(10.0, unit="deg", description="magnetic rejection threshold", ge=0)
+    rejection_timeout: float = param(5.0, unit="s", description="rejection timeout", gt=0)
+    gyro_offset: bool = param(True, unit="-", description="run imufusion's gyroscope offset (Bias) correction")
+
+
+class ImufusionFilter(PeerFilter):
+    """x-io's Fusion AHRS (imufusion) with its recommended settings."""
+
+    name: ClassVar[str] = "imufusion"
+    package: ClassVar[str] = "imufusion"
+    Config = ImufusionConfig
+    source: ClassVar[str] = "peer: imufusion (x-io Technologies Fusion)"
+    summary: ClassVar[str] = "peer: Fusion AHRS (imufusion), recommended settings"
+
+    def _new(self, rate, use_mag):
+        imf = self.peer()
+        c = self.config
+        s = imf.AhrsSettings()
+        s.convention = imf.CONVENTION_ENU  # a property: the constructor's convention argument is ignored
+        s.sample_rate = rate
+        s.gain = c.gain
+        s.gyroscope_range = c.gyroscope_range
+        s.acceleration_rejection = c.acceleration_rejection
+        s.magnetic_rejection = c.magnetic_rejection
+        s.rejection_timeout = int(round(c.rejection_timeout * rate))
+        ahrs = imf.Ahrs()
+        ahrs.set_settings(s)
+        bias = None
+        if c.gyro_offset:
+            bias = imf.Bias()
+            bs = imf.BiasSettings()
+            bs.sample_rate = rate
+            bias.set_settings(bs)
+        return {"ahrs": ahrs, "bias": bias}
+
+    def _step(self, obj, g, a, m, dt):
+        gd = np.degrees(_c(g))
+        if obj["bias"] is not None:
+            gd = obj["bias"].update(gd)
+        ag = _c(a) / 9.80665
+        if m is None:
+            obj["ahrs"].update_no_magnetometer(gd, ag)
+        else:
+            obj["ahrs"].update(gd, ag, _c(m))
+        return np.array(obj["ahrs"].get_quaternion(), dtype=float)
+
+
+# ---- ahrs ----------------------------------------------------------------------------------
+
+
+class MadgwickConfig(PeerConfig):
+    gain: float | None = param(None, unit="-", description="Madgwick beta (None: ahrs' default)", gt=0)
+
+
+class AhrsMadgwick(PeerFilter):
+    name: ClassVar[str] = "ahrs-madgwick"
+    package: ClassVar[str] = "ahrs"
+    peer_frame: ClassVar[str] = "NWU"
+    Config = MadgwickConfig
+    source: ClassVar[str] = "peer: ahrs.filters.Madgwick"
+    summary: ClassVar[str] = "peer: Madgwick gradient-descent filter (ahrs package)"
+
+    def _kwargs(self) -> dict:
+        return {} if self.config.gain is None else {"gain": self.config.gain}
+
+    def _cls(self):
+        return importlib.import_module("ahrs.filters").Madgwick
+
+    def _new(self, rate, use_mag):
+        return {"f": None, "q": None, "rate": rate}
+
+    def _first(self, obj, g, a, m):
+        """The peer's batch run on this one sample: its own initial quaternion, and the object
+        to update from then on (ahrs picks defaults, e.g. Madgwick's gain, from the data given)."""
+        kw = {"gyr": g[None], "acc": a[None], "frequency": obj["rate"], **self._kwargs()}
+        if m is not None:
+            kw["mag"] = m[None]
+        obj["f"] = self._cls()(**kw)
+        return obj["f"].Q[0]
+
+    def _step(self, obj, g, a, m, dt):
+        g, a = _c(g), _c(a)
+        m = None if m is None else _c(m)
+        if obj["q"] is None:
+            obj["q"] = self._first(obj, g, a, m)
+        elif m is None:
+            obj["q"] = obj["f"].updateIMU(obj["q"], g, a)
+        else:
+            obj["q"] = obj["f"].updateMARG(obj["q"], g, a, m)
+        return np.asarray(obj["q"], dtype=float)
+
+
+class MahonyConfig(PeerConfig):
+    k_p: float = param(1.0, unit="-", description="Mahony proportional gain", ge=0)
+    k_i: float = param(0.3, unit="-", description="Mahony integral gain", ge=0)
+
+
+class AhrsMahony(AhrsMadgwick):
+    name: ClassVar[str] = "ahrs-mahony"
+    peer_frame: ClassVar[str] = "ENU"
+    Config = MahonyConfig
+    source: ClassVar[str] = "peer: ahrs.filters.Mahony"
+    summary: ClassVar[str] = "peer: Mahony complementary filter (ahrs package)"
+
+    def _kwargs(self):
+        return {"k_P": self.config.k_p, "k_I": self.config.k_i}
+
+    def _cls(self):
+        return importlib.import_module("ahrs.filters").Mahony
+
+
+class AhrsEkf(AhrsMadgwick):
+    name: ClassVar[str] = "ahrs-ekf"
+    peer_frame: ClassVar[str] = "NED"
+    Config = PeerConfig
+    source: ClassVar[str] = "peer: ahrs.filters.EKF"
+    summary: ClassVar[str] = "peer: quaternion EKF (ahrs package), frame NED"
+
+    def _kwargs(self):
+        return {"frame": "NED"}
+
+    def _cls(self):
+        return importlib.import_module("ahrs.filters").EKF
+
+    def _step(self, obj, g, a, m, dt):
+        # ahrs' EKF in frame NED models the accelerometer as the gravity vector: negate specific force
+        g, a = _c(g), -_c(a)
+        m = None if m is None else _c(m)
+        if obj["q"] is None:
+            obj["q"] = self._first(obj, g, a, m)
+        else:
+            obj["q"] = obj["f"].update(obj["q"], g, a, m) if m is not None else obj["f"].update(obj["q"], g, a)
+        return np.asarray(obj["q"], dtype=float)
