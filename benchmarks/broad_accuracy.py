@@ -17,7 +17,7 @@ import numpy as np
 
 import fusionkit as fk
 from _common import data_dir
-from fusionkit.bench.metrics import rms_errors
+from fusionkit.benchmarking.metrics import rms_errors
 
 
 def main() -> None:

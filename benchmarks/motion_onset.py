@@ -18,7 +18,7 @@ import numpy as np
 
 import fusionkit as fk
 from _common import data_dir
-from fusionkit.bench.metrics import broad_errors
+from fusionkit.benchmarking.metrics import broad_errors
 from fusionkit.rotations import quat_angle
 
 

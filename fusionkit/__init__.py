@@ -4,6 +4,7 @@ Public API::
 
     import fusionkit as fk
     fk.available()                          # registered plugins by kind
+    fk.bench(["poisson", "vqf"], data="../shared/data/broad")   # side by side, BROAD metrics
     rec = fk.Recording(gyr=..., acc=..., mag=None, rate=285.7)
     rec = fk.load("trial.hdf5")             # BROAD .hdf5 or CSV
     f = fk.make("poisson", frame="NED")     # any registered plugin, parameters validated
@@ -40,6 +41,7 @@ __all__ = [
     "Recording",
     "Result",
     "available",
+    "bench",
     "compose",
     "conventions",
     "default_registry",
@@ -53,6 +55,13 @@ __all__ = [
     "sim",
     "__version__",
 ]
+
+
+def bench(filters, data, **kwargs):
+    """Run filters side by side on recordings; see :func:`fusionkit.benchmarking.bench`."""
+    from .benchmarking import bench as _bench
+
+    return _bench(filters, data, **kwargs)
 
 
 def compose(config) -> Filter:

@@ -91,10 +91,79 @@ def cmd_run(args) -> int:
     print(f"{f.name}: {len(rec)} samples in {elapsed:.3f} s ({len(rec) / elapsed:,.0f} samples/s, "
           f"backend {res.diagnostics['backend']}) -> {args.output}")
     if rec.truth is not None:
-        from .bench.metrics import rms_errors
+        from .benchmarking.metrics import rms_errors
 
         e = rms_errors(res, rec)
         print("RMS error vs truth: " + ", ".join(f"{k} {v:.3f} deg" for k, v in e.items()))
+    return 0
+
+
+def _values(raw: str) -> list:
+    out = []
+    for item in raw.split(","):
+        try:
+            out.append(json.loads(item))
+        except json.JSONDecodeError:
+            out.append(item)
+    return out
+
+
+def _flat_params(items: list[str]) -> dict:
+    """``["a=1", "vqf.tau_acc=2"]`` -> ``{"a": 1, "vqf.tau_acc": 2}`` (dotted keys kept)."""
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise FusionkitError(f"--param takes name=value, got {item!r}")
+        k, raw = item.split("=", 1)
+        out[k] = _values(raw)[0] if "," not in raw else _values(raw)
+    return out
+
+
+def cmd_bench(args) -> int:
+    from .benchmarking import bench
+    from .benchmarking.datasets import discover
+
+    filters = [f for f in args.filters.split(",") if f]
+    trials = [t for t in args.trials.split(",") if t] if args.trials else None
+    res = bench(filters, args.data, trials=trials, params=_flat_params(args.param), jobs=args.jobs,
+                cache=not args.no_cache, scheduler=args.scheduler, progress=None)
+    text = res.table(args.format)
+    if args.format in ("table", "markdown"):
+        text += "\n\nby group (mean; 9D filters: total RMSE, 6D: inclination RMSE, deg):\n" + res.group_table(
+            format="markdown")
+    if args.output:
+        Path(args.output).write_text(text + "\n")
+        print(f"wrote {args.output}")
+    else:
+        print(text)
+    if args.plots:
+        from .benchmarking.plots import write_plots
+
+        found = discover(args.data, trials)
+        with_ref = [t for t in found if t.dataset in ("broad", "gnss")] or found
+        for p in write_plots(res, args.plots, trial=with_ref[0] if with_ref else None):
+            print(f"plot: {p}")
+    return 1 if any(r["error"] for r in res.records) and all(r["error"] for r in res.records) else 0
+
+
+def cmd_sweep(args) -> int:
+    from .benchmarking.sweep import sweep
+
+    grid = {}
+    for g in args.grid:
+        if "=" not in g:
+            raise FusionkitError(f"--grid takes name=v1,v2,..., got {g!r}")
+        k, raw = g.split("=", 1)
+        grid[k] = _values(raw)
+    trials = [t for t in args.trials.split(",") if t] if args.trials else None
+    res = sweep(args.filter, grid, args.data, metric=args.metric, trials=trials, jobs=args.jobs,
+                cache=not args.no_cache, base=_parse_params(args.param))
+    text = res.report()
+    if args.output:
+        Path(args.output).write_text(text + "\n")
+        print(f"wrote {args.output}")
+    else:
+        print(text)
     return 0
 
 
@@ -120,6 +189,30 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--backend", default="auto", choices=["auto", "numba", "reference"])
     r.add_argument("--progress", action="store_true", help="always show a progress bar")
     r.set_defaults(func=cmd_run)
+    b = sub.add_parser("bench", help="filters side by side on recordings, with the BROAD metrics")
+    b.add_argument("--data", required=True, help="a folder (BROAD, GNSS scenarios, ULog, CSV) or a file")
+    b.add_argument("--filters", required=True, help="comma-separated filter names")
+    b.add_argument("--trials", default="", help="comma-separated trial names or prefixes (default: all)")
+    b.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="a parameter for every filter that has it, or FILTER.NAME=VALUE for one")
+    b.add_argument("--jobs", type=int, default=1, help="worker processes")
+    b.add_argument("--scheduler", default=None, help="a Dask distributed scheduler address (instead of --jobs)")
+    b.add_argument("--format", default="table", choices=["table", "json", "csv", "markdown"])
+    b.add_argument("-o", "--output", default=None, help="write the table to this file")
+    b.add_argument("--plots", default=None, help="folder for PNG plots")
+    b.add_argument("--no-cache", action="store_true", help="ignore and do not write the result cache")
+    b.set_defaults(func=cmd_bench)
+    s = sub.add_parser("sweep", help="a parameter grid for one filter: TAGP and per-trial minimum")
+    s.add_argument("filter")
+    s.add_argument("--data", required=True)
+    s.add_argument("--grid", action="append", required=True, metavar="NAME=V1,V2,...")
+    s.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="a fixed parameter")
+    s.add_argument("--trials", default="")
+    s.add_argument("--metric", default="score", help="score (9D: total, 6D: inclination), total, inclination, ...")
+    s.add_argument("--jobs", type=int, default=1)
+    s.add_argument("--no-cache", action="store_true")
+    s.add_argument("-o", "--output", default=None)
+    s.set_defaults(func=cmd_sweep)
     m = sub.add_parser("demo", help="every built-in filter side by side on simulated recordings")
     m.add_argument("--plot", default="fusionkit-demo.png", help="PNG to write ('' for none)")
     m.add_argument("--filters", default="", help="comma-separated filter names (default: all)")

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from .bench.metrics import broad_errors
+from .benchmarking.metrics import broad_errors
 from .conventions import change_frame
 from .errors import FusionkitError
 from .registry import default_registry

@@ -86,6 +86,10 @@ class Pipeline(Filter):
         """The composition this filter runs (presets override this)."""
         return self.config
 
+    def dimension(self, rec) -> str:
+        uses = self.spec.alignment.heading == "magnetometer" or any(c.uses_mag for c in self.correctors)
+        return "9D" if uses and rec.mag is not None else "6D"
+
     # -- state -----------------------------------------------------------------------------
     def new_state(self, dt: float) -> dict[str, Any]:
         """A fresh run state for nominal sample interval ``dt``."""

@@ -129,6 +129,7 @@ class Corrector(Plugin, ABC):
 
     kind: ClassVar[str] = "corrector"
     mode: ClassVar[Literal["rate", "state"]] = "rate"
+    uses_mag: ClassVar[bool] = False  #: True for magnetometer correctors (makes a pipeline 9D)
 
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         """The corrector's own state (empty by default); ``dt`` is the nominal sample interval,
@@ -201,6 +202,11 @@ class Filter(Plugin, ABC):
     """
 
     kind: ClassVar[str] = "filter"
+
+    def dimension(self, rec) -> str:
+        """``"9D"`` when this filter uses the magnetometer of ``rec``, else ``"6D"`` (decides
+        which error a benchmark judges it on: total for 9D, inclination for 6D)."""
+        return "6D"
 
     @abstractmethod
     def run(self, rec, *, backend: str = "auto", progress: bool | None = None):

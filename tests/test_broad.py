@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import fusionkit as fk
-from fusionkit.bench.metrics import broad_errors
+from fusionkit.benchmarking.metrics import broad_errors
 
 
 @pytest.fixture(scope="module")

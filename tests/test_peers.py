@@ -5,7 +5,7 @@ import pytest
 
 import fusionkit as fk
 from fusionkit import sim
-from fusionkit.bench.metrics import rms_errors
+from fusionkit.benchmarking.metrics import rms_errors
 from fusionkit.conventions import change_frame
 
 vqf = pytest.importorskip("vqf")

@@ -7,7 +7,7 @@ import pytest
 
 import fusionkit as fk
 from fusionkit import sim
-from fusionkit.bench.metrics import broad_errors
+from fusionkit.benchmarking.metrics import broad_errors
 from fusionkit.conventions import change_frame
 from fusionkit.errors import ConfigError, InputError
 from fusionkit.rotations import quat_angle

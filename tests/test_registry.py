@@ -150,7 +150,7 @@ def test_example_corrector_reduces_drift(example_plugin_installed):
     """The third-party corrector really corrects: after a gyro bias change (after the alignment
     estimated the bias) the tilt loop holds the inclination where gyro integration alone drifts."""
     from fusionkit import sim
-    from fusionkit.bench.metrics import rms_errors
+    from fusionkit.benchmarking.metrics import rms_errors
 
     rec = sim.simulate([sim.Rest(2), sim.Rotate((0, 0, 1), 2.0, 10.0), sim.Rest(20)], rate=100.0,
                        noise=sim.Noise(gyr_noise=0.002, acc_noise=0.02), seed=4)

@@ -30,16 +30,23 @@ _VEC = {k: [f"{k}_{a}" for a in "xyz"] for k in ("gyr", "acc", "mag")}
 
 
 def load(path, **kwargs) -> Recording:
-    """Read a recording: ``.hdf5``/``.h5`` BROAD trial, or ``.csv`` (see module doc)."""
+    """Read a recording: a BROAD trial or GNSS scenario (``.hdf5``/``.h5``), a PX4 log (``.ulg``)
+    or ``.csv`` (see module doc)."""
     p = Path(path)
     if not p.exists():
         raise InputError(f"no such file: {str(p)!r}")
     suffix = p.suffix.lower()
     if suffix in (".hdf5", ".h5"):
-        return load_broad(p, **kwargs)
+        from .gnss import is_gnss_scenario, load_gnss_scenario
+
+        return load_gnss_scenario(p) if is_gnss_scenario(p) else load_broad(p, **kwargs)
     if suffix == ".csv":
         return load_csv(p, **kwargs)
-    raise InputError(f"cannot read {p.name!r}: supported are .hdf5/.h5 (BROAD) and .csv")
+    if suffix == ".ulg":
+        from .ulog import load_ulog
+
+        return load_ulog(p)
+    raise InputError(f"cannot read {p.name!r}: supported are .hdf5/.h5 (BROAD, GNSS scenario), .ulg (PX4) and .csv")
 
 
 def load_broad(path) -> Recording:

@@ -92,6 +92,9 @@ class PeerFilter(Filter):
         raise NotImplementedError
 
     # -- public ----------------------------------------------------------------------------
+    def dimension(self, rec) -> str:
+        return "9D" if rec.mag is not None and self.config.mode != "6D" else "6D"
+
     def _use_mag(self, has_mag: bool) -> bool:
         if self.config.mode == "9D" and not has_mag:
             raise InputError(f"{self.name}: mode '9D' needs mag in the recording")

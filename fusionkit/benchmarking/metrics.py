@@ -19,7 +19,7 @@ from ..conventions import change_frame
 from ..errors import InputError
 from ..rotations import quat_conj, quat_mul
 
-__all__ = ["broad_errors", "rms_errors"]
+__all__ = ["broad_errors", "rms_errors", "trial_metrics", "gnss_masks"]
 
 
 def broad_errors(q_est, q_ref) -> dict[str, np.ndarray]:
@@ -51,4 +51,44 @@ def rms_errors(result, rec, mask=None) -> dict[str, float]:
         v = v[mask]
         v = v[np.isfinite(v)]
         out[k] = float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
+    return out
+
+
+def _rms(v: np.ndarray) -> float:
+    v = v[np.isfinite(v)]
+    return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
+
+
+def gnss_masks(rec) -> tuple[np.ndarray, np.ndarray]:
+    """Per IMU sample: GNSS available (the latest epoch at or before it is valid) and in a gap."""
+    g = rec.gnss
+    idx = np.searchsorted(g.t, rec.time, side="right") - 1
+    ok = (idx >= 0) & g.valid[np.clip(idx, 0, None)]
+    return ok, ~ok
+
+
+def trial_metrics(result, rec, dimension: str) -> dict[str, float]:
+    """The metrics of a run, by the kind of recording.
+
+    BROAD-like (``movement`` mask): total, heading, inclination RMSE over the movement samples;
+    ``score`` is total for a 9D run and inclination for a 6D one. GNSS flights: tilt
+    (inclination) and heading RMS overall, with GNSS and in gaps. Other recordings with a
+    reference: RMS over all samples where the reference is finite. No reference: ``{}``.
+    """
+    if rec.truth is None:
+        return {}
+    q_ref = change_frame(rec.truth, rec.truth_frame, result.frame)
+    errs = broad_errors(result.quat, q_ref)
+    if rec.movement is not None:
+        m = rec.movement
+        out = {k: _rms(v[m]) for k, v in errs.items()}
+    else:
+        out = {k: _rms(v) for k, v in errs.items()}
+        if rec.gnss is not None:
+            ok, gap = gnss_masks(rec)
+            out["tilt"] = out["inclination"]
+            for name, mask in (("gnss", ok), ("gap", gap)):
+                out[f"tilt_{name}"] = _rms(errs["inclination"][mask])
+                out[f"heading_{name}"] = _rms(errs["heading"][mask])
+    out["score"] = out["total"] if dimension == "9D" else out["inclination"]
     return out
