@@ -1,8 +1,9 @@
 """``fusionkit demo``: every registered filter side by side on the package's simulated recordings.
 
-No external data. Prints a table (inclination RMSE over the moving samples, heading RMSE after
-removing the constant heading offset that a gyro-only or 6D filter cannot know, throughput and
-backend) and, with matplotlib, writes a plot of the inclination error over time.
+No external data. Prints a table (inclination RMSE over the moving samples; heading RMSE, for a
+6D or gyro-only filter after removing the constant heading offset it cannot know; throughput
+and backend) and, with matplotlib, writes a plot of the inclination error over time. Peers
+(``fusionkit[peers]``) are registered filters too, so they appear when installed.
 """
 
 from __future__ import annotations
@@ -44,12 +45,13 @@ def evaluate(filter_names=None, recordings=None):
             res = f.run(rec)
             elapsed = time.perf_counter() - t0
             q_ref = change_frame(rec.truth, rec.truth_frame, res.frame)
-            k0 = int(np.argmax(rec.movement))  # heading offset taken where the motion starts
-            q = _heading_aligned(res.quat, q_ref, k0)
+            dim = f.dimension(rec)
+            k0 = int(np.argmax(rec.movement))  # a 6D filter's heading offset, taken where the motion starts
+            q = res.quat if dim == "9D" else _heading_aligned(res.quat, q_ref, k0)
             errs = broad_errors(q, q_ref)
             m = rec.movement
             rows.append({
-                "filter": name, "recording": rec.name,
+                "filter": name, "recording": rec.name, "dimension": dim,
                 "inclination_deg": float(np.sqrt(np.nanmean(errs["inclination"][m] ** 2))),
                 "heading_deg": float(np.sqrt(np.nanmean(errs["heading"][m] ** 2))),
                 "samples_per_s": len(rec) / elapsed, "backend": res.diagnostics.get("backend", "?"),
@@ -59,13 +61,14 @@ def evaluate(filter_names=None, recordings=None):
 
 
 def format_table(rows) -> str:
-    head = f"{'filter':16s} {'recording':15s} {'incl. RMSE':>11s} {'heading RMSE':>13s} {'samples/s':>12s}  backend"
+    head = (f"{'filter':16s} {'recording':15s} {'dim':3s} {'incl. RMSE':>11s} {'heading RMSE':>13s} "
+            f"{'samples/s':>12s}  backend")
     lines = [head, "-" * len(head)]
     for r in rows:
         if "error" in r:
             lines.append(f"{r['filter']:16s} skipped: {r['error']}")
             continue
-        lines.append(f"{r['filter']:16s} {r['recording']:15s} {r['inclination_deg']:9.3f} d "
+        lines.append(f"{r['filter']:16s} {r['recording']:15s} {r['dimension']:3s} {r['inclination_deg']:9.3f} d "
                      f"{r['heading_deg']:11.3f} d {r['samples_per_s']:12,.0f}  {r['backend']}")
     return "\n".join(lines)
 
@@ -98,7 +101,7 @@ def plot_errors(curves, path) -> bool:
 def run_demo(plot: str | None = "fusionkit-demo.png", filters=None) -> int:
     """Print the side-by-side table; write the error plot to ``plot`` (None or '' for none)."""
     rows, curves = evaluate(filters)
-    print("fusionkit demo: built-in filters on simulated MEMS recordings (200 Hz, noise and gyro bias)")
+    print("fusionkit demo: every registered filter on simulated MEMS recordings (200 Hz, noise and gyro bias)")
     print(format_table(rows))
     if plot:
         if plot_errors(curves, plot):

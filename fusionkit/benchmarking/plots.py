@@ -64,14 +64,15 @@ def plot_by_group(result, path, metric: str = "score") -> Path:
     groups = list(dict.fromkeys(g for r in result.records for g in (r["groups"] or ["all"])))
     x = np.arange(len(groups))
     w = 0.8 / max(1, len(filters))
-    fig, ax = plt.subplots(figsize=(max(8, len(groups) * 0.9), 4.5))
+    fig, ax = plt.subplots(figsize=(max(8, len(groups) * 0.9) + 2.5, 4.5))
     for i, f in enumerate(filters):
         ax.bar(x + i * w, [bg.get(f, {}).get(g, np.nan) for g in groups], w, label=f)
     ax.set_xticks(x + 0.4 - w / 2)
     ax.set_xticklabels(groups, rotation=35, ha="right")
     ax.set_ylabel("RMSE [deg] (9D: total, 6D: inclination)")
-    ax.grid(axis="y", alpha=0.3)
-    ax.legend(fontsize=8, ncol=2)
+    ax.set_yscale("log")  # errors span two decades; a linear axis hides the differences among good filters
+    ax.grid(axis="y", which="both", alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

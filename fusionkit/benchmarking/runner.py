@@ -4,6 +4,7 @@
 
     {"filter": label, "name": registered name, "params": {...}, "config": full config,
      "trial": ..., "dataset": ..., "groups": [...], "dimension": "6D" | "9D",
+     "reference": None | "ground truth" | "autopilot estimate" | ...,
      "metrics": {...}, "samples": N, "seconds": ..., "samples_per_s": ...,
      "backend": ..., "versions": {...}, "error": None | "Type: message", "cached": bool}
 
@@ -107,7 +108,7 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
     rec_out: dict[str, Any] = {
         "filter": spec.label, "name": spec.name, "params": spec.kwargs, "config": None, "trial": trial.name,
         "dataset": trial.dataset, "groups": list(trial.groups), "dimension": None, "metrics": {}, "samples": None,
-        "seconds": None, "samples_per_s": None, "backend": None, "versions": _versions(), "error": None,
+        "reference": None, "seconds": None, "samples_per_s": None, "backend": None, "versions": _versions(), "error": None,
         "cached": False,
     }
     try:
@@ -116,6 +117,7 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
         rec = trial.load()
         rec_out["samples"] = len(rec)
         rec_out["dimension"] = f.dimension(rec)
+        rec_out["reference"] = None if rec.truth is None else rec.meta.get("truth_kind", "ground truth")
         if warmup:  # compile numba loops outside the timing
             f.run(rec.slice(0, min(len(rec), 200)), progress=False)
         t0 = time.perf_counter()

@@ -2,7 +2,8 @@
 
 IMU from ``sensor_combined`` (gyro rad/s, accelerometer m/s^2, body FRD; the accelerometer is
 specific force), the magnetometer from ``vehicle_magnetometer`` (gauss, held to the IMU times),
-and as ``truth`` (body->NED) the simulator's ``vehicle_attitude_groundtruth`` where the log has
+GPS velocity from ``vehicle_gps_position`` as a NED :class:`~fusionkit.types.Gnss` stream (valid
+where ``vel_ned_valid`` and a 3D fix), and as ``truth`` (body->NED) the simulator's ``vehicle_attitude_groundtruth`` where the log has
 it, else the autopilot's own ``vehicle_attitude`` estimate: ``meta["truth_kind"]`` says which
 (an estimate is a reference to agree with, not the truth).
 """
@@ -14,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..types import Recording
+from ..types import Gnss, Recording
 
 __all__ = ["load_ulog"]
 
@@ -54,6 +55,16 @@ def load_ulog(path) -> Recording:
         idx = np.clip(np.searchsorted(tm, t, side="right") - 1, 0, len(tm) - 1)  # sample and hold
         mag = m[idx]
         mag[t < tm[0]] = m[0]
+    gnss = None
+    gps = _topic(ulog, "vehicle_gps_position")
+    if gps is not None and len(gps["timestamp"]) > 1 and "vel_n_m_s" in gps:
+        tg = gps["timestamp"] / 1e6 - t[0]
+        _, first = np.unique(tg, return_index=True)
+        vel = np.column_stack([gps["vel_n_m_s"], gps["vel_e_m_s"], gps["vel_d_m_s"]])[first]
+        valid = (gps["vel_ned_valid"].astype(bool) & (gps["fix_type"] >= 3))[first]
+        inside = (tg[first] >= 0) & (tg[first] <= t[-1] - t[0])
+        if inside.sum() > 1:
+            gnss = Gnss(t=tg[first][inside], vel=vel[inside], valid=valid[inside], frame="NED")
     truth, kind = None, "none"
     for topic, label in (("vehicle_attitude_groundtruth", "ground truth (simulator)"),
                          ("vehicle_attitude", "autopilot estimate")):
@@ -69,6 +80,6 @@ def load_ulog(path) -> Recording:
             truth[inside] = slerp(t[inside]).as_quat()[:, [3, 0, 1, 2]]
             kind = label
             break
-    return Recording(gyr=gyr, acc=acc, mag=mag, t=t - t[0], truth=truth, truth_frame="NED", name=p.stem,
+    return Recording(gyr=gyr, acc=acc, mag=mag, t=t - t[0], gnss=gnss, truth=truth, truth_frame="NED", name=p.stem,
                      meta={"path": str(p), "dataset": "ulog", "body_frame": "FRD", "truth_kind": kind,
                            "t0_s": float(t[0])})

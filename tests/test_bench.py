@@ -1,0 +1,181 @@
+"""The side-by-side runner, its outputs and its failure modes, on CSV recordings made here."""
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+import fusionkit as fk
+from fusionkit import sim
+from fusionkit.benchmarking import bench, discover
+from fusionkit.benchmarking.runner import FilterSpec
+from fusionkit.benchmarking.sweep import sweep
+from fusionkit.cli import main
+from fusionkit.errors import ConfigError, InputError, PluginError
+from fusionkit.filters.poisson import PoissonFilter
+from fusionkit.io import write_csv
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    d = tmp_path_factory.mktemp("csvdata")
+    deg = np.pi / 180
+    for i, segs in enumerate([[sim.Rest(11), sim.Rotate((0, 0, 1), 60 * deg, 2), sim.Rest(1)],
+                              [sim.Rest(11), sim.Rotate((1, 0, 0), 30 * deg, 2), sim.Rest(1)]]):
+        rec = sim.simulate(segs, rate=100.0, noise=sim.Noise.mems(), seed=i)
+        write_csv(rec, d / f"trial{i}.csv")
+    # a recording without a reference
+    r = sim.simulate([sim.Rest(11), sim.Rest(1)], rate=100.0, seed=5)
+    write_csv(fk.Recording(gyr=r.gyr, acc=r.acc, rate=100.0), d / "noref.csv")
+    return d
+
+
+def test_discover_and_select(data):
+    names = [t.name for t in discover(data)]
+    assert names == ["noref", "trial0", "trial1"]
+    assert [t.name for t in discover(data, ["trial1"])] == ["trial1"]
+    with pytest.raises(InputError, match="matches 2 recordings"):
+        discover(data, ["trial"])
+    with pytest.raises(InputError, match="does not exist"):
+        discover(data / "nope")
+
+
+def test_bench_records_and_tables(data, tmp_path):
+    res = bench(["poisson", ("poisson", {"step": "exact"})], data, cache_dir=tmp_path)
+    assert len(res.records) == 6
+    r = next(r for r in res.records if r["trial"] == "trial0" and r["filter"] == "poisson")
+    assert r["error"] is None and r["dimension"] == "6D" and r["backend"] == "numba"
+    assert r["samples_per_s"] > 0 and r["versions"]["fusionkit"] == fk.__version__
+    assert r["config"]["step"] == "first-order" and r["groups"] == ["csv"]
+    assert 0 < r["metrics"]["inclination"] < 2 and r["metrics"]["score"] == r["metrics"]["inclination"]
+    noref = next(r for r in res.records if r["trial"] == "noref")
+    assert noref["metrics"] == {} and noref["samples_per_s"] > 0  # speed only
+    text = res.table()
+    assert "poisson[step=exact]" in text and "samples/s" in text
+    md = res.table("markdown")
+    assert md.startswith("| trial | poisson |")
+    recs = json.loads(res.table("json"))
+    assert {r["trial"] for r in recs} == {"noref", "trial0", "trial1"}
+    assert res.table("csv").splitlines()[0] == "trial,poisson,poisson[step=exact]"
+    assert set(res.by_group()["poisson"]) == {"csv"}
+    with pytest.raises(ConfigError, match="format"):
+        res.table("xml")
+
+
+def test_cache_makes_a_rerun_instant(data, tmp_path):
+    first = bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path)
+    again = bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path)
+    assert not first.records[0]["cached"] and again.records[0]["cached"]
+    assert again.records[0]["metrics"] == first.records[0]["metrics"]
+    other = bench([("poisson", {"step": "exact"})], data, trials=["trial0"], cache_dir=tmp_path)
+    assert not other.records[0]["cached"]  # another config, another key
+
+
+def test_a_failing_filter_is_reported_and_the_rest_continue(data, tmp_path):
+    class Fragile(PoissonFilter):
+        name = "fragile-test"
+
+        def run(self, rec, **kw):
+            if rec.name == "trial1":
+                raise RuntimeError("boom on trial1")
+            return super().run(rec, **kw)
+
+    fk.register(Fragile)
+    try:
+        res = bench(["fragile-test", "poisson"], data, cache=False)
+    finally:
+        fk.default_registry()._extra.remove(next(e for e in fk.default_registry()._extra if e.cls is Fragile))
+        fk.default_registry().refresh()
+    bad = [r for r in res.records if r["error"]]
+    assert len(bad) == 1 and bad[0]["trial"] == "trial1" and "boom on trial1" in bad[0]["error"]
+    assert "error: fragile-test on trial1: RuntimeError: boom on trial1" in res.table()
+    assert all(not r["error"] for r in res.records if r["filter"] == "poisson")
+
+
+def test_unknown_filter_and_parameters(data):
+    with pytest.raises(PluginError, match="did you mean 'poisson'"):
+        bench(["poison"], data)
+    with pytest.raises(ConfigError, match="match no field"):
+        bench(["poisson"], data, params={"beta": 0.1})
+
+
+def test_params_apply_by_field_or_by_filter(data):
+    res = bench(["poisson", "vqf"], data, trials=["trial0"], cache=False,
+                params={"frame": "NED", "vqf.tau_acc": 2.0, "poisson.motion.window": 0.2})
+    cfg = {r["name"]: r["config"] for r in res.records}
+    assert cfg["poisson"]["frame"] == "NED" and cfg["vqf"]["frame"] == "NED"
+    assert cfg["vqf"]["tau_acc"] == 2.0 and cfg["poisson"]["motion"]["window"] == 0.2
+
+
+def test_process_pool_gives_the_same_numbers(data):
+    one = bench(["poisson"], data, cache=False)
+    two = bench(["poisson"], data, cache=False, jobs=2)
+    key = lambda r: r["trial"]  # noqa: E731
+    for a, b in zip(sorted(one.records, key=key), sorted(two.records, key=key)):
+        assert a["metrics"] == b["metrics"]
+
+
+def test_dask_local_cluster_on_loopback(data):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  protocol="tcp", dashboard_address=None) as cluster:
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+        res = bench(["poisson"], data, cache=False, scheduler=cluster.scheduler_address)
+    local = bench(["poisson"], data, cache=False)
+    assert sorted((r["trial"], r["metrics"].get("score")) for r in res.records) == \
+        sorted((r["trial"], r["metrics"].get("score")) for r in local.records)
+
+
+def test_sweep_reports_tagp_and_per_trial_minimum(data):
+    s = sweep("poisson", {"motion.window": [0.05, 0.2], "step": ["first-order", "exact"]}, data,
+              trials=["trial0", "trial1"], cache=False)
+    assert len(s.combos) == 4
+    params, best = s.tagp
+    means = dict((json.dumps(c, sort_keys=True), v) for c, v in s.mean_by_combo())
+    assert best == min(means.values())
+    ptm = s.per_trial_minimum()
+    assert set(ptm) == {"trial0", "trial1"}
+    assert np.mean([v for _, v in ptm.values()]) <= best + 1e-12  # never worse than the common best
+    assert "TAGP" in s.report()
+    with pytest.raises(ConfigError, match="no parameter 'beta'"):
+        sweep("poisson", {"beta": [1]}, data)
+
+
+def test_filter_spec_labels():
+    assert FilterSpec.of("vqf").label == "vqf"
+    assert FilterSpec.of(("vqf", {"tau_acc": 2})).label == "vqf[tau_acc=2]"
+    assert FilterSpec.of(("poisson", {"motion": {"window": 0.2}})).kwargs == {"motion": {"window": 0.2}}
+
+
+def test_cli_bench_and_sweep(data, tmp_path, capsys):
+    out = tmp_path / "t.md"
+    assert main(["bench", "--data", str(data), "--filters", "poisson", "--trials", "trial0,trial1", "--format",
+                 "markdown", "-o", str(out), "--no-cache", "--plots", str(tmp_path / "plots")]) == 0
+    assert out.read_text().startswith("| trial | poisson |")
+    assert (tmp_path / "plots" / "by_group.png").stat().st_size > 5000
+    assert (tmp_path / "plots" / "throughput.png").exists()
+    assert list((tmp_path / "plots").glob("error_*.png"))
+    assert main(["bench", "--data", str(tmp_path / "missing"), "--filters", "poisson"]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert main(["sweep", "poisson", "--data", str(data), "--trials", "trial0", "--grid", "step=first-order,exact",
+                 "--no-cache"]) == 0
+    assert re.search(r"TAGP \(best common parameters\): \{'step': '(first-order|exact)'\}", capsys.readouterr().out)
+
+
+def test_loaders_on_the_shared_data(broad_dir):
+    root = broad_dir.parent
+    trials = discover(root)
+    kinds = {t.dataset for t in trials}
+    assert kinds == {"broad", "gnss", "ulog"}
+    broad = [t for t in trials if t.dataset == "broad"]
+    assert all("all_trials" in t.groups for t in broad)
+    heli = fk.load(root / "gnss" / "heli_cruise" / "heli_cruise.h5")
+    assert heli.truth_frame == "NED" and heli.gnss.valid.all() and heli.rate is None
+    car = fk.load(root / "gnss" / "car_drive" / "car_drive.h5")
+    gap = ~car.gnss.valid
+    assert gap.any() and car.gnss.t[gap].min() == pytest.approx(170.0) and car.gnss.t[gap].max() < 230.0
+    sitl = fk.load(root / "ulog" / "sample_logging_tagged_and_default_params.ulg")
+    assert sitl.meta["truth_kind"] == "ground truth (simulator)" and sitl.mag is not None
+    real = fk.load(root / "ulog" / "sample.ulg")
+    assert real.meta["truth_kind"] == "autopilot estimate"
