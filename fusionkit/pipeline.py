@@ -33,12 +33,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ._kernels import alignment_quat as _k_alignment_quat
 from ._numba import HAVE_NUMBA, njit, resolve_backend
 from .config import PipelineConfig
 from .conventions import change_frame
 from .errors import ConfigError, InputError
-from .navigation.alignment import alignment_quat
+from .navigation.alignment import (
+    ALIGN_SIZE, ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, DISTURBED, END, PHASE, SEEN, Aligner, align_step,
+)
 from .protocols import Detector, DetectionResult, Filter, Sample
 from .registry import Registry, default_registry
 from .types import Flag, Recording, Result
@@ -46,11 +47,9 @@ from .validation import as_vector, check_finite_all, check_positive
 
 __all__ = ["Pipeline", "run_detector"]
 
-# alignment state layout
-_PHASE, _SEEN, _NACC, _SACC, _NGYR, _SGYR, _NMAG, _SMAG, _BIAS, _END, _DISTURBED, _RCORR = (
-    0, 1, 2, 3, 6, 7, 10, 11, 14, 17, 18, 19)
-_ALIGN_SIZE = 22
-_MODES = {"none": 0.0, "fixed": 1.0, "motion": 2.0}
+# the pipeline's run state "align": the alignment's fields, then the pending correction rate
+_RCORR = ALIGN_SIZE
+_STATE_SIZE = ALIGN_SIZE + 3
 _CHUNK = 200_000
 
 
@@ -78,7 +77,6 @@ class Pipeline(Filter):
                 "alignment mode 'motion' ends on a MOTION flag, but no detector sets it: add the "
                 "'motion' detector or use mode 'fixed'"
             )
-        self._q_frame = change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "NUE", spec.frame)
         self._stream: dict[str, Any] | None = None
         self.last_flags = 0
 
@@ -91,13 +89,13 @@ class Pipeline(Filter):
         return "9D" if uses and rec.mag is not None else "6D"
 
     # -- state -----------------------------------------------------------------------------
+    def aligner(self, dt: float) -> Aligner:
+        return Aligner(self.spec.alignment, self.spec.frame, dt)
+
     def new_state(self, dt: float) -> dict[str, Any]:
         """A fresh run state for nominal sample interval ``dt``."""
-        al = np.zeros(_ALIGN_SIZE)
-        al[_END] = -1.0
+        al = self.aligner(dt).new_state(_STATE_SIZE)
         q0 = np.array(self.spec.alignment.initial_quat)
-        if self.spec.alignment.mode == "none":
-            al[_PHASE] = 1.0
         return {
             "dt": float(dt),
             "x": self.estimator.initial_state(q0),
@@ -160,31 +158,15 @@ class Pipeline(Filter):
                 if bits:
                     flags |= det.flag
         # 3. alignment
-        if al[_PHASE] == 0.0:
-            mode, n_align = cfg.alignment.mode, self._n_align(st["dt"])
-            if mode == "motion" and al[_SEEN] >= n_align and flags & Flag.MOTION:
-                self._finish_alignment(st)
-            else:
-                if mode == "motion" and flags & Flag.MOTION:
-                    al[_DISTURBED] = 1.0
-                if acc_ok:
-                    al[_NACC] += 1.0
-                    al[_SACC:_SACC + 3] += acc
-                if gyr_ok:
-                    al[_NGYR] += 1.0
-                    al[_SGYR:_SGYR + 3] += gyr
-                if mag_ok:
-                    al[_NMAG] += 1.0
-                    al[_SMAG:_SMAG + 3] += mag
-                al[_SEEN] += 1.0
-                q = self._alignment_attitude(al)
-                if mode == "fixed" and al[_SEEN] >= n_align:
-                    self._finish_alignment(st)
-                return q, flags | Flag.ALIGNING, crit0
+        status, q = self.aligner(st["dt"]).step(al, gyr, acc, mag, gyr_ok, acc_ok, mag_ok, bool(flags & Flag.MOTION))
+        if status in (ALIGNED_NOW, ALIGNED_BEFORE):
+            st["x"] = self.estimator.initial_state(q)
+        if status in (ALIGNING, ALIGNED_NOW):
+            return q, flags | Flag.ALIGNING, crit0
         # 4. propagation
-        al[_SEEN] += 1.0
+        al[SEEN] += 1.0
         if gyr_ok:
-            self.estimator.propagate(st["x"], gyr - al[_BIAS:_BIAS + 3] + al[_RCORR:_RCORR + 3], dt)
+            self.estimator.propagate(st["x"], gyr - al[BIAS:BIAS + 3] + al[_RCORR:_RCORR + 3], dt)
         # 5. correctors
         if self.correctors:
             rate = np.zeros(3)
@@ -196,24 +178,6 @@ class Pipeline(Filter):
             al[_RCORR:_RCORR + 3] = rate
         return self.estimator.quat(st["x"]), flags, crit0
 
-    def _n_align(self, dt: float) -> int:
-        return max(1, int(round(self.spec.alignment.duration / dt)))
-
-    def _alignment_attitude(self, al) -> np.ndarray:
-        if al[_NACC] == 0:
-            return np.array(self.spec.alignment.initial_quat)
-        use_mag = self.spec.alignment.heading == "magnetometer" and al[_NMAG] > 0
-        mag = al[_SMAG:_SMAG + 3] / al[_NMAG] if use_mag else None
-        return alignment_quat(al[_SACC:_SACC + 3] / al[_NACC], mag, self.spec.frame)
-
-    def _finish_alignment(self, st) -> None:
-        al = st["align"]
-        if self.spec.alignment.estimate_bias and al[_NGYR] > 0:
-            al[_BIAS:_BIAS + 3] = al[_SGYR:_SGYR + 3] / al[_NGYR]
-        st["x"] = self.estimator.initial_state(self._alignment_attitude(al))
-        al[_END] = al[_SEEN]
-        al[_PHASE] = 1.0
-
     # -- the compiled path -----------------------------------------------------------------
     def _kernels(self):
         if self.correctors or len(self.detectors) > 1:
@@ -224,19 +188,12 @@ class Pipeline(Filter):
             return None
         return ek, dk
 
-    def _align_params(self, dt: float) -> np.ndarray:
-        a = self.spec.alignment
-        ap = np.zeros(15)
-        ap[0] = _MODES[a.mode]
-        ap[1] = self._n_align(dt)
-        ap[2] = float(a.heading == "magnetometer")
-        ap[3:7] = self._q_frame
-        ap[7:11] = a.initial_quat
-        ap[11] = float(a.estimate_bias)
-        ap[12] = self.spec.gyr_range if self.spec.gyr_range is not None else math.inf
-        ap[13] = self.spec.acc_range if self.spec.acc_range is not None else math.inf
-        ap[14] = float(Flag.MOTION)
-        return ap
+    def _loop_params(self) -> np.ndarray:
+        pp = np.zeros(3)
+        pp[0] = self.spec.gyr_range if self.spec.gyr_range is not None else math.inf
+        pp[1] = self.spec.acc_range if self.spec.acc_range is not None else math.inf
+        pp[2] = float(Flag.MOTION)
+        return pp
 
     def _run_compiled(self, st, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop) -> None:
         ek, dk = self._kernels()
@@ -246,7 +203,7 @@ class Pipeline(Filter):
         det_flag = float(self.detectors[0].flag) if dk is not None else 0.0
         x = st["x"]
         loop(gyr, acc, mag, dt, has_mag, x, ek.params, det_state, det_params, det_flag,
-             st["align"], self._align_params(st["dt"]), out_q, out_f, out_c, start, stop)
+             st["align"], self.aligner(st["dt"]).params(), self._loop_params(), out_q, out_f, out_c, start, stop)
 
     # -- public ----------------------------------------------------------------------------
     def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
@@ -286,9 +243,9 @@ class Pipeline(Filter):
     def _diagnostics(self, st, flags, crit, backend) -> dict[str, Any]:
         al = st["align"]
         d: dict[str, Any] = {"backend": backend, "filter": self.name, "config": self.config.model_dump()}
-        d["bias"] = al[_BIAS:_BIAS + 3].copy()
-        d["alignment_end_index"] = None if al[_END] < 0 else int(al[_END])
-        d["alignment_disturbed"] = bool(al[_DISTURBED])
+        d["bias"] = al[BIAS:BIAS + 3].copy()
+        d["alignment_end_index"] = None if al[END] < 0 else int(al[END])
+        d["alignment_disturbed"] = bool(al[DISTURBED])
         if self.detectors:
             fired = np.flatnonzero(crit)
             d["criteria"] = crit
@@ -355,9 +312,9 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step):
         raise ConfigError("numba is not installed")
 
     @njit(cache=False)
-    def loop(gyr, acc, mag, dt, has_mag, x, ep, ds, dp, det_flag, al, ap, out_q, out_f, out_c, start, stop):
+    def loop(gyr, acc, mag, dt, has_mag, x, ep, ds, dp, det_flag, al, ap, pp, out_q, out_f, out_c, start, stop):
         q = np.empty(4)
-        motion = int(ap[14])
+        motion = int(pp[2])
         dflag = int(det_flag)
         for k in range(start, stop):
             g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
@@ -371,11 +328,11 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step):
             flags = 0
             if not gyr_ok:
                 flags |= 4
-            elif max(abs(g0), max(abs(g1), abs(g2))) >= ap[12]:
+            elif max(abs(g0), max(abs(g1), abs(g2))) >= pp[0]:
                 flags |= 32
             if not acc_ok:
                 flags |= 8
-            elif max(abs(a0), max(abs(a1), abs(a2))) >= ap[13]:
+            elif max(abs(a0), max(abs(a1), abs(a2))) >= pp[1]:
                 flags |= 64
             if has_mag and not mag_ok:
                 flags |= 16
@@ -385,72 +342,24 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step):
                 if crit != 0:
                     flags |= dflag
             out_c[k] = crit
-            navigate = al[_PHASE] != 0.0
-            if not navigate:
-                mode = ap[0]
-                if mode == 2.0 and al[_SEEN] >= ap[1] and (flags & motion) != 0:
-                    _finish(al, ap, q)
+            if al[PHASE] == 0.0:  # checked here so that navigation does not pay for the call
+                status = align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_ok,
+                                    (flags & motion) != 0, q)
+                if status == ALIGNED_NOW or status == ALIGNED_BEFORE:  # start the estimator from the alignment
                     est_from_quat(q, x)
-                    navigate = True
-                else:
-                    if mode == 2.0 and (flags & motion) != 0:
-                        al[_DISTURBED] = 1.0
-                    if acc_ok:
-                        al[_NACC] += 1.0
-                        al[_SACC] += a0
-                        al[_SACC + 1] += a1
-                        al[_SACC + 2] += a2
-                    if gyr_ok:
-                        al[_NGYR] += 1.0
-                        al[_SGYR] += g0
-                        al[_SGYR + 1] += g1
-                        al[_SGYR + 2] += g2
-                    if mag_ok:
-                        al[_NMAG] += 1.0
-                        al[_SMAG] += m0
-                        al[_SMAG + 1] += m1
-                        al[_SMAG + 2] += m2
-                    al[_SEEN] += 1.0
-                    _attitude(al, ap, q)
+                if status == ALIGNING or status == ALIGNED_NOW:
                     out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
                     out_f[k] = flags | 1
-                    if mode == 1.0 and al[_SEEN] >= ap[1]:
-                        _finish(al, ap, q)
-                        est_from_quat(q, x)
-            if navigate:
-                al[_SEEN] += 1.0
-                if gyr_ok:
-                    est_propagate(x, g0 - al[_BIAS] + al[_RCORR], g1 - al[_BIAS + 1] + al[_RCORR + 1],
-                                  g2 - al[_BIAS + 2] + al[_RCORR + 2], dt[k], ep)
-                est_to_quat(x, q)
-                out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
-                out_f[k] = flags
+                    continue
+            al[SEEN] += 1.0
+            if gyr_ok:
+                est_propagate(x, g0 - al[BIAS] + al[_RCORR], g1 - al[BIAS + 1] + al[_RCORR + 1],
+                              g2 - al[BIAS + 2] + al[_RCORR + 2], dt[k], ep)
+            est_to_quat(x, q)
+            out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
+            out_f[k] = flags
 
     return loop
-
-
-@njit
-def _attitude(al, ap, q):
-    if al[_NACC] == 0.0:
-        q[0], q[1], q[2], q[3] = ap[7], ap[8], ap[9], ap[10]
-        return
-    n = al[_NACC]
-    use_mag = ap[2] != 0.0 and al[_NMAG] > 0.0
-    nm = al[_NMAG] if use_mag else 1.0
-    _k_alignment_quat(al[_SACC] / n, al[_SACC + 1] / n, al[_SACC + 2] / n, al[_SMAG] / nm, al[_SMAG + 1] / nm,
-                      al[_SMAG + 2] / nm, 1 if use_mag else 0, ap[3:7], q)
-
-
-@njit
-def _finish(al, ap, q):
-    """End the alignment: bias, final attitude into ``q`` (the caller starts the estimator from it)."""
-    if ap[11] != 0.0 and al[_NGYR] > 0.0:
-        al[_BIAS] = al[_SGYR] / al[_NGYR]
-        al[_BIAS + 1] = al[_SGYR + 1] / al[_NGYR]
-        al[_BIAS + 2] = al[_SGYR + 2] / al[_NGYR]
-    _attitude(al, ap, q)
-    al[_END] = al[_SEEN]
-    al[_PHASE] = 1.0
 
 
 # ---- detectors on their own -------------------------------------------------------------------

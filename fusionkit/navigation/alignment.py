@@ -15,10 +15,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._kernels import alignment_quat as _k_alignment_quat
+from .._numba import njit
 from ..conventions import change_frame, source000_quat
 from ..rotations import quat_from_axis_angle, quat_mul, quat_rotate
 
-__all__ = ["alignment_angles", "alignment_quat"]
+__all__ = ["alignment_angles", "alignment_quat", "Aligner", "align_step"]
 
 
 def alignment_angles(acc_mean) -> tuple[float, float]:
@@ -43,3 +45,146 @@ def alignment_quat(acc_mean, mag_mean=None, frame: str = "ENU") -> np.ndarray:
         q = quat_mul(quat_from_axis_angle([0.0, 1.0, 0.0], beta), q)  # rotate about Up (axis 2)
     q = change_frame(q, "NUE", frame)
     return q / np.linalg.norm(q)
+
+
+# ---- the alignment as a state machine, shared by the pipeline and monolithic filters ------------
+
+# layout of the alignment state array (a caller may append its own fields after ALIGN_SIZE)
+PHASE, SEEN, NACC, SACC, NGYR, SGYR, NMAG, SMAG, BIAS, END, DISTURBED = 0, 1, 2, 3, 6, 7, 10, 11, 14, 17, 18
+ALIGN_SIZE = 19
+MODES = {"none": 0.0, "fixed": 1.0, "motion": 2.0}
+#: what :meth:`Aligner.step` / :func:`align_step` say about a sample
+NAVIGATING, ALIGNING, ALIGNED_NOW, ALIGNED_BEFORE = 0, 1, 2, 3
+
+
+class Aligner:
+    """Source 000's initial alignment over a flat state array (the readable reference).
+
+    Per sample, :meth:`step` returns a status: ``ALIGNING`` (the sample was averaged; ``q`` is
+    the current alignment attitude), ``ALIGNED_NOW`` (averaged, and the alignment ended with it:
+    start the estimator from ``q``), ``ALIGNED_BEFORE`` (mode ``motion``: the sample moves, the
+    alignment ended before it: start from ``q`` and navigate this sample) or ``NAVIGATING``.
+    :func:`align_step` is the numba twin, driven by :meth:`params`.
+    """
+
+    def __init__(self, config, frame: str, dt: float) -> None:
+        self.config = config
+        self.frame = frame
+        self.n_align = max(1, int(round(config.duration / dt)))
+
+    def new_state(self, size: int = ALIGN_SIZE) -> np.ndarray:
+        al = np.zeros(size)
+        al[END] = -1.0
+        if self.config.mode == "none":
+            al[PHASE] = 1.0
+        return al
+
+    def attitude(self, al) -> np.ndarray:
+        if al[NACC] == 0:
+            return np.array(self.config.initial_quat)
+        use_mag = self.config.heading == "magnetometer" and al[NMAG] > 0
+        mag = al[SMAG:SMAG + 3] / al[NMAG] if use_mag else None
+        return alignment_quat(al[SACC:SACC + 3] / al[NACC], mag, self.frame)
+
+    def _finish(self, al) -> np.ndarray:
+        if self.config.estimate_bias and al[NGYR] > 0:
+            al[BIAS:BIAS + 3] = al[SGYR:SGYR + 3] / al[NGYR]
+        al[END] = al[SEEN]
+        al[PHASE] = 1.0
+        return self.attitude(al)
+
+    def step(self, al, gyr, acc, mag, gyr_ok: bool, acc_ok: bool, mag_ok: bool, motion: bool):
+        """Returns ``(status, q)``; ``q`` is None while navigating."""
+        if al[PHASE] != 0.0:
+            return NAVIGATING, None
+        mode = self.config.mode
+        if mode == "motion" and al[SEEN] >= self.n_align and motion:
+            return ALIGNED_BEFORE, self._finish(al)
+        if mode == "motion" and motion:
+            al[DISTURBED] = 1.0
+        if acc_ok:
+            al[NACC] += 1.0
+            al[SACC:SACC + 3] += acc
+        if gyr_ok:
+            al[NGYR] += 1.0
+            al[SGYR:SGYR + 3] += gyr
+        if mag_ok:
+            al[NMAG] += 1.0
+            al[SMAG:SMAG + 3] += mag
+        al[SEEN] += 1.0
+        q = self.attitude(al)
+        if mode == "fixed" and al[SEEN] >= self.n_align:
+            self._finish(al)
+            return ALIGNED_NOW, q
+        return ALIGNING, q
+
+    def params(self) -> np.ndarray:
+        """The parameter vector of :func:`align_step`."""
+        from ..conventions import change_frame
+
+        c = self.config
+        ap = np.zeros(12)
+        ap[0] = MODES[c.mode]
+        ap[1] = self.n_align
+        ap[2] = float(c.heading == "magnetometer")
+        ap[3:7] = change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "NUE", self.frame)
+        ap[7:11] = c.initial_quat
+        ap[11] = float(c.estimate_bias)
+        return ap
+
+
+@njit
+def _k_attitude(al, ap, q):
+    if al[NACC] == 0.0:
+        q[0], q[1], q[2], q[3] = ap[7], ap[8], ap[9], ap[10]
+        return
+    n = al[NACC]
+    use_mag = ap[2] != 0.0 and al[NMAG] > 0.0
+    nm = al[NMAG] if use_mag else 1.0
+    _k_alignment_quat(al[SACC] / n, al[SACC + 1] / n, al[SACC + 2] / n, al[SMAG] / nm, al[SMAG + 1] / nm,
+                      al[SMAG + 2] / nm, 1 if use_mag else 0, ap[3:7], q)
+
+
+@njit
+def _k_finish(al, ap, q):
+    if ap[11] != 0.0 and al[NGYR] > 0.0:
+        al[BIAS] = al[SGYR] / al[NGYR]
+        al[BIAS + 1] = al[SGYR + 1] / al[NGYR]
+        al[BIAS + 2] = al[SGYR + 2] / al[NGYR]
+    al[END] = al[SEEN]
+    al[PHASE] = 1.0
+    _k_attitude(al, ap, q)
+
+
+@njit
+def align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_ok, motion, q):
+    """numba twin of :meth:`Aligner.step`; writes the attitude into ``q``, returns the status."""
+    if al[PHASE] != 0.0:
+        return NAVIGATING
+    mode = ap[0]
+    if mode == 2.0 and al[SEEN] >= ap[1] and motion:
+        _k_finish(al, ap, q)
+        return ALIGNED_BEFORE
+    if mode == 2.0 and motion:
+        al[DISTURBED] = 1.0
+    if acc_ok:
+        al[NACC] += 1.0
+        al[SACC] += a0
+        al[SACC + 1] += a1
+        al[SACC + 2] += a2
+    if gyr_ok:
+        al[NGYR] += 1.0
+        al[SGYR] += g0
+        al[SGYR + 1] += g1
+        al[SGYR + 2] += g2
+    if mag_ok:
+        al[NMAG] += 1.0
+        al[SMAG] += m0
+        al[SMAG + 1] += m1
+        al[SMAG + 2] += m2
+    al[SEEN] += 1.0
+    _k_attitude(al, ap, q)
+    if mode == 1.0 and al[SEEN] >= ap[1]:
+        _k_finish(al, ap, q)  # the same sums: the same attitude
+        return ALIGNED_NOW
+    return ALIGNING
