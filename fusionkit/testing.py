@@ -106,7 +106,12 @@ def _check_filter(cls, params, rec) -> None:
     dt = rec.dt
     mag = rec.mag
     if g is not None:
-        streamed = np.array([g.update(rec.gyr[k], rec.acc[k], None if mag is None else mag[k], dt[k])
+        extra = [{}] * n
+        if "gnss" in inspect.signature(g.update).parameters:  # GNSS-aided filters take the latest epoch
+            from .detectors.gnss_gap import gnss_sample_rows
+
+            extra = [{"gnss": row} for row in gnss_sample_rows(rec)]
+        streamed = np.array([g.update(rec.gyr[k], rec.acc[k], None if mag is None else mag[k], dt[k], **extra[k])
                              for k in range(n)])
         d = np.abs(streamed - res.quat).max()
         assert d < TOL, f"{cls.name}: run() and a loop of update() differ by {d:.2e}"
@@ -133,7 +138,7 @@ def _check_filter(cls, params, rec) -> None:
     # bad input
     bad = rec.acc.copy()
     bad[77] = np.nan
-    nan_rec = Recording(gyr=rec.gyr, acc=bad, mag=rec.mag, rate=rec.rate, t=rec.t)
+    nan_rec = Recording(gyr=rec.gyr, acc=bad, mag=rec.mag, rate=rec.rate, t=rec.t, gnss=rec.gnss)
     if "nan_policy" in cls.Config.model_fields:
         try:
             cls(**{**params, "nan_policy": "raise"}).run(nan_rec)

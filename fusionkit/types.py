@@ -179,11 +179,14 @@ class Recording:
         return self.t if self.t is not None else np.arange(len(self)) / self.rate
 
     def slice(self, start: int | None = None, stop: int | None = None) -> "Recording":
-        """A new recording of samples ``[start, stop)`` (GNSS is dropped)."""
+        """A new recording of samples ``[start, stop)``. With GNSS, the slice keeps the whole
+        GNSS stream and the original clock (its ``t`` are the original sample times)."""
         s = slice(start, stop)
+        keep_clock = self.gnss is not None
         return Recording(
             gyr=self.gyr[s], acc=self.acc[s], mag=None if self.mag is None else self.mag[s],
-            rate=self.rate, t=None if self.t is None else self.t[s],
+            rate=None if keep_clock else self.rate, t=self.time[s] if keep_clock else (None if self.t is None else self.t[s]),
+            gnss=self.gnss,
             truth=None if self.truth is None else self.truth[s], truth_frame=self.truth_frame,
             movement=None if self.movement is None else self.movement[s], name=self.name,
             meta=dict(self.meta),

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..rotations import quat_from_axis_angle, quat_mul, quat_normalize, quat_to_matrix
-from ..types import Recording
+from ..types import Gnss, Recording
 
 __all__ = ["Rest", "Rotate", "Translate", "Noise", "simulate", "demo_recordings", "KYIV_FIELD_ENU"]
 
@@ -71,8 +71,13 @@ def _progress(u):
 
 
 def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0, 0.0, 0.0, 0.0),
-             mag_field=KYIV_FIELD_ENU, gravity: float = 9.81, seed: int | None = 0, name: str = "sim") -> Recording:
-    """Simulate ``segments`` at ``rate`` Hz (see module doc); ``seed`` makes the noise repeatable."""
+             mag_field=KYIV_FIELD_ENU, gravity: float = 9.81, seed: int | None = 0, name: str = "sim",
+             gnss_rate: float | None = 10.0, gnss_vel_noise: float = 0.0, initial_velocity=(0.0, 0.0, 0.0)) -> Recording:
+    """Simulate ``segments`` at ``rate`` Hz (see module doc); ``seed`` makes the noise repeatable.
+
+    With ``gnss_rate`` (Hz) the recording carries a GNSS velocity stream (ENU, white noise of
+    ``gnss_vel_noise`` m/s per axis) sampled from the true velocity.
+    """
     if rate <= 0:
         raise InputError(f"rate must be > 0, got {rate}")
     segments = list(segments)
@@ -119,8 +124,15 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     gyr = gyr + np.asarray(noise.gyr_bias) + noise.gyr_noise * rng.standard_normal((n, 3))
     acc = acc + np.asarray(noise.acc_bias) + noise.acc_noise * rng.standard_normal((n, 3))
     mag = mag + noise.mag_noise * rng.standard_normal((n, 3))
+    gnss = None
+    if gnss_rate:
+        vel = np.asarray(initial_velocity, dtype=float) + np.concatenate(
+            [np.zeros((1, 3)), np.cumsum(0.5 * (acc_e[1:] + acc_e[:-1]) * dt, axis=0)])
+        step = max(1, int(round(rate / gnss_rate)))
+        idx = np.arange(0, n, step)
+        gnss = Gnss(t=idx * dt, vel=vel[idx] + gnss_vel_noise * rng.standard_normal((idx.size, 3)), frame="ENU")
     return Recording(gyr=gyr, acc=acc, mag=mag, rate=rate, truth=quat, truth_frame="ENU", movement=moving,
-                     name=name, meta={"simulated": True, "noise": noise, "gravity": gravity})
+                     gnss=gnss, name=name, meta={"simulated": True, "noise": noise, "gravity": gravity})
 
 
 @dataclass

@@ -1,0 +1,495 @@
+"""Source 001: the azimuth-free horizontal accompanying trihedron (GST) with accelerometer and
+GNSS correction. Filters ``gst`` (autonomous) and ``gst-gnss`` (combined).
+
+Frames. Body axes of the document: x right, y forward, z up (``body="RFU"``); sensors in other
+axes are mapped by ``body`` ("FRD", "FLU"). The platform trihedron x2 y2 z2 has z up and an
+arbitrary, azimuth-free heading.
+
+Per sample (after source 000's alignment has levelled the platform and estimated the gyro bias):
+
+1. Platform Poisson equation ``dC/dt = C [w_B x] - [w_P x] C``, ``C = C_B^P``, integrated
+   exactly over the sample: ``C <- exp(-[w_P dt x]) C exp([w_B dt x])`` (Rodrigues, source 004's
+   increment), re-orthonormalised. ``w_P = [w_x^C, w_y^C, 0]``: azimuth-free.
+2. Specific force on the platform axes ``f_P = C f_B``; gravity has no horizontal component on
+   the GST, so the horizontal part of ``f_P`` (minus the vehicle's own horizontal acceleration)
+   measures the platform tilt.
+3. Correction ``w_x^C = -K d_y``, ``w_y^C = +K d_x`` (the projections "taken with the opposite
+   sign", for a z-up platform), ``K = 1 / (g tau)`` for a loop time constant ``tau``:
+   (a) GNSS-aided: ``d = LP(f_P,h - a_kin)``, with ``a_kin`` the along-track acceleration
+   ``a = dV/dt`` on the forward axis and the centripetal ``V dH/dt`` on the right axis (eqs. 3,
+   4), V the GNSS ground speed and dH/dt the turn rate measured by the gyros;
+   (b) autonomous: ``d = LP(f_P,h)``, first-order "aperiodic" low-pass links.
+   Combined (``gst-gnss``): (a) while GNSS is usable, (b) in GNSS gaps; one platform, so the
+   switch has no jump; ``gnss_weight`` < 1 mixes (b) into (a) as the document's combination.
+4. Heading: gyroscopic heading H (platform y2 to the horizontal projection of the forward axis)
+   blended with the GNSS track angle (eq. 5): ``H*_k = H*_{k-1} + (H_k - H_{k-1}) +
+   (H_tr - H*_{k-1}) h / T``, angles wrapped, paused below ``min_speed`` and in gaps (then H* is
+   gyroscopic). Extension: ``heading_init="track"`` sets H* to the first usable track angle
+   instead of blending from an arbitrary start.
+
+Extension (``reject=True``, default): the autonomous correction is paused while the specific
+force norm differs from gravity by more than ``reject_acc``, the turn rate exceeds
+``reject_turn``, or the low-passed horizontal specific force exceeds ``reject_horizontal`` (for
+at most ``reject_timeout`` s in a row, so that a platform tilted beyond that test recovers) (coordinated turns put a sustained centripetal acceleration on the horizontal
+axes, which the low-pass cannot remove); ``reject=False`` is the document's loop.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+
+from .._kernels import dcm_to_quat
+from .._kernels import quat_to_dcm as dcm_from_quat
+from .._numba import njit, resolve_backend
+from ..config import AlignmentConfig, FilterConfig, param
+from ..conventions import change_frame
+from ..detectors.gnss_gap import gnss_sample_rows
+from ..detectors.motion import MotionConfig, MotionDetector, _motion_step
+from ..estimators.poisson import _bjorck
+from ..errors import InputError
+from ..navigation.alignment import (
+    ALIGN_SIZE, ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, NACC, PHASE, SACC, Aligner, align_step,
+)
+from ..protocols import Filter, Sample
+from ..rotations import matrix_to_quat, orthonormalize, quat_to_matrix, rodrigues
+from ..types import Flag, Recording, Result
+from ..validation import check_finite_all
+
+__all__ = ["GstFilter", "GstGnssFilter", "BODY_AXES", "MODES"]
+
+#: sensor axes -> the document's body axes (x right, y forward, z up): v_rfu = M v_sensor
+BODY_AXES = {
+    "RFU": np.eye(3),
+    "FRD": np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]),
+    "FLU": np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
+}
+#: per-sample mode codes in ``diagnostics["mode"]``
+MODES = ("aligning", "autonomous", "gnss", "rejected")
+
+# state layout
+_C, _WP, _LPA, _LPG, _VPREV, _TPREV, _ALONG, _V, _HPREV, _HSTAR, _HINIT, _GNORM, _REJT = (
+    0, 9, 12, 14, 16, 17, 18, 19, 20, 21, 22, 23, 24)
+_SIZE = 25
+
+
+class GstConfig(FilterConfig):
+    body: Literal["RFU", "FRD", "FLU"] = param(
+        "RFU", unit="-", description="sensor axes: RFU is the document's (x right, y forward, z up)"
+    )
+    combined: bool = param(False, unit="-", description="use GNSS when usable (gst-gnss), else autonomous only")
+    tau_gnss: float = param(20.0, unit="s", description="levelling loop time constant with GNSS (K = 1/(g tau))", gt=0)
+    tau_auto: float = param(50.0, unit="s", description="levelling loop time constant, autonomous", gt=0)
+    lp_gnss: float = param(2.0, unit="s", description="low-pass time constant of the GNSS-aided residual", gt=0)
+    lp_auto: float = param(2.0, unit="s", description="aperiodic-link time constant of the autonomous signal", gt=0)
+    gnss_weight: float = param(1.0, unit="-", description="weight of (a) against (b) while GNSS is usable", ge=0, le=1)
+    reject: bool = param(True, unit="-", description="pause the autonomous correction under acceleration or turning")
+    reject_acc: float = param(0.3, unit="m/s^2", description="| |f| - g | above this pauses it", gt=0)
+    reject_turn: float = param(0.02, unit="rad/s", description="turn rate above this pauses it", gt=0)
+    reject_horizontal: float = param(
+        0.5, unit="m/s^2", description="low-passed horizontal specific force above this pauses it (a levelled "
+        "platform sees only a few tenths: more is acceleration)", gt=0)
+    reject_timeout: float = param(
+        60.0, unit="s", description="after this long paused by the horizontal-force test alone, correct anyway "
+        "(recovers a platform tilted beyond that test)", gt=0)
+    heading_T: float = param(50.0, unit="s", description="track-angle blend time constant T (eq. 5)", gt=0)
+    heading_init: Literal["track", "blend"] = param(
+        "track", unit="-", description="'track': start H* at the first usable track angle; 'blend': eq. 5 from H"
+    )
+    min_speed: float = param(5.0, unit="m/s", description="no track angle below this ground speed", ge=0)
+    gnss_max_age: float = param(0.5, unit="s", description="a GNSS epoch older than this is a gap", gt=0)
+    alignment: Literal["motion", "fixed"] = param("motion", unit="-", description="source 000 alignment mode")
+    alignment_duration: float = param(10.0, unit="s", description="mandatory alignment time", gt=0)
+    motion: MotionConfig = param(MotionConfig(), unit="-", description="motion detector ending the alignment")
+
+
+class GstFilter(Filter):
+    """Source 001's GST levelling loops (autonomous; ``combined=True`` adds the GNSS loop)."""
+
+    name: ClassVar[str] = "gst"
+    Config = GstConfig
+    source: ClassVar[str] = "001 (GST with accelerometer and GNSS correction, Mi-8)"
+    summary: ClassVar[str] = "azimuth-free platform levelled by low-passed specific force (autonomous)"
+
+    def __init__(self, config=None, **params: Any) -> None:
+        super().__init__(config, **params)
+        c = self.config
+        motion = c.motion
+        if "arm_after" not in motion.model_fields_set:
+            motion = motion.model_copy(update={"arm_after": c.alignment_duration})
+        self.detector = MotionDetector(motion)
+        self.alignment = AlignmentConfig(mode=c.alignment, duration=c.alignment_duration)
+        self.M = BODY_AXES[c.body]
+        self._stream = None
+        self.last_flags = 0
+
+    def dimension(self, rec) -> str:
+        return "6D"  # no magnetometer: heading comes from gyros and, in gst-gnss, the GNSS track
+
+    # -- parameters ------------------------------------------------------------------------
+    def params(self, g: float = 9.80665) -> np.ndarray:
+        c = self.config
+        return np.array([
+            1.0 / (g * c.tau_gnss), 1.0 / (g * c.tau_auto), c.lp_gnss, c.lp_auto, c.gnss_weight, float(c.reject),
+            c.reject_acc, c.reject_turn, c.heading_T, float(c.heading_init == "track"), c.min_speed,
+            c.gnss_max_age, float(c.combined), c.reject_horizontal, c.reject_timeout,
+        ])
+
+    def new_state(self, dt: float) -> dict[str, Any]:
+        x = np.zeros(_SIZE)
+        x[_C:_C + 9] = np.eye(3).reshape(9)
+        x[_TPREV] = np.nan
+        return {"dt": dt, "x": x, "det": self.detector.initial_state(dt),
+                "align": Aligner(self.alignment, "ENU", dt).new_state()}
+
+    # -- the readable reference --------------------------------------------------------------
+    def _step(self, st, gyr, acc, gnss, dt) -> tuple[np.ndarray, int, int]:
+        """One sample; ``gnss`` = (vn, ve, valid, age, new, t_epoch). Returns (q body->ENU, flags, mode)."""
+        c, x, al = self.config, st["x"], st["align"]
+        gyr_ok, acc_ok = bool(np.isfinite(gyr).all()), bool(np.isfinite(acc).all() and np.any(acc != 0))
+        flags = (0 if gyr_ok else Flag.GYR_INVALID) | (0 if acc_ok else Flag.ACC_INVALID)
+        if gyr_ok and acc_ok and self.detector.step(st["det"], Sample(gyr, acc, None, dt)):
+            flags |= Flag.MOTION
+        # source 000's alignment: level and gyro bias while still
+        status, q = Aligner(self.alignment, "ENU", st["dt"]).step(al, gyr, acc, None, gyr_ok, acc_ok, False,
+                                                                  bool(flags & Flag.MOTION))
+        if status in (ALIGNED_NOW, ALIGNED_BEFORE):
+            self._start(x, q, al)
+        if status in (ALIGNING, ALIGNED_NOW):
+            return q, flags | Flag.ALIGNING, 0
+        if not (gyr_ok and acc_ok):  # hold the state over a bad sample
+            return self._output(x), flags, 0
+        w = self.M @ (gyr - al[BIAS:BIAS + 3])
+        f = self.M @ acc
+        p = self.params()
+        # 1. platform Poisson equation, exact over the sample
+        cm = rodrigues(-x[_WP:_WP + 3] * dt) @ x[_C:_C + 9].reshape(3, 3) @ rodrigues(w * dt)
+        cm = orthonormalize(cm)
+        x[_C:_C + 9] = cm.reshape(9)
+        # 2. specific force on the platform, turn rate, heading axes
+        fp = cm @ f
+        w_up = (cm @ w)[2]
+        fwd = cm[:, 1]
+        hn = math.hypot(fwd[0], fwd[1])
+        fx, fy = fwd[0] / hn, fwd[1] / hn  # horizontal forward direction on the platform
+        # 3a. GNSS: ground speed and along-track acceleration at each new epoch
+        vn, ve, valid, age, new, t_ep = gnss
+        gnss_ok = bool(c.combined and valid and age <= c.gnss_max_age)
+        if new and valid:
+            v = math.hypot(vn, ve)
+            if np.isfinite(x[_TPREV]) and t_ep > x[_TPREV]:
+                x[_ALONG] = (v - x[_VPREV]) / (t_ep - x[_TPREV])
+            x[_VPREV], x[_TPREV], x[_V] = v, t_ep, v
+        elif not valid:
+            x[_TPREV] = np.nan  # no derivative across a gap
+        a_lat = x[_V] * (-w_up)  # centripetal, towards the right for a right (clockwise) turn
+        ax = x[_ALONG] * fx + a_lat * fy  # right axis = (fy, -fx)
+        ay = x[_ALONG] * fy - a_lat * fx
+        kg = 1.0 - math.exp(-dt / p[2])
+        x[_LPG] += kg * ((fp[0] - ax) - x[_LPG])
+        x[_LPG + 1] += kg * ((fp[1] - ay) - x[_LPG + 1])
+        # 3b. autonomous: aperiodic links on the platform specific force
+        ka = 1.0 - math.exp(-dt / p[3])
+        x[_LPA] += ka * (fp[0] - x[_LPA])
+        x[_LPA + 1] += ka * (fp[1] - x[_LPA + 1])
+        horizontal = math.hypot(x[_LPA], x[_LPA + 1]) > p[13]
+        x[_REJT] = x[_REJT] + dt if horizontal else 0.0
+        rejected = bool(p[5]) and (abs(np.linalg.norm(f) - x[_GNORM]) > p[6] or abs(w_up) > p[7]
+                                   or (horizontal and x[_REJT] <= p[14]))
+        # 3c. the correction rate for the next sample
+        if gnss_ok:
+            wgt = p[4]
+            auto_k = 0.0 if rejected else (1.0 - wgt) * p[1]
+            dx, dy = wgt * p[0] * x[_LPG] + auto_k * x[_LPA], wgt * p[0] * x[_LPG + 1] + auto_k * x[_LPA + 1]
+            mode = 2
+        elif rejected:
+            dx = dy = 0.0
+            mode = 3
+            flags |= Flag.ACC_REJECTED
+        else:
+            dx, dy = p[1] * x[_LPA], p[1] * x[_LPA + 1]
+            mode = 1
+        if c.combined and not gnss_ok:
+            flags |= Flag.GNSS_GAP
+        x[_WP], x[_WP + 1], x[_WP + 2] = -dy, dx, 0.0
+        # 4. heading: gyroscopic H, blended with the GNSS track angle (eq. 5)
+        h = math.atan2(fx, fy)
+        x[_HSTAR] += _wrap(h - x[_HPREV])
+        x[_HPREV] = h
+        if gnss_ok and x[_V] >= p[10]:
+            track = math.atan2(ve, vn)
+            if x[_HINIT] == 0.0 and p[9] != 0.0:
+                x[_HSTAR] = track
+            else:
+                x[_HSTAR] += _wrap(track - x[_HSTAR]) * dt / p[8]
+            x[_HINIT] = 1.0
+        x[_HSTAR] = _wrap(x[_HSTAR])
+        return self._output(x), flags, mode
+
+    def _start(self, x, q_enu_sensor, al) -> None:
+        """Level the platform from the alignment attitude; keep |f| at rest as the local gravity."""
+        cm = quat_to_matrix(q_enu_sensor) @ self.M.T
+        x[_C:_C + 9] = cm.reshape(9)
+        x[_HPREV] = x[_HSTAR] = math.atan2(cm[0, 1], cm[1, 1])
+        x[_GNORM] = np.linalg.norm(al[SACC:SACC + 3]) / max(al[NACC], 1.0)
+        x[_WP:_WP + 3] = 0.0
+
+    def _output(self, x) -> np.ndarray:
+        """Body(sensor)->ENU: the platform turned by alpha = H* - H about the vertical."""
+        cm = x[_C:_C + 9].reshape(3, 3)
+        a = x[_HSTAR] - x[_HPREV]
+        ca, sa = math.cos(a), math.sin(a)
+        rz = np.array([[ca, sa, 0.0], [-sa, ca, 0.0], [0.0, 0.0, 1.0]])  # Rz(-alpha)
+        return matrix_to_quat(rz @ cm @ self.M)
+
+
+    # -- public ----------------------------------------------------------------------------
+    def _gnss_arrays(self, rec: Recording) -> np.ndarray:
+        if rec.gnss is None and self.config.combined:
+            raise InputError(f"{self.name} needs a GNSS stream (Recording(gnss=...)); use 'gst' without GNSS")
+        return gnss_sample_rows(rec)
+
+    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
+            state: dict | None = None) -> Result:
+        if not isinstance(rec, Recording):
+            raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
+        check_finite_all({"gyr": rec.gyr, "acc": rec.acc}, self.config.nan_policy)
+        used = resolve_backend(backend, True)
+        n = len(rec)
+        gn = self._gnss_arrays(rec)
+        st = state if state is not None else self.new_state(rec.nominal_dt)
+        st = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in st.items()}
+        dt = rec.dt
+        q = np.empty((n, 4))
+        flags = np.zeros(n, np.uint32)
+        mode = np.zeros(n, np.uint8)
+        if used == "numba":
+            _gst_loop(rec.gyr, rec.acc, dt, gn, self.M, self.params(), st["x"], st["det"],
+                      self.detector.kernel().params, st["align"], Aligner(self.alignment, "ENU", st["dt"]).params(),
+                      q, flags, mode)
+        else:
+            for k in range(n):
+                q[k], flags[k], mode[k] = self._step(st, rec.gyr[k], rec.acc[k], gn[k], dt[k])
+        al = st["align"]
+        diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "mode": mode,
+                "mode_names": MODES, "bias": al[BIAS:BIAS + 3].copy(),
+                "alignment_end_index": None if al[17] < 0 else int(al[17]), "state": st}
+        return Result(change_frame(q, "ENU", self.config.frame), flags, self.config.frame, diag)
+
+    def reset(self) -> None:
+        self._stream = None
+
+    def update(self, gyr, acc, mag=None, dt: float | None = None, gnss=None) -> np.ndarray:
+        """One sample; ``gnss`` = (vn, ve, valid, age, new, t_epoch) of the latest epoch, or None."""
+        from ..validation import as_vector, check_positive
+
+        if dt is None:
+            raise InputError("update() needs dt, the sample interval in s")
+        dt = check_positive("dt", dt)
+        g, a = as_vector("gyr", gyr), as_vector("acc", acc)
+        if self.config.nan_policy == "raise" and not (np.isfinite(g).all() and np.isfinite(a).all()):
+            raise InputError("non-finite gyr/acc sample; pass nan_policy='skip' to hold and flag")
+        if self._stream is None:
+            self._stream = self.new_state(dt)
+        gn = np.array([np.nan, np.nan, 0.0, np.inf, 0.0, np.nan]) if gnss is None else np.asarray(gnss, float)
+        q, f, _ = self._step(self._stream, g, a, gn, dt)
+        self.last_flags = int(f)
+        return change_frame(q, "ENU", self.config.frame)
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class GstGnssFilter(GstFilter):
+    """Source 001's combined algorithm: GNSS-aided levelling and track-angle heading while GNSS
+    is usable, the autonomous loop and gyroscopic heading in GNSS gaps."""
+
+    name: ClassVar[str] = "gst-gnss"
+    summary: ClassVar[str] = "GST levelled with GNSS-compensated specific force, track-angle heading, autonomous in gaps"
+
+    class Config(GstConfig):
+        combined: bool = param(True, unit="-", description="use GNSS when usable (gst-gnss), else autonomous only")
+
+
+# ---- numba kernel: the same steps as GstFilter._step -------------------------------------------
+
+
+@njit
+def _rod(r0, r1, r2, out):
+    """Row-major Rodrigues matrix exp([r x]) (rotations.rodrigues)."""
+    s2 = r0 * r0 + r1 * r1 + r2 * r2
+    s = math.sqrt(s2)
+    if s < 1e-4:
+        a = 1.0 - s2 / 6.0 + s2 * s2 / 120.0
+        b = 0.5 - s2 / 24.0 + s2 * s2 / 720.0
+    else:
+        a = math.sin(s) / s
+        b = (1.0 - math.cos(s)) / s2
+    out[0] = 1.0 + b * (r0 * r0 - s2)
+    out[1] = -a * r2 + b * r0 * r1
+    out[2] = a * r1 + b * r0 * r2
+    out[3] = a * r2 + b * r0 * r1
+    out[4] = 1.0 + b * (r1 * r1 - s2)
+    out[5] = -a * r0 + b * r1 * r2
+    out[6] = -a * r1 + b * r0 * r2
+    out[7] = a * r0 + b * r1 * r2
+    out[8] = 1.0 + b * (r2 * r2 - s2)
+
+
+@njit
+def _mm(a, b, out):
+    for i in range(3):
+        for j in range(3):
+            out[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j]
+
+
+@njit
+def _kwrap(a):
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@njit
+def _k_output(x, m, q, tmp, tmp2):
+    a = x[_HSTAR] - x[_HPREV]
+    ca, sa = math.cos(a), math.sin(a)
+    tmp[0], tmp[1], tmp[2] = ca, sa, 0.0
+    tmp[3], tmp[4], tmp[5] = -sa, ca, 0.0
+    tmp[6], tmp[7], tmp[8] = 0.0, 0.0, 1.0
+    _mm(tmp, x[_C:_C + 9], tmp2)
+    _mm(tmp2, m, tmp)
+    dcm_to_quat(tmp, q)
+
+
+@njit(cache=True)
+def _gst_loop(gyr, acc, dt, gn, mat, p, x, ds, dp, al, ap, out_q, out_f, out_m):
+    m = mat.reshape(9).copy()
+    q = np.empty(4)
+    r1 = np.empty(9)
+    r2 = np.empty(9)
+    t1 = np.empty(9)
+    t2 = np.empty(9)
+    for k in range(gyr.shape[0]):
+        g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
+        a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
+        gyr_ok = math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)
+        acc_ok = (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(a2)
+                  and (a0 != 0.0 or a1 != 0.0 or a2 != 0.0))
+        flags = 0
+        if not gyr_ok:
+            flags |= 4
+        if not acc_ok:
+            flags |= 8
+        h = dt[k]
+        if gyr_ok and acc_ok:
+            if _motion_step(ds, g0, g1, g2, a0, a1, a2, 0.0, 0.0, 0.0, h, dp) != 0:
+                flags |= 2
+        if al[PHASE] == 0.0:
+            status = align_step(al, ap, g0, g1, g2, a0, a1, a2, 0.0, 0.0, 0.0, gyr_ok, acc_ok, False,
+                                (flags & 2) != 0, q)
+            if status == ALIGNED_NOW or status == ALIGNED_BEFORE:
+                # level the platform: C = R(q) M^T; |f| at rest
+                dcm_from_quat(q, t1)
+                for i in range(3):
+                    for j in range(3):
+                        x[_C + 3 * i + j] = t1[3 * i] * m[3 * j] + t1[3 * i + 1] * m[3 * j + 1] + t1[3 * i + 2] * m[3 * j + 2]
+                x[_HPREV] = math.atan2(x[_C + 1], x[_C + 4])
+                x[_HSTAR] = x[_HPREV]
+                nacc = max(al[NACC], 1.0)
+                x[_GNORM] = math.sqrt(al[SACC] ** 2 + al[SACC + 1] ** 2 + al[SACC + 2] ** 2) / nacc
+                x[_WP], x[_WP + 1], x[_WP + 2] = 0.0, 0.0, 0.0
+            if status == ALIGNING or status == ALIGNED_NOW:
+                out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
+                out_f[k] = flags | 1
+                out_m[k] = 0
+                continue
+        if not (gyr_ok and acc_ok):
+            _k_output(x, m, q, t1, t2)
+            out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
+            out_f[k] = flags
+            out_m[k] = 0
+            continue
+        b0, b1, b2 = g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2]
+        w0 = m[0] * b0 + m[1] * b1 + m[2] * b2
+        w1 = m[3] * b0 + m[4] * b1 + m[5] * b2
+        w2 = m[6] * b0 + m[7] * b1 + m[8] * b2
+        f0 = m[0] * a0 + m[1] * a1 + m[2] * a2
+        f1 = m[3] * a0 + m[4] * a1 + m[5] * a2
+        f2 = m[6] * a0 + m[7] * a1 + m[8] * a2
+        # 1. platform Poisson equation
+        _rod(-x[_WP] * h, -x[_WP + 1] * h, -x[_WP + 2] * h, r1)
+        _rod(w0 * h, w1 * h, w2 * h, r2)
+        _mm(r1, x[_C:_C + 9], t1)
+        _mm(t1, r2, t2)
+        _bjorck(t2)
+        for i in range(9):
+            x[_C + i] = t2[i]
+        c = t2
+        # 2. platform specific force, turn rate, forward direction
+        fp0 = c[0] * f0 + c[1] * f1 + c[2] * f2
+        fp1 = c[3] * f0 + c[4] * f1 + c[5] * f2
+        w_up = c[6] * w0 + c[7] * w1 + c[8] * w2
+        hn = math.hypot(c[1], c[4])
+        fx, fy = c[1] / hn, c[4] / hn
+        # 3a. GNSS
+        vn, ve, valid, age, new, t_ep = gn[k, 0], gn[k, 1], gn[k, 2] != 0.0, gn[k, 3], gn[k, 4] != 0.0, gn[k, 5]
+        gnss_ok = p[12] != 0.0 and valid and age <= p[11]
+        if new and valid:
+            v = math.hypot(vn, ve)
+            if math.isfinite(x[_TPREV]) and t_ep > x[_TPREV]:
+                x[_ALONG] = (v - x[_VPREV]) / (t_ep - x[_TPREV])
+            x[_VPREV], x[_TPREV], x[_V] = v, t_ep, v
+        elif not valid:
+            x[_TPREV] = np.nan
+        a_lat = x[_V] * (-w_up)
+        ax = x[_ALONG] * fx + a_lat * fy
+        ay = x[_ALONG] * fy - a_lat * fx
+        kg = 1.0 - math.exp(-h / p[2])
+        x[_LPG] += kg * ((fp0 - ax) - x[_LPG])
+        x[_LPG + 1] += kg * ((fp1 - ay) - x[_LPG + 1])
+        # 3b. autonomous
+        ka = 1.0 - math.exp(-h / p[3])
+        x[_LPA] += ka * (fp0 - x[_LPA])
+        x[_LPA + 1] += ka * (fp1 - x[_LPA + 1])
+        fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+        horizontal = math.hypot(x[_LPA], x[_LPA + 1]) > p[13]
+        x[_REJT] = x[_REJT] + h if horizontal else 0.0
+        rejected = p[5] != 0.0 and (abs(fn - x[_GNORM]) > p[6] or abs(w_up) > p[7]
+                                    or (horizontal and x[_REJT] <= p[14]))
+        # 3c. correction
+        if gnss_ok:
+            wgt = p[4]
+            auto_k = 0.0 if rejected else (1.0 - wgt) * p[1]
+            dx = wgt * p[0] * x[_LPG] + auto_k * x[_LPA]
+            dy = wgt * p[0] * x[_LPG + 1] + auto_k * x[_LPA + 1]
+            mode = 2
+        elif rejected:
+            dx = 0.0
+            dy = 0.0
+            mode = 3
+            flags |= 512
+        else:
+            dx = p[1] * x[_LPA]
+            dy = p[1] * x[_LPA + 1]
+            mode = 1
+        if p[12] != 0.0 and not gnss_ok:
+            flags |= 1024
+        x[_WP], x[_WP + 1], x[_WP + 2] = -dy, dx, 0.0
+        # 4. heading
+        hh = math.atan2(fx, fy)
+        x[_HSTAR] += _kwrap(hh - x[_HPREV])
+        x[_HPREV] = hh
+        if gnss_ok and x[_V] >= p[10]:
+            track = math.atan2(ve, vn)
+            if x[_HINIT] == 0.0 and p[9] != 0.0:
+                x[_HSTAR] = track
+            else:
+                x[_HSTAR] += _kwrap(track - x[_HSTAR]) * h / p[8]
+            x[_HINIT] = 1.0
+        x[_HSTAR] = _kwrap(x[_HSTAR])
+        _k_output(x, m, q, t1, t2)
+        out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
+        out_f[k] = flags
+        out_m[k] = mode

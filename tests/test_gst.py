@@ -1,0 +1,179 @@
+"""Source 001: the GST levelling loops, GNSS aiding, heading blend and gaps."""
+
+import numpy as np
+import pytest
+
+import fusionkit as fk
+from fusionkit import sim
+from fusionkit.benchmarking.metrics import broad_errors, trial_metrics
+from fusionkit.conventions import change_frame, euler_to_quat
+from fusionkit.filters.gst import BODY_AXES, GstFilter, GstGnssFilter
+from fusionkit.rotations import matrix_to_quat, quat_angle
+from fusionkit.types import Flag
+
+NOISE = sim.Noise(gyr_noise=0.002, acc_noise=0.02)
+
+
+def incl(res, rec, mask=None):
+    e = broad_errors(res.quat, change_frame(rec.truth, rec.truth_frame, res.frame))["inclination"]
+    return e if mask is None else e[mask]
+
+
+def north_run(heading_deg=0.0, accel_s=20.0, v=30.0, seed=0):
+    """Still 11 s, then a straight run along the nose's heading: speed up to ``v`` and back to 0
+    (raised-cosine profile, peak acceleration pi v / accel_s / 2) within ``accel_s`` s."""
+    q0 = euler_to_quat(np.radians(-heading_deg), 0.0, 0.0, "ENU")  # RFU body: forward = y = north at yaw 0
+    d = (np.sin(np.radians(heading_deg)), np.cos(np.radians(heading_deg)), 0.0)
+    segs = [sim.Rest(11.0), sim.Translate(d, v * accel_s / 2, accel_s), sim.Rest(1.0)]
+    rec = sim.simulate(segs, rate=100.0, noise=NOISE, seed=seed, initial=q0, gnss_vel_noise=0.05)
+    return rec
+
+
+def biased(bias, t0, t1=np.inf, rest=250.0):
+    rec = sim.simulate([sim.Rest(11.0), sim.Rotate((0, 0, 1), 1.0, 4.0), sim.Rest(rest)], rate=50.0, noise=NOISE,
+                       seed=1)
+    b = np.where(((rec.time > t0) & (rec.time < t1))[:, None], bias, 0.0)  # after the alignment
+    return fk.Recording(gyr=rec.gyr + b, acc=rec.acc, rate=rec.rate, truth=rec.truth)
+
+
+def test_autonomous_loop_levels_against_a_gyro_bias_change():
+    rec = biased([0.0002, -0.0002, 0.0], 12.0)
+    late = rec.time > 200
+    gst = incl(fk.make("gst").run(rec), rec, late)
+    gyro_only = incl(fk.make("poisson").run(rec), rec, late)
+    # steady state of a proportional loop: bias / (K g) = |bias| tau_auto = 2.83e-4 rad/s * 50 s = 0.81 deg
+    assert np.degrees(2.83e-4 * 50.0) * 0.8 < np.median(gst) < np.degrees(2.83e-4 * 50.0) * 1.2
+    assert gyro_only.min() > 3 * gst.max()
+
+
+def test_rejection_timeout_recovers_a_platform_tilted_beyond_the_gate():
+    """A bias burst tilts the platform by about 4 deg, beyond what the horizontal-force test
+    accepts (0.5 m/s^2 ~ 2.9 deg): the gate would hold it there; the timeout lets it recover."""
+    rec = biased([0.004, -0.004, 0.0], 12.0, 25.0)
+    e = incl(fk.make("gst").run(rec), rec)
+    assert e[(rec.time > 25) & (rec.time < 30)].max() > 3.5
+    assert e[rec.time > 240].max() < 0.5
+    stuck = incl(fk.make("gst", reject_timeout=1e6).run(rec), rec)
+    assert stuck[rec.time > 240].min() > 3.0
+
+
+def test_gnss_compensates_a_sustained_acceleration():
+    rec = north_run()
+    moving = rec.movement
+    doc_auto = incl(fk.make("gst", reject=False).run(rec), rec, moving)
+    aided = incl(fk.make("gst-gnss").run(rec), rec, moving)
+    # 1.5 m/s^2 for 20 s: the autonomous low-pass takes it for gravity, GNSS removes it
+    assert doc_auto.max() > 1.0
+    assert aided.max() < 0.3
+
+
+@pytest.mark.parametrize("heading_deg", [0.0, 120.0, 179.0, -179.0])
+def test_heading_follows_the_track_angle_across_the_wrap(heading_deg):
+    rec = north_run(heading_deg)
+    res = fk.make("gst-gnss").run(rec)
+    late = rec.time > 15.0  # moving above min_speed
+    e = broad_errors(res.quat, rec.truth)["heading"][late]
+    assert e.max() < 1.0
+    hpr = res.euler()
+    assert np.all(np.abs(np.diff(hpr[late, 0])) < 0.5) or heading_deg in (179.0, -179.0)
+
+
+def test_eq5_blend_converges_with_time_constant_T():
+    """heading_init='blend' is eq. 5 alone: the heading error decays like exp(-t / T)."""
+    q0 = euler_to_quat(np.radians(-40.0), 0.0, 0.0, "ENU")
+    rec = sim.simulate([sim.Rest(11.0), sim.Translate((np.sin(0.7), np.cos(0.7), 0), 6000.0, 400.0), sim.Rest(1)],
+                       rate=20.0, noise=NOISE, seed=3, initial=q0, gnss_vel_noise=0.05)
+    speed = np.hypot(rec.gnss.vel[:, 0], rec.gnss.vel[:, 1])
+    t_on = rec.gnss.t[np.argmax(speed > 5.0)]  # first usable track angle
+    head = lambda res: broad_errors(res.quat, rec.truth)["heading"]  # noqa: E731
+    # a start this gentle (0.24 m/s^2 at most) does not trigger the motion detector: fixed alignment
+    fixed = {"alignment": "fixed", "alignment_duration": 10.0}
+    blend = head(fk.make("gst-gnss", heading_init="blend", **fixed).run(rec))
+    track = head(fk.make("gst-gnss", **fixed).run(rec))
+    e0 = blend[np.argmax(rec.time >= t_on)]
+    assert e0 > 20.0  # source 000's heading 0 is on body axis 1, the track is elsewhere
+    for dt_s in (50.0, 100.0):
+        e = blend[np.argmax(rec.time >= t_on + dt_s)]
+        assert e == pytest.approx(e0 * np.exp(-dt_s / 50.0), rel=0.25, abs=0.5)
+    assert track[(rec.time > t_on + 1.0) & (rec.time < t_on + 300)].max() < 1.0
+
+
+def test_gap_switches_to_autonomous_without_a_jump():
+    rec = north_run(accel_s=30.0, v=20.0)
+    valid = rec.gnss.valid.copy()
+    gap = (rec.gnss.t > 20.0) & (rec.gnss.t < 30.0)
+    valid[gap] = False
+    rec.gnss = fk.Gnss(t=rec.gnss.t, vel=np.where(gap[:, None], np.nan, rec.gnss.vel), valid=valid, frame="ENU")
+    res = fk.make("gst-gnss").run(rec)
+    mode = res.diagnostics["mode"]
+    in_gap = (rec.time > 20.6) & (rec.time < 30.0)
+    assert set(np.unique(mode[in_gap])) <= {1, 3}  # autonomous or rejected
+    assert (res.flags[in_gap] & Flag.GNSS_GAP).all()
+    assert (mode[(rec.time > 31.0) & (rec.time < 40.0)] == 2).all()
+    steps = np.degrees(quat_angle(res.quat[1:], res.quat[:-1]))
+    t = rec.time[1:]
+    around_switches = ((t > 19.0) & (t < 22.0)) | ((t > 29.0) & (t < 32.0))
+    assert steps[around_switches].max() < 0.05  # no jump entering or leaving the gap (the motion is smooth)
+
+
+@pytest.mark.parametrize("name", ["gst", "gst-gnss"])
+def test_numba_equals_reference(name):
+    rec = north_run(heading_deg=60.0)
+    f = fk.make(name)
+    ref, fast = f.run(rec, backend="reference"), f.run(rec, backend="numba")
+    np.testing.assert_allclose(fast.quat, ref.quat, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(fast.flags, ref.flags)
+    np.testing.assert_array_equal(fast.diagnostics["mode"], ref.diagnostics["mode"])
+
+
+def test_body_axes_are_mapped():
+    rec = north_run(heading_deg=30.0)
+    m = BODY_AXES["FRD"]  # v_rfu = M v_frd, so v_frd = M^T v_rfu
+    frd = fk.Recording(gyr=rec.gyr @ m, acc=rec.acc @ m, rate=rec.rate, gnss=rec.gnss)
+    a = fk.make("gst-gnss").run(rec)
+    b = fk.make("gst-gnss", body="FRD").run(frd)
+    q_m = matrix_to_quat(m)  # body FRD -> body RFU
+    from fusionkit.rotations import quat_mul
+
+    # source 000's alignment sets heading 0 on body axis 1, which differs between the two axis
+    # sets; once the track angle sets the heading the attitudes agree
+    late = rec.time > 15.0
+    assert quat_angle(quat_mul(a.quat, q_m)[late], b.quat[late]).max() < 1e-6
+
+
+def test_gst_gnss_needs_gnss():
+    rec = sim.simulate([sim.Rest(1.0)], gnss_rate=None)
+    with pytest.raises(fk.InputError, match="needs a GNSS stream"):
+        fk.make("gst-gnss").run(rec)
+    assert np.isfinite(fk.make("gst").run(rec).quat).all()
+
+
+def test_gnss_gap_detector():
+    rec = north_run(accel_s=30.0, v=20.0)
+    valid = rec.gnss.valid.copy()
+    valid[(rec.gnss.t > 20.0) & (rec.gnss.t < 30.0)] = False
+    rec.gnss = fk.Gnss(t=rec.gnss.t, vel=rec.gnss.vel, valid=valid, frame="ENU")
+    res = fk.make("gnss-gap").run(rec)
+    gap = res.criteria & 1
+    assert gap[(rec.time > 20.1) & (rec.time < 29.9)].all()
+    assert not gap[(rec.time > 30.5)].any()
+    slow = res.criteria & 2
+    assert slow[rec.time < 11.0].all()  # standing still: no track angle
+    assert not slow[(rec.time > 17.0) & (rec.time < 35.0)].any()  # above 5 m/s (gap samples are "gap")
+
+
+@pytest.fixture(scope="module")
+def flights(broad_dir):
+    root = broad_dir.parent / "gnss"
+    return {n: fk.load(root / n / f"{n}.h5") for n in ("heli_cruise", "car_drive")}
+
+
+def test_targets_on_the_simulated_flights(flights):
+    heli, car = flights["heli_cruise"], flights["car_drive"]
+    m = trial_metrics(fk.make("gst-gnss", body="FRD").run(heli), heli, "6D")
+    assert m["tilt"] <= 0.3
+    res = fk.make("gst-gnss", body="FRD").run(heli)
+    e = broad_errors(res.quat, change_frame(heli.truth, "NED", "ENU"))["heading"]
+    assert np.sqrt(np.mean(e[heli.time > 200.0] ** 2)) <= 2.0
+    assert trial_metrics(fk.make("gst", body="FRD").run(heli), heli, "6D")["tilt"] <= 1.0
+    assert trial_metrics(fk.make("gst-gnss", body="FRD").run(car), car, "6D")["tilt_gap"] <= 0.5
