@@ -177,3 +177,12 @@ def test_targets_on_the_simulated_flights(flights):
     assert np.sqrt(np.mean(e[heli.time > 200.0] ** 2)) <= 2.0
     assert trial_metrics(fk.make("gst", body="FRD").run(heli), heli, "6D")["tilt"] <= 1.0
     assert trial_metrics(fk.make("gst-gnss", body="FRD").run(car), car, "6D")["tilt_gap"] <= 0.5
+
+
+@pytest.mark.parametrize("frame", ["NED", "NWU", "NUE"])
+def test_output_frames_agree(frame):
+    rec = north_run(heading_deg=60.0)
+    enu = fk.make("gst-gnss").run(rec)
+    other = fk.make("gst-gnss", frame=frame).run(rec)
+    assert other.frame == frame
+    assert quat_angle(change_frame(enu.quat, "ENU", frame), other.quat).max() < 1e-9

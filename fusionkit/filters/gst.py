@@ -45,7 +45,7 @@ from .._kernels import dcm_to_quat
 from .._kernels import quat_to_dcm as dcm_from_quat
 from .._numba import njit, resolve_backend
 from ..config import AlignmentConfig, FilterConfig, param
-from ..conventions import change_frame
+from ..conventions import change_frame, frame_matrix
 from ..detectors.gnss_gap import gnss_sample_rows
 from ..detectors.motion import MotionConfig, MotionDetector, _motion_step
 from ..estimators.poisson import _bjorck
@@ -122,6 +122,7 @@ class GstFilter(Filter):
         self.detector = MotionDetector(motion)
         self.alignment = AlignmentConfig(mode=c.alignment, duration=c.alignment_duration)
         self.M = BODY_AXES[c.body]
+        self.F = frame_matrix("ENU", c.frame)  # output frame, folded into the output rotation
         self._stream = None
         self.last_flags = 0
 
@@ -150,7 +151,8 @@ class GstFilter(Filter):
         c, x, al = self.config, st["x"], st["align"]
         gyr_ok, acc_ok = bool(np.isfinite(gyr).all()), bool(np.isfinite(acc).all() and np.any(acc != 0))
         flags = (0 if gyr_ok else Flag.GYR_INVALID) | (0 if acc_ok else Flag.ACC_INVALID)
-        if gyr_ok and acc_ok and self.detector.step(st["det"], Sample(gyr, acc, None, dt)):
+        # the motion detector only ends the alignment: it does not run afterwards
+        if al[PHASE] == 0.0 and gyr_ok and acc_ok and self.detector.step(st["det"], Sample(gyr, acc, None, dt)):
             flags |= Flag.MOTION
         # source 000's alignment: level and gyro bias while still
         status, q = Aligner(self.alignment, "ENU", st["dt"]).step(al, gyr, acc, None, gyr_ok, acc_ok, False,
@@ -158,7 +160,7 @@ class GstFilter(Filter):
         if status in (ALIGNED_NOW, ALIGNED_BEFORE):
             self._start(x, q, al)
         if status in (ALIGNING, ALIGNED_NOW):
-            return q, flags | Flag.ALIGNING, 0
+            return matrix_to_quat(self.F @ quat_to_matrix(q)), flags | Flag.ALIGNING, 0
         if not (gyr_ok and acc_ok):  # hold the state over a bad sample
             return self._output(x), flags, 0
         w = self.M @ (gyr - al[BIAS:BIAS + 3])
@@ -237,12 +239,13 @@ class GstFilter(Filter):
         x[_WP:_WP + 3] = 0.0
 
     def _output(self, x) -> np.ndarray:
-        """Body(sensor)->ENU: the platform turned by alpha = H* - H about the vertical."""
+        """Body(sensor)->frame: the platform turned by alpha = H* - H about the vertical (ENU),
+        then into the output frame."""
         cm = x[_C:_C + 9].reshape(3, 3)
         a = x[_HSTAR] - x[_HPREV]
         ca, sa = math.cos(a), math.sin(a)
         rz = np.array([[ca, sa, 0.0], [-sa, ca, 0.0], [0.0, 0.0, 1.0]])  # Rz(-alpha)
-        return matrix_to_quat(rz @ cm @ self.M)
+        return matrix_to_quat((self.F @ rz) @ cm @ self.M)
 
 
     # -- public ----------------------------------------------------------------------------
@@ -266,7 +269,7 @@ class GstFilter(Filter):
         flags = np.zeros(n, np.uint32)
         mode = np.zeros(n, np.uint8)
         if used == "numba":
-            _gst_loop(rec.gyr, rec.acc, dt, gn, self.M, self.params(), st["x"], st["det"],
+            _gst_loop(rec.gyr, rec.acc, dt, gn, self.M, self.F, self.params(), st["x"], st["det"],
                       self.detector.kernel().params, st["align"], Aligner(self.alignment, "ENU", st["dt"]).params(),
                       q, flags, mode)
         else:
@@ -276,7 +279,7 @@ class GstFilter(Filter):
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "mode": mode,
                 "mode_names": MODES, "bias": al[BIAS:BIAS + 3].copy(),
                 "alignment_end_index": None if al[17] < 0 else int(al[17]), "state": st}
-        return Result(change_frame(q, "ENU", self.config.frame), flags, self.config.frame, diag)
+        return Result(q, flags, self.config.frame, diag)
 
     def reset(self) -> None:
         self._stream = None
@@ -296,7 +299,7 @@ class GstFilter(Filter):
         gn = np.array([np.nan, np.nan, 0.0, np.inf, 0.0, np.nan]) if gnss is None else np.asarray(gnss, float)
         q, f, _ = self._step(self._stream, g, a, gn, dt)
         self.last_flags = int(f)
-        return change_frame(q, "ENU", self.config.frame)
+        return q
 
 
 def _wrap(a: float) -> float:
@@ -352,25 +355,28 @@ def _kwrap(a):
 
 
 @njit
-def _k_output(x, m, q, tmp, tmp2):
+def _k_output(x, m, fr, q, tmp, tmp2):
     a = x[_HSTAR] - x[_HPREV]
     ca, sa = math.cos(a), math.sin(a)
-    tmp[0], tmp[1], tmp[2] = ca, sa, 0.0
-    tmp[3], tmp[4], tmp[5] = -sa, ca, 0.0
-    tmp[6], tmp[7], tmp[8] = 0.0, 0.0, 1.0
+    for i in range(3):  # F Rz(-alpha)
+        tmp[3 * i] = fr[3 * i] * ca - fr[3 * i + 1] * sa
+        tmp[3 * i + 1] = fr[3 * i] * sa + fr[3 * i + 1] * ca
+        tmp[3 * i + 2] = fr[3 * i + 2]
     _mm(tmp, x[_C:_C + 9], tmp2)
     _mm(tmp2, m, tmp)
     dcm_to_quat(tmp, q)
 
 
 @njit(cache=True)
-def _gst_loop(gyr, acc, dt, gn, mat, p, x, ds, dp, al, ap, out_q, out_f, out_m):
+def _gst_loop(gyr, acc, dt, gn, mat, frame, p, x, ds, dp, al, ap, out_q, out_f, out_m):
     m = mat.reshape(9).copy()
+    fr = frame.reshape(9).copy()
     q = np.empty(4)
     r1 = np.empty(9)
     r2 = np.empty(9)
     t1 = np.empty(9)
     t2 = np.empty(9)
+    last_h, kg, ka = -1.0, 0.0, 0.0
     for k in range(gyr.shape[0]):
         g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
         a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
@@ -383,7 +389,7 @@ def _gst_loop(gyr, acc, dt, gn, mat, p, x, ds, dp, al, ap, out_q, out_f, out_m):
         if not acc_ok:
             flags |= 8
         h = dt[k]
-        if gyr_ok and acc_ok:
+        if al[PHASE] == 0.0 and gyr_ok and acc_ok:
             if _motion_step(ds, g0, g1, g2, a0, a1, a2, 0.0, 0.0, 0.0, h, dp) != 0:
                 flags |= 2
         if al[PHASE] == 0.0:
@@ -401,12 +407,15 @@ def _gst_loop(gyr, acc, dt, gn, mat, p, x, ds, dp, al, ap, out_q, out_f, out_m):
                 x[_GNORM] = math.sqrt(al[SACC] ** 2 + al[SACC + 1] ** 2 + al[SACC + 2] ** 2) / nacc
                 x[_WP], x[_WP + 1], x[_WP + 2] = 0.0, 0.0, 0.0
             if status == ALIGNING or status == ALIGNED_NOW:
+                dcm_from_quat(q, t1)  # the alignment attitude (ENU) into the output frame
+                _mm(fr, t1, t2)
+                dcm_to_quat(t2, q)
                 out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
                 out_f[k] = flags | 1
                 out_m[k] = 0
                 continue
         if not (gyr_ok and acc_ok):
-            _k_output(x, m, q, t1, t2)
+            _k_output(x, m, fr, q, t1, t2)
             out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
             out_f[k] = flags
             out_m[k] = 0
@@ -446,11 +455,13 @@ def _gst_loop(gyr, acc, dt, gn, mat, p, x, ds, dp, al, ap, out_q, out_f, out_m):
         a_lat = x[_V] * (-w_up)
         ax = x[_ALONG] * fx + a_lat * fy
         ay = x[_ALONG] * fy - a_lat * fx
-        kg = 1.0 - math.exp(-h / p[2])
+        if h != last_h:  # the low-pass coefficients, recomputed only when dt changes
+            kg = 1.0 - math.exp(-h / p[2])
+            ka = 1.0 - math.exp(-h / p[3])
+            last_h = h
         x[_LPG] += kg * ((fp0 - ax) - x[_LPG])
         x[_LPG + 1] += kg * ((fp1 - ay) - x[_LPG + 1])
         # 3b. autonomous
-        ka = 1.0 - math.exp(-h / p[3])
         x[_LPA] += ka * (fp0 - x[_LPA])
         x[_LPA + 1] += ka * (fp1 - x[_LPA + 1])
         fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
@@ -489,7 +500,7 @@ def _gst_loop(gyr, acc, dt, gn, mat, p, x, ds, dp, al, ap, out_q, out_f, out_m):
                 x[_HSTAR] += _kwrap(track - x[_HSTAR]) * h / p[8]
             x[_HINIT] = 1.0
         x[_HSTAR] = _kwrap(x[_HSTAR])
-        _k_output(x, m, q, t1, t2)
+        _k_output(x, m, fr, q, t1, t2)
         out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
         out_f[k] = flags
         out_m[k] = mode
