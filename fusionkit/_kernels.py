@@ -128,3 +128,33 @@ def alignment_quat(a0, a1, a2, m0, m1, m2, use_mag, q_frame, out):
         q0, q1, q2, q3 = r0, r1, r2, r3
     qmul_into(q_frame[0], q_frame[1], q_frame[2], q_frame[3], q0, q1, q2, q3, out)
     qnormalize(out)
+
+
+@njit
+def rodrigues_into(r0, r1, r2, out):
+    """Row-major ``exp([r x])`` into ``out[0:9]`` (rotations.rodrigues), Taylor below 1e-4 rad."""
+    s2 = r0 * r0 + r1 * r1 + r2 * r2
+    s = math.sqrt(s2)
+    if s < 1e-4:
+        a = 1.0 - s2 / 6.0 + s2 * s2 / 120.0
+        b = 0.5 - s2 / 24.0 + s2 * s2 / 720.0
+    else:
+        a = math.sin(s) / s
+        b = (1.0 - math.cos(s)) / s2
+    out[0] = 1.0 + b * (r0 * r0 - s2)
+    out[1] = -a * r2 + b * r0 * r1
+    out[2] = a * r1 + b * r0 * r2
+    out[3] = a * r2 + b * r0 * r1
+    out[4] = 1.0 + b * (r1 * r1 - s2)
+    out[5] = -a * r0 + b * r1 * r2
+    out[6] = -a * r1 + b * r0 * r2
+    out[7] = a * r0 + b * r1 * r2
+    out[8] = 1.0 + b * (r2 * r2 - s2)
+
+
+@njit
+def matmul3_into(a, b, out):
+    """``out = a @ b`` for row-major 3x3 matrices in flat arrays (out must not alias a or b)."""
+    for i in range(3):
+        for j in range(3):
+            out[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j]

@@ -41,7 +41,7 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from .._kernels import dcm_to_quat
+from .._kernels import dcm_to_quat, matmul3_into, rodrigues_into
 from .._kernels import quat_to_dcm as dcm_from_quat
 from .._numba import njit, resolve_backend
 from ..config import AlignmentConfig, FilterConfig, param
@@ -321,35 +321,6 @@ class GstGnssFilter(GstFilter):
 
 
 @njit
-def _rod(r0, r1, r2, out):
-    """Row-major Rodrigues matrix exp([r x]) (rotations.rodrigues)."""
-    s2 = r0 * r0 + r1 * r1 + r2 * r2
-    s = math.sqrt(s2)
-    if s < 1e-4:
-        a = 1.0 - s2 / 6.0 + s2 * s2 / 120.0
-        b = 0.5 - s2 / 24.0 + s2 * s2 / 720.0
-    else:
-        a = math.sin(s) / s
-        b = (1.0 - math.cos(s)) / s2
-    out[0] = 1.0 + b * (r0 * r0 - s2)
-    out[1] = -a * r2 + b * r0 * r1
-    out[2] = a * r1 + b * r0 * r2
-    out[3] = a * r2 + b * r0 * r1
-    out[4] = 1.0 + b * (r1 * r1 - s2)
-    out[5] = -a * r0 + b * r1 * r2
-    out[6] = -a * r1 + b * r0 * r2
-    out[7] = a * r0 + b * r1 * r2
-    out[8] = 1.0 + b * (r2 * r2 - s2)
-
-
-@njit
-def _mm(a, b, out):
-    for i in range(3):
-        for j in range(3):
-            out[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j]
-
-
-@njit
 def _kwrap(a):
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
@@ -362,8 +333,8 @@ def _k_output(x, m, fr, q, tmp, tmp2):
         tmp[3 * i] = fr[3 * i] * ca - fr[3 * i + 1] * sa
         tmp[3 * i + 1] = fr[3 * i] * sa + fr[3 * i + 1] * ca
         tmp[3 * i + 2] = fr[3 * i + 2]
-    _mm(tmp, x[_C:_C + 9], tmp2)
-    _mm(tmp2, m, tmp)
+    matmul3_into(tmp, x[_C:_C + 9], tmp2)
+    matmul3_into(tmp2, m, tmp)
     dcm_to_quat(tmp, q)
 
 
@@ -408,7 +379,7 @@ def _gst_loop(gyr, acc, dt, gn, mat, frame, p, x, ds, dp, al, ap, out_q, out_f, 
                 x[_WP], x[_WP + 1], x[_WP + 2] = 0.0, 0.0, 0.0
             if status == ALIGNING or status == ALIGNED_NOW:
                 dcm_from_quat(q, t1)  # the alignment attitude (ENU) into the output frame
-                _mm(fr, t1, t2)
+                matmul3_into(fr, t1, t2)
                 dcm_to_quat(t2, q)
                 out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
                 out_f[k] = flags | 1
@@ -428,10 +399,10 @@ def _gst_loop(gyr, acc, dt, gn, mat, frame, p, x, ds, dp, al, ap, out_q, out_f, 
         f1 = m[3] * a0 + m[4] * a1 + m[5] * a2
         f2 = m[6] * a0 + m[7] * a1 + m[8] * a2
         # 1. platform Poisson equation
-        _rod(-x[_WP] * h, -x[_WP + 1] * h, -x[_WP + 2] * h, r1)
-        _rod(w0 * h, w1 * h, w2 * h, r2)
-        _mm(r1, x[_C:_C + 9], t1)
-        _mm(t1, r2, t2)
+        rodrigues_into(-x[_WP] * h, -x[_WP + 1] * h, -x[_WP + 2] * h, r1)
+        rodrigues_into(w0 * h, w1 * h, w2 * h, r2)
+        matmul3_into(r1, x[_C:_C + 9], t1)
+        matmul3_into(t1, r2, t2)
         _bjorck(t2)
         for i in range(9):
             x[_C + i] = t2[i]
