@@ -4,6 +4,7 @@ and the per-sample :class:`Flag` bitmask."""
 from __future__ import annotations
 
 import enum
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -59,7 +60,7 @@ class Gnss:
     def __post_init__(self) -> None:
         self.vel = as_vectors("gnss.vel", self.vel)
         n = self.vel.shape[0]
-        self.t = check_time(self.t, n)
+        self.t = check_time(self.t, n, "gnss.t", "gnss.vel")
         check_frame(self.frame)
         valid = np.ones(n, bool) if self.valid is None else np.asarray(self.valid).astype(bool).reshape(-1)
         if valid.shape[0] != n:
@@ -134,6 +135,22 @@ class Recording:
             self.movement = np.asarray(self.movement).astype(bool).reshape(-1)
             if self.movement.shape[0] != n:
                 raise InputError(f"movement has {self.movement.shape[0]} samples but gyr has {n}")
+        if self.gnss is not None:
+            if not isinstance(self.gnss, Gnss):
+                raise InputError(f"gnss must be a fusionkit.Gnss, got {type(self.gnss).__name__}")
+            self._clip_gnss()
+
+    def _clip_gnss(self) -> None:
+        """GNSS epochs outside the IMU's time span are dropped, with a warning."""
+        t = self.time
+        inside = (self.gnss.t >= t[0]) & (self.gnss.t <= t[-1])
+        if not inside.all():
+            warnings.warn(
+                f"{int((~inside).sum())} GNSS epochs lie outside the IMU time [{t[0]:.3f}, {t[-1]:.3f}] s and "
+                "were dropped", stacklevel=3)
+            g = self.gnss
+            self.gnss = Gnss(t=g.t[inside], vel=g.vel[inside], valid=g.valid[inside], frame=g.frame,
+                             pos=None if g.pos is None else g.pos[inside])
 
     def _check_units(self) -> None:
         norm = np.linalg.norm(self.acc, axis=1)

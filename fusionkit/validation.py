@@ -68,19 +68,19 @@ def check_finite_all(arrays: dict, policy: str) -> None:
         check_finite(name, x, "raise")
 
 
-def check_time(t, n: int) -> np.ndarray:
+def check_time(t, n: int, name: str = "t", other: str = "gyr") -> np.ndarray:
     """Timestamps as float64 ``(n,)``, finite and strictly increasing."""
     t = np.asarray(t, dtype=np.float64).reshape(-1)
     if t.shape[0] != n:
-        raise InputError(f"t has {t.shape[0]} samples but gyr has {n}; lengths must match")
+        raise InputError(f"{name} has {t.shape[0]} samples but {other} has {n}; lengths must match")
     if not np.isfinite(t).all():
         i = int(np.argmin(np.isfinite(t)))
-        raise InputError(f"t[{i}] is not finite ({t[i]})")
+        raise InputError(f"{name}[{i}] is not finite ({t[i]})")
     if n > 1:
         d = np.diff(t)
         if (d <= 0).any():
             i = int(np.argmax(d <= 0)) + 1
-            raise InputError(f"t must be strictly increasing, but t[{i}]={t[i]} <= t[{i - 1}]={t[i - 1]}")
+            raise InputError(f"{name} must be strictly increasing, but {name}[{i}]={t[i]} <= {name}[{i - 1}]={t[i - 1]}")
     return t
 
 

@@ -94,3 +94,21 @@ def test_broad_trial_loads(broad_dir):
     assert r.rate == pytest.approx(285.71, abs=0.01)
     assert r.mag is not None and r.truth is not None and r.movement.any()
     assert r.truth_frame == "ENU"
+
+
+def test_gnss_stream_checks():
+    r = sim.simulate([sim.Rest(2.0)], rate=50.0)
+    t = r.gnss.t.copy()
+    t[5] = t[4]
+    with pytest.raises(InputError, match=r"gnss.t must be strictly increasing, but gnss.t\[5\]"):
+        fk.Gnss(t=t, vel=r.gnss.vel)
+    vel = r.gnss.vel.copy()
+    vel[3] = np.nan
+    g = fk.Gnss(t=r.gnss.t, vel=vel, valid=np.ones(len(vel), bool))
+    assert not g.valid[3] and g.valid[4]  # a NaN epoch is a gap, not an error
+    late = fk.Gnss(t=r.gnss.t + 1.0, vel=r.gnss.vel)
+    with pytest.warns(UserWarning, match="outside the IMU time"):
+        rec = fk.Recording(gyr=r.gyr, acc=r.acc, rate=50.0, gnss=late)
+    assert rec.gnss.t.max() <= rec.time[-1]
+    with pytest.raises(InputError, match="gnss must be a fusionkit.Gnss"):
+        fk.Recording(gyr=r.gyr, acc=r.acc, rate=50.0, gnss={"t": 1})
