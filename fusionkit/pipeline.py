@@ -40,6 +40,7 @@ from .errors import ConfigError, InputError
 from .navigation.alignment import (
     ALIGN_SIZE, ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, DISTURBED, END, PHASE, SEEN, Aligner, align_step,
 )
+from .detectors.gnss_gap import gnss_sample_rows
 from .protocols import Detector, DetectionResult, Filter, Sample
 from .registry import Registry, default_registry
 from .types import Flag, Recording, Result
@@ -129,7 +130,7 @@ class Pipeline(Filter):
         self._stream = None
 
     # -- the readable reference path -------------------------------------------------------
-    def _step(self, st, gyr, acc, mag, dt, has_mag) -> tuple[np.ndarray, int, int]:
+    def _step(self, st, gyr, acc, mag, dt, has_mag, gnss=None) -> tuple[np.ndarray, int, int]:
         """Process one sample; returns (quat body->frame, flags, first detector's criteria)."""
         cfg, al = self.spec, st["align"]
         gyr_ok = bool(np.isfinite(gyr).all())
@@ -146,7 +147,7 @@ class Pipeline(Filter):
             flags |= Flag.ACC_SATURATED
         if has_mag and not mag_ok:
             flags |= Flag.MAG_INVALID
-        sample = Sample(gyr, acc if acc_ok else None, mag if mag_ok else None, dt)
+        sample = Sample(gyr, acc if acc_ok else None, mag if mag_ok else None, dt, gnss)
 
         # 2. detectors
         crit0 = 0
@@ -167,9 +168,10 @@ class Pipeline(Filter):
         al[SEEN] += 1.0
         if gyr_ok:
             self.estimator.propagate(st["x"], gyr - al[BIAS:BIAS + 3] + al[_RCORR:_RCORR + 3], dt)
-        # 5. correctors
+        # 5. correctors (they see the rate the estimator integrated: the alignment's bias removed)
         if self.correctors:
             rate = np.zeros(3)
+            sample = sample._replace(gyr=gyr - al[BIAS:BIAS + 3])
             for i, cor in enumerate(self.correctors):
                 out = cor.correct(self.estimator, st["x"], st["cor"][i], sample, flags)
                 flags |= out.flags
@@ -222,6 +224,7 @@ class Pipeline(Filter):
         st = self._check_state(copy.deepcopy(state)) if state is not None else self.new_state(rec.nominal_dt)
         mag = rec.mag if has_mag else np.zeros((n, 3))
         dt = rec.dt
+        gn = gnss_sample_rows(rec) if rec.gnss is not None else None
         out_q = np.empty((n, 4))
         out_f = np.zeros(n, dtype=np.uint32)
         out_c = np.zeros(n, dtype=np.uint32)
@@ -232,7 +235,8 @@ class Pipeline(Filter):
                 self._run_compiled(st, rec.gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop)
             else:
                 for k in range(start, stop):
-                    q, f, c = self._step(st, rec.gyr[k], rec.acc[k], mag[k], dt[k], has_mag)
+                    q, f, c = self._step(st, rec.gyr[k], rec.acc[k], mag[k], dt[k], has_mag,
+                                         None if gn is None else gn[k])
                     out_q[k], out_f[k], out_c[k] = q, f, c
             if bar is not None:
                 bar.update(stop - start)
@@ -254,9 +258,10 @@ class Pipeline(Filter):
         d["state"] = copy.deepcopy(st)
         return d
 
-    def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
-        """Process one sample of a stream (``dt`` in s is required); same numbers as :meth:`run`
-        with the reference backend. ``last_flags`` holds the sample's flags."""
+    def update(self, gyr, acc, mag=None, dt: float | None = None, gnss=None) -> np.ndarray:
+        """Process one sample of a stream (``dt`` in s is required; ``gnss`` the latest epoch's
+        row, see :class:`~fusionkit.protocols.Sample`); same numbers as :meth:`run` with the
+        reference backend. ``last_flags`` holds the sample's flags."""
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
         dt = check_positive("dt", dt)
@@ -270,7 +275,8 @@ class Pipeline(Filter):
                     raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
         if self._stream is None:
             self._stream = self.new_state(dt)
-        q, f, _ = self._step(self._stream, g, a, m, dt, has_mag)
+        gn = None if gnss is None else np.asarray(gnss, dtype=float)
+        q, f, _ = self._step(self._stream, g, a, m, dt, has_mag, gn)
         self.last_flags = int(f)
         return q
 

@@ -59,12 +59,16 @@ class Plugin:
 
 
 class Sample(NamedTuple):
-    """One input sample as the reference paths see it (``mag`` is None when absent or invalid)."""
+    """One input sample as the reference paths see it (``mag`` is None when absent or invalid;
+    correctors get ``gyr`` with the alignment's bias removed;
+    ``gnss`` is the latest GNSS epoch as a row ``vn, ve, valid, age, new, t_epoch``, see
+    :func:`fusionkit.detectors.gnss_gap.gnss_sample_rows`, or None without a GNSS stream)."""
 
     gyr: np.ndarray
     acc: np.ndarray | None
     mag: np.ndarray | None
     dt: float
+    gnss: np.ndarray | None = None
 
 
 class EstimatorKernel(NamedTuple):

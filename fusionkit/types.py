@@ -196,18 +196,25 @@ class Recording:
         return self.t if self.t is not None else np.arange(len(self)) / self.rate
 
     def slice(self, start: int | None = None, stop: int | None = None) -> "Recording":
-        """A new recording of samples ``[start, stop)``. With GNSS, the slice keeps the whole
-        GNSS stream and the original clock (its ``t`` are the original sample times)."""
+        """A new recording of samples ``[start, stop)``. With GNSS, the slice keeps the original
+        clock (its ``t`` are the original sample times) and the GNSS epochs from the one current
+        at its first sample to its last sample, so that a run split in two equals one run."""
         s = slice(start, stop)
         keep_clock = self.gnss is not None
-        return Recording(
+        out = Recording(
             gyr=self.gyr[s], acc=self.acc[s], mag=None if self.mag is None else self.mag[s],
             rate=None if keep_clock else self.rate, t=self.time[s] if keep_clock else (None if self.t is None else self.t[s]),
-            gnss=self.gnss,
             truth=None if self.truth is None else self.truth[s], truth_frame=self.truth_frame,
             movement=None if self.movement is None else self.movement[s], name=self.name,
             meta=dict(self.meta),
         )
+        if keep_clock:  # the epoch current at the first sample, and those up to the last one
+            g, t = self.gnss, out.time
+            first = max(0, int(np.searchsorted(g.t, t[0], side="right")) - 1)
+            keep = (np.arange(g.t.size) >= first) & (g.t <= t[-1])
+            out.gnss = Gnss(t=g.t[keep], vel=g.vel[keep], valid=g.valid[keep], frame=g.frame,
+                            pos=None if g.pos is None else g.pos[keep])
+        return out
 
 
 @dataclass

@@ -186,3 +186,45 @@ def test_output_frames_agree(frame):
     other = fk.make("gst-gnss", frame=frame).run(rec)
     assert other.frame == frame
     assert quat_angle(change_frame(enu.quat, "ENU", frame), other.quat).max() < 1e-9
+
+
+def corrector_pipeline(name, **params):
+    return fk.compose({"estimator": {"name": "poisson-quat", "params": {"step": "exact"}}, "detectors": ["motion"],
+                       "correctors": [{"name": name, "params": params}]})
+
+
+@pytest.mark.parametrize("name", ["gst", "gst-gnss"])
+def test_corrector_plugins_match_the_filters_in_a_pipeline(name):
+    """The platform rate is a body-rate correction -C^T w_P: the same laws as pipeline
+    correctors on another estimator give the filter's accuracy."""
+    rec = north_run(heading_deg=60.0)
+    rms = lambda e: np.sqrt(np.mean(e**2))  # noqa: E731
+    filt = rms(incl(fk.make(name).run(rec), rec, rec.movement))
+    pipe = rms(incl(corrector_pipeline(name).run(rec), rec, rec.movement))
+    unaided = rms(incl(fk.make(name, reject=False).run(rec), rec, rec.movement)) if name == "gst" else 1.0
+    assert abs(pipe - filt) < 0.1 and max(pipe, filt) < 0.5 * unaided
+    if name == "gst-gnss":
+        late = rec.time > 15.0
+        assert broad_errors(corrector_pipeline(name).run(rec).quat, rec.truth)["heading"][late].max() < 1.0
+
+
+def test_corrector_gap_flags_and_streaming():
+    rec = north_run(accel_s=30.0, v=20.0)
+    valid = rec.gnss.valid.copy()
+    valid[(rec.gnss.t > 20.0) & (rec.gnss.t < 30.0)] = False
+    rec.gnss = fk.Gnss(t=rec.gnss.t, vel=rec.gnss.vel, valid=valid, frame="ENU")
+    p = corrector_pipeline("gst-gnss")
+    res = p.run(rec, backend="reference")
+    assert (res.flags[(rec.time > 20.6) & (rec.time < 30.0)] & Flag.GNSS_GAP).all()
+    from fusionkit.detectors.gnss_gap import gnss_sample_rows
+
+    rows = gnss_sample_rows(rec)
+    s = corrector_pipeline("gst-gnss")  # a fresh pipeline streams the same numbers
+    streamed = np.array([s.update(rec.gyr[k], rec.acc[k], None, rec.dt[k], gnss=rows[k]) for k in range(len(rec))])
+    np.testing.assert_allclose(streamed, res.quat, atol=1e-12)
+
+
+def test_corrector_targets_on_the_helicopter(flights):
+    heli = flights["heli_cruise"]
+    res = corrector_pipeline("gst-gnss", body="FRD").run(heli)
+    assert trial_metrics(res, heli, "6D")["tilt"] <= 0.3

@@ -1,0 +1,1 @@
+"""Correctors: pull an estimate towards what aiding sensors say."""

@@ -1,0 +1,158 @@
+"""Source 001's levelling corrections as pipeline correctors (any estimator, any frame).
+
+The platform equation ``dC/dt = C [w_B x] - [w_P x] C`` equals ``dC/dt = C [(w_B - C^T w_P) x]``,
+so the GST's platform rate ``w_P`` is a body-rate correction ``-C^T w_P``: these are ``rate``
+correctors. With the earth frame's "up" vector ``u``, the document's ``w_P = [-K d_y, K d_x, 0]``
+is ``w_P = K u x d`` for the horizontal residual ``d`` (frame independent).
+
+* ``gst``: ``d`` = the low-passed horizontal specific force (autonomous), gated as in the
+  ``gst`` filter (``reject``).
+* ``gst-gnss``: while the sample's GNSS row is usable, ``d`` = the low-passed horizontal specific
+  force minus the kinematic acceleration (``dV/dt`` along the forward axis, ``V dH/dt`` to the
+  right), and the heading is pulled towards the GNSS track angle with time constant ``T``
+  (eq. 5 as a rate about the vertical); in gaps it is ``gst``.
+
+The ``gst`` / ``gst-gnss`` filters implement the same laws on the document's azimuth-free
+platform with a compiled loop; these correctors let them be composed with other estimators.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar, Literal
+
+import numpy as np
+
+from ..config import PluginConfig, param
+from ..conventions import frame_matrix, up_vector
+from ..protocols import Correction, Corrector
+from ..rotations import quat_to_matrix
+from ..types import Flag
+
+__all__ = ["GstCorrector", "GstGnssCorrector"]
+
+_FORWARD = {"RFU": [0.0, 1.0, 0.0], "FRD": [1.0, 0.0, 0.0], "FLU": [1.0, 0.0, 0.0]}
+# state: up (3), north (3), east (3), lp auto (3), lp gnss (3), |f| at rest, seconds rejected,
+# V_prev, t_prev, a_long, V, heading initialised
+_UP, _N, _E, _LPA, _LPG, _GN, _REJT, _VPREV, _TPREV, _ALONG, _V, _HINIT = 0, 3, 6, 9, 12, 15, 16, 17, 18, 19, 20, 21
+_SIZE = 22
+
+
+class GstCorrectorConfig(PluginConfig):
+    tau: float = param(50.0, unit="s", description="levelling loop time constant (K = 1/(g tau))", gt=0)
+    lp: float = param(2.0, unit="s", description="aperiodic-link time constant", gt=0)
+    gravity: float = param(9.80665, unit="m/s^2", description="|f| expected at rest (for the gate)", gt=0)
+    reject: bool = param(True, unit="-", description="pause under acceleration or turning (extension)")
+    reject_acc: float = param(0.3, unit="m/s^2", description="| |f| - g | above this pauses it", gt=0)
+    reject_turn: float = param(0.02, unit="rad/s", description="turn rate above this pauses it", gt=0)
+    reject_horizontal: float = param(0.5, unit="m/s^2", description="low-passed horizontal force above this pauses it", gt=0)
+    reject_timeout: float = param(60.0, unit="s", description="longest pause by the horizontal test alone", gt=0)
+
+
+class GstCorrector(Corrector):
+    """Autonomous GST levelling as a rate correction (source 001, method b)."""
+
+    name: ClassVar[str] = "gst"
+    Config = GstCorrectorConfig
+    mode: ClassVar[str] = "rate"
+    source: ClassVar[str] = "001 (GST), autonomous correction"
+    summary: ClassVar[str] = "level by the low-passed horizontal specific force (autonomous GST loop)"
+
+    def initial_state(self, dt: float, frame: str) -> np.ndarray:
+        s = np.zeros(_SIZE)
+        s[_UP:_UP + 3] = up_vector(frame)
+        s[_N:_N + 3] = frame_matrix("ENU", frame) @ [0.0, 1.0, 0.0]
+        s[_E:_E + 3] = frame_matrix("ENU", frame) @ [1.0, 0.0, 0.0]
+        s[_TPREV] = np.nan
+        return s
+
+    def _horizontal(self, r, state, sample):
+        f_e = r @ sample.acc
+        up = state[_UP:_UP + 3]
+        return f_e - (f_e @ up) * up, float((r @ sample.gyr) @ up)
+
+    def _autonomous(self, r, state, sample, f_h, w_up):
+        """Update the aperiodic link; the residual to level on (None when the gate pauses it)."""
+        c = self.config
+        k = 1.0 - math.exp(-sample.dt / c.lp)
+        state[_LPA:_LPA + 3] += k * (f_h - state[_LPA:_LPA + 3])
+        horizontal = np.linalg.norm(state[_LPA:_LPA + 3]) > c.reject_horizontal
+        state[_REJT] = state[_REJT] + sample.dt if horizontal else 0.0
+        rejected = c.reject and (abs(np.linalg.norm(sample.acc) - c.gravity) > c.reject_acc
+                                 or abs(w_up) > c.reject_turn or (horizontal and state[_REJT] <= c.reject_timeout))
+        return None if rejected else state[_LPA:_LPA + 3]
+
+    def _rate(self, r, state, d, tau):
+        """Body-rate correction -R^T w_P with w_P = K u x d."""
+        w_p = np.cross(state[_UP:_UP + 3], d) / (self.config.gravity * tau)
+        return -(r.T @ w_p)
+
+    def correct(self, estimator, est_state, state, sample, flags) -> Correction:
+        if sample.acc is None:
+            return Correction(np.zeros(3))
+        r = quat_to_matrix(estimator.quat(est_state))
+        f_h, w_up = self._horizontal(r, state, sample)
+        d = self._autonomous(r, state, sample, f_h, w_up)
+        if d is None:
+            return Correction(np.zeros(3), Flag.ACC_REJECTED)
+        return Correction(self._rate(r, state, d, self.config.tau))
+
+
+class GstGnssCorrectorConfig(GstCorrectorConfig):
+    tau_gnss: float = param(20.0, unit="s", description="levelling loop time constant with GNSS", gt=0)
+    lp_gnss: float = param(2.0, unit="s", description="low-pass of the GNSS-aided residual", gt=0)
+    heading_T: float = param(50.0, unit="s", description="track-angle blend time constant T (eq. 5)", gt=0)
+    heading_init: Literal["track", "blend"] = param("track", unit="-", description="jump to the first track angle or blend")
+    min_speed: float = param(5.0, unit="m/s", description="no track angle below this ground speed", ge=0)
+    gnss_max_age: float = param(0.5, unit="s", description="a GNSS epoch older than this is a gap", gt=0)
+    body: Literal["RFU", "FRD", "FLU"] = param("RFU", unit="-", description="sensor axes (which one is forward)")
+
+
+class GstGnssCorrector(GstCorrector):
+    """GNSS-aided GST levelling and track-angle heading (source 001, method a and eq. 5),
+    autonomous in GNSS gaps."""
+
+    name: ClassVar[str] = "gst-gnss"
+    Config = GstGnssCorrectorConfig
+    source: ClassVar[str] = "001 (GST), GNSS correction and combined algorithm"
+    summary: ClassVar[str] = "level by GNSS-compensated specific force, heading towards the track angle, autonomous in gaps"
+
+    def correct(self, estimator, est_state, state, sample, flags) -> Correction:
+        c = self.config
+        if sample.acc is None:
+            return Correction(np.zeros(3))
+        r = quat_to_matrix(estimator.quat(est_state))
+        f_h, w_up = self._horizontal(r, state, sample)
+        d_auto = self._autonomous(r, state, sample, f_h, w_up)
+        g = sample.gnss
+        usable = g is not None and bool(g[2]) and g[3] <= c.gnss_max_age
+        if g is not None and g[4] and g[2]:  # a new valid epoch: ground speed and its derivative
+            v = math.hypot(g[0], g[1])
+            if np.isfinite(state[_TPREV]) and g[5] > state[_TPREV]:
+                state[_ALONG] = (v - state[_VPREV]) / (g[5] - state[_TPREV])
+            state[_VPREV], state[_TPREV], state[_V] = v, g[5], v
+        elif g is not None and not g[2]:
+            state[_TPREV] = np.nan
+        if not usable:
+            if d_auto is None:
+                return Correction(np.zeros(3), Flag.ACC_REJECTED | Flag.GNSS_GAP)
+            return Correction(self._rate(r, state, d_auto, c.tau), Flag.GNSS_GAP)
+        up, north, east = state[_UP:_UP + 3], state[_N:_N + 3], state[_E:_E + 3]
+        fwd = r @ np.asarray(_FORWARD[c.body])
+        fwd = fwd - (fwd @ up) * up
+        fwd /= np.linalg.norm(fwd)
+        right = np.cross(fwd, up)
+        a_kin = state[_ALONG] * fwd + state[_V] * (-w_up) * right
+        k = 1.0 - math.exp(-sample.dt / c.lp_gnss)
+        state[_LPG:_LPG + 3] += k * ((f_h - a_kin) - state[_LPG:_LPG + 3])
+        rate = self._rate(r, state, state[_LPG:_LPG + 3], c.tau_gnss)
+        if state[_V] >= c.min_speed:  # eq. 5: pull the heading towards the track angle
+            heading = math.atan2(fwd @ east, fwd @ north)
+            err = (math.atan2(g[1], g[0]) - heading + math.pi) % (2 * math.pi) - math.pi
+            if state[_HINIT] == 0.0 and c.heading_init == "track":
+                turn = err / sample.dt  # the whole offset in one sample
+            else:
+                turn = err / c.heading_T
+            state[_HINIT] = 1.0
+            rate = rate - r.T @ (turn * up)  # clockwise (heading up) is negative about "up"
+        return Correction(rate)
