@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import re
-from pathlib import Path
 
 import fusionkit as fk
 from _common import REPO, data_dir, machine

@@ -131,8 +131,10 @@ def alignment_quat(a0, a1, a2, m0, m1, m2, use_mag, q_frame, out):
 
 
 @njit
-def rodrigues_into(r0, r1, r2, out):
-    """Row-major ``exp([r x])`` into ``out[0:9]`` (rotations.rodrigues), Taylor below 1e-4 rad."""
+def rodrigues_entries(r0, r1, r2):
+    """The nine entries (row-major) of ``exp([r x]) = I + sin(s)/s B + (1 - cos s)/s^2 B^2``
+    (rotations.rodrigues, source 004); Taylor series below 1e-4 rad. Returned as a tuple: no
+    allocation in a loop."""
     s2 = r0 * r0 + r1 * r1 + r2 * r2
     s = math.sqrt(s2)
     if s < 1e-4:
@@ -141,15 +143,16 @@ def rodrigues_into(r0, r1, r2, out):
     else:
         a = math.sin(s) / s
         b = (1.0 - math.cos(s)) / s2
-    out[0] = 1.0 + b * (r0 * r0 - s2)
-    out[1] = -a * r2 + b * r0 * r1
-    out[2] = a * r1 + b * r0 * r2
-    out[3] = a * r2 + b * r0 * r1
-    out[4] = 1.0 + b * (r1 * r1 - s2)
-    out[5] = -a * r0 + b * r1 * r2
-    out[6] = -a * r1 + b * r0 * r2
-    out[7] = a * r0 + b * r1 * r2
-    out[8] = 1.0 + b * (r2 * r2 - s2)
+    # B^2 = r r^T - s^2 I
+    return (1.0 + b * (r0 * r0 - s2), -a * r2 + b * r0 * r1, a * r1 + b * r0 * r2,
+            a * r2 + b * r0 * r1, 1.0 + b * (r1 * r1 - s2), -a * r0 + b * r1 * r2,
+            -a * r1 + b * r0 * r2, a * r0 + b * r1 * r2, 1.0 + b * (r2 * r2 - s2))
+
+
+@njit
+def rodrigues_into(r0, r1, r2, out):
+    """:func:`rodrigues_entries` written into ``out[0:9]``."""
+    (out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7], out[8]) = rodrigues_entries(r0, r1, r2)
 
 
 @njit

@@ -28,6 +28,7 @@ __all__ = [
     "build_config",
     "load_config",
     "describe_config",
+    "set_dotted",
 ]
 
 
@@ -124,6 +125,16 @@ class PipelineConfig(FilterConfig):
     @classmethod
     def _lst(cls, v):
         return [PluginSpec.coerce(x) for x in v] if isinstance(v, (list, tuple)) else v
+
+
+def set_dotted(d: dict[str, Any], key: str, value: Any) -> dict[str, Any]:
+    """``set_dotted(d, "motion.window", 0.2)`` sets ``d["motion"]["window"]`` (creating levels)."""
+    parts = key.split(".")
+    node = d
+    for p in parts[:-1]:
+        node = node.setdefault(p, {})
+    node[parts[-1]] = value
+    return d
 
 
 def _format_validation(where: str, exc: ValidationError) -> str:

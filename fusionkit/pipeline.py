@@ -35,7 +35,6 @@ import numpy as np
 
 from ._numba import HAVE_NUMBA, njit, resolve_backend
 from .config import PipelineConfig
-from .conventions import change_frame
 from .errors import ConfigError, InputError
 from .navigation.alignment import (
     ALIGN_SIZE, ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, DISTURBED, END, PHASE, SEEN, Aligner, align_step,

@@ -7,7 +7,7 @@ import fusionkit as fk
 from fusionkit import sim
 from fusionkit.benchmarking.metrics import broad_errors, trial_metrics
 from fusionkit.conventions import change_frame, euler_to_quat
-from fusionkit.filters.gst import BODY_AXES, GstFilter, GstGnssFilter
+from fusionkit.filters.gst import BODY_AXES
 from fusionkit.rotations import matrix_to_quat, quat_angle
 from fusionkit.types import Flag
 

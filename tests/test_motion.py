@@ -11,7 +11,10 @@ REST = 12.0
 RATE = 100.0
 
 
-def rec_with(segment, noise=sim.Noise.mems(), seed=1):
+MEMS = sim.Noise.mems()
+
+
+def rec_with(segment, noise=MEMS, seed=1):
     return sim.simulate([sim.Rest(REST), segment, sim.Rest(1.0)], rate=RATE, noise=noise, seed=seed)
 
 

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from ..config import set_dotted
 from ..errors import ConfigError
 from .datasets import Trial, discover
 from .metrics import trial_metrics
@@ -219,23 +220,16 @@ def _apply_params(specs: list[FilterSpec], params: Mapping[str, Any]) -> list[Fi
             head, _, rest = key.partition(".")
             if head in names and rest:
                 if head == s.name:
-                    _set(p, rest, value)
+                    set_dotted(p, rest, value)
                     used.add(key)
             elif head in fields:
-                _set(p, key, value)
+                set_dotted(p, key, value)
                 used.add(key)
         out.append(FilterSpec.of((s.name, p)) if p != s.kwargs else s)
     unused = set(params) - used
     if unused:
         raise ConfigError(f"parameters {sorted(unused)} match no field of the filters {sorted(names)}")
     return out
-
-
-def _set(d: dict, dotted: str, value: Any) -> None:
-    parts = dotted.split(".")
-    for p in parts[:-1]:
-        d = d.setdefault(p, {})
-    d[parts[-1]] = value
 
 
 def _execute(tasks, index, jobs, scheduler):

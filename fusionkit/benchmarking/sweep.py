@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from ..config import set_dotted
 from ..errors import ConfigError
 from .runner import BenchResult, FilterSpec, bench
 
@@ -100,9 +101,5 @@ def sweep(filter_name: str, grid: dict[str, list[Any]], data, *, metric: str = "
 def _nest(flat: dict[str, Any]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for k, v in flat.items():
-        node = out
-        parts = k.split(".")
-        for p in parts[:-1]:
-            node = node.setdefault(p, {})
-        node[parts[-1]] = v
+        set_dotted(out, k, v)
     return out

@@ -23,7 +23,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from .._kernels import dcm_to_quat, qmul_into, qnormalize, quat_to_dcm, rotvec_quat
+from .._kernels import dcm_to_quat, qmul_into, qnormalize, quat_to_dcm, rodrigues_entries
 from .._numba import njit
 from ..config import PluginConfig, param
 from ..protocols import Estimator, EstimatorKernel
@@ -142,26 +142,8 @@ def _quat_from_quat(q, x):
 
 @njit
 def _dcm_propagate(x, w0, w1, w2, dt, p):
-    r0, r1, r2 = w0 * dt, w1 * dt, w2 * dt
-    s2 = r0 * r0 + r1 * r1 + r2 * r2
-    s = math.sqrt(s2)
-    if s < 1e-4:
-        a = 1.0 - s2 / 6.0 + s2 * s2 / 120.0
-        b = 0.5 - s2 / 24.0 + s2 * s2 / 720.0
-    else:
-        a = math.sin(s) / s
-        b = (1.0 - math.cos(s)) / s2
-    # R = I + a B + b B^2 with B = [r x]; B^2 = r r^T - s^2 I
-    m00 = 1.0 + b * (r0 * r0 - s2)
-    m11 = 1.0 + b * (r1 * r1 - s2)
-    m22 = 1.0 + b * (r2 * r2 - s2)
-    m01 = -a * r2 + b * r0 * r1
-    m10 = a * r2 + b * r0 * r1
-    m02 = a * r1 + b * r0 * r2
-    m20 = -a * r1 + b * r0 * r2
-    m12 = -a * r0 + b * r1 * r2
-    m21 = a * r0 + b * r1 * r2
-    for i in range(3):
+    m00, m01, m02, m10, m11, m12, m20, m21, m22 = rodrigues_entries(w0 * dt, w1 * dt, w2 * dt)
+    for i in range(3):  # C <- C R, row by row
         c0, c1, c2 = x[3 * i], x[3 * i + 1], x[3 * i + 2]
         x[3 * i] = c0 * m00 + c1 * m10 + c2 * m20
         x[3 * i + 1] = c0 * m01 + c1 * m11 + c2 * m21

@@ -45,13 +45,13 @@ from .._kernels import dcm_to_quat, matmul3_into, rodrigues_into
 from .._kernels import quat_to_dcm as dcm_from_quat
 from .._numba import njit, resolve_backend
 from ..config import AlignmentConfig, FilterConfig, param
-from ..conventions import change_frame, frame_matrix
+from ..conventions import frame_matrix
 from ..detectors.gnss_gap import gnss_sample_rows
 from ..detectors.motion import MotionConfig, MotionDetector, _motion_step
 from ..estimators.poisson import _bjorck
 from ..errors import InputError
 from ..navigation.alignment import (
-    ALIGN_SIZE, ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, NACC, PHASE, SACC, Aligner, align_step,
+    ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, NACC, PHASE, SACC, Aligner, align_step,
 )
 from ..protocols import Filter, Sample
 from ..rotations import matrix_to_quat, orthonormalize, quat_to_matrix, rodrigues
