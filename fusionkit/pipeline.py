@@ -90,7 +90,11 @@ class Pipeline(Filter):
 
     # -- state -----------------------------------------------------------------------------
     def aligner(self, dt: float) -> Aligner:
-        return Aligner(self.spec.alignment, self.spec.frame, dt)
+        """The alignment state machine for nominal interval ``dt`` (made once per dt)."""
+        cache = self.__dict__.setdefault("_aligners", {})
+        if dt not in cache:
+            cache[dt] = Aligner(self.spec.alignment, self.spec.frame, dt)
+        return cache[dt]
 
     def new_state(self, dt: float) -> dict[str, Any]:
         """A fresh run state for nominal sample interval ``dt``."""

@@ -150,18 +150,11 @@ def _key(spec: FilterSpec, trial: Trial) -> str:
 
 
 def _peer_version(name: str) -> str:
+    """A peer adapter's package version ("" for fusionkit's own filters)."""
     from ..registry import get
 
     cls = get(name, "filter")
-    pkg = getattr(cls, "package", "")
-    if not pkg:
-        return ""
-    from importlib import metadata
-
-    try:
-        return metadata.version(pkg)
-    except metadata.PackageNotFoundError:
-        return "missing"
+    return cls.version() if getattr(cls, "package", "") else ""
 
 
 def bench(filters: Iterable[Any], data: Any, *, trials: list[str] | None = None,

@@ -123,6 +123,8 @@ class GstFilter(Filter):
         self.alignment = AlignmentConfig(mode=c.alignment, duration=c.alignment_duration)
         self.M = BODY_AXES[c.body]
         self.F = frame_matrix("ENU", c.frame)  # output frame, folded into the output rotation
+        self._p = self.params()
+        self._aligners: dict[float, Aligner] = {}
         self._stream = None
         self.last_flags = 0
 
@@ -130,7 +132,13 @@ class GstFilter(Filter):
         return "6D"  # no magnetometer: heading comes from gyros and, in gst-gnss, the GNSS track
 
     # -- parameters ------------------------------------------------------------------------
+    def aligner(self, dt: float) -> Aligner:
+        if dt not in self._aligners:
+            self._aligners[dt] = Aligner(self.alignment, "ENU", dt)
+        return self._aligners[dt]
+
     def params(self, g: float = 9.80665) -> np.ndarray:
+        """The kernel's parameter vector (``K = 1/(g tau)`` with standard gravity)."""
         c = self.config
         return np.array([
             1.0 / (g * c.tau_gnss), 1.0 / (g * c.tau_auto), c.lp_gnss, c.lp_auto, c.gnss_weight, float(c.reject),
@@ -143,7 +151,7 @@ class GstFilter(Filter):
         x[_C:_C + 9] = np.eye(3).reshape(9)
         x[_TPREV] = np.nan
         return {"dt": dt, "x": x, "det": self.detector.initial_state(dt),
-                "align": Aligner(self.alignment, "ENU", dt).new_state()}
+                "align": self.aligner(dt).new_state()}
 
     # -- the readable reference --------------------------------------------------------------
     def _step(self, st, gyr, acc, gnss, dt) -> tuple[np.ndarray, int, int]:
@@ -155,8 +163,7 @@ class GstFilter(Filter):
         if al[PHASE] == 0.0 and gyr_ok and acc_ok and self.detector.step(st["det"], Sample(gyr, acc, None, dt)):
             flags |= Flag.MOTION
         # source 000's alignment: level and gyro bias while still
-        status, q = Aligner(self.alignment, "ENU", st["dt"]).step(al, gyr, acc, None, gyr_ok, acc_ok, False,
-                                                                  bool(flags & Flag.MOTION))
+        status, q = self.aligner(st["dt"]).step(al, gyr, acc, None, gyr_ok, acc_ok, False, bool(flags & Flag.MOTION))
         if status in (ALIGNED_NOW, ALIGNED_BEFORE):
             self._start(x, q, al)
         if status in (ALIGNING, ALIGNED_NOW):
@@ -165,7 +172,7 @@ class GstFilter(Filter):
             return self._output(x), flags, 0
         w = self.M @ (gyr - al[BIAS:BIAS + 3])
         f = self.M @ acc
-        p = self.params()
+        p = self._p
         # 1. platform Poisson equation, exact over the sample
         cm = rodrigues(-x[_WP:_WP + 3] * dt) @ x[_C:_C + 9].reshape(3, 3) @ rodrigues(w * dt)
         cm = orthonormalize(cm)
@@ -269,8 +276,8 @@ class GstFilter(Filter):
         flags = np.zeros(n, np.uint32)
         mode = np.zeros(n, np.uint8)
         if used == "numba":
-            _gst_loop(rec.gyr, rec.acc, dt, gn, self.M, self.F, self.params(), st["x"], st["det"],
-                      self.detector.kernel().params, st["align"], Aligner(self.alignment, "ENU", st["dt"]).params(),
+            _gst_loop(rec.gyr, rec.acc, dt, gn, self.M, self.F, self._p, st["x"], st["det"],
+                      self.detector.kernel().params, st["align"], self.aligner(st["dt"]).params(),
                       q, flags, mode)
         else:
             for k in range(n):

@@ -70,13 +70,15 @@ class PeerFilter(Filter):
                 f"filter {self.name!r} needs the {self.package!r} package: pip install 'fusionkit[peers]' ({exc})"
             ) from None
 
-    def version(self) -> str:
+    @classmethod
+    def version(cls) -> str:
+        """The installed version of the peer package ("missing" when it is not installed)."""
         from importlib import metadata
 
         try:
-            return metadata.version(self.package)
-        except metadata.PackageNotFoundError:  # pragma: no cover
-            return "?"
+            return metadata.version(cls.package)
+        except metadata.PackageNotFoundError:
+            return "missing"
 
     # -- to implement ----------------------------------------------------------------------
     def _batch(self, gyr, acc, mag, rate) -> np.ndarray:
