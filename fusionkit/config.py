@@ -87,8 +87,9 @@ class AlignmentConfig(PluginConfig):
         "(source 000); 'fixed': exactly `duration`; 'none': start from `initial_quat` with zero bias",
     )
     duration: float = param(10.0, unit="s", description="mandatory alignment time (source 000: 10 s)", gt=0)
-    heading: Literal["zero", "magnetometer"] = param(
-        "zero", unit="-", description="initial heading: 0 (source 000) or from the mean magnetometer"
+    heading: Literal["zero", "magnetometer", "auto"] = param(
+        "zero", unit="-",
+        description="initial heading: 0 (source 000), from the mean magnetometer, or 'auto' (magnetometer when given)",
     )
     estimate_bias: bool = param(True, unit="-", description="subtract the mean gyro output of the window")
     initial_quat: tuple[float, float, float, float] = param(

@@ -85,7 +85,8 @@ class Pipeline(Filter):
         return self.config
 
     def dimension(self, rec) -> str:
-        uses = self.spec.alignment.heading == "magnetometer" or any(c.uses_mag for c in self.correctors)
+        uses = self.spec.alignment.heading == "magnetometer" or any(
+            c.uses_mag and getattr(c.config, "use_mag", True) for c in self.correctors)
         return "9D" if uses and rec.mag is not None else "6D"
 
     # -- state -----------------------------------------------------------------------------

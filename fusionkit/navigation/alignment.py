@@ -82,7 +82,7 @@ class Aligner:
     def attitude(self, al) -> np.ndarray:
         if al[NACC] == 0:
             return np.array(self.config.initial_quat)
-        use_mag = self.config.heading == "magnetometer" and al[NMAG] > 0
+        use_mag = self.config.heading != "zero" and al[NMAG] > 0
         mag = al[SMAG:SMAG + 3] / al[NMAG] if use_mag else None
         return alignment_quat(al[SACC:SACC + 3] / al[NACC], mag, self.frame)
 
@@ -126,7 +126,7 @@ class Aligner:
         ap = np.zeros(12)
         ap[0] = MODES[c.mode]
         ap[1] = self.n_align
-        ap[2] = float(c.heading == "magnetometer")
+        ap[2] = float(c.heading != "zero")
         ap[3:7] = change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "NUE", self.frame)
         ap[7:11] = c.initial_quat
         ap[11] = float(c.estimate_bias)

@@ -1,0 +1,203 @@
+"""Source 003 (patent): iterative gradient-descent orientation correction.
+
+Per sample, after the gyro propagation (the ``poisson-quat`` first-order step is the patent's
+steps b-d), repeat: (e) the gradient of the objective
+``f(q) = R(q)^T d - a`` (``d`` the earth frame's "up", ``a`` the normalised specific force; in 9D
+plus ``R(q)^T b - m`` with ``b`` the field's reference direction from the current estimate) via
+its Jacobian, at the last corrected estimate (the propagated one at the first iteration);
+(f) normalise it; (g, h) subtract ``beta`` times it; (i) normalise the quaternion;
+(k, l) stop when converged or after ``iterations``.
+
+**The stop test, made well defined.** The patent stops "when the correction is below epsilon";
+with a normalised gradient and a fixed beta every correction has size beta, so that test can
+never end the loop. Here the loop stops when the *residual* ``|f(q)|`` after a correction is
+below ``epsilon`` (for the accelerometer term, ``|f|`` is about the tilt error in rad), or when
+``iterations`` corrections were made (``iterations=None``: until converged, capped at
+``max_iterations``). The first correction is always made, so a converged filter still corrects
+once per sample, like Madgwick's.
+
+**beta.** ``beta_scale="rate"``: the step is ``beta * dt`` (beta in rad/s, Madgwick's meaning);
+``"absolute"``: ``beta`` rad per iteration (the patent's). ``beta_mode="variable"``: the
+patent's adaptation, raised above one residual threshold and lowered below another. Raised, the
+step is ``residual / 2`` (at most ``beta_max``): in quaternion units a rotation of about the
+tilt error, so it cannot overshoot; a beta multiplied by a constant factor (tried first)
+oscillates around the minimum by up to the largest step. Lowered, it is ``beta`` again.
+
+**Extensions** (each off with its option). The stop test and the variable beta use the
+accelerometer residual only (a magnetic disturbance must not trigger large steps; the
+magnetometer term still enters the gradient). With ``beta_mode="variable"`` the loop goes beyond
+the first correction only when the residual has stayed above ``beta_raise_above`` for
+``raise_after`` s and the accelerometer is quasi-static, ``| |a|/g - 1 | < static_gate``: a real
+orientation error (a restart, a saturated gyro) persists, linear acceleration and magnetic
+disturbances come and go, and iterating on them multiplies the gain by the iteration count
+(measured on BROAD: 43-58 deg instead of 5.8). ``beta_mode="fixed"`` iterates as the patent
+does, every sample.
+
+**Madgwick's filter** is ``iterations=1``, ``beta_scale="rate"``, ``gradient_at="previous"``
+(the gradient at the previous estimate, not the propagated one) and no normalisation between
+propagation and correction (the ``gradient-descent`` filter's ``madgwick=True`` sets all of
+these): ``q_t = normalise(q_{t-1} + (1/2 q_{t-1} (x) w - beta grad/|grad|) dt)``; tested against
+the ahrs package's implementation to 1e-12.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar, Literal
+
+import numpy as np
+
+from ..config import PluginConfig, param
+from ..conventions import frame_matrix, up_vector
+from ..protocols import Correction, Corrector
+from ..errors import ConfigError
+from ..rotations import quat_conj, quat_mul, quat_normalize, quat_to_matrix
+
+__all__ = ["GradientCorrector", "objective", "jacobian_t_times"]
+
+
+def objective(q, d, s) -> np.ndarray:
+    """``f(q) = R(q)^T d - s``: the reference direction ``d`` (earth) seen in the body, minus the
+    measured direction ``s`` (unit)."""
+    return quat_to_matrix(q).T @ d - s
+
+
+def jacobian_t_times(q, d, f) -> np.ndarray:
+    """``J^T f`` with ``J = d(R(q)^T d)/dq`` (3 x 4), the gradient of ``|f|^2 / 2``."""
+    w, x, y, z = q
+    dx, dy, dz = d
+    j = 2.0 * np.array([
+        [z * dy - y * dz, y * dy + z * dz, -2 * y * dx + x * dy - w * dz, -2 * z * dx + w * dy + x * dz],
+        [-z * dx + x * dz, y * dx - 2 * x * dy + w * dz, x * dx + z * dz, -w * dx - 2 * z * dy + y * dz],
+        [y * dx - x * dy, z * dx - w * dy - 2 * x * dz, w * dx + z * dy - 2 * y * dz, x * dx + y * dy],
+    ])
+    return j.T @ f
+
+
+class GradientConfig(PluginConfig):
+    beta: float = param(0.1, unit="rad/s (rate) or rad", description="step size of a correction", gt=0)
+    beta_scale: Literal["rate", "absolute"] = param(
+        "rate", unit="-", description="'rate': step beta*dt (Madgwick's beta); 'absolute': beta rad per iteration"
+    )
+    iterations: int | None = param(
+        1, unit="-", description="most corrections per sample (N); None: until converged, capped by max_iterations. "
+        "N > 1 recovers large errors fast but chases accelerations on hand-held motion (see BENCHMARKS.md)", ge=1
+    )
+    max_iterations: int = param(100, unit="-", description="safety cap for iterations=None", ge=1)
+    epsilon: float = param(0.1, unit="-", description="stop when the residual |f| falls below this (about 6 deg)", gt=0)
+    beta_mode: Literal["fixed", "variable"] = param("variable", unit="-", description="the patent's adaptive beta")
+    beta_raise_above: float = param(
+        0.35, unit="-", description="variable beta: above this residual (about 20 deg of tilt) the step is residual/2", gt=0)
+    beta_lower_below: float = param(0.1, unit="-", description="variable beta: back to beta below this residual", gt=0)
+    beta_max: float = param(0.8, unit="rad", description="variable beta: largest step per iteration", gt=0)
+    gradient_at: Literal["propagated", "previous"] = param(
+        "propagated", unit="-", description="first gradient at the propagated estimate (patent) or the previous one (Madgwick)"
+    )
+    use_mag: bool = param(True, unit="-", description="add the magnetometer objective when mag is given (9D)")
+    raise_after: float = param(
+        0.1, unit="s", description="variable beta: raise only after the residual stayed above the threshold this long "
+        "(a real orientation error persists, an acceleration passes)", ge=0)
+    static_gate: float | None = param(
+        0.1, unit="-", description="iterate beyond one correction only while | |a|/g - 1 | is below this "
+        "(quasi-static accelerometer); None: always (the patent)", gt=0)
+    gravity: float = param(9.81, unit="m/s^2", description="g for the static gate", gt=0)
+
+
+# state: up (3), north (3), previous corrected quaternion (4), its validity, last iteration count,
+# seconds the residual has stayed above beta_raise_above
+_UP, _N, _QPREV, _HAVE, _ITERS, _PERSIST = 0, 3, 6, 10, 11, 12
+_SIZE = 13
+
+
+class GradientCorrector(Corrector):
+    """Source 003's iterative gradient-descent correction (state mode, quaternion estimators)."""
+
+    name: ClassVar[str] = "gradient-descent"
+    Config = GradientConfig
+    mode: ClassVar[str] = "state"
+    uses_mag: ClassVar[bool] = True
+    source: ClassVar[str] = "003 (patent: iterative gradient descent)"
+    summary: ClassVar[str] = "iterated normalised-gradient steps on the accelerometer (and magnetometer) objective"
+
+    def initial_state(self, dt: float, frame: str) -> np.ndarray:
+        s = np.zeros(_SIZE)
+        s[_UP:_UP + 3] = up_vector(frame)
+        s[_N:_N + 3] = frame_matrix("ENU", frame) @ [0.0, 1.0, 0.0]
+        return s
+
+    def gradient(self, q, acc_dir, mag_dir, state) -> tuple[np.ndarray, float]:
+        """``(J^T f, |f_acc|)`` at ``q``: the gradient of the accelerometer (and magnetometer)
+        objective, and the accelerometer residual (the patent's objective), which drives the
+        stop test and the variable beta."""
+        up = state[_UP:_UP + 3]
+        f = objective(q, up, acc_dir)
+        grad = jacobian_t_times(q, up, f)
+        res = math.sqrt(f @ f)
+        if mag_dir is not None:
+            h = quat_to_matrix(q) @ mag_dir  # the field in the earth frame
+            vert = h @ up
+            b = np.linalg.norm(h - vert * up) * state[_N:_N + 3] + vert * up
+            fm = objective(q, b, mag_dir)
+            grad = grad + jacobian_t_times(q, b, fm)
+        return grad, res
+
+    def correct(self, estimator, est_state, state, sample, flags) -> Correction:
+        c = self.config
+        q = estimator.quat(est_state) if c.gradient_at == "propagated" else est_state[:4].copy()
+        if sample.acc is None:
+            state[_QPREV:_QPREV + 4], state[_HAVE] = estimator.quat(est_state), 1.0
+            return Correction(None)
+        acc_dir = sample.acc / np.linalg.norm(sample.acc)
+        mag_dir = None
+        if c.use_mag and sample.mag is not None:
+            mag_dir = sample.mag / np.linalg.norm(sample.mag)
+        step = c.beta * sample.dt if c.beta_scale == "rate" else c.beta
+        base = step
+        if c.gradient_at == "previous":
+            # Madgwick: one correction with the gradient at the previous estimate, added to the
+            # unnormalised propagation, then a single normalisation
+            if est_state.shape != (4,):
+                raise ConfigError("gradient_at='previous' needs the poisson-quat estimator (first-order step)")
+            if state[_HAVE]:
+                q_prev = state[_QPREV:_QPREV + 4]
+            else:  # the first sample: undo the first-order step q_w = q (x) p, p = [1, w dt/2]
+                p = np.concatenate([[1.0], 0.5 * sample.gyr * sample.dt])
+                q_prev = quat_mul(est_state[:4], quat_conj(p)) / (p @ p)
+            grad, _ = self.gradient(q_prev, acc_dir, mag_dir, state)
+            n = np.linalg.norm(grad)
+            q_new = est_state[:4] - (step * grad / n if n > 0 else 0.0)
+            q_new = quat_normalize(q_new)
+            estimator.set_quat(est_state, q_new)
+            state[_QPREV:_QPREV + 4], state[_HAVE], state[_ITERS] = q_new, 1.0, 1
+            return Correction(None)
+        q = quat_normalize(q)
+        large = self.gradient(q, acc_dir, None, state)[1] > c.beta_raise_above
+        state[_PERSIST] = state[_PERSIST] + sample.dt if large else 0.0
+        may_raise = state[_PERSIST] >= c.raise_after
+        static = c.static_gate is None or abs(np.linalg.norm(sample.acc) / c.gravity - 1.0) <= c.static_gate
+        cap = c.iterations if c.iterations is not None else c.max_iterations
+        if c.beta_mode == "variable" and not (may_raise and static):
+            # only a persistent large residual on a quasi-static accelerometer is an orientation
+            # error worth iterating on; otherwise one step, or it chases accelerations
+            cap = 1
+        i = 0
+        while i < cap:
+            grad, res = self.gradient(q, acc_dir, mag_dir, state)
+            n = np.linalg.norm(grad)
+            if n == 0.0:
+                break
+            if c.beta_mode == "variable" and cap > 1:
+                # raised above the threshold: a step of residual/2 (in quaternion units, a rotation
+                # of about the tilt error itself) cannot overshoot, where a multiplied beta does;
+                # lowered back to beta below the other threshold
+                if res > c.beta_raise_above and may_raise:
+                    step = min(max(0.5 * res, base), c.beta_max)
+                elif res < c.beta_lower_below:
+                    step = base
+            q = quat_normalize(q - step * grad / n)
+            i += 1
+            if self.gradient(q, acc_dir, mag_dir, state)[1] < c.epsilon:
+                break
+        estimator.set_quat(est_state, q)
+        state[_QPREV:_QPREV + 4], state[_HAVE], state[_ITERS] = q, 1.0, i
+        return Correction(None)

@@ -1,0 +1,141 @@
+"""Source 003: iterative gradient descent, and Madgwick's filter as its N = 1 case."""
+
+import numpy as np
+import pytest
+
+import fusionkit as fk
+from fusionkit import sim
+from fusionkit.benchmarking.metrics import broad_errors
+from fusionkit.conventions import euler_to_quat
+from fusionkit.correctors.gradient import jacobian_t_times, objective
+from fusionkit.rotations import quat_mul, quat_normalize
+
+NOISE = sim.Noise(gyr_noise=0.003, acc_noise=0.03, mag_noise=0.2)
+
+
+@pytest.fixture(scope="module")
+def rec():
+    deg = np.pi / 180
+    return sim.simulate([sim.Rest(1.0), sim.Rotate((0, 0, 1), 90 * deg, 2.0), sim.Rotate((1, 0, 0), 40 * deg, 1.5),
+                         sim.Translate((0, 1, 0), 0.5, 1.0)], rate=100.0, noise=NOISE, seed=2)
+
+
+def madgwick_imu(q0, gyr, acc, beta, dt):
+    """Madgwick's IMU update written from his report's closed-form gradient (eqs. 25-26, z up,
+    the earth frame x y of the start): an independent formulation for the equivalence test."""
+    q = np.array(q0, float)
+    out = []
+    for g, a in zip(gyr, acc):
+        a = a / np.linalg.norm(a)
+        w, x, y, z = q
+        f = np.array([2 * (x * z - w * y) - a[0], 2 * (w * x + y * z) - a[1], 2 * (0.5 - x * x - y * y) - a[2]])
+        j = np.array([[-2 * y, 2 * z, -2 * w, 2 * x], [2 * x, 2 * w, 2 * z, 2 * y], [0, -4 * x, -4 * y, 0]])
+        grad = j.T @ f
+        q_dot = 0.5 * quat_mul(q, np.concatenate([[0.0], g])) - beta * grad / np.linalg.norm(grad)
+        q = quat_normalize(q + q_dot * dt)
+        out.append(q)
+    return np.array(out)
+
+
+def madgwick_filter(rec, q0, beta, use_mag):
+    return fk.compose({"estimator": {"name": "poisson-quat", "params": {"normalize": False}},
+                       "correctors": [{"name": "gradient-descent",
+                                       "params": {"gradient_at": "previous", "iterations": 1, "beta_mode": "fixed",
+                                                  "beta": beta, "use_mag": use_mag}}],
+                       "alignment": {"mode": "none", "initial_quat": tuple(q0)}, "frame": "NWU"})
+
+
+def test_jacobian_is_the_gradient_of_the_objective():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        q = quat_normalize(rng.normal(size=4))
+        d, s = rng.normal(size=3), rng.normal(size=3)
+        half_sq = lambda qq: 0.5 * np.sum(objective(qq, d, s) ** 2)  # noqa: E731
+        num = np.array([(half_sq(q + h) - half_sq(q - h)) / 2e-7 for h in np.eye(4) * 1e-7])
+        np.testing.assert_allclose(jacobian_t_times(q, d, objective(q, d, s)), num, atol=1e-6)
+
+
+def test_n1_is_madgwick_against_an_independent_formulation(rec):
+    q0 = euler_to_quat(0.3, 0.1, -0.2, "NWU")
+    ours = madgwick_filter(fk.Recording(gyr=rec.gyr, acc=rec.acc, rate=rec.rate), q0, 0.1, False).run(
+        fk.Recording(gyr=rec.gyr, acc=rec.acc, rate=rec.rate)).quat
+    ref = madgwick_imu(q0, rec.gyr, rec.acc, 0.1, 1 / rec.rate)
+    np.testing.assert_allclose(ours, ref, atol=1e-12)
+
+
+@pytest.mark.parametrize("use_mag", [False, True])
+def test_n1_is_madgwick_against_the_ahrs_package(rec, use_mag):
+    ahrs = pytest.importorskip("ahrs.filters")
+    mag = rec.mag if use_mag else None
+    m = ahrs.Madgwick(gyr=rec.gyr, acc=rec.acc, mag=mag, frequency=rec.rate, gain=0.1)
+    sub = fk.Recording(gyr=rec.gyr[1:], acc=rec.acc[1:], mag=None if mag is None else mag[1:], rate=rec.rate)
+    ours = madgwick_filter(sub, m.Q[0], 0.1, use_mag).run(sub).quat  # ahrs starts updating at sample 1
+    np.testing.assert_allclose(ours, m.Q[1:], atol=1e-12)
+    named = fk.make("gradient-descent", madgwick=True, beta=0.1, use_mag=use_mag, frame="NWU")
+    assert named.spec.correctors[0].params["gradient_at"] == "previous"
+
+
+# the patent's aggressive setting: iterate until converged, beta raised down to 1 deg of error
+AGGRESSIVE = {"iterations": 50, "beta_mode": "variable", "raise_after": 0.0, "beta_raise_above": 0.02,
+              "beta_lower_below": 0.01, "epsilon": 0.01, "use_mag": False}
+
+
+def tilted_rest(seconds=3.0):
+    q_true = euler_to_quat(0.0, 0.0, np.pi / 2, "ENU")  # rolled 90 deg
+    return sim.simulate([sim.Rest(seconds)], rate=100.0, noise=NOISE, seed=4, initial=q_true)
+
+
+def samples_to_converge(res, rec, tol_deg=2.0):
+    e = broad_errors(res.quat, rec.truth)["inclination"]
+    bad = np.flatnonzero(e > tol_deg)
+    return 0 if bad.size == 0 else int(bad[-1]) + 1
+
+
+def test_patent_claim_restart_with_a_wrong_state():
+    """Started from identity while the device lies rolled by 90 deg: the iterative version
+    converges within a few samples, Madgwick's filter needs hundreds."""
+    rec = tilted_rest()
+    iterative = fk.make("gradient-descent", initial="identity", **AGGRESSIVE).run(rec)
+    madgwick = fk.make("gradient-descent", initial="identity", madgwick=True, use_mag=False).run(rec)
+    assert samples_to_converge(iterative, rec) <= 3
+    assert samples_to_converge(madgwick, rec) > 100
+
+
+def test_patent_claim_after_a_jump_the_gyro_missed():
+    """A 90 deg turn in one sample that the (saturated) gyro does not report."""
+    deg = np.pi / 180
+    rec = sim.simulate([sim.Rest(1.0), sim.Rotate((1, 0, 0), 90 * deg, 0.01), sim.Rest(2.0)], rate=100.0, noise=NOISE,
+                       seed=5)
+    gyr = rec.gyr.copy()
+    gyr[100:102] = 0.0  # the jump is lost
+    blind = fk.Recording(gyr=gyr, acc=rec.acc, rate=rec.rate, truth=rec.truth)
+    after = rec.time > 1.02
+    it = broad_errors(fk.make("gradient-descent", **AGGRESSIVE).run(blind).quat, rec.truth)["inclination"][after]
+    mw = broad_errors(fk.make("gradient-descent", madgwick=True, use_mag=False).run(blind).quat,
+                      rec.truth)["inclination"][after]
+    first_below = lambda e: int(np.argmax(e < 2.0)) if (e < 2.0).any() else len(e)  # noqa: E731
+    assert first_below(it) <= 3 and first_below(mw) > 100
+
+
+def test_stop_test_ends_the_loop():
+    """With a normalised gradient and fixed beta the patent's literal test never fires: the loop
+    ends by N. The residual test ends it as soon as it converges."""
+    rec = tilted_rest(0.05)
+    f = fk.make("gradient-descent", initial="identity", iterations=7, beta_mode="fixed", beta=0.01,
+                beta_scale="absolute", use_mag=False)
+    f.update(rec.gyr[0], rec.acc[0], None, 0.01)
+    assert f.state["cor"][0][11] == 7  # far from converged: all N corrections
+    g = fk.make("gradient-descent", initial="identity", **{**AGGRESSIVE, "iterations": None})
+    g.update(rec.gyr[0], rec.acc[0], None, 0.01)
+    n = g.state["cor"][0][11]
+    assert 1 <= n < 100  # converged before the cap
+    e = broad_errors(g.update(rec.gyr[1], rec.acc[1], None, 0.01)[None], rec.truth[1:2])["inclination"][0]
+    assert e < 2.0
+
+
+def test_nine_d_heading_from_the_magnetometer(rec):
+    res = fk.make("gradient-descent").run(rec)
+    e = broad_errors(res.quat, rec.truth)
+    assert np.sqrt(np.mean(e["total"] ** 2)) < 3.0
+    assert fk.make("gradient-descent").dimension(rec) == "9D"
+    assert fk.make("gradient-descent", use_mag=False).dimension(rec) == "6D"
