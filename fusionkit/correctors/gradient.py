@@ -143,7 +143,6 @@ class GradientCorrector(Corrector):
 
     def correct(self, estimator, est_state, state, sample, flags) -> Correction:
         c = self.config
-        q = estimator.quat(est_state) if c.gradient_at == "propagated" else est_state[:4].copy()
         if sample.acc is None:
             state[_QPREV:_QPREV + 4], state[_HAVE] = estimator.quat(est_state), 1.0
             return Correction(None)
@@ -170,9 +169,9 @@ class GradientCorrector(Corrector):
             estimator.set_quat(est_state, q_new)
             state[_QPREV:_QPREV + 4], state[_HAVE], state[_ITERS] = q_new, 1.0, 1
             return Correction(None)
-        q = quat_normalize(q)
-        large = self.gradient(q, acc_dir, None, state)[1] > c.beta_raise_above
-        state[_PERSIST] = state[_PERSIST] + sample.dt if large else 0.0
+        q = quat_normalize(estimator.quat(est_state))
+        grad, res = self.gradient(q, acc_dir, mag_dir, state)  # at the propagated estimate
+        state[_PERSIST] = state[_PERSIST] + sample.dt if res > c.beta_raise_above else 0.0
         may_raise = state[_PERSIST] >= c.raise_after
         static = c.static_gate is None or abs(np.linalg.norm(sample.acc) / c.gravity - 1.0) <= c.static_gate
         cap = c.iterations if c.iterations is not None else c.max_iterations
@@ -182,7 +181,6 @@ class GradientCorrector(Corrector):
             cap = 1
         i = 0
         while i < cap:
-            grad, res = self.gradient(q, acc_dir, mag_dir, state)
             n = np.linalg.norm(grad)
             if n == 0.0:
                 break
@@ -196,7 +194,8 @@ class GradientCorrector(Corrector):
                     step = base
             q = quat_normalize(q - step * grad / n)
             i += 1
-            if self.gradient(q, acc_dir, mag_dir, state)[1] < c.epsilon:
+            grad, res = self.gradient(q, acc_dir, mag_dir, state)  # the next step's gradient and the stop test
+            if res < c.epsilon:
                 break
         estimator.set_quat(est_state, q)
         state[_QPREV:_QPREV + 4], state[_HAVE], state[_ITERS] = q, 1.0, i
