@@ -37,6 +37,9 @@ def as_vector(name: str, x, width: int = 3) -> np.ndarray:
 
 def finite_rows(x: np.ndarray) -> np.ndarray:
     """Boolean mask of the rows of ``x`` whose entries are all finite."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.isfinite(x.sum()):  # fast path: a NaN or inf anywhere makes the sum non-finite
+            return np.ones(x.shape[0], bool)
     return np.isfinite(x).all(axis=1)
 
 

@@ -41,14 +41,12 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from .._kernels import dcm_to_quat, matmul3_into, rodrigues_into
-from .._kernels import quat_to_dcm as dcm_from_quat
+from .._kernels import dcm_to_quat, qmul_into, qnormalize, quat_to_dcm
 from .._numba import njit, resolve_backend
 from ..config import AlignmentConfig, FilterConfig, param
 from ..conventions import frame_matrix
 from ..detectors.gnss_gap import gnss_sample_rows
 from ..detectors.motion import MotionConfig, MotionDetector, _motion_step
-from ..estimators.poisson import _bjorck
 from ..errors import InputError
 from ..navigation.alignment import (
     ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, NACC, PHASE, SACC, Aligner, align_step,
@@ -186,7 +184,9 @@ class GstFilter(Filter):
         # 3a. GNSS: ground speed and along-track acceleration at each new epoch
         vn, ve, valid, age, new, t_ep = gnss
         gnss_ok = bool(c.combined and valid and age <= c.gnss_max_age)
-        if new and valid:
+        if not c.combined:
+            pass  # the autonomous filter does not read GNSS
+        elif new and valid:
             v = math.hypot(vn, ve)
             if np.isfinite(x[_TPREV]) and t_ep > x[_TPREV]:
                 x[_ALONG] = (v - x[_VPREV]) / (t_ep - x[_TPREV])
@@ -257,7 +257,9 @@ class GstFilter(Filter):
 
     # -- public ----------------------------------------------------------------------------
     def _gnss_arrays(self, rec: Recording) -> np.ndarray:
-        if rec.gnss is None and self.config.combined:
+        if not self.config.combined:  # not read: one dummy row per sample only for the reference loop
+            return np.broadcast_to(np.array([np.nan, np.nan, 0.0, np.inf, 0.0, np.nan]), (len(rec), 6))
+        if rec.gnss is None:
             raise InputError(f"{self.name} needs a GNSS stream (Recording(gnss=...)); use 'gst' without GNSS")
         return gnss_sample_rows(rec)
 
@@ -276,7 +278,7 @@ class GstFilter(Filter):
         flags = np.zeros(n, np.uint32)
         mode = np.zeros(n, np.uint8)
         if used == "numba":
-            _gst_loop(rec.gyr, rec.acc, dt, gn, self.M, self.F, self._p, st["x"], st["det"],
+            _gst_loop(rec.gyr, rec.acc, dt, gn, matrix_to_quat(self.M), matrix_to_quat(self.F), self._p, st["x"], st["det"],
                       self.detector.kernel().params, st["align"], self.aligner(st["dt"]).params(),
                       q, flags, mode)
         else:
@@ -310,7 +312,12 @@ class GstFilter(Filter):
 
 
 def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
+    """``a`` in [-pi, pi) for ``|a| < 3 pi`` (differences of wrapped angles)."""
+    if a >= math.pi:
+        return a - 2.0 * math.pi
+    if a < -math.pi:
+        return a + 2.0 * math.pi
+    return a
 
 
 class GstGnssFilter(GstFilter):
@@ -329,32 +336,46 @@ class GstGnssFilter(GstFilter):
 
 @njit
 def _kwrap(a):
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
+    if a >= math.pi:
+        return a - 2.0 * math.pi
+    if a < -math.pi:
+        return a + 2.0 * math.pi
+    return a
 
 
 @njit
-def _k_output(x, m, fr, q, tmp, tmp2):
-    a = x[_HSTAR] - x[_HPREV]
-    ca, sa = math.cos(a), math.sin(a)
-    for i in range(3):  # F Rz(-alpha)
-        tmp[3 * i] = fr[3 * i] * ca - fr[3 * i + 1] * sa
-        tmp[3 * i + 1] = fr[3 * i] * sa + fr[3 * i + 1] * ca
-        tmp[3 * i + 2] = fr[3 * i + 2]
-    matmul3_into(tmp, x[_C:_C + 9], tmp2)
-    matmul3_into(tmp2, m, tmp)
-    dcm_to_quat(tmp, q)
+def _exp_quat(r0, r1, r2, out):
+    """Exact quaternion of the rotation vector r (rotations.quat_from_rotvec); a polynomial
+    below 0.05 rad (error under 1e-22), sin/cos above."""
+    s2 = r0 * r0 + r1 * r1 + r2 * r2
+    if s2 < 0.0025:
+        x = 0.25 * s2  # (s/2)^2
+        c = 1.0 - x / 2.0 + x * x / 24.0 - x * x * x / 720.0 + x * x * x * x / 40320.0
+        k = 0.5 * (1.0 - x / 6.0 + x * x / 120.0 - x * x * x / 5040.0 + x * x * x * x / 362880.0)
+    else:
+        s = math.sqrt(s2)
+        c = math.cos(0.5 * s)
+        k = math.sin(0.5 * s) / s
+    out[0], out[1], out[2], out[3] = c, k * r0, k * r1, k * r2
 
 
 @njit(cache=True)
-def _gst_loop(gyr, acc, dt, gn, mat, frame, p, x, ds, dp, al, ap, out_q, out_f, out_m):
-    m = mat.reshape(9).copy()
-    fr = frame.reshape(9).copy()
+def _gst_loop(gyr, acc, dt, gn, qm, qf, p, x, ds, dp, al, ap, out_q, out_f, out_m):
+    """The compiled twin of GstFilter._step. The platform attitude is kept as a quaternion here
+    (the same exact exponentials as the reference's Rodrigues matrices, about half the
+    arithmetic); ``x`` holds it as C again when the loop returns."""
     q = np.empty(4)
-    r1 = np.empty(9)
-    r2 = np.empty(9)
+    qc = np.empty(4)  # body (RFU) -> platform
+    dq = np.empty(4)
+    tq = np.empty(4)
+    qfz = np.empty(4)  # the output frame turned by -alpha about the vertical
     t1 = np.empty(9)
-    t2 = np.empty(9)
+    if al[PHASE] != 0.0:
+        dcm_to_quat(x[_C:_C + 9], qc)
+    m = np.empty(9)
+    quat_to_dcm(qm, m)  # body -> RFU as a matrix, for the sensor vectors
     last_h, kg, ka = -1.0, 0.0, 0.0
+    last_alpha = np.nan
     for k in range(gyr.shape[0]):
         g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
         a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
@@ -367,118 +388,143 @@ def _gst_loop(gyr, acc, dt, gn, mat, frame, p, x, ds, dp, al, ap, out_q, out_f, 
         if not acc_ok:
             flags |= 8
         h = dt[k]
-        if al[PHASE] == 0.0 and gyr_ok and acc_ok:
-            if _motion_step(ds, g0, g1, g2, a0, a1, a2, 0.0, 0.0, 0.0, h, dp) != 0:
-                flags |= 2
         if al[PHASE] == 0.0:
+            if gyr_ok and acc_ok and _motion_step(ds, g0, g1, g2, a0, a1, a2, 0.0, 0.0, 0.0, h, dp) != 0:
+                flags |= 2
             status = align_step(al, ap, g0, g1, g2, a0, a1, a2, 0.0, 0.0, 0.0, gyr_ok, acc_ok, False,
                                 (flags & 2) != 0, q)
             if status == ALIGNED_NOW or status == ALIGNED_BEFORE:
-                # level the platform: C = R(q) M^T; |f| at rest
-                dcm_from_quat(q, t1)
-                for i in range(3):
-                    for j in range(3):
-                        x[_C + 3 * i + j] = t1[3 * i] * m[3 * j] + t1[3 * i + 1] * m[3 * j + 1] + t1[3 * i + 2] * m[3 * j + 2]
-                x[_HPREV] = math.atan2(x[_C + 1], x[_C + 4])
+                # level the platform: q_C = q_align (x) q_M^-1; |f| at rest
+                qmul_into(q[0], q[1], q[2], q[3], qm[0], -qm[1], -qm[2], -qm[3], qc)
+                quat_to_dcm(qc, t1)
+                x[_HPREV] = math.atan2(t1[1], t1[4])
                 x[_HSTAR] = x[_HPREV]
                 nacc = max(al[NACC], 1.0)
                 x[_GNORM] = math.sqrt(al[SACC] ** 2 + al[SACC + 1] ** 2 + al[SACC + 2] ** 2) / nacc
                 x[_WP], x[_WP + 1], x[_WP + 2] = 0.0, 0.0, 0.0
             if status == ALIGNING or status == ALIGNED_NOW:
-                dcm_from_quat(q, t1)  # the alignment attitude (ENU) into the output frame
-                matmul3_into(fr, t1, t2)
-                dcm_to_quat(t2, q)
-                out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
+                qmul_into(qf[0], qf[1], qf[2], qf[3], q[0], q[1], q[2], q[3], tq)  # into the output frame
+                _positive(tq)
+                out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = tq[0], tq[1], tq[2], tq[3]
                 out_f[k] = flags | 1
                 out_m[k] = 0
                 continue
-        if not (gyr_ok and acc_ok):
-            _k_output(x, m, fr, q, t1, t2)
-            out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
-            out_f[k] = flags
-            out_m[k] = 0
-            continue
-        b0, b1, b2 = g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2]
-        w0 = m[0] * b0 + m[1] * b1 + m[2] * b2
-        w1 = m[3] * b0 + m[4] * b1 + m[5] * b2
-        w2 = m[6] * b0 + m[7] * b1 + m[8] * b2
-        f0 = m[0] * a0 + m[1] * a1 + m[2] * a2
-        f1 = m[3] * a0 + m[4] * a1 + m[5] * a2
-        f2 = m[6] * a0 + m[7] * a1 + m[8] * a2
-        # 1. platform Poisson equation
-        rodrigues_into(-x[_WP] * h, -x[_WP + 1] * h, -x[_WP + 2] * h, r1)
-        rodrigues_into(w0 * h, w1 * h, w2 * h, r2)
-        matmul3_into(r1, x[_C:_C + 9], t1)
-        matmul3_into(t1, r2, t2)
-        _bjorck(t2)
-        for i in range(9):
-            x[_C + i] = t2[i]
-        c = t2
-        # 2. platform specific force, turn rate, forward direction
-        fp0 = c[0] * f0 + c[1] * f1 + c[2] * f2
-        fp1 = c[3] * f0 + c[4] * f1 + c[5] * f2
-        w_up = c[6] * w0 + c[7] * w1 + c[8] * w2
-        hn = math.hypot(c[1], c[4])
-        fx, fy = c[1] / hn, c[4] / hn
-        # 3a. GNSS
-        vn, ve, valid, age, new, t_ep = gn[k, 0], gn[k, 1], gn[k, 2] != 0.0, gn[k, 3], gn[k, 4] != 0.0, gn[k, 5]
-        gnss_ok = p[12] != 0.0 and valid and age <= p[11]
-        if new and valid:
-            v = math.hypot(vn, ve)
-            if math.isfinite(x[_TPREV]) and t_ep > x[_TPREV]:
-                x[_ALONG] = (v - x[_VPREV]) / (t_ep - x[_TPREV])
-            x[_VPREV], x[_TPREV], x[_V] = v, t_ep, v
-        elif not valid:
-            x[_TPREV] = np.nan
-        a_lat = x[_V] * (-w_up)
-        ax = x[_ALONG] * fx + a_lat * fy
-        ay = x[_ALONG] * fy - a_lat * fx
-        if h != last_h:  # the low-pass coefficients, recomputed only when dt changes
-            kg = 1.0 - math.exp(-h / p[2])
-            ka = 1.0 - math.exp(-h / p[3])
-            last_h = h
-        x[_LPG] += kg * ((fp0 - ax) - x[_LPG])
-        x[_LPG + 1] += kg * ((fp1 - ay) - x[_LPG + 1])
-        # 3b. autonomous
-        x[_LPA] += ka * (fp0 - x[_LPA])
-        x[_LPA + 1] += ka * (fp1 - x[_LPA + 1])
-        fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
-        horizontal = math.hypot(x[_LPA], x[_LPA + 1]) > p[13]
-        x[_REJT] = x[_REJT] + h if horizontal else 0.0
-        rejected = p[5] != 0.0 and (abs(fn - x[_GNORM]) > p[6] or abs(w_up) > p[7]
-                                    or (horizontal and x[_REJT] <= p[14]))
-        # 3c. correction
-        if gnss_ok:
-            wgt = p[4]
-            auto_k = 0.0 if rejected else (1.0 - wgt) * p[1]
-            dx = wgt * p[0] * x[_LPG] + auto_k * x[_LPA]
-            dy = wgt * p[0] * x[_LPG + 1] + auto_k * x[_LPA + 1]
-            mode = 2
-        elif rejected:
-            dx = 0.0
-            dy = 0.0
-            mode = 3
-            flags |= 512
-        else:
-            dx = p[1] * x[_LPA]
-            dy = p[1] * x[_LPA + 1]
-            mode = 1
-        if p[12] != 0.0 and not gnss_ok:
-            flags |= 1024
-        x[_WP], x[_WP + 1], x[_WP + 2] = -dy, dx, 0.0
-        # 4. heading
-        hh = math.atan2(fx, fy)
-        x[_HSTAR] += _kwrap(hh - x[_HPREV])
-        x[_HPREV] = hh
-        if gnss_ok and x[_V] >= p[10]:
-            track = math.atan2(ve, vn)
-            if x[_HINIT] == 0.0 and p[9] != 0.0:
-                x[_HSTAR] = track
+        if gyr_ok and acc_ok:
+            b0, b1, b2 = g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2]
+            w0 = m[0] * b0 + m[1] * b1 + m[2] * b2
+            w1 = m[3] * b0 + m[4] * b1 + m[5] * b2
+            w2 = m[6] * b0 + m[7] * b1 + m[8] * b2
+            f0 = m[0] * a0 + m[1] * a1 + m[2] * a2
+            f1 = m[3] * a0 + m[4] * a1 + m[5] * a2
+            f2 = m[6] * a0 + m[7] * a1 + m[8] * a2
+            # 1. platform Poisson equation: q_C <- exp(-w_P dt) (x) q_C (x) exp(w_B dt)
+            _exp_quat(-x[_WP] * h, -x[_WP + 1] * h, -x[_WP + 2] * h, dq)
+            qmul_into(dq[0], dq[1], dq[2], dq[3], qc[0], qc[1], qc[2], qc[3], tq)
+            _exp_quat(w0 * h, w1 * h, w2 * h, dq)
+            qmul_into(tq[0], tq[1], tq[2], tq[3], dq[0], dq[1], dq[2], dq[3], qc)
+            qnormalize(qc)
+            cw, cx, cy, cz = qc[0], qc[1], qc[2], qc[3]
+            c00 = 1 - 2 * (cy * cy + cz * cz)
+            c01 = 2 * (cx * cy - cw * cz)
+            c02 = 2 * (cx * cz + cw * cy)
+            c10 = 2 * (cx * cy + cw * cz)
+            c11 = 1 - 2 * (cx * cx + cz * cz)
+            c12 = 2 * (cy * cz - cw * cx)
+            c20 = 2 * (cx * cz - cw * cy)
+            c21 = 2 * (cy * cz + cw * cx)
+            c22 = 1 - 2 * (cx * cx + cy * cy)
+            # 2. platform specific force, turn rate, forward direction
+            fp0 = c00 * f0 + c01 * f1 + c02 * f2
+            fp1 = c10 * f0 + c11 * f1 + c12 * f2
+            w_up = c20 * w0 + c21 * w1 + c22 * w2
+            hn = math.hypot(c01, c11)
+            fx, fy = c01 / hn, c11 / hn
+            # 3a. GNSS
+            if p[12] != 0.0:  # the autonomous filter does not read GNSS (gn may be a dummy row)
+                vn, ve, valid, age, new, t_ep = gn[k, 0], gn[k, 1], gn[k, 2] != 0.0, gn[k, 3], gn[k, 4] != 0.0, gn[k, 5]
             else:
-                x[_HSTAR] += _kwrap(track - x[_HSTAR]) * h / p[8]
-            x[_HINIT] = 1.0
-        x[_HSTAR] = _kwrap(x[_HSTAR])
-        _k_output(x, m, fr, q, t1, t2)
+                vn, ve, valid, age, new, t_ep = 0.0, 0.0, False, np.inf, False, np.nan
+            gnss_ok = p[12] != 0.0 and valid and age <= p[11]
+            if p[12] == 0.0:
+                pass
+            elif new and valid:
+                v = math.hypot(vn, ve)
+                if math.isfinite(x[_TPREV]) and t_ep > x[_TPREV]:
+                    x[_ALONG] = (v - x[_VPREV]) / (t_ep - x[_TPREV])
+                x[_VPREV], x[_TPREV], x[_V] = v, t_ep, v
+            elif not valid:
+                x[_TPREV] = np.nan
+            a_lat = x[_V] * (-w_up)
+            ax = x[_ALONG] * fx + a_lat * fy
+            ay = x[_ALONG] * fy - a_lat * fx
+            if h != last_h:  # the low-pass coefficients, recomputed only when dt changes
+                kg = 1.0 - math.exp(-h / p[2])
+                ka = 1.0 - math.exp(-h / p[3])
+                last_h = h
+            x[_LPG] += kg * ((fp0 - ax) - x[_LPG])
+            x[_LPG + 1] += kg * ((fp1 - ay) - x[_LPG + 1])
+            # 3b. autonomous
+            x[_LPA] += ka * (fp0 - x[_LPA])
+            x[_LPA + 1] += ka * (fp1 - x[_LPA + 1])
+            fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+            horizontal = math.hypot(x[_LPA], x[_LPA + 1]) > p[13]
+            x[_REJT] = x[_REJT] + h if horizontal else 0.0
+            rejected = p[5] != 0.0 and (abs(fn - x[_GNORM]) > p[6] or abs(w_up) > p[7]
+                                        or (horizontal and x[_REJT] <= p[14]))
+            # 3c. correction
+            if gnss_ok:
+                wgt = p[4]
+                auto_k = 0.0 if rejected else (1.0 - wgt) * p[1]
+                dx = wgt * p[0] * x[_LPG] + auto_k * x[_LPA]
+                dy = wgt * p[0] * x[_LPG + 1] + auto_k * x[_LPA + 1]
+                mode = 2
+            elif rejected:
+                dx = 0.0
+                dy = 0.0
+                mode = 3
+                flags |= 512
+            else:
+                dx = p[1] * x[_LPA]
+                dy = p[1] * x[_LPA + 1]
+                mode = 1
+            if p[12] != 0.0 and not gnss_ok:
+                flags |= 1024
+            x[_WP], x[_WP + 1], x[_WP + 2] = -dy, dx, 0.0
+            # 4. heading
+            hh = math.atan2(fx, fy)
+            x[_HSTAR] += _kwrap(hh - x[_HPREV])
+            x[_HPREV] = hh
+            if gnss_ok and x[_V] >= p[10]:
+                track = math.atan2(ve, vn)
+                if x[_HINIT] == 0.0 and p[9] != 0.0:
+                    x[_HSTAR] = track
+                else:
+                    x[_HSTAR] += _kwrap(track - x[_HSTAR]) * h / p[8]
+                x[_HINIT] = 1.0
+            x[_HSTAR] = _kwrap(x[_HSTAR])
+        else:
+            mode = 0  # a bad sample: the state is held
+        # output: q_F (x) Rz(-alpha) (x) q_C (x) q_M, with the first two combined while alpha holds
+        alpha = x[_HSTAR] - x[_HPREV]
+        if not abs(alpha - last_alpha) < 1e-12:  # constant without GNSS, but for rounding (NaN at first)
+            ca, sa = math.cos(0.5 * alpha), -math.sin(0.5 * alpha)
+            qmul_into(qf[0], qf[1], qf[2], qf[3], ca, 0.0, 0.0, sa, qfz)
+            last_alpha = alpha
+        qmul_into(qfz[0], qfz[1], qfz[2], qfz[3], qc[0], qc[1], qc[2], qc[3], tq)
+        qmul_into(tq[0], tq[1], tq[2], tq[3], qm[0], qm[1], qm[2], qm[3], q)
+        _positive(q)
         out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
         out_f[k] = flags
         out_m[k] = mode
+    if al[PHASE] != 0.0:
+        quat_to_dcm(qc, t1)
+        for i in range(9):
+            x[_C + i] = t1[i]
+
+
+@njit
+def _positive(q):
+    """The w >= 0 representative (as rotations.matrix_to_quat returns), normalised."""
+    if q[0] < 0.0:
+        q[0], q[1], q[2], q[3] = -q[0], -q[1], -q[2], -q[3]
+    qnormalize(q)
