@@ -2,7 +2,7 @@
 
     python benchmarks/side_by_side.py [--data DIR] [--jobs 2] [--no-write]
 
-Filters run with their default parameters, plus two reference rows: ahrs' Madgwick with the
+Every registered filter that can run without GNSS, with its default parameters, plus two reference rows: ahrs' Madgwick with the
 BROAD-tuned beta 0.12 and VQF in 6D (magnetometer-free). 9D filters are judged on total RMSE,
 6D ones on inclination RMSE (BROAD's rule). The tables replace the section between the
 ``side-by-side`` markers in BENCHMARKS.md; the plots go to docs/img/.
@@ -25,7 +25,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--no-write", action="store_true", help="print, do not touch BENCHMARKS.md")
     args = ap.parse_args()
-    names = [n for n in fk.available("filter") if n != "pipeline"]
+    # every filter that can run on BROAD (a GNSS-aided one cannot: BROAD has no GNSS)
+    names = [n for n in fk.available("filter") if n != "pipeline" and not fk.get(n, "filter").requires_gnss]
     filters = names + [("ahrs-madgwick", {"gain": 0.12}), ("vqf", {"mode": "6D"})]
     res = bench(filters, args.data, jobs=args.jobs, progress=True)
     out = [f"Measured with `python benchmarks/side_by_side.py` on {machine()}; "

@@ -206,6 +206,7 @@ class Filter(Plugin, ABC):
     """
 
     kind: ClassVar[str] = "filter"
+    requires_gnss: ClassVar[bool] = False  #: cannot run without a GNSS stream (benchmarks mark it n/a)
 
     def dimension(self, rec) -> str:
         """``"9D"`` when this filter uses the magnetometer of ``rec``, else ``"6D"`` (decides

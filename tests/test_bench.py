@@ -179,3 +179,19 @@ def test_loaders_on_the_shared_data(broad_dir):
     assert sitl.meta["truth_kind"] == "ground truth (simulator)" and sitl.mag is not None
     real = fk.load(root / "ulog" / "sample.ulg")
     assert real.meta["truth_kind"] == "autopilot estimate"
+
+
+def test_a_gnss_filter_on_data_without_gnss_is_not_applicable(data):
+    res = bench(["gst-gnss", "poisson"], data, trials=["trial0"], cache=False)
+    r = next(r for r in res.records if r["name"] == "gst-gnss")
+    assert r["skipped"] and r["error"] is None and r["metrics"] == {}
+    assert "n/a" in res.table() and "error:" not in res.table()
+
+
+def test_cache_key_follows_the_code(data, tmp_path, monkeypatch):
+    from fusionkit.benchmarking import runner
+
+    bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path)
+    assert bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path).records[0]["cached"]
+    monkeypatch.setattr(runner, "_code_fingerprint", lambda: "changed-code")
+    assert not bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path).records[0]["cached"]

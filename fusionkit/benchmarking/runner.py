@@ -6,7 +6,8 @@
      "trial": ..., "dataset": ..., "groups": [...], "dimension": "6D" | "9D",
      "reference": None | "ground truth" | "autopilot estimate" | ...,
      "metrics": {...}, "samples": N, "seconds": ..., "samples_per_s": ...,
-     "backend": ..., "versions": {...}, "error": None | "Type: message", "cached": bool}
+     "backend": ..., "versions": {...}, "error": None | "Type: message", "cached": bool,
+     "skipped": None | reason (e.g. a GNSS-aided filter on a recording without GNSS)}
 
 Results are cached by a hash of (filter, full config, trial file fingerprint, versions) in
 ``$FUSIONKIT_CACHE`` (default ``~/.cache/fusionkit``), so a re-run is instant. A filter that
@@ -15,6 +16,7 @@ raises on one trial gives a record with ``error`` set; the others continue.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -77,12 +79,25 @@ def _thaw(v):
     return v
 
 
+@functools.lru_cache(maxsize=1)
+def _code_fingerprint() -> str:
+    """A hash of fusionkit's own source files: a code change invalidates cached results even
+    when the version number did not change (development installs)."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for f in sorted(root.rglob("*.py")):
+        h.update(str(f.relative_to(root)).encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:12]
+
+
 def _versions() -> dict[str, str]:
     import numpy
 
     from .. import __version__
 
-    out = {"fusionkit": __version__, "numpy": numpy.__version__, "python": sys.version.split()[0]}
+    out = {"fusionkit": __version__, "fusionkit_code": _code_fingerprint(), "numpy": numpy.__version__,
+           "python": sys.version.split()[0]}
     try:
         import numba
 
@@ -109,7 +124,7 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
     rec_out: dict[str, Any] = {
         "filter": spec.label, "name": spec.name, "params": spec.kwargs, "config": None, "trial": trial.name,
         "dataset": trial.dataset, "groups": list(trial.groups), "dimension": None, "metrics": {}, "samples": None,
-        "reference": None, "seconds": None, "samples_per_s": None, "backend": None, "versions": _versions(), "error": None,
+        "reference": None, "seconds": None, "samples_per_s": None, "skipped": None, "backend": None, "versions": _versions(), "error": None,
         "cached": False,
     }
     try:
@@ -117,6 +132,9 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
         rec_out["config"] = f.config.model_dump(mode="json")
         rec = trial.load()
         rec_out["samples"] = len(rec)
+        if f.requires_gnss and rec.gnss is None:
+            rec_out["skipped"] = "not applicable: the filter needs a GNSS stream"
+            return _jsonable(rec_out)
         rec_out["dimension"] = f.dimension(rec)
         rec_out["reference"] = None if rec.truth is None else rec.meta.get("truth_kind", "ground truth")
         if warmup:  # compile numba loops outside the timing
@@ -316,6 +334,8 @@ class BenchResult:
                 r = next((r for r in self.records if r["filter"] == f and r["trial"] == t), None)
                 if r is None:
                     row.append("")
+                elif r.get("skipped"):
+                    row.append("n/a")
                 elif r["error"]:
                     row.append("error")
                 else:
@@ -323,8 +343,9 @@ class BenchResult:
                     row.append("-" if v is None else f"{v:.2f}")
             rows.append(row)
         summ = {s["filter"]: s for s in self.summary(metric)}
-        rows.append(["mean"] + [f"{summ[f]['mean']:.2f}" for f in self.filters])
-        rows.append(["samples/s"] + [f"{summ[f]['samples_per_s']:,.0f}" for f in self.filters])
+        rows.append(["mean"] + [f"{summ[f]['mean']:.2f}" if summ[f]["trials"] else "n/a" for f in self.filters])
+        rows.append(["samples/s"] + [f"{summ[f]['samples_per_s']:,.0f}" if summ[f]["trials"] else "n/a"
+                                     for f in self.filters])
         rows.append(["judged as"] + [summ[f]["dimension"] for f in self.filters])
         if format == "csv":
             return "\n".join(",".join(c.replace(",", "") if i else c for i, c in enumerate(r)) for r in [head] + rows)

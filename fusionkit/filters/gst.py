@@ -325,6 +325,7 @@ class GstGnssFilter(GstFilter):
     is usable, the autonomous loop and gyroscopic heading in GNSS gaps."""
 
     name: ClassVar[str] = "gst-gnss"
+    requires_gnss: ClassVar[bool] = True
     summary: ClassVar[str] = "GST levelled with GNSS-compensated specific force, track-angle heading, autonomous in gaps"
 
     class Config(GstConfig):
