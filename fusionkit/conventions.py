@@ -35,7 +35,7 @@ from typing import Literal
 import numpy as np
 
 from .errors import ConfigError
-from .rotations import matrix_to_quat, quat_conj, quat_from_axis_angle, quat_mul, quat_to_matrix
+from .rotations import matrix_to_quat, quat_from_axis_angle, quat_mul, quat_to_matrix
 
 __all__ = [
     "FRAMES",
@@ -46,6 +46,7 @@ __all__ = [
     "frame_matrix",
     "up_vector",
     "north_vector",
+    "east_vector",
     "change_frame",
     "quat_to_euler",
     "euler_to_quat",
@@ -91,6 +92,11 @@ def up_vector(frame: str) -> np.ndarray:
 def north_vector(frame: str) -> np.ndarray:
     """The unit "north" vector in ``frame`` coordinates."""
     return frame_matrix("ENU", frame) @ np.array([0.0, 1.0, 0.0])
+
+
+def east_vector(frame: str) -> np.ndarray:
+    """The unit "east" vector in ``frame`` coordinates."""
+    return frame_matrix("ENU", frame) @ np.array([1.0, 0.0, 0.0])
 
 
 def change_frame(quat, src: str, dst: str) -> np.ndarray:
@@ -180,7 +186,3 @@ def from_scipy(rotation) -> np.ndarray:
     q = rotation.as_quat()
     return np.asarray(q)[..., [3, 0, 1, 2]]
 
-
-def inverse(quat) -> np.ndarray:
-    """Inverse of unit quaternions (alias of the conjugate)."""
-    return quat_conj(quat)

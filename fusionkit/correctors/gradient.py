@@ -48,7 +48,7 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from ..config import PluginConfig, param
-from ..conventions import frame_matrix, up_vector
+from ..conventions import north_vector, up_vector
 from ..protocols import Correction, Corrector
 from ..errors import ConfigError
 from ..rotations import quat_conj, quat_mul, quat_normalize, quat_to_matrix
@@ -122,7 +122,7 @@ class GradientCorrector(Corrector):
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         s = np.zeros(_SIZE)
         s[_UP:_UP + 3] = up_vector(frame)
-        s[_N:_N + 3] = frame_matrix("ENU", frame) @ [0.0, 1.0, 0.0]
+        s[_N:_N + 3] = north_vector(frame)
         return s
 
     def gradient(self, q, acc_dir, mag_dir, state) -> tuple[np.ndarray, float]:

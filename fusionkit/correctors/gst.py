@@ -24,7 +24,7 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from ..config import PluginConfig, param
-from ..conventions import frame_matrix, up_vector
+from ..conventions import east_vector, north_vector, up_vector
 from ..protocols import Correction, Corrector
 from ..rotations import quat_to_matrix
 from ..types import Flag
@@ -61,8 +61,8 @@ class GstCorrector(Corrector):
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         s = np.zeros(_SIZE)
         s[_UP:_UP + 3] = up_vector(frame)
-        s[_N:_N + 3] = frame_matrix("ENU", frame) @ [0.0, 1.0, 0.0]
-        s[_E:_E + 3] = frame_matrix("ENU", frame) @ [1.0, 0.0, 0.0]
+        s[_N:_N + 3] = north_vector(frame)
+        s[_E:_E + 3] = east_vector(frame)
         s[_TPREV] = np.nan
         return s
 

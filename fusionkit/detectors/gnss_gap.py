@@ -16,7 +16,7 @@ from ..errors import InputError
 from ..protocols import DetectionResult, Detector, Sample
 from ..types import Flag, Recording
 
-__all__ = ["GnssGapDetector", "GnssGapConfig", "gnss_per_sample", "gnss_sample_rows"]
+__all__ = ["GnssGapDetector", "GnssGapConfig", "NO_GNSS", "gnss_per_sample", "gnss_sample_rows"]
 
 
 class GnssGapConfig(PluginConfig):
@@ -43,17 +43,17 @@ def gnss_per_sample(rec: Recording) -> dict[str, np.ndarray]:
     return {"vel": vel, "valid": valid, "age": age, "new": new, "index": idx, "t": t_epoch}
 
 
+#: the GNSS row of a sample without GNSS (vn, ve, valid, age, new, t_epoch)
+NO_GNSS = np.array([np.nan, np.nan, 0.0, np.inf, 0.0, np.nan])
+
+
 def gnss_sample_rows(rec: Recording) -> np.ndarray:
     """(N, 6) rows ``vn, ve, valid, age, new, t_epoch`` (velocity north/east in m/s) of the
     latest GNSS epoch at each IMU sample: what GNSS-aided filters take per sample (also through
     ``update(..., gnss=row)``). Without a GNSS stream every row is a gap."""
     from ..conventions import frame_matrix
 
-    n = len(rec)
-    out = np.zeros((n, 6))
-    out[:, 0:2] = np.nan
-    out[:, 3] = np.inf
-    out[:, 5] = np.nan
+    out = np.tile(NO_GNSS, (len(rec), 1))
     if rec.gnss is None:
         return out
     per = gnss_per_sample(rec)

@@ -45,7 +45,7 @@ from .._kernels import dcm_to_quat, qmul_into, qnormalize, quat_to_dcm
 from .._numba import njit, resolve_backend
 from ..config import AlignmentConfig, FilterConfig, param
 from ..conventions import frame_matrix
-from ..detectors.gnss_gap import gnss_sample_rows
+from ..detectors.gnss_gap import NO_GNSS, gnss_sample_rows
 from ..detectors.motion import MotionConfig, MotionDetector, _motion_step
 from ..errors import InputError
 from ..navigation.alignment import (
@@ -258,7 +258,7 @@ class GstFilter(Filter):
     # -- public ----------------------------------------------------------------------------
     def _gnss_arrays(self, rec: Recording) -> np.ndarray:
         if not self.config.combined:  # not read: one dummy row per sample only for the reference loop
-            return np.broadcast_to(np.array([np.nan, np.nan, 0.0, np.inf, 0.0, np.nan]), (len(rec), 6))
+            return np.broadcast_to(NO_GNSS, (len(rec), 6))
         if rec.gnss is None:
             raise InputError(f"{self.name} needs a GNSS stream (Recording(gnss=...)); use 'gst' without GNSS")
         return gnss_sample_rows(rec)
@@ -305,7 +305,7 @@ class GstFilter(Filter):
             raise InputError("non-finite gyr/acc sample; pass nan_policy='skip' to hold and flag")
         if self._stream is None:
             self._stream = self.new_state(dt)
-        gn = np.array([np.nan, np.nan, 0.0, np.inf, 0.0, np.nan]) if gnss is None else np.asarray(gnss, float)
+        gn = NO_GNSS if gnss is None else np.asarray(gnss, float)
         q, f, _ = self._step(self._stream, g, a, gn, dt)
         self.last_flags = int(f)
         return q

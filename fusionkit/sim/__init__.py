@@ -15,7 +15,7 @@ truth), specific force is ``R^T (a + [0, 0, g])`` and the magnetometer reads ``R
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -133,12 +133,6 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
         gnss = Gnss(t=idx * dt, vel=vel[idx] + gnss_vel_noise * rng.standard_normal((idx.size, 3)), frame="ENU")
     return Recording(gyr=gyr, acc=acc, mag=mag, rate=rate, truth=quat, truth_frame="ENU", movement=moving,
                      gnss=gnss, name=name, meta={"simulated": True, "noise": noise, "gravity": gravity})
-
-
-@dataclass
-class _Scenario:
-    name: str
-    segments: list = field(default_factory=list)
 
 
 def demo_recordings(rate: float = 200.0, seed: int = 0) -> list[Recording]:
