@@ -42,7 +42,7 @@ from .navigation.alignment import (
 from .detectors.gnss_gap import gnss_sample_rows
 from .protocols import Detector, DetectionResult, Filter, Sample
 from .registry import Registry, default_registry
-from .types import Flag, Recording, Result
+from .types import Flag, Recording, Result, sample_validity
 from .validation import as_vector, check_finite_all, check_positive
 
 __all__ = ["Pipeline", "run_detector"]
@@ -137,20 +137,8 @@ class Pipeline(Filter):
     def _step(self, st, gyr, acc, mag, dt, has_mag, gnss=None) -> tuple[np.ndarray, int, int]:
         """Process one sample; returns (quat body->frame, flags, first detector's criteria)."""
         cfg, al = self.spec, st["align"]
-        gyr_ok = bool(np.isfinite(gyr).all())
-        acc_ok = bool(np.isfinite(acc).all() and np.any(acc != 0.0))
-        mag_ok = has_mag and bool(np.isfinite(mag).all() and np.any(mag != 0.0))
-        flags = 0
-        if not gyr_ok:
-            flags |= Flag.GYR_INVALID
-        elif cfg.gyr_range is not None and np.max(np.abs(gyr)) >= cfg.gyr_range:
-            flags |= Flag.GYR_SATURATED
-        if not acc_ok:
-            flags |= Flag.ACC_INVALID
-        elif cfg.acc_range is not None and np.max(np.abs(acc)) >= cfg.acc_range:
-            flags |= Flag.ACC_SATURATED
-        if has_mag and not mag_ok:
-            flags |= Flag.MAG_INVALID
+        gyr_ok, acc_ok, mag_ok, flags = sample_validity(gyr, acc, mag if has_mag else None, cfg.gyr_range,
+                                                        cfg.acc_range)
         sample = Sample(gyr, acc if acc_ok else None, mag if mag_ok else None, dt, gnss)
 
         # 2. detectors

@@ -44,6 +44,28 @@ _GYR_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
 _ACC_UNITS = {"m/s^2": 1.0, "g": 9.80665}
 
 
+def sample_validity(gyr, acc, mag, gyr_range, acc_range) -> tuple[bool, bool, bool, int]:
+    """``(gyr_ok, acc_ok, mag_ok, flags)`` of one sample, as every reference path judges it:
+    non-finite gyr -> GYR_INVALID; non-finite or all-zero acc / mag (free fall, dropout) ->
+    ACC_INVALID / MAG_INVALID; an axis at or above ``gyr_range`` / ``acc_range`` (None: no
+    range) -> SATURATED (still used). ``mag`` None: no magnetometer, no flag."""
+    gyr_ok = bool(np.isfinite(gyr).all())
+    acc_ok = bool(np.isfinite(acc).all() and np.any(acc != 0.0))
+    mag_ok = mag is not None and bool(np.isfinite(mag).all() and np.any(mag != 0.0))
+    flags = 0
+    if not gyr_ok:
+        flags |= Flag.GYR_INVALID
+    elif gyr_range is not None and np.max(np.abs(gyr)) >= gyr_range:
+        flags |= Flag.GYR_SATURATED
+    if not acc_ok:
+        flags |= Flag.ACC_INVALID
+    elif acc_range is not None and np.max(np.abs(acc)) >= acc_range:
+        flags |= Flag.ACC_SATURATED
+    if mag is not None and not mag_ok:
+        flags |= Flag.MAG_INVALID
+    return gyr_ok, acc_ok, mag_ok, flags
+
+
 @dataclass
 class Gnss:
     """A GNSS stream at its own rate: time (s, IMU clock), velocity (m/s) in ``frame``, validity.

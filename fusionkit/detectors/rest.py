@@ -1,0 +1,114 @@
+"""Rest detector: the motion detector's question asked the other way round ("is it still?").
+
+Both sensors are low-passed (first order, ``tau``); the sensor is at rest when, for at least
+``min_time`` s without a break, every sample stays within ``gyr_threshold`` of the low-passed
+gyroscope and within ``acc_threshold`` of the low-passed accelerometer, and the low-passed
+gyroscope itself is below ``max_rate`` (the largest gyro bias to expect: a slow, steady rotation
+is otherwise "quiet" too). While at rest, the low-passed gyroscope output is the gyro bias
+(:class:`~fusionkit.filters.recommended.RecommendedFilter` re-estimates its bias from it).
+
+Deviations from a low-pass rather than absolute levels: a gyro bias or a tilted accelerometer
+must not look like motion. Criterion bit 0 (``rest``) fires on rest samples; the pipeline sets
+``Flag.REST``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import numpy as np
+
+from .._numba import njit
+from ..config import PluginConfig, param
+from ..protocols import Detector, DetectorKernel, Sample
+from ..types import Flag
+
+__all__ = ["RestDetector", "RestConfig", "rest_step", "REST_SIZE"]
+
+# state: low-passed gyr (3), low-passed acc (3), seconds quiet, samples seen
+_LW, _LA, _QUIET, _SEEN = 0, 3, 6, 7
+REST_SIZE = 8
+
+
+class RestConfig(PluginConfig):
+    tau: float = param(0.5, unit="s", description="time constant of the low-pass the samples are compared with", gt=0)
+    gyr_threshold: float = param(
+        math.radians(2.0), unit="rad/s", description="largest |gyr - lowpass(gyr)| at rest", gt=0)
+    acc_threshold: float = param(0.5, unit="m/s^2", description="largest |acc - lowpass(acc)| at rest", gt=0)
+    max_rate: float = param(
+        math.radians(2.0), unit="rad/s", description="largest |lowpass(gyr)| at rest (the largest gyro bias expected)",
+        gt=0)
+    min_time: float = param(1.5, unit="s", description="quiet this long before rest is declared", ge=0)
+
+
+@njit
+def rest_step(s, g0, g1, g2, a0, a1, a2, dt, tau, gyr_th, acc_th, max_rate, min_time):
+    """One sample of the rest detector (state ``s``, layout above); returns 1 at rest, else 0.
+    Shared by the detector's kernel and the ``recommended`` filter's kernel."""
+    if s[_SEEN] == 0.0:
+        s[_LW], s[_LW + 1], s[_LW + 2] = g0, g1, g2
+        s[_LA], s[_LA + 1], s[_LA + 2] = a0, a1, a2
+    s[_SEEN] += 1.0
+    k = 1.0 - math.exp(-dt / tau)
+    s[_LW] += k * (g0 - s[_LW])
+    s[_LW + 1] += k * (g1 - s[_LW + 1])
+    s[_LW + 2] += k * (g2 - s[_LW + 2])
+    s[_LA] += k * (a0 - s[_LA])
+    s[_LA + 1] += k * (a1 - s[_LA + 1])
+    s[_LA + 2] += k * (a2 - s[_LA + 2])
+    dw = math.sqrt((g0 - s[_LW]) ** 2 + (g1 - s[_LW + 1]) ** 2 + (g2 - s[_LW + 2]) ** 2)
+    da = math.sqrt((a0 - s[_LA]) ** 2 + (a1 - s[_LA + 1]) ** 2 + (a2 - s[_LA + 2]) ** 2)
+    rate = math.sqrt(s[_LW] ** 2 + s[_LW + 1] ** 2 + s[_LW + 2] ** 2)
+    if dw < gyr_th and da < acc_th and rate < max_rate:
+        s[_QUIET] += dt
+    else:
+        s[_QUIET] = 0.0
+    return 1 if s[_QUIET] >= min_time else 0
+
+
+@njit
+def _rest_kernel(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
+    return rest_step(s, g0, g1, g2, a0, a1, a2, dt, p[0], p[1], p[2], p[3], p[4])
+
+
+class RestDetector(Detector):
+    """Fires while the sensor is still (gyro and accelerometer quiet around their low-pass)."""
+
+    name: ClassVar[str] = "rest"
+    Config = RestConfig
+    flag: ClassVar[Flag] = Flag.REST
+    criteria_names: ClassVar[tuple[str, ...]] = ("rest",)
+    source: ClassVar[str] = "fusionkit (source 000's motion criteria in reverse)"
+    summary: ClassVar[str] = "rest: gyro and accelerometer quiet around their low-pass for min_time"
+
+    def initial_state(self, dt: float) -> np.ndarray:
+        return np.zeros(REST_SIZE)
+
+    def params(self) -> tuple[float, float, float, float, float]:
+        c = self.config
+        return c.tau, c.gyr_threshold, c.acc_threshold, c.max_rate, c.min_time
+
+    def step(self, state: np.ndarray, sample: Sample) -> int:
+        """The readable form of :func:`rest_step` (same arithmetic, numpy vectors)."""
+        tau, gyr_th, acc_th, max_rate, min_time = self.params()
+        g, a = sample.gyr, sample.acc
+        lw, la = state[_LW:_LW + 3], state[_LA:_LA + 3]
+        if state[_SEEN] == 0.0:
+            lw[:], la[:] = g, a
+        state[_SEEN] += 1.0
+        k = 1.0 - math.exp(-sample.dt / tau)
+        lw += k * (g - lw)
+        la += k * (a - la)
+        quiet = (math.sqrt(np.sum((g - lw) ** 2)) < gyr_th and math.sqrt(np.sum((a - la) ** 2)) < acc_th
+                 and math.sqrt(np.sum(lw ** 2)) < max_rate)
+        state[_QUIET] = state[_QUIET] + sample.dt if quiet else 0.0
+        return 1 if state[_QUIET] >= min_time else 0
+
+    def kernel(self) -> DetectorKernel:
+        return DetectorKernel(_rest_kernel, np.array(self.params()))
+
+    @staticmethod
+    def lowpassed_gyr(state: np.ndarray) -> np.ndarray:
+        """The low-passed gyroscope output (the bias estimate while at rest)."""
+        return state[_LW:_LW + 3]

@@ -1,0 +1,546 @@
+"""The ``recommended`` filter: the best of what the sources and the state of the art do, composed.
+
+Orientation is split into three factors, each corrected by one sensor only (source 002's channel
+separation, method 2, taken to its end):
+
+``q = Rz(delta) (x) q_tilt (x) q_gyr``
+
+1. ``q_gyr``: the gyroscope strapdown (exact exponential of ``(w - bias) dt``) from the body to an
+   "almost inertial" frame I. Nothing corrects it.
+2. ``q_tilt``: the inclination correction from I to a levelled frame. The specific force is
+   rotated into I and low-passed there (second-order Butterworth, time constant ``tau_acc``).
+   In I, gravity is a constant (up to the slow gyro drift) and linear accelerations integrate to
+   velocity changes, which average out: the low-passed vector is gravity, free of the lag a
+   body-frame low-pass has under rotation. Each sample ``q_tilt`` is turned by the smallest
+   rotation (about a horizontal axis) that makes it vertical.
+3. ``delta``: heading only, a rotation about the vertical. The magnetometer, seen in the
+   levelled frame, gives a heading; ``delta`` follows it with time constant ``tau_mag``. A
+   magnetic disturbance can only reach heading: roll and pitch are those of a magnetometer-free
+   run (tested to 1e-12).
+
+Around it, each switchable (``tests/test_recommended.py`` shows each one doing its job):
+
+- **rest detection and bias re-estimation** (``rest``, ``rest_bias``): the ``rest`` detector;
+  at rest the bias follows the low-passed gyroscope with time constant ``rest_bias_tau``.
+- **bias estimation in motion** (``motion_bias_tau``): the inclination correction, turned into
+  a body rate, is the gyro's drift on the horizontal axes; the bias integrates it with this time
+  constant (slow: linear accelerations must average out), limited to ``bias_max``.
+  With ``mag_bias`` the heading correction teaches the vertical part too (off by default: on
+  BROAD it costs 0.08 deg, and it is the one path by which the magnetometer reaches roll and
+  pitch).
+- **magnetic disturbance detection and rejection** (``mag_rejection``): the field's norm and dip
+  are learned at the start (reference); a sample whose norm differs by more than
+  ``mag_norm_threshold`` (relative) or whose dip differs by more than ``mag_dip_threshold`` is
+  not used (flag MAG_DISTURBED). Recovery: undisturbed samples keep tracking the reference
+  slowly (``mag_ref_tau``); a new field that stays consistent for ``mag_new_time`` s *while the
+  sensor turns* (at least ``mag_new_min_rate``; a field that is constant in the earth frame,
+  not one carried along with the body) becomes the new reference.
+- **acceleration rejection** (``acc_gate``, off by default): samples whose ``| |a| - g |``
+  exceeds the gate are left out of the low-pass (flag ACC_REJECTED). Measured on BROAD it costs
+  accuracy (0.80 -> 2.9 deg inclination at 4 m/s^2): leaving out the large samples makes the
+  linear accelerations' average nonzero, which is exactly what the I-frame low-pass relies on.
+- **fast start** (``fast_start``): for the first ``tau_acc`` s the low-pass is replaced by the
+  running mean of the samples so far (from the first sample on, no start transient), and the
+  heading and field reference are the mean over the first ``mag_init_time`` s. Off: the
+  low-pass and the heading start from the first sample.
+
+Bad input: a non-finite gyroscope sample holds the state (GYR_INVALID); a non-finite or all-zero
+accelerometer (free fall, dropout) or magnetometer sample skips its correction (ACC_INVALID /
+MAG_INVALID); axes at ``gyr_range`` / ``acc_range`` are flagged SATURATED. The state cannot
+become NaN (tested).
+
+Computed in ENU (z up, y north); the output is turned into ``frame``. The readable reference is
+:meth:`RecommendedFilter._step`; the numba loop :func:`_rec_loop` does the same arithmetic
+(tests hold them to 1e-9 on every sample).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .._numba import njit, resolve_backend
+from ..config import FilterConfig, param
+from ..conventions import change_frame
+from ..detectors.rest import REST_SIZE, RestConfig, RestDetector, rest_step
+from ..errors import InputError
+from ..protocols import Filter, Sample
+from ..rotations import quat_from_rotvec, quat_mul, quat_normalize, quat_to_matrix
+from ..types import Flag, Recording, Result, sample_validity
+from ..validation import as_vector, check_finite_all, check_positive
+
+__all__ = ["RecommendedFilter", "RecommendedConfig", "lowpass_coefficients"]
+
+# state layout
+_QG, _QA, _DELTA, _Z1, _Z2, _MEAN, _NMEAN, _TACC, _READY, _BIAS, _Y = 0, 4, 8, 9, 12, 15, 18, 19, 20, 21, 24
+_REST = 27
+_MREF_N, _MREF_D, _MN, _TMAG, _CAND_N, _CAND_D, _CAND_T, _SIZE = (
+    _REST + REST_SIZE + i for i in range(8))
+
+
+class RecommendedConfig(FilterConfig):
+    tau_acc: float = param(
+        2.0, unit="s", description="time constant of the inclination low-pass (in the almost-inertial frame)", gt=0)
+    tau_mag: float = param(15.0, unit="s", description="time constant of the heading correction", gt=0)
+    use_mag: bool = param(True, unit="-", description="use the magnetometer when the recording has one (9D)")
+    fast_start: bool = param(
+        True, unit="-", description="running means instead of the low-passes at the start (first tau_acc s, "
+        "mag_init_time s)")
+    rest: RestConfig = param(RestConfig(), unit="-", description="the rest detector")
+    rest_bias: bool = param(True, unit="-", description="re-estimate the gyro bias at rest")
+    rest_bias_tau: float = param(1.0, unit="s", description="time constant of the bias at rest", gt=0)
+    motion_bias_tau: float | None = param(
+        100.0, unit="s", description="time constant of the bias estimation in motion; None: off", gt=0)
+    bias_max: float = param(math.radians(2.0), unit="rad/s", description="largest bias estimated in motion", gt=0)
+    mag_bias: bool = param(
+        False, unit="-", description="the in-motion bias also learns from the heading correction (vertical axis); "
+        "lets the magnetometer reach roll and pitch through the bias (costs 0.08 deg on BROAD)")
+    mag_rejection: bool = param(True, unit="-", description="detect and reject magnetic disturbances")
+    mag_norm_threshold: float = param(
+        0.1, unit="-", description="disturbed when |norm - reference| > this x reference", gt=0)
+    mag_dip_threshold: float = param(
+        math.radians(10.0), unit="rad", description="disturbed when |dip - reference dip| > this", gt=0)
+    mag_new_time: float = param(
+        20.0, unit="s", description="a new consistent field becomes the reference after this long while turning", gt=0)
+    mag_new_min_rate: float = param(
+        math.radians(20.0), unit="rad/s", description="turning rate that counts towards mag_new_time", ge=0)
+    mag_ref_tau: float = param(60.0, unit="s", description="the reference follows undisturbed fields this slowly", gt=0)
+    mag_init_time: float = param(1.0, unit="s", description="fast start: heading and reference averaged this long", ge=0)
+    acc_gate: float | None = param(
+        None, unit="m/s^2", description="leave out samples with | |a| - gravity | above this; None: off "
+        "(costs accuracy on BROAD, see the module docs)", gt=0)
+    gravity: float = param(9.81, unit="m/s^2", description="g for acc_gate", gt=0)
+
+
+def lowpass_coefficients(tau: float, dt: float) -> tuple[float, float, float, float, float]:
+    """Second-order Butterworth low-pass (bilinear transform, cutoff ``1 / (2 pi tau)``):
+    ``(b0, b1, b2, a1, a2)`` of ``y = b0 x + b1 x' + b2 x'' - a1 y' - a2 y''``; unit gain at DC."""
+    k = math.tan(0.5 * dt / tau)
+    n = 1.0 / (1.0 + math.sqrt(2.0) * k + k * k)
+    b0 = k * k * n
+    return b0, 2.0 * b0, b0, 2.0 * (k * k - 1.0) * n, (1.0 - math.sqrt(2.0) * k + k * k) * n
+
+
+_lp_coeffs = njit(lowpass_coefficients)
+
+
+def _wrap(a: float) -> float:
+    """``a`` in (-pi, pi]."""
+    while a > math.pi:
+        a -= 2.0 * math.pi
+    while a <= -math.pi:
+        a += 2.0 * math.pi
+    return a
+
+
+_kwrap = njit(_wrap)
+
+
+class RecommendedFilter(Filter):
+    """Gyro strapdown + inclination from the inertially low-passed accelerometer + separate
+    heading from the magnetometer; rest/motion bias, magnetic disturbance rejection, fast start."""
+
+    name: ClassVar[str] = "recommended"
+    Config = RecommendedConfig
+    source: ClassVar[str] = "fusionkit (sources 000-003 composed with the state of the art)"
+    summary: ClassVar[str] = "channel-separated inclination/heading, inertial low-pass, bias and disturbance handling"
+
+    def __init__(self, config=None, **params: Any) -> None:
+        super().__init__(config, **params)
+        self.rest_detector = RestDetector(self.config.rest)
+        self.qf = change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "ENU", self.config.frame)
+        self._stream: np.ndarray | None = None
+        self.last_flags = 0
+
+    def dimension(self, rec) -> str:
+        return "9D" if self.config.use_mag and rec.mag is not None else "6D"
+
+    def new_state(self) -> np.ndarray:
+        x = np.zeros(_SIZE)
+        x[_QG] = x[_QA] = 1.0
+        return x
+
+    def params(self) -> np.ndarray:
+        """The kernel's parameter vector."""
+        c = self.config
+        return np.array([
+            c.tau_acc, c.tau_mag, float(c.fast_start), c.rest.tau, c.rest.gyr_threshold, c.rest.acc_threshold,
+            c.rest.max_rate, c.rest.min_time, float(c.rest_bias), c.rest_bias_tau,
+            c.motion_bias_tau if c.motion_bias_tau is not None else 0.0, c.bias_max, float(c.mag_rejection),
+            c.mag_norm_threshold, c.mag_dip_threshold, c.mag_new_time, c.mag_new_min_rate, c.mag_ref_tau,
+            c.mag_init_time, c.acc_gate if c.acc_gate is not None else math.inf, c.gravity,
+            c.gyr_range if c.gyr_range is not None else math.inf,
+            c.acc_range if c.acc_range is not None else math.inf, float(c.use_mag), float(c.mag_bias),
+        ])
+
+    # -- the readable reference --------------------------------------------------------------
+    def _step(self, x: np.ndarray, gyr, acc, mag, dt: float) -> tuple[np.ndarray, int]:
+        """One sample (``mag`` None without a magnetometer); returns (q body->frame, flags)."""
+        c = self.config
+        gyr_ok, acc_ok, mag_ok, flags = sample_validity(gyr, acc, mag if c.use_mag else None, c.gyr_range,
+                                                        c.acc_range)
+        bias = x[_BIAS:_BIAS + 3]
+        rest_state = x[_REST:_REST + REST_SIZE]
+
+        # 1. rest detection; at rest the bias follows the low-passed gyroscope
+        rest = False
+        if gyr_ok and acc_ok:
+            rest = bool(self.rest_detector.step(rest_state, Sample(gyr, acc, None, dt)))
+            if rest:
+                flags |= Flag.REST
+                if c.rest_bias:
+                    bias += (1.0 - math.exp(-dt / c.rest_bias_tau)) * (RestDetector.lowpassed_gyr(rest_state) - bias)
+
+        # 2. gyroscope strapdown, body -> I
+        if gyr_ok:
+            x[_QG:_QG + 4] = quat_normalize(quat_mul(x[_QG:_QG + 4], quat_from_rotvec((gyr - bias) * dt)))
+
+        # 3. inclination: the specific force low-passed in I, made vertical by q_tilt
+        if acc_ok:
+            if c.acc_gate is not None and abs(np.linalg.norm(acc) - c.gravity) > c.acc_gate:
+                flags |= Flag.ACC_REJECTED
+            else:
+                self._tilt(x, quat_to_matrix(x[_QG:_QG + 4]) @ acc, dt, rest)
+        q6 = quat_mul(x[_QA:_QA + 4], x[_QG:_QG + 4])
+
+        # 4. heading from the magnetometer, about the vertical only
+        if mag_ok:
+            flags |= self._heading(x, quat_to_matrix(q6) @ mag, q6, dt, rest)
+        half = 0.5 * x[_DELTA]
+        q = quat_mul(np.array([math.cos(half), 0.0, 0.0, math.sin(half)]), q6)
+        return quat_mul(self.qf, q), flags
+
+    def _tilt(self, x, a_i, dt, rest) -> None:
+        c = self.config
+        y = x[_Y:_Y + 3]
+        x[_TACC] += dt
+        if c.fast_start and not x[_READY] and x[_TACC] < c.tau_acc:
+            x[_NMEAN] += 1.0  # fast start: the running mean of the samples so far
+            x[_MEAN:_MEAN + 3] += (a_i - x[_MEAN:_MEAN + 3]) / x[_NMEAN]
+            y[:] = x[_MEAN:_MEAN + 3]
+        else:
+            b0, b1, b2, a1, a2 = lowpass_coefficients(c.tau_acc, dt)
+            z1, z2 = x[_Z1:_Z1 + 3], x[_Z2:_Z2 + 3]
+            if not x[_READY]:  # start in the steady state of the mean (or of the first sample)
+                start = x[_MEAN:_MEAN + 3] if x[_NMEAN] > 0 else a_i
+                z1[:], z2[:] = start * (1.0 - b0), start * (b2 - a2)
+                x[_READY] = 1.0
+            y[:] = b0 * a_i + z1  # transposed direct form II
+            z1[:] = b1 * a_i - a1 * y + z2
+            z2[:] = b2 * a_i - a2 * y
+        # the smallest rotation taking the low-passed vector (levelled frame) to the vertical
+        v = quat_to_matrix(x[_QA:_QA + 4]) @ y
+        v = v / np.linalg.norm(v)
+        qc = np.array([1.0 + v[2], v[1], -v[0], 0.0])
+        n = np.linalg.norm(qc)
+        qc = qc / n if n > 1e-12 else np.array([0.0, 1.0, 0.0, 0.0])
+        x[_QA:_QA + 4] = quat_mul(qc, x[_QA:_QA + 4])
+        if c.motion_bias_tau is not None and not rest and x[_READY]:
+            # the correction as a rate in the levelled frame is the gyro drift; seen in the body,
+            # it is the (horizontal part of the) bias error
+            s = math.hypot(qc[1], qc[2])
+            if s > 0.0:
+                angle = 2.0 * math.atan2(s, qc[0])
+                r_level = np.array([qc[1], qc[2], 0.0]) * (angle / (s * dt))
+                self._bias_from_correction(x, r_level, quat_mul(x[_QA:_QA + 4], x[_QG:_QG + 4]), dt)
+
+    def _bias_from_correction(self, x, r_level, q6, dt) -> None:
+        """A correction rate ``r_level`` (levelled frame) means the gyro drifted by ``-r_level``:
+        the bias takes it in, seen in the body, with time constant ``motion_bias_tau``."""
+        c = self.config
+        bias = x[_BIAS:_BIAS + 3]
+        bias -= (dt / c.motion_bias_tau) * (quat_to_matrix(q6).T @ r_level)
+        nb = np.linalg.norm(bias)
+        if nb > c.bias_max:
+            bias *= c.bias_max / nb
+
+    def _heading(self, x, m_level, q6, dt, rest) -> int:
+        """Heading correction from the field ``m_level`` in the levelled frame; returns flags."""
+        c = self.config
+        norm = float(np.linalg.norm(m_level))
+        dip = math.asin(max(-1.0, min(1.0, m_level[2] / norm)))
+        target = 0.5 * math.pi - math.atan2(m_level[1], m_level[0])  # turns the field's azimuth to north
+        init_time = c.mag_init_time if c.fast_start else 0.0
+        if x[_MN] == 0.0 or x[_TMAG] < init_time:  # start: means of heading, norm and dip
+            x[_MN] += 1.0
+            x[_TMAG] += dt
+            x[_MREF_N] += (norm - x[_MREF_N]) / x[_MN]
+            x[_MREF_D] += (dip - x[_MREF_D]) / x[_MN]
+            x[_DELTA] = target if x[_MN] == 1.0 else x[_DELTA] + _wrap(target - x[_DELTA]) / x[_MN]
+            x[_DELTA] = _wrap(x[_DELTA])
+            return 0
+        disturbed = c.mag_rejection and (abs(norm - x[_MREF_N]) > c.mag_norm_threshold * x[_MREF_N]
+                                         or abs(dip - x[_MREF_D]) > c.mag_dip_threshold)
+        if not disturbed:
+            k = 1.0 - math.exp(-dt / c.mag_ref_tau)
+            x[_MREF_N] += k * (norm - x[_MREF_N])
+            x[_MREF_D] += k * (dip - x[_MREF_D])
+            step = (1.0 - math.exp(-dt / c.tau_mag)) * _wrap(target - x[_DELTA])
+            x[_DELTA] = _wrap(x[_DELTA] + step)
+            if c.motion_bias_tau is not None and c.mag_bias and not rest:
+                # the heading correction as a rate about the vertical: the gyro's vertical drift
+                self._bias_from_correction(x, np.array([0.0, 0.0, step / dt]), q6, dt)
+            return 0
+        # disturbed: is it a new homogeneous field? (consistent while the sensor turns)
+        if abs(norm - x[_CAND_N]) < c.mag_norm_threshold * x[_CAND_N] and abs(dip - x[_CAND_D]) < c.mag_dip_threshold:
+            rate = np.linalg.norm(RestDetector.lowpassed_gyr(x[_REST:_REST + REST_SIZE]))
+            if rate >= c.mag_new_min_rate:
+                x[_CAND_T] += dt
+            k = 1.0 - math.exp(-dt)  # the candidate: low-passed over 1 s
+            x[_CAND_N] += k * (norm - x[_CAND_N])
+            x[_CAND_D] += k * (dip - x[_CAND_D])
+        else:
+            x[_CAND_N], x[_CAND_D], x[_CAND_T] = norm, dip, 0.0
+        if x[_CAND_T] >= c.mag_new_time:
+            x[_MREF_N], x[_MREF_D], x[_CAND_T] = x[_CAND_N], x[_CAND_D], 0.0
+        return int(Flag.MAG_DISTURBED)
+
+    # -- public ----------------------------------------------------------------------------
+    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
+            state: np.ndarray | None = None) -> Result:
+        """Process ``rec`` (from ``state``, ``Result.diagnostics["state"]`` of an earlier run)."""
+        if not isinstance(rec, Recording):
+            raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
+        check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}, self.config.nan_policy)
+        used = resolve_backend(backend, True)
+        n = len(rec)
+        x = self._checked_state(state).copy() if state is not None else self.new_state()
+        has_mag = rec.mag is not None and self.config.use_mag
+        mag = rec.mag if has_mag else np.zeros((n, 3))
+        dt = rec.dt
+        q = np.empty((n, 4))
+        flags = np.zeros(n, np.uint32)
+        if used == "numba":
+            _rec_loop(rec.gyr, rec.acc, mag, dt, has_mag, x, self.params(), self.qf, q, flags)
+        else:
+            for k in range(n):
+                q[k], flags[k] = self._step(x, rec.gyr[k], rec.acc[k], mag[k] if has_mag else None, dt[k])
+        diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(),
+                "bias": x[_BIAS:_BIAS + 3].copy(), "mag_reference": (x[_MREF_N], x[_MREF_D]), "state": x}
+        return Result(q, flags, self.config.frame, diag)
+
+    def _checked_state(self, x) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        if x.shape != (_SIZE,):
+            raise InputError(f"state has shape {x.shape}, expected ({_SIZE},): pass Result.diagnostics['state']")
+        return x
+
+    @property
+    def state(self) -> np.ndarray | None:
+        return None if self._stream is None else self._stream.copy()
+
+    def set_state(self, state) -> None:
+        self._stream = self._checked_state(state).copy()
+
+    def reset(self) -> None:
+        self._stream = None
+
+    def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
+        """One sample of a stream; the same numbers as :meth:`run` (reference backend)."""
+        if dt is None:
+            raise InputError("update() needs dt, the sample interval in s")
+        dt = check_positive("dt", dt)
+        g, a = as_vector("gyr", gyr), as_vector("acc", acc)
+        m = None if mag is None else as_vector("mag", mag)
+        if self.config.nan_policy == "raise":
+            for nm, v in (("gyr", g), ("acc", a), ("mag", m)):
+                if v is not None and not np.isfinite(v).all():
+                    raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
+        if self._stream is None:
+            self._stream = self.new_state()
+        q, f = self._step(self._stream, g, a, m, dt)
+        self.last_flags = int(f)
+        return q
+
+
+# ---- the compiled loop (the same arithmetic as RecommendedFilter._step) ----------------------
+
+@njit
+def _rot(q, v0, v1, v2, out, transpose):
+    """``out = R(q) v`` (or ``R(q)^T v``)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    if transpose:
+        x, y, z = -x, -y, -z
+    out[0] = (1 - 2 * (y * y + z * z)) * v0 + 2 * (x * y - w * z) * v1 + 2 * (x * z + w * y) * v2
+    out[1] = 2 * (x * y + w * z) * v0 + (1 - 2 * (x * x + z * z)) * v1 + 2 * (y * z - w * x) * v2
+    out[2] = 2 * (x * z - w * y) * v0 + 2 * (y * z + w * x) * v1 + (1 - 2 * (x * x + y * y)) * v2
+
+
+@njit
+def _qmul(p, q, out):
+    p0, p1, p2, p3 = p[0], p[1], p[2], p[3]
+    q0, q1, q2, q3 = q[0], q[1], q[2], q[3]
+    out[0] = p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3
+    out[1] = p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2
+    out[2] = p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1
+    out[3] = p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0
+
+
+@njit
+def _bias_step(x, e, k, bias_max):
+    """``bias -= k e``, limited to ``bias_max`` (RecommendedFilter._bias_from_correction)."""
+    for i in range(3):
+        x[_BIAS + i] -= k * e[i]
+    nb = math.sqrt(x[_BIAS] ** 2 + x[_BIAS + 1] ** 2 + x[_BIAS + 2] ** 2)
+    if nb > bias_max:
+        for i in range(3):
+            x[_BIAS + i] *= bias_max / nb
+
+
+@njit
+def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
+    tau_acc, tau_mag, fast_start = p[0], p[1], p[2] != 0.0
+    r_tau, r_gyr, r_acc, r_rate, r_time = p[3], p[4], p[5], p[6], p[7]
+    rest_bias, rest_bias_tau, mb_tau, bias_max = p[8] != 0.0, p[9], p[10], p[11]
+    mag_rej, mag_nth, mag_dth, mag_new_t, mag_new_rate, mag_ref_tau, mag_init = (
+        p[12] != 0.0, p[13], p[14], p[15], p[16], p[17], p[18])
+    acc_gate, grav, gyr_range, acc_range, mag_bias = p[19], p[20], p[21], p[22], p[24] != 0.0
+    init_time = mag_init if fast_start else 0.0
+    rs = x[_REST:_REST + REST_SIZE]
+    qg = x[_QG:_QG + 4]
+    qa = x[_QA:_QA + 4]
+    t4 = np.empty(4)
+    u4 = np.empty(4)
+    q6 = np.empty(4)
+    v3 = np.empty(3)
+    last_dt = -1.0
+    b0 = b1 = b2 = a1 = a2 = k_rb = k_mag = k_ref = k_cand = 0.0
+    for k in range(gyr.shape[0]):
+        h = dt[k]
+        if h != last_dt:  # coefficients once per distinct dt
+            b0, b1, b2, a1, a2 = _lp_coeffs(tau_acc, h)
+            k_rb = 1.0 - math.exp(-h / rest_bias_tau)
+            k_mag = 1.0 - math.exp(-h / tau_mag)
+            k_ref = 1.0 - math.exp(-h / mag_ref_tau)
+            k_cand = 1.0 - math.exp(-h)
+            last_dt = h
+        g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
+        a0, a1_, a2_ = acc[k, 0], acc[k, 1], acc[k, 2]
+        gyr_ok = math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)
+        acc_ok = (math.isfinite(a0) and math.isfinite(a1_) and math.isfinite(a2_)
+                  and (a0 != 0.0 or a1_ != 0.0 or a2_ != 0.0))
+        m0, m1, m2 = mag[k, 0], mag[k, 1], mag[k, 2]
+        mag_ok = has_mag and (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(m2)
+                              and (m0 != 0.0 or m1 != 0.0 or m2 != 0.0))
+        flags = 0
+        if not gyr_ok:
+            flags |= 4
+        elif max(abs(g0), max(abs(g1), abs(g2))) >= gyr_range:
+            flags |= 32
+        if not acc_ok:
+            flags |= 8
+        elif max(abs(a0), max(abs(a1_), abs(a2_))) >= acc_range:
+            flags |= 64
+        if has_mag and not mag_ok:
+            flags |= 16
+        # 1. rest
+        rest = False
+        if gyr_ok and acc_ok:
+            rest = rest_step(rs, g0, g1, g2, a0, a1_, a2_, h, r_tau, r_gyr, r_acc, r_rate, r_time) == 1
+            if rest:
+                flags |= 128
+                if rest_bias:
+                    for i in range(3):
+                        x[_BIAS + i] += k_rb * (rs[i] - x[_BIAS + i])
+        # 2. strapdown
+        if gyr_ok:
+            r0 = (g0 - x[_BIAS]) * h
+            r1 = (g1 - x[_BIAS + 1]) * h
+            r2 = (g2 - x[_BIAS + 2]) * h
+            ang = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+            s = 0.5 - ang * ang / 48.0 if ang < 1e-8 else math.sin(0.5 * ang) / ang
+            t4[0], t4[1], t4[2], t4[3] = math.cos(0.5 * ang), s * r0, s * r1, s * r2
+            _qmul(qg, t4, u4)
+            n = math.sqrt(u4[0] * u4[0] + u4[1] * u4[1] + u4[2] * u4[2] + u4[3] * u4[3])
+            for i in range(4):
+                qg[i] = u4[i] / n
+        # 3. inclination
+        if acc_ok:
+            if abs(math.sqrt(a0 * a0 + a1_ * a1_ + a2_ * a2_) - grav) > acc_gate:
+                flags |= 512
+            else:
+                _rot(qg, a0, a1_, a2_, v3, False)
+                x[_TACC] += h
+                if fast_start and x[_READY] == 0.0 and x[_TACC] < tau_acc:
+                    x[_NMEAN] += 1.0
+                    for i in range(3):
+                        x[_MEAN + i] += (v3[i] - x[_MEAN + i]) / x[_NMEAN]
+                        x[_Y + i] = x[_MEAN + i]
+                else:
+                    if x[_READY] == 0.0:
+                        for i in range(3):
+                            st = x[_MEAN + i] if x[_NMEAN] > 0 else v3[i]
+                            x[_Z1 + i] = st * (1.0 - b0)
+                            x[_Z2 + i] = st * (b2 - a2)
+                        x[_READY] = 1.0
+                    for i in range(3):
+                        yi = b0 * v3[i] + x[_Z1 + i]
+                        x[_Y + i] = yi
+                        x[_Z1 + i] = b1 * v3[i] - a1 * yi + x[_Z2 + i]
+                        x[_Z2 + i] = b2 * v3[i] - a2 * yi
+                _rot(qa, x[_Y], x[_Y + 1], x[_Y + 2], v3, False)
+                n = math.sqrt(v3[0] * v3[0] + v3[1] * v3[1] + v3[2] * v3[2])
+                vx, vy, vz = v3[0] / n, v3[1] / n, v3[2] / n
+                t4[0], t4[1], t4[2], t4[3] = 1.0 + vz, vy, -vx, 0.0
+                n = math.sqrt(t4[0] * t4[0] + t4[1] * t4[1] + t4[2] * t4[2])
+                if n > 1e-12:
+                    t4[0], t4[1], t4[2] = t4[0] / n, t4[1] / n, t4[2] / n
+                else:
+                    t4[0], t4[1], t4[2] = 0.0, 1.0, 0.0
+                _qmul(t4, qa, u4)
+                for i in range(4):
+                    qa[i] = u4[i]
+                if mb_tau > 0.0 and not rest and x[_READY] != 0.0:
+                    s = math.hypot(t4[1], t4[2])
+                    if s > 0.0:
+                        f = 2.0 * math.atan2(s, t4[0]) / (s * h)
+                        _qmul(qa, qg, q6)
+                        _rot(q6, t4[1] * f, t4[2] * f, 0.0, v3, True)
+                        _bias_step(x, v3, h / mb_tau, bias_max)
+        _qmul(qa, qg, q6)
+        # 4. heading
+        if mag_ok:
+            _rot(q6, m0, m1, m2, v3, False)
+            norm = math.sqrt(v3[0] * v3[0] + v3[1] * v3[1] + v3[2] * v3[2])
+            dip = math.asin(max(-1.0, min(1.0, v3[2] / norm)))
+            target = 0.5 * math.pi - math.atan2(v3[1], v3[0])
+            if x[_MN] == 0.0 or x[_TMAG] < init_time:
+                x[_MN] += 1.0
+                x[_TMAG] += h
+                x[_MREF_N] += (norm - x[_MREF_N]) / x[_MN]
+                x[_MREF_D] += (dip - x[_MREF_D]) / x[_MN]
+                if x[_MN] == 1.0:
+                    x[_DELTA] = target
+                else:
+                    x[_DELTA] = x[_DELTA] + _kwrap(target - x[_DELTA]) / x[_MN]
+                x[_DELTA] = _kwrap(x[_DELTA])
+            else:
+                disturbed = mag_rej and (abs(norm - x[_MREF_N]) > mag_nth * x[_MREF_N]
+                                         or abs(dip - x[_MREF_D]) > mag_dth)
+                if not disturbed:
+                    x[_MREF_N] += k_ref * (norm - x[_MREF_N])
+                    x[_MREF_D] += k_ref * (dip - x[_MREF_D])
+                    step = k_mag * _kwrap(target - x[_DELTA])
+                    x[_DELTA] = _kwrap(x[_DELTA] + step)
+                    if mb_tau > 0.0 and mag_bias and not rest:
+                        _rot(q6, 0.0, 0.0, step / h, v3, True)
+                        _bias_step(x, v3, h / mb_tau, bias_max)
+                else:
+                    flags |= 256
+                    if abs(norm - x[_CAND_N]) < mag_nth * x[_CAND_N] and abs(dip - x[_CAND_D]) < mag_dth:
+                        if math.sqrt(rs[0] * rs[0] + rs[1] * rs[1] + rs[2] * rs[2]) >= mag_new_rate:
+                            x[_CAND_T] += h
+                        x[_CAND_N] += k_cand * (norm - x[_CAND_N])
+                        x[_CAND_D] += k_cand * (dip - x[_CAND_D])
+                    else:
+                        x[_CAND_N], x[_CAND_D], x[_CAND_T] = norm, dip, 0.0
+                    if x[_CAND_T] >= mag_new_t:
+                        x[_MREF_N], x[_MREF_D], x[_CAND_T] = x[_CAND_N], x[_CAND_D], 0.0
+        half = 0.5 * x[_DELTA]
+        t4[0], t4[1], t4[2], t4[3] = math.cos(half), 0.0, 0.0, math.sin(half)
+        _qmul(t4, q6, u4)
+        _qmul(qf, u4, t4)
+        out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = t4[0], t4[1], t4[2], t4[3]
+        out_f[k] = flags

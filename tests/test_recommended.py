@@ -1,0 +1,199 @@
+"""The ``recommended`` filter and the ``rest`` detector: each feature doing its job, bad input,
+reference == numba, and the BROAD targets where the data is present."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import fusionkit as fk
+from fusionkit import sim
+from fusionkit.benchmarking.metrics import broad_errors, rms_errors
+from fusionkit.conventions import change_frame, euler_to_quat, up_vector
+from fusionkit.rotations import quat_to_matrix
+from fusionkit.types import Flag
+
+DEG = np.pi / 180
+BIAS = (0.01, -0.008, 0.006)  # rad/s: 0.3-0.6 deg/s
+
+
+def motion(seed=1, bias=BIAS, rest_every=True, rate=100.0, n=4):
+    segs = [sim.Rest(6.0)]
+    for i in range(n):
+        segs += [sim.Rotate((1, 0.3 * i, 0), 60 * DEG, 2.0), sim.Rotate((0, 0, 1), 120 * DEG, 2.0),
+                 sim.Translate((1, 1, 0), 0.3, 1.0), sim.Rotate((1, 0.3 * i, 0), -60 * DEG, 2.0)]
+        if rest_every:
+            segs.append(sim.Rest(5.0))
+    noise = sim.Noise(gyr_noise=0.003, gyr_bias=bias, acc_noise=0.03, mag_noise=0.3)
+    return sim.simulate(segs, rate=rate, noise=noise, seed=seed, gnss_rate=None)
+
+
+def inclination(res, rec):
+    return broad_errors(res.quat, rec.truth)["inclination"]  # deg
+
+
+def body_up(q, frame="ENU"):
+    """The earth's up axis seen in the body: roll and pitch, independent of heading."""
+    return np.einsum("nji,j->ni", quat_to_matrix(q), up_vector(frame))
+
+
+@pytest.fixture(scope="module")
+def rec():
+    return motion()
+
+
+def test_reference_equals_numba_every_option(rec):
+    bad = dataclasses.replace(rec, gyr=rec.gyr.copy(), acc=rec.acc.copy(), mag=rec.mag.copy())
+    bad.gyr[500] = np.nan
+    bad.acc[600:603] = 0.0
+    bad.mag[700] = np.nan
+    for params in [{}, {"fast_start": False}, {"acc_gate": 1.0}, {"motion_bias_tau": None, "rest_bias": False},
+                   {"mag_rejection": False, "frame": "NED"}, {"use_mag": False, "gyr_range": 1.0}]:
+        f = fk.make("recommended", nan_policy="skip", **params)
+        a, b = f.run(bad, backend="numba"), f.run(bad, backend="reference")
+        np.testing.assert_allclose(a.quat, b.quat, atol=1e-9, err_msg=str(params))
+        np.testing.assert_array_equal(a.flags, b.flags)
+        np.testing.assert_allclose(a.diagnostics["state"], b.diagnostics["state"], atol=1e-9)
+    f = fk.make("recommended")
+    assert f.run(rec).diagnostics["backend"] == "numba"
+
+
+def test_update_loop_and_split_state_equal_run(rec):
+    f = fk.make("recommended")
+    whole = f.run(rec, backend="reference")
+    stream = np.array([f.update(g, a, m, dt=0.01) for g, a, m in zip(rec.gyr[:800], rec.acc[:800], rec.mag[:800])])
+    np.testing.assert_allclose(stream, whole.quat[:800], atol=1e-12)
+    first = f.run(rec.slice(0, 1000))
+    second = f.run(rec.slice(1000, None), state=first.diagnostics["state"])
+    np.testing.assert_allclose(second.quat, whole.quat[1000:], atol=1e-9)
+    with pytest.raises(fk.InputError, match="state has shape"):
+        f.run(rec, state=np.zeros(3))
+
+
+def test_accurate_on_simulated_motion_and_in_any_frame(rec):
+    res = fk.make("recommended").run(rec)
+    err = broad_errors(res.quat, rec.truth)["total"]  # deg
+    assert np.sqrt(np.mean(err[1000:] ** 2)) < 1.0
+    ned = fk.make("recommended", frame="NED").run(rec)
+    np.testing.assert_allclose(np.abs(np.sum(ned.quat * change_frame(res.quat, "ENU", "NED"), axis=1)), 1.0,
+                               atol=1e-9)
+
+
+def test_magnetic_disturbance_reaches_heading_only(rec):
+    """Source 002's claim for this filter's separation: any field leaves roll and pitch as a
+    magnetometer-free run gives them."""
+    t = np.arange(len(rec)) * 0.01
+    bad_fields = [rec.mag + [40.0, -30.0, 25.0],  # constant offset
+                  rec.mag + 50.0 * np.c_[np.cos(2 * t), np.sin(2 * t), 0 * t],  # rotating field
+                  rec.mag * np.where(np.arange(len(rec)) % 97 == 0, 20.0, 1.0)[:, None]]  # spikes
+    free = fk.make("recommended", use_mag=False).run(rec)
+    for mag in bad_fields:
+        res = fk.make("recommended").run(dataclasses.replace(rec, mag=mag))
+        np.testing.assert_allclose(body_up(res.quat), body_up(free.quat), atol=1e-12)
+
+
+def test_rest_detector_marks_rest_and_gives_the_bias(rec):
+    det = fk.make("rest", kind="detector")
+    r = det.run(rec)
+    truth_rest = ~rec.movement
+    fired = r.fired
+    assert fired[truth_rest].mean() > 0.3 and fired[rec.movement].mean() < 0.03  # the slow ends of motions
+    assert np.array_equal(r.fired, det.run(rec, backend="reference").fired)
+    res = fk.make("recommended", motion_bias_tau=None).run(rec)
+    assert np.all(res.flags[fired] & Flag.REST)
+    np.testing.assert_allclose(res.diagnostics["bias"], BIAS, atol=0.002)
+    off = fk.make("recommended", rest_bias=False, motion_bias_tau=None).run(rec)
+    np.testing.assert_array_equal(off.diagnostics["bias"], 0.0)
+    assert inclination(res, rec)[rec.movement].mean() < 0.5 * inclination(off, rec)[rec.movement].mean()
+
+
+def test_bias_in_motion_without_rest():
+    """No rest at all (the rest detector cannot help): the in-motion estimate takes the bias's
+    horizontal part out of the inclination."""
+    r = motion(rest_every=False, n=10, bias=(0.02, -0.015, 0.0))
+    r = dataclasses.replace(r, gyr=r.gyr, acc=r.acc)
+    on = fk.make("recommended", motion_bias_tau=20.0, rest_bias=False).run(r)
+    off = fk.make("recommended", motion_bias_tau=None, rest_bias=False).run(r)
+    late = np.arange(len(r)) > len(r) // 2
+    assert inclination(on, r)[late].mean() < 0.6 * inclination(off, r)[late].mean()
+    b_true = np.array([0.02, -0.015, 0.0])
+    assert np.linalg.norm(on.diagnostics["bias"] - b_true) < 0.6 * np.linalg.norm(b_true)
+
+
+def test_heading_corrections_teach_the_vertical_bias():
+    r = motion(rest_every=False, n=10, bias=(0.0, 0.0, 0.02))
+    on = fk.make("recommended", motion_bias_tau=20.0, rest_bias=False, mag_bias=True).run(r)
+    off = fk.make("recommended", motion_bias_tau=20.0, rest_bias=False).run(r)
+    late = np.arange(len(r)) > len(r) // 2
+    head = lambda res: broad_errors(res.quat, r.truth)["heading"][late].mean()  # noqa: E731
+    assert head(on) < 0.7 * head(off)
+    assert abs(on.diagnostics["bias"][2] - 0.02) < abs(off.diagnostics["bias"][2] - 0.02)
+
+
+def test_magnetic_disturbance_is_rejected_and_a_new_field_accepted(rec):
+    mag = rec.mag.copy()
+    k = slice(900, 1400)  # a magnet nearby for 5 s: the field is 60 % stronger and turned
+    mag[k] = mag[k] * 1.6 + [30.0, 0.0, 0.0]
+    dist = dataclasses.replace(rec, mag=mag)
+    on = fk.make("recommended").run(dist)
+    off = fk.make("recommended", mag_rejection=False).run(dist)
+    assert np.all(on.flags[k] & Flag.MAG_DISTURBED)
+    assert not np.any(on.flags[:900] & Flag.MAG_DISTURBED)
+    heading = lambda res: broad_errors(res.quat, rec.truth)["heading"]  # noqa: E731
+    assert heading(on)[900:1500].max() < 0.3 * heading(off)[900:1500].max()
+    # a lasting change of the homogeneous field (a new room), seen while turning, becomes the reference
+    r2 = motion(rest_every=False, n=12)
+    m2 = r2.mag.copy()
+    m2[1000:] *= 1.5
+    res = fk.make("recommended", mag_new_time=5.0).run(dataclasses.replace(r2, mag=m2))
+    disturbed = res.flags & Flag.MAG_DISTURBED != 0
+    assert disturbed[1000:1200].all() and not disturbed[-1000:].any()
+
+
+def test_fast_start_averages_the_first_samples():
+    r = sim.simulate([sim.Rest(4.0)], rate=100.0, noise=sim.Noise(acc_noise=0.3, mag_noise=3.0), seed=4,
+                     initial=tuple(euler_to_quat(0.5, 0.2, -0.3)), gnss_rate=None)
+    fast = fk.make("recommended").run(r)
+    slow = fk.make("recommended", fast_start=False).run(r)
+    e_fast, e_slow = inclination(fast, r)[:100], inclination(slow, r)[:100]
+    assert e_fast[50:].mean() < 0.5 * e_slow[50:].mean()
+
+
+def test_acceleration_gate_flags_and_skips(rec):
+    res = fk.make("recommended", acc_gate=0.2).run(rec)
+    dev = np.abs(np.linalg.norm(rec.acc, axis=1) - 9.81)
+    np.testing.assert_array_equal(res.flags & Flag.ACC_REJECTED != 0, dev > 0.2)
+
+
+def test_bad_input_is_flagged_and_never_nan(rec):
+    bad = dataclasses.replace(rec, gyr=rec.gyr.copy(), acc=rec.acc.copy(), mag=rec.mag.copy())
+    bad.acc[400:450] = 0.0  # free fall / dropout
+    bad.acc[460] = np.nan
+    bad.mag[470:480] = 0.0
+    bad.mag[490] = np.inf
+    bad.gyr[495] = np.nan
+    with pytest.raises(fk.InputError, match="not finite"):
+        fk.make("recommended").run(bad)
+    res = fk.make("recommended", nan_policy="skip", gyr_range=35.0).run(bad)
+    assert np.isfinite(res.quat).all() and np.isfinite(res.diagnostics["state"]).all()
+    assert np.all(res.flags[400:450] & Flag.ACC_INVALID) and res.flags[460] & Flag.ACC_INVALID
+    assert np.all(res.flags[470:480] & Flag.MAG_INVALID) and res.flags[490] & Flag.MAG_INVALID
+    assert res.flags[495] & Flag.GYR_INVALID
+    clean = fk.make("recommended").run(rec)
+    assert broad_errors(res.quat[600:], clean.quat[600:])["total"].max() < 2.0
+    bad.gyr[510, 0] = 40.0  # beyond a 35 rad/s range
+    res = fk.make("recommended", nan_policy="skip", gyr_range=35.0).run(bad)
+    assert res.flags[510] & Flag.GYR_SATURATED and np.sum(res.flags & Flag.GYR_SATURATED != 0) == 1
+
+
+def test_broad_targets(broad_dir):
+    """Default parameters, one set for all trials (BROAD's metrics): 9D total at or below 2.5 deg
+    (VQF: 2.83); 6D inclination at or below 0.80 deg (VQF: 0.80; the issue's 0.7 is not reached,
+    see BENCHMARKS.md)."""
+    tot, inc = [], []
+    for path in sorted(broad_dir.glob("*.hdf5")):
+        r = fk.load(path)
+        tot.append(rms_errors(fk.make("recommended").run(r), r)["total"])
+        r6 = dataclasses.replace(r, mag=None)
+        inc.append(rms_errors(fk.make("recommended").run(r6), r6)["inclination"])
+    assert np.mean(tot) <= 2.5 and np.mean(inc) <= 0.80
