@@ -161,3 +161,26 @@ def matmul3_into(a, b, out):
     for i in range(3):
         for j in range(3):
             out[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j]
+
+
+@njit
+def validity_flags(g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, gyr_range, acc_range):
+    """:func:`fusionkit.types.sample_validity` with scalars (a range of ``inf``: none):
+    ``(gyr_ok, acc_ok, mag_ok, flags)``."""
+    gyr_ok = math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)
+    acc_ok = (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(a2)
+              and (a0 != 0.0 or a1 != 0.0 or a2 != 0.0))
+    mag_ok = has_mag and (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(m2)
+                          and (m0 != 0.0 or m1 != 0.0 or m2 != 0.0))
+    flags = 0
+    if not gyr_ok:
+        flags |= 4  # GYR_INVALID
+    elif max(abs(g0), max(abs(g1), abs(g2))) >= gyr_range:
+        flags |= 32  # GYR_SATURATED
+    if not acc_ok:
+        flags |= 8  # ACC_INVALID
+    elif max(abs(a0), max(abs(a1), abs(a2))) >= acc_range:
+        flags |= 64  # ACC_SATURATED
+    if has_mag and not mag_ok:
+        flags |= 16  # MAG_INVALID
+    return gyr_ok, acc_ok, mag_ok, flags

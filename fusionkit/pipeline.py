@@ -33,6 +33,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from ._kernels import validity_flags
 from ._numba import HAVE_NUMBA, njit, resolve_backend
 from .config import PipelineConfig
 from .errors import ConfigError, InputError
@@ -318,22 +319,8 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step):
             g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
             a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
             m0, m1, m2 = mag[k, 0], mag[k, 1], mag[k, 2]
-            gyr_ok = math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)
-            acc_ok = (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(a2)
-                      and (a0 != 0.0 or a1 != 0.0 or a2 != 0.0))
-            mag_ok = has_mag and (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(m2)
-                                  and (m0 != 0.0 or m1 != 0.0 or m2 != 0.0))
-            flags = 0
-            if not gyr_ok:
-                flags |= 4
-            elif max(abs(g0), max(abs(g1), abs(g2))) >= pp[0]:
-                flags |= 32
-            if not acc_ok:
-                flags |= 8
-            elif max(abs(a0), max(abs(a1), abs(a2))) >= pp[1]:
-                flags |= 64
-            if has_mag and not mag_ok:
-                flags |= 16
+            gyr_ok, acc_ok, mag_ok, flags = validity_flags(g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, pp[0],
+                                                            pp[1])
             crit = 0
             if gyr_ok and acc_ok:
                 crit = det_step(ds, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt[k], dp)

@@ -61,15 +61,14 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .._numba import njit, resolve_backend
+from .._kernels import validity_flags
+from .._numba import njit
 from ..config import FilterConfig, param
-from ..conventions import change_frame
 from ..detectors.rest import REST_SIZE, RestConfig, RestDetector, rest_step
-from ..errors import InputError
-from ..protocols import Filter, Sample
+from ..protocols import Sample
 from ..rotations import quat_from_rotvec, quat_mul, quat_normalize, quat_to_matrix
-from ..types import Flag, Recording, Result, sample_validity
-from ..validation import as_vector, check_finite_all, check_positive
+from ..types import Flag, sample_validity
+from ._step_filter import StepFilter
 
 __all__ = ["RecommendedFilter", "RecommendedConfig", "lowpass_coefficients"]
 
@@ -138,7 +137,7 @@ def _wrap(a: float) -> float:
 _kwrap = njit(_wrap)
 
 
-class RecommendedFilter(Filter):
+class RecommendedFilter(StepFilter):
     """Gyro strapdown + inclination from the inertially low-passed accelerometer + separate
     heading from the magnetometer; rest/motion bias, magnetic disturbance rejection, fast start."""
 
@@ -146,21 +145,22 @@ class RecommendedFilter(Filter):
     Config = RecommendedConfig
     source: ClassVar[str] = "fusionkit (sources 000-003 composed with the state of the art)"
     summary: ClassVar[str] = "channel-separated inclination/heading, inertial low-pass, bias and disturbance handling"
+    state_size: ClassVar[int] = _SIZE
 
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
         self.rest_detector = RestDetector(self.config.rest)
-        self.qf = change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "ENU", self.config.frame)
-        self._stream: np.ndarray | None = None
-        self.last_flags = 0
-
-    def dimension(self, rec) -> str:
-        return "9D" if self.config.use_mag and rec.mag is not None else "6D"
 
     def new_state(self) -> np.ndarray:
         x = np.zeros(_SIZE)
         x[_QG] = x[_QA] = 1.0
         return x
+
+    def _kernel(self):
+        return _rec_loop
+
+    def _diagnostics(self, x) -> dict:
+        return {"bias": x[_BIAS:_BIAS + 3].copy(), "mag_reference": (x[_MREF_N], x[_MREF_D])}
 
     def params(self) -> np.ndarray:
         """The kernel's parameter vector."""
@@ -178,6 +178,8 @@ class RecommendedFilter(Filter):
     # -- the readable reference --------------------------------------------------------------
     def _step(self, x: np.ndarray, gyr, acc, mag, dt: float) -> tuple[np.ndarray, int]:
         """One sample (``mag`` None without a magnetometer); returns (q body->frame, flags)."""
+        # Durations (fast start) are sums of dt compared with half a sample of margin, so that the
+        # sample count does not hinge on the last bit of the sum (a split run equals one run).
         c = self.config
         gyr_ok, acc_ok, mag_ok, flags = sample_validity(gyr, acc, mag if c.use_mag else None, c.gyr_range,
                                                         c.acc_range)
@@ -216,7 +218,7 @@ class RecommendedFilter(Filter):
         c = self.config
         y = x[_Y:_Y + 3]
         x[_TACC] += dt
-        if c.fast_start and not x[_READY] and x[_TACC] < c.tau_acc:
+        if c.fast_start and not x[_READY] and x[_TACC] + 0.5 * dt < c.tau_acc:  # margin: see _step
             x[_NMEAN] += 1.0  # fast start: the running mean of the samples so far
             x[_MEAN:_MEAN + 3] += (a_i - x[_MEAN:_MEAN + 3]) / x[_NMEAN]
             y[:] = x[_MEAN:_MEAN + 3]
@@ -263,7 +265,7 @@ class RecommendedFilter(Filter):
         dip = math.asin(max(-1.0, min(1.0, m_level[2] / norm)))
         target = 0.5 * math.pi - math.atan2(m_level[1], m_level[0])  # turns the field's azimuth to north
         init_time = c.mag_init_time if c.fast_start else 0.0
-        if x[_MN] == 0.0 or x[_TMAG] < init_time:  # start: means of heading, norm and dip
+        if x[_MN] == 0.0 or x[_TMAG] + 0.5 * dt < init_time:  # start: means of heading, norm and dip
             x[_MN] += 1.0
             x[_TMAG] += dt
             x[_MREF_N] += (norm - x[_MREF_N]) / x[_MN]
@@ -296,63 +298,6 @@ class RecommendedFilter(Filter):
         if x[_CAND_T] >= c.mag_new_time:
             x[_MREF_N], x[_MREF_D], x[_CAND_T] = x[_CAND_N], x[_CAND_D], 0.0
         return int(Flag.MAG_DISTURBED)
-
-    # -- public ----------------------------------------------------------------------------
-    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
-            state: np.ndarray | None = None) -> Result:
-        """Process ``rec`` (from ``state``, ``Result.diagnostics["state"]`` of an earlier run)."""
-        if not isinstance(rec, Recording):
-            raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
-        check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}, self.config.nan_policy)
-        used = resolve_backend(backend, True)
-        n = len(rec)
-        x = self._checked_state(state).copy() if state is not None else self.new_state()
-        has_mag = rec.mag is not None and self.config.use_mag
-        mag = rec.mag if has_mag else np.zeros((n, 3))
-        dt = rec.dt
-        q = np.empty((n, 4))
-        flags = np.zeros(n, np.uint32)
-        if used == "numba":
-            _rec_loop(rec.gyr, rec.acc, mag, dt, has_mag, x, self.params(), self.qf, q, flags)
-        else:
-            for k in range(n):
-                q[k], flags[k] = self._step(x, rec.gyr[k], rec.acc[k], mag[k] if has_mag else None, dt[k])
-        diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(),
-                "bias": x[_BIAS:_BIAS + 3].copy(), "mag_reference": (x[_MREF_N], x[_MREF_D]), "state": x}
-        return Result(q, flags, self.config.frame, diag)
-
-    def _checked_state(self, x) -> np.ndarray:
-        x = np.asarray(x, dtype=float)
-        if x.shape != (_SIZE,):
-            raise InputError(f"state has shape {x.shape}, expected ({_SIZE},): pass Result.diagnostics['state']")
-        return x
-
-    @property
-    def state(self) -> np.ndarray | None:
-        return None if self._stream is None else self._stream.copy()
-
-    def set_state(self, state) -> None:
-        self._stream = self._checked_state(state).copy()
-
-    def reset(self) -> None:
-        self._stream = None
-
-    def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
-        """One sample of a stream; the same numbers as :meth:`run` (reference backend)."""
-        if dt is None:
-            raise InputError("update() needs dt, the sample interval in s")
-        dt = check_positive("dt", dt)
-        g, a = as_vector("gyr", gyr), as_vector("acc", acc)
-        m = None if mag is None else as_vector("mag", mag)
-        if self.config.nan_policy == "raise":
-            for nm, v in (("gyr", g), ("acc", a), ("mag", m)):
-                if v is not None and not np.isfinite(v).all():
-                    raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
-        if self._stream is None:
-            self._stream = self.new_state()
-        q, f = self._step(self._stream, g, a, m, dt)
-        self.last_flags = int(f)
-        return q
 
 
 # ---- the compiled loop (the same arithmetic as RecommendedFilter._step) ----------------------
@@ -418,23 +363,9 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             last_dt = h
         g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
         a0, a1_, a2_ = acc[k, 0], acc[k, 1], acc[k, 2]
-        gyr_ok = math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)
-        acc_ok = (math.isfinite(a0) and math.isfinite(a1_) and math.isfinite(a2_)
-                  and (a0 != 0.0 or a1_ != 0.0 or a2_ != 0.0))
         m0, m1, m2 = mag[k, 0], mag[k, 1], mag[k, 2]
-        mag_ok = has_mag and (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(m2)
-                              and (m0 != 0.0 or m1 != 0.0 or m2 != 0.0))
-        flags = 0
-        if not gyr_ok:
-            flags |= 4
-        elif max(abs(g0), max(abs(g1), abs(g2))) >= gyr_range:
-            flags |= 32
-        if not acc_ok:
-            flags |= 8
-        elif max(abs(a0), max(abs(a1_), abs(a2_))) >= acc_range:
-            flags |= 64
-        if has_mag and not mag_ok:
-            flags |= 16
+        gyr_ok, acc_ok, mag_ok, flags = validity_flags(g0, g1, g2, a0, a1_, a2_, m0, m1, m2, has_mag, gyr_range,
+                                                                acc_range)
         # 1. rest
         rest = False
         if gyr_ok and acc_ok:
@@ -463,7 +394,7 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             else:
                 _rot(qg, a0, a1_, a2_, v3, False)
                 x[_TACC] += h
-                if fast_start and x[_READY] == 0.0 and x[_TACC] < tau_acc:
+                if fast_start and x[_READY] == 0.0 and x[_TACC] + 0.5 * h < tau_acc:
                     x[_NMEAN] += 1.0
                     for i in range(3):
                         x[_MEAN + i] += (v3[i] - x[_MEAN + i]) / x[_NMEAN]
@@ -506,7 +437,7 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             norm = math.sqrt(v3[0] * v3[0] + v3[1] * v3[1] + v3[2] * v3[2])
             dip = math.asin(max(-1.0, min(1.0, v3[2] / norm)))
             target = 0.5 * math.pi - math.atan2(v3[1], v3[0])
-            if x[_MN] == 0.0 or x[_TMAG] < init_time:
+            if x[_MN] == 0.0 or x[_TMAG] + 0.5 * h < init_time:
                 x[_MN] += 1.0
                 x[_TMAG] += h
                 x[_MREF_N] += (norm - x[_MREF_N]) / x[_MN]

@@ -1,0 +1,145 @@
+"""The shared frame of the monolithic filters (``channel-dcm``, ``recommended``, ``ekf``).
+
+Such a filter keeps its whole state in one flat ``float64`` array (copyable, splittable, the same
+array its numba loop works on) and has
+
+- a readable reference, :meth:`StepFilter._step` (one sample, returns the quaternion and the
+  sample's flags), and
+- optionally a compiled loop over a whole recording (:meth:`StepFilter._kernel`) that does the
+  same arithmetic; tests hold the two to 1e-9 on every sample.
+
+This class does the rest once: input checks, the backend choice, ``run`` with a state carried
+over from an earlier run, streaming ``update`` (the same numbers as ``run``), ``state`` /
+``set_state`` / ``reset``, and a progress bar on long reference runs.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, ClassVar
+
+import numpy as np
+
+from .._numba import resolve_backend
+from ..conventions import change_frame
+from ..errors import InputError
+from ..protocols import Filter
+from ..types import Recording, Result
+from ..validation import as_vector, check_finite_all, check_positive
+
+__all__ = ["StepFilter"]
+
+
+class StepFilter(Filter):
+    """A filter computed sample by sample on one flat state array (see the module docs).
+
+    Subclasses set ``state_size`` and implement :meth:`new_state` and :meth:`_step`; those with
+    a compiled loop implement :meth:`_kernel` and :meth:`params`.
+    """
+
+    state_size: ClassVar[int] = 0
+
+    def __init__(self, config=None, **params: Any) -> None:
+        super().__init__(config, **params)
+        #: the ENU -> ``frame`` change, applied to every output quaternion (left factor)
+        self.qf = change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "ENU", self.config.frame)
+        self._stream: np.ndarray | None = None
+        self.last_flags = 0
+
+    # -- what a subclass provides ----------------------------------------------------------
+    def new_state(self) -> np.ndarray:
+        """A fresh state array of ``state_size``."""
+        return np.zeros(self.state_size)
+
+    def _step(self, x: np.ndarray, gyr, acc, mag, dt: float) -> tuple[np.ndarray, int]:
+        """One sample (``mag`` None without a magnetometer): update ``x`` in place, return
+        (quaternion body -> frame, flags)."""
+        raise NotImplementedError
+
+    def _kernel(self) -> Callable | None:
+        """The compiled loop ``loop(gyr, acc, mag, dt, has_mag, x, params, qf, out_q, out_flags)``,
+        or None (reference path only)."""
+        return None
+
+    def params(self) -> np.ndarray:
+        """The compiled loop's parameter vector."""
+        return np.zeros(0)
+
+    def _diagnostics(self, x: np.ndarray) -> dict[str, Any]:
+        """Extra entries of ``Result.diagnostics`` from the final state."""
+        return {}
+
+    # -- shared ----------------------------------------------------------------------------
+    def dimension(self, rec) -> str:
+        return "9D" if getattr(self.config, "use_mag", True) and rec.mag is not None else "6D"
+
+    def _uses_mag(self, rec: Recording) -> bool:
+        return rec.mag is not None and getattr(self.config, "use_mag", True)
+
+    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
+            state: np.ndarray | None = None) -> Result:
+        """Process ``rec``, from ``state`` (``Result.diagnostics["state"]`` of an earlier run) or
+        from the start; ``progress``: a progress bar (None: on a terminal for long reference runs)."""
+        from ..pipeline import _progress
+
+        if not isinstance(rec, Recording):
+            raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
+        check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}, self.config.nan_policy)
+        loop = self._kernel()
+        used = resolve_backend(backend, loop is not None)
+        n = len(rec)
+        x = self._checked_state(state).copy() if state is not None else self.new_state()
+        has_mag = self._uses_mag(rec)
+        mag = rec.mag if has_mag else np.zeros((n, 3))
+        dt = rec.dt
+        q = np.empty((n, 4))
+        flags = np.zeros(n, np.uint32)
+        if used == "numba":
+            loop(rec.gyr, rec.acc, mag, dt, has_mag, x, self.params(), self.qf, q, flags)
+        else:
+            bar = _progress(n, progress, self.name)
+            for k in range(n):
+                q[k], flags[k] = self._step(x, rec.gyr[k], rec.acc[k], mag[k] if has_mag else None, dt[k])
+                if bar is not None and k % 10_000 == 9_999:
+                    bar.update(10_000)
+            if bar is not None:
+                bar.close()
+        diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "state": x,
+                **self._diagnostics(x)}
+        return Result(q, flags, self.config.frame, diag)
+
+    def _checked_state(self, x) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.state_size,):
+            raise InputError(f"state has shape {x.shape}, expected ({self.state_size},): "
+                             "pass Result.diagnostics['state'] of the same filter")
+        if not np.isfinite(x).all():
+            raise InputError("state is not finite")
+        return x
+
+    @property
+    def state(self) -> np.ndarray | None:
+        """A copy of the streaming state (None before the first :meth:`update`)."""
+        return None if self._stream is None else self._stream.copy()
+
+    def set_state(self, state) -> None:
+        self._stream = self._checked_state(state).copy()
+
+    def reset(self) -> None:
+        self._stream = None
+
+    def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
+        """One sample of a stream; the same numbers as :meth:`run` (reference backend)."""
+        if dt is None:
+            raise InputError("update() needs dt, the sample interval in s")
+        dt = check_positive("dt", dt)
+        g, a = as_vector("gyr", gyr), as_vector("acc", acc)
+        m = None if mag is None or not getattr(self.config, "use_mag", True) else as_vector("mag", mag)
+        if self.config.nan_policy == "raise":
+            for nm, v in (("gyr", g), ("acc", a), ("mag", m)):
+                if v is not None and not np.isfinite(v).all():
+                    raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
+        if self._stream is None:
+            self._stream = self.new_state()
+        q, f = self._step(self._stream, g, a, m, dt)
+        self.last_flags = int(f)
+        return q
