@@ -14,6 +14,8 @@ Per sample, in this fixed order:
    the alignment attitude and the mean gyro output becomes the bias.
 4. **propagation**: ``estimator.propagate(gyr - bias + correction_rate, dt)``.
 5. **correctors**, in order; rate correctors' outputs are summed into the next correction rate.
+   A sample flagged MAG_DISTURBED (by the ``magnetic`` detector) reaches them without its
+   magnetometer reading: their magnetometer correction is skipped.
 
 Two paths run this: the readable reference (:meth:`Pipeline._step`) and, when every plugin has
 a numba kernel (an estimator, at most one detector, no corrector yet), one compiled loop built
@@ -165,6 +167,8 @@ class Pipeline(Filter):
         if self.correctors:
             rate = np.zeros(3)
             sample = sample._replace(gyr=gyr - al[BIAS:BIAS + 3])
+            if flags & Flag.MAG_DISTURBED:
+                sample = sample._replace(mag=None)
             for i, cor in enumerate(self.correctors):
                 out = cor.correct(self.estimator, st["x"], st["cor"][i], sample, flags)
                 flags |= out.flags

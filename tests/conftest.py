@@ -28,6 +28,22 @@ def broad_dir() -> Path:
     return d
 
 
+def broad_mean(broad_dir: Path, name: str, metric: str, six_d: bool = False, **params) -> float:
+    """Mean over the BROAD trials of one BROAD metric (``total``, ``inclination``, ``heading``)
+    of filter ``name`` with ``params``; ``six_d`` drops the magnetometer."""
+    import dataclasses
+
+    from fusionkit.benchmarking.metrics import rms_errors
+
+    vals = []
+    for path in sorted(broad_dir.glob("*.hdf5")):
+        r = fk.load(path)
+        if six_d:
+            r = dataclasses.replace(r, mag=None)
+        vals.append(rms_errors(fk.make(name, **params).run(r), r)[metric])
+    return float(np.mean(vals))
+
+
 @pytest.fixture(scope="session")
 def imu_rec() -> fk.Recording:
     """Seeded noisy recording: 12 s rest, then rotations and a translation."""

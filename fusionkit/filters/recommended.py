@@ -28,20 +28,20 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   With ``mag_bias`` the heading correction teaches the vertical part too (off by default: on
   BROAD it costs 0.08 deg, and it is the one path by which the magnetometer reaches roll and
   pitch).
-- **magnetic disturbance detection and rejection** (``mag_rejection``): the field's norm and dip
-  are learned at the start (reference); a sample whose norm differs by more than
-  ``mag_norm_threshold`` (relative) or whose dip differs by more than ``mag_dip_threshold`` is
-  not used (flag MAG_DISTURBED). Recovery: undisturbed samples keep tracking the reference
-  slowly (``mag_ref_tau``); a new field that stays consistent for ``mag_new_time`` s *while the
-  sensor turns* (at least ``mag_new_min_rate``; a field that is constant in the earth frame,
-  not one carried along with the body) becomes the new reference.
+- **magnetic disturbance detection and rejection** (``mag_rejection``, settings in ``magnetic``):
+  the ``magnetic`` detector (:mod:`fusionkit.detectors.magnetic`) learns the field's norm and
+  dip (in the levelled frame) at the start; a sample whose norm or dip departs from them by more
+  than its thresholds is not used (flag MAG_DISTURBED). Recovery: undisturbed samples keep the
+  reference tracking slowly; a new field that stays consistent for ``magnetic.new_time`` s
+  *while the sensor turns* (a field constant in the earth frame, not one carried along with the
+  body) becomes the new reference.
 - **acceleration rejection** (``acc_gate``, off by default): samples whose ``| |a| - g |``
   exceeds the gate are left out of the low-pass (flag ACC_REJECTED). Measured on BROAD it costs
   accuracy (0.80 -> 2.9 deg inclination at 4 m/s^2): leaving out the large samples makes the
   linear accelerations' average nonzero, which is exactly what the I-frame low-pass relies on.
 - **fast start** (``fast_start``): for the first ``tau_acc`` s the low-pass is replaced by the
   running mean of the samples so far (from the first sample on, no start transient), and the
-  heading and field reference are the mean over the first ``mag_init_time`` s. Off: the
+  heading and field reference are the mean over the first ``magnetic.init_time`` s. Off: the
   low-pass and the heading start from the first sample.
 
 Bad input: a non-finite gyroscope sample holds the state (GYR_INVALID); a non-finite or all-zero
@@ -64,6 +64,8 @@ import numpy as np
 from .._kernels import validity_flags
 from .._numba import njit
 from ..config import FilterConfig, param
+from ..detectors.magnetic import (MAG_COUNT, MAG_DISTURBED, MAG_LEARNING, MAG_SIZE, MagneticConfig,
+                                  MagneticDetector, field_norm_dip, magnetic_step)
 from ..detectors.rest import REST_SIZE, RestConfig, RestDetector, rest_step
 from ..protocols import Sample
 from ..rotations import quat_from_rotvec, quat_mul, quat_normalize, quat_to_matrix
@@ -75,8 +77,8 @@ __all__ = ["RecommendedFilter", "RecommendedConfig", "lowpass_coefficients"]
 # state layout
 _QG, _QA, _DELTA, _Z1, _Z2, _MEAN, _NMEAN, _TACC, _READY, _BIAS, _Y = 0, 4, 8, 9, 12, 15, 18, 19, 20, 21, 24
 _REST = 27
-_MREF_N, _MREF_D, _MN, _TMAG, _CAND_N, _CAND_D, _CAND_T, _SIZE = (
-    _REST + REST_SIZE + i for i in range(8))
+_MAG = _REST + REST_SIZE  # the magnetic disturbance detector's state
+_SIZE = _MAG + MAG_SIZE
 
 
 class RecommendedConfig(FilterConfig):
@@ -86,7 +88,7 @@ class RecommendedConfig(FilterConfig):
     use_mag: bool = param(True, unit="-", description="use the magnetometer when the recording has one (9D)")
     fast_start: bool = param(
         True, unit="-", description="running means instead of the low-passes at the start (first tau_acc s, "
-        "mag_init_time s)")
+        "magnetic.init_time s)")
     rest: RestConfig = param(RestConfig(), unit="-", description="the rest detector")
     rest_bias: bool = param(True, unit="-", description="re-estimate the gyro bias at rest")
     rest_bias_tau: float = param(1.0, unit="s", description="time constant of the bias at rest", gt=0)
@@ -96,17 +98,10 @@ class RecommendedConfig(FilterConfig):
     mag_bias: bool = param(
         False, unit="-", description="the in-motion bias also learns from the heading correction (vertical axis); "
         "lets the magnetometer reach roll and pitch through the bias (costs 0.08 deg on BROAD)")
-    mag_rejection: bool = param(True, unit="-", description="detect and reject magnetic disturbances")
-    mag_norm_threshold: float = param(
-        0.1, unit="-", description="disturbed when |norm - reference| > this x reference", gt=0)
-    mag_dip_threshold: float = param(
-        math.radians(10.0), unit="rad", description="disturbed when |dip - reference dip| > this", gt=0)
-    mag_new_time: float = param(
-        20.0, unit="s", description="a new consistent field becomes the reference after this long while turning", gt=0)
-    mag_new_min_rate: float = param(
-        math.radians(20.0), unit="rad/s", description="turning rate that counts towards mag_new_time", ge=0)
-    mag_ref_tau: float = param(60.0, unit="s", description="the reference follows undisturbed fields this slowly", gt=0)
-    mag_init_time: float = param(1.0, unit="s", description="fast start: heading and reference averaged this long", ge=0)
+    mag_rejection: bool = param(True, unit="-", description="reject magnetic disturbances (the magnetic detector)")
+    magnetic: MagneticConfig = param(
+        MagneticConfig(), unit="-", description="the magnetic disturbance detector (its init_time is the fast start's "
+        "heading averaging; 0 without fast_start)")
     acc_gate: float | None = param(
         None, unit="m/s^2", description="leave out samples with | |a| - gravity | above this; None: off "
         "(costs accuracy on BROAD, see the module docs)", gt=0)
@@ -150,6 +145,8 @@ class RecommendedFilter(StepFilter):
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
         self.rest_detector = RestDetector(self.config.rest)
+        mc = self.config.magnetic
+        self.magnetic = MagneticDetector(mc if self.config.fast_start else mc.model_copy(update={"init_time": 0.0}))
 
     def new_state(self) -> np.ndarray:
         x = np.zeros(_SIZE)
@@ -160,7 +157,7 @@ class RecommendedFilter(StepFilter):
         return _rec_loop
 
     def _diagnostics(self, x) -> dict:
-        return {"bias": x[_BIAS:_BIAS + 3].copy(), "mag_reference": (x[_MREF_N], x[_MREF_D])}
+        return {"bias": x[_BIAS:_BIAS + 3].copy(), "mag_reference": (x[_MAG], x[_MAG + 1])}
 
     def params(self) -> np.ndarray:
         """The kernel's parameter vector."""
@@ -169,8 +166,7 @@ class RecommendedFilter(StepFilter):
             c.tau_acc, c.tau_mag, float(c.fast_start), c.rest.tau, c.rest.gyr_threshold, c.rest.acc_threshold,
             c.rest.max_rate, c.rest.min_time, float(c.rest_bias), c.rest_bias_tau,
             c.motion_bias_tau if c.motion_bias_tau is not None else 0.0, c.bias_max, float(c.mag_rejection),
-            c.mag_norm_threshold, c.mag_dip_threshold, c.mag_new_time, c.mag_new_min_rate, c.mag_ref_tau,
-            c.mag_init_time, c.acc_gate if c.acc_gate is not None else math.inf, c.gravity,
+            *self.magnetic.params(), c.acc_gate if c.acc_gate is not None else math.inf, c.gravity,
             c.gyr_range if c.gyr_range is not None else math.inf,
             c.acc_range if c.acc_range is not None else math.inf, float(c.use_mag), float(c.mag_bias),
         ])
@@ -261,43 +257,22 @@ class RecommendedFilter(StepFilter):
     def _heading(self, x, m_level, q6, dt, rest) -> int:
         """Heading correction from the field ``m_level`` in the levelled frame; returns flags."""
         c = self.config
-        norm = float(np.linalg.norm(m_level))
-        dip = math.asin(max(-1.0, min(1.0, m_level[2] / norm)))
+        norm, dip = field_norm_dip(m_level, np.array([0.0, 0.0, 1.0]))
         target = 0.5 * math.pi - math.atan2(m_level[1], m_level[0])  # turns the field's azimuth to north
-        init_time = c.mag_init_time if c.fast_start else 0.0
-        if x[_MN] == 0.0 or x[_TMAG] + 0.5 * dt < init_time:  # start: means of heading, norm and dip
-            x[_MN] += 1.0
-            x[_TMAG] += dt
-            x[_MREF_N] += (norm - x[_MREF_N]) / x[_MN]
-            x[_MREF_D] += (dip - x[_MREF_D]) / x[_MN]
-            x[_DELTA] = target if x[_MN] == 1.0 else x[_DELTA] + _wrap(target - x[_DELTA]) / x[_MN]
-            x[_DELTA] = _wrap(x[_DELTA])
+        rate = float(np.linalg.norm(RestDetector.lowpassed_gyr(x[_REST:_REST + REST_SIZE])))
+        code = self.magnetic.reference_step(x[_MAG:_MAG + MAG_SIZE], norm, dip, rate, dt)
+        if code == MAG_LEARNING:  # start: the heading is the mean over the detector's learning time
+            n = x[_MAG + MAG_COUNT]
+            x[_DELTA] = _wrap(target if n == 1.0 else x[_DELTA] + _wrap(target - x[_DELTA]) / n)
             return 0
-        disturbed = c.mag_rejection and (abs(norm - x[_MREF_N]) > c.mag_norm_threshold * x[_MREF_N]
-                                         or abs(dip - x[_MREF_D]) > c.mag_dip_threshold)
-        if not disturbed:
-            k = 1.0 - math.exp(-dt / c.mag_ref_tau)
-            x[_MREF_N] += k * (norm - x[_MREF_N])
-            x[_MREF_D] += k * (dip - x[_MREF_D])
-            step = (1.0 - math.exp(-dt / c.tau_mag)) * _wrap(target - x[_DELTA])
-            x[_DELTA] = _wrap(x[_DELTA] + step)
-            if c.motion_bias_tau is not None and c.mag_bias and not rest:
-                # the heading correction as a rate about the vertical: the gyro's vertical drift
-                self._bias_from_correction(x, np.array([0.0, 0.0, step / dt]), q6, dt)
-            return 0
-        # disturbed: is it a new homogeneous field? (consistent while the sensor turns)
-        if abs(norm - x[_CAND_N]) < c.mag_norm_threshold * x[_CAND_N] and abs(dip - x[_CAND_D]) < c.mag_dip_threshold:
-            rate = np.linalg.norm(RestDetector.lowpassed_gyr(x[_REST:_REST + REST_SIZE]))
-            if rate >= c.mag_new_min_rate:
-                x[_CAND_T] += dt
-            k = 1.0 - math.exp(-dt)  # the candidate: low-passed over 1 s
-            x[_CAND_N] += k * (norm - x[_CAND_N])
-            x[_CAND_D] += k * (dip - x[_CAND_D])
-        else:
-            x[_CAND_N], x[_CAND_D], x[_CAND_T] = norm, dip, 0.0
-        if x[_CAND_T] >= c.mag_new_time:
-            x[_MREF_N], x[_MREF_D], x[_CAND_T] = x[_CAND_N], x[_CAND_D], 0.0
-        return int(Flag.MAG_DISTURBED)
+        if code == MAG_DISTURBED and c.mag_rejection:
+            return int(Flag.MAG_DISTURBED)
+        step = (1.0 - math.exp(-dt / c.tau_mag)) * _wrap(target - x[_DELTA])
+        x[_DELTA] = _wrap(x[_DELTA] + step)
+        if c.motion_bias_tau is not None and c.mag_bias and not rest:
+            # the heading correction as a rate about the vertical: the gyro's vertical drift
+            self._bias_from_correction(x, np.array([0.0, 0.0, step / dt]), q6, dt)
+        return 0
 
 
 # ---- the compiled loop (the same arithmetic as RecommendedFilter._step) ----------------------
@@ -339,10 +314,10 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
     tau_acc, tau_mag, fast_start = p[0], p[1], p[2] != 0.0
     r_tau, r_gyr, r_acc, r_rate, r_time = p[3], p[4], p[5], p[6], p[7]
     rest_bias, rest_bias_tau, mb_tau, bias_max = p[8] != 0.0, p[9], p[10], p[11]
-    mag_rej, mag_nth, mag_dth, mag_new_t, mag_new_rate, mag_ref_tau, mag_init = (
-        p[12] != 0.0, p[13], p[14], p[15], p[16], p[17], p[18])
+    mag_rej = p[12] != 0.0
+    m_init, m_nth, m_dth, m_new_t, m_new_rate, m_ref_tau = p[13], p[14], p[15], p[16], p[17], p[18]
     acc_gate, grav, gyr_range, acc_range, mag_bias = p[19], p[20], p[21], p[22], p[24] != 0.0
-    init_time = mag_init if fast_start else 0.0
+    ms = x[_MAG:_MAG + MAG_SIZE]
     rs = x[_REST:_REST + REST_SIZE]
     qg = x[_QG:_QG + 4]
     qa = x[_QA:_QA + 4]
@@ -351,15 +326,13 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
     q6 = np.empty(4)
     v3 = np.empty(3)
     last_dt = -1.0
-    b0 = b1 = b2 = a1 = a2 = k_rb = k_mag = k_ref = k_cand = 0.0
+    b0 = b1 = b2 = a1 = a2 = k_rb = k_mag = 0.0
     for k in range(gyr.shape[0]):
         h = dt[k]
         if h != last_dt:  # coefficients once per distinct dt
             b0, b1, b2, a1, a2 = _lp_coeffs(tau_acc, h)
             k_rb = 1.0 - math.exp(-h / rest_bias_tau)
             k_mag = 1.0 - math.exp(-h / tau_mag)
-            k_ref = 1.0 - math.exp(-h / mag_ref_tau)
-            k_cand = 1.0 - math.exp(-h)
             last_dt = h
         g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
         a0, a1_, a2_ = acc[k, 0], acc[k, 1], acc[k, 2]
@@ -437,38 +410,19 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             norm = math.sqrt(v3[0] * v3[0] + v3[1] * v3[1] + v3[2] * v3[2])
             dip = math.asin(max(-1.0, min(1.0, v3[2] / norm)))
             target = 0.5 * math.pi - math.atan2(v3[1], v3[0])
-            if x[_MN] == 0.0 or x[_TMAG] + 0.5 * h < init_time:
-                x[_MN] += 1.0
-                x[_TMAG] += h
-                x[_MREF_N] += (norm - x[_MREF_N]) / x[_MN]
-                x[_MREF_D] += (dip - x[_MREF_D]) / x[_MN]
-                if x[_MN] == 1.0:
-                    x[_DELTA] = target
-                else:
-                    x[_DELTA] = x[_DELTA] + _kwrap(target - x[_DELTA]) / x[_MN]
-                x[_DELTA] = _kwrap(x[_DELTA])
+            rate = math.sqrt(rs[0] * rs[0] + rs[1] * rs[1] + rs[2] * rs[2])
+            code = magnetic_step(ms, norm, dip, rate, h, m_init, m_nth, m_dth, m_new_t, m_new_rate, m_ref_tau)
+            if code == MAG_LEARNING:
+                n = ms[MAG_COUNT]
+                x[_DELTA] = _kwrap(target if n == 1.0 else x[_DELTA] + _kwrap(target - x[_DELTA]) / n)
+            elif code == MAG_DISTURBED and mag_rej:
+                flags |= 256
             else:
-                disturbed = mag_rej and (abs(norm - x[_MREF_N]) > mag_nth * x[_MREF_N]
-                                         or abs(dip - x[_MREF_D]) > mag_dth)
-                if not disturbed:
-                    x[_MREF_N] += k_ref * (norm - x[_MREF_N])
-                    x[_MREF_D] += k_ref * (dip - x[_MREF_D])
-                    step = k_mag * _kwrap(target - x[_DELTA])
-                    x[_DELTA] = _kwrap(x[_DELTA] + step)
-                    if mb_tau > 0.0 and mag_bias and not rest:
-                        _rot(q6, 0.0, 0.0, step / h, v3, True)
-                        _bias_step(x, v3, h / mb_tau, bias_max)
-                else:
-                    flags |= 256
-                    if abs(norm - x[_CAND_N]) < mag_nth * x[_CAND_N] and abs(dip - x[_CAND_D]) < mag_dth:
-                        if math.sqrt(rs[0] * rs[0] + rs[1] * rs[1] + rs[2] * rs[2]) >= mag_new_rate:
-                            x[_CAND_T] += h
-                        x[_CAND_N] += k_cand * (norm - x[_CAND_N])
-                        x[_CAND_D] += k_cand * (dip - x[_CAND_D])
-                    else:
-                        x[_CAND_N], x[_CAND_D], x[_CAND_T] = norm, dip, 0.0
-                    if x[_CAND_T] >= mag_new_t:
-                        x[_MREF_N], x[_MREF_D], x[_CAND_T] = x[_CAND_N], x[_CAND_D], 0.0
+                step = k_mag * _kwrap(target - x[_DELTA])
+                x[_DELTA] = _kwrap(x[_DELTA] + step)
+                if mb_tau > 0.0 and mag_bias and not rest:
+                    _rot(q6, 0.0, 0.0, step / h, v3, True)
+                    _bias_step(x, v3, h / mb_tau, bias_max)
         half = 0.5 * x[_DELTA]
         t4[0], t4[1], t4[2], t4[3] = math.cos(half), 0.0, 0.0, math.sin(half)
         _qmul(t4, q6, u4)

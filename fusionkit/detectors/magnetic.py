@@ -1,0 +1,168 @@
+"""Magnetic disturbance detector: is the magnetometer reading the earth's field?
+
+The earth's field has a fixed norm and a fixed dip (its angle below the horizontal) wherever the
+sensor points; a ferromagnetic object nearby, a magnet carried along or a motor change one or
+both. The detector learns a **reference** norm and dip as the mean over the first ``init_time``
+s of magnetometer samples, and calls a sample **disturbed** when its norm differs from the
+reference by more than ``norm_threshold`` (relative) or its dip by more than ``dip_threshold``.
+
+Recovery:
+
+- undisturbed samples keep the reference tracking slowly (time constant ``ref_tau``), so slow
+  changes (temperature, moving across a building) are followed;
+- a *new* field that stays consistent (within the same thresholds of a candidate that is
+  low-passed over 1 s) for ``new_time`` s **while the sensor turns** (rate at least
+  ``new_min_rate``) becomes the new reference. Turning is the test that tells a new homogeneous
+  field (constant in the earth frame: norm and dip stay put while the body turns) from a magnet
+  carried along with the body (its norm and dip seen against the vertical change as the body
+  turns, or it is never consistent).
+
+The core, :func:`magnetic_step`, works on scalars: the ``recommended`` and ``ekf`` filters call
+it with the norm and dip of the field seen in their own levelled frame (the dip needs a vertical;
+an estimated one is better than the accelerometer's under motion). As a plugin (in a pipeline or
+alone), :class:`MagneticDetector` takes the vertical from the accelerometer and the rate from the
+gyroscope. Criterion bit 0 (``disturbed``) sets ``Flag.MAG_DISTURBED``, and a pipeline then
+withholds that sample's magnetometer from its correctors.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import numpy as np
+
+from .._numba import njit
+from ..config import PluginConfig, param
+from ..protocols import Detector, DetectorKernel, Sample
+from ..types import Flag
+
+__all__ = ["MagneticDetector", "MagneticConfig", "magnetic_step", "MAG_SIZE", "MAG_COUNT", "MAG_USE", "MAG_DISTURBED",
+           "MAG_LEARNING", "field_norm_dip"]
+
+# state: reference norm, reference dip, samples learned, seconds learned, candidate norm, candidate dip,
+# seconds the candidate has been consistent while turning
+_RN, _RD, _N, _T, _CN, _CD, _CT = 0, 1, 2, 3, 4, 5, 6
+MAG_SIZE = 7
+MAG_COUNT = _N  #: index of the number of samples the reference was learned from
+#: what :func:`magnetic_step` says of a sample
+MAG_USE, MAG_DISTURBED, MAG_LEARNING = 0, 1, 2
+
+
+class MagneticConfig(PluginConfig):
+    norm_threshold: float = param(0.1, unit="-", description="disturbed when |norm - reference| > this x reference",
+                                  gt=0)
+    dip_threshold: float = param(math.radians(10.0), unit="rad", description="disturbed when |dip - reference| > this",
+                                 gt=0)
+    init_time: float = param(1.0, unit="s", description="the reference is the mean over the first samples this long",
+                             ge=0)
+    ref_tau: float = param(60.0, unit="s", description="the reference follows undisturbed fields this slowly", gt=0)
+    new_time: float = param(
+        20.0, unit="s", description="a new consistent field becomes the reference after this long while turning", gt=0)
+    new_min_rate: float = param(
+        math.radians(20.0), unit="rad/s", description="turning rate that counts towards new_time", ge=0)
+
+
+@njit
+def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, new_min_rate, ref_tau):
+    """The kernel of :meth:`MagneticDetector.reference_step` (same arguments and arithmetic, with
+    the parameters as scalars)."""
+    if s[_N] == 0.0 or s[_T] + 0.5 * dt < init_time:
+        s[_N] += 1.0
+        s[_T] += dt
+        s[_RN] += (norm - s[_RN]) / s[_N]
+        s[_RD] += (dip - s[_RD]) / s[_N]
+        return MAG_LEARNING
+    if abs(norm - s[_RN]) <= norm_th * s[_RN] and abs(dip - s[_RD]) <= dip_th:
+        k = 1.0 - math.exp(-dt / ref_tau)
+        s[_RN] += k * (norm - s[_RN])
+        s[_RD] += k * (dip - s[_RD])
+        return MAG_USE
+    # disturbed: is it a new homogeneous field (consistent while the sensor turns)?
+    if abs(norm - s[_CN]) < norm_th * s[_CN] and abs(dip - s[_CD]) < dip_th:
+        if rate >= new_min_rate:
+            s[_CT] += dt
+        k = 1.0 - math.exp(-dt)  # the candidate: low-passed over 1 s
+        s[_CN] += k * (norm - s[_CN])
+        s[_CD] += k * (dip - s[_CD])
+    else:
+        s[_CN], s[_CD], s[_CT] = norm, dip, 0.0
+    if s[_CT] >= new_time:
+        s[_RN], s[_RD], s[_CT] = s[_CN], s[_CD], 0.0
+    return MAG_DISTURBED
+
+
+def field_norm_dip(mag, up) -> tuple[float, float]:
+    """Norm of the field ``mag`` and its dip (rad, the angle above the plane normal to ``up``,
+    both in the same frame; ``up`` a unit vector)."""
+    norm = math.sqrt(float(mag @ mag))
+    return norm, math.asin(max(-1.0, min(1.0, float(mag @ up) / norm)))
+
+
+@njit
+def _magnetic_kernel(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
+    nm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+    na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    if nm == 0.0 or not math.isfinite(nm):  # no magnetometer sample
+        return 0
+    dip = math.asin(max(-1.0, min(1.0, (m0 * a0 + m1 * a1 + m2 * a2) / (nm * na))))
+    rate = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+    code = magnetic_step(s, nm, dip, rate, dt, p[0], p[1], p[2], p[3], p[4], p[5])
+    return 1 if code == MAG_DISTURBED else 0
+
+
+class MagneticDetector(Detector):
+    """Fires on samples whose field norm or dip departs from the learned earth field."""
+
+    name: ClassVar[str] = "magnetic"
+    Config = MagneticConfig
+    flag: ClassVar[Flag] = Flag.MAG_DISTURBED
+    criteria_names: ClassVar[tuple[str, ...]] = ("disturbed",)
+    source: ClassVar[str] = "fusionkit (state of the art: field norm and dip against a learned reference)"
+    summary: ClassVar[str] = "magnetic disturbance: field norm or dip off the learned reference; recovers on a new field"
+
+    def initial_state(self, dt: float) -> np.ndarray:
+        return np.zeros(MAG_SIZE)
+
+    def params(self) -> tuple[float, ...]:
+        c = self.config
+        return c.init_time, c.norm_threshold, c.dip_threshold, c.new_time, c.new_min_rate, c.ref_tau
+
+    def reference_step(self, s: np.ndarray, norm: float, dip: float, rate: float, dt: float) -> int:
+        """One magnetometer sample with field ``norm`` (any unit), ``dip`` (rad, any sign
+        convention used consistently) and turning ``rate`` (rad/s): updates the state ``s`` and
+        returns MAG_LEARNING (the reference is being learned; use the sample), MAG_USE or
+        MAG_DISTURBED. Elapsed times are compared with half a sample of margin (a split run
+        equals one run)."""
+        c = self.config
+        ref = s[_RN:_RD + 1]  # norm, dip
+        if s[_N] == 0.0 or s[_T] + 0.5 * dt < c.init_time:  # learning: the running mean
+            s[_N] += 1.0
+            s[_T] += dt
+            ref += (np.array([norm, dip]) - ref) / s[_N]
+            return MAG_LEARNING
+        if abs(norm - ref[0]) <= c.norm_threshold * ref[0] and abs(dip - ref[1]) <= c.dip_threshold:
+            ref += (1.0 - math.exp(-dt / c.ref_tau)) * (np.array([norm, dip]) - ref)  # follow slowly
+            return MAG_USE
+        cand = s[_CN:_CD + 1]
+        if abs(norm - cand[0]) < c.norm_threshold * cand[0] and abs(dip - cand[1]) < c.dip_threshold:
+            if rate >= c.new_min_rate:  # consistent while turning: fixed in the earth frame
+                s[_CT] += dt
+            cand += (1.0 - math.exp(-dt)) * (np.array([norm, dip]) - cand)
+        else:  # a different field: a new candidate
+            cand[:], s[_CT] = (norm, dip), 0.0
+        if s[_CT] >= c.new_time:
+            ref[:], s[_CT] = cand, 0.0
+        return MAG_DISTURBED
+
+    def step(self, state: np.ndarray, sample: Sample) -> int:
+        """The vertical from the accelerometer, the rate from the gyroscope; 0 without a
+        magnetometer sample."""
+        if sample.mag is None:
+            return 0
+        norm, dip = field_norm_dip(sample.mag, sample.acc / np.linalg.norm(sample.acc))
+        rate = float(np.linalg.norm(sample.gyr))
+        return 1 if self.reference_step(state, norm, dip, rate, sample.dt) == MAG_DISTURBED else 0
+
+    def kernel(self) -> DetectorKernel:
+        return DetectorKernel(_magnetic_kernel, np.array(self.params()))
