@@ -24,11 +24,11 @@ def qmul_into(p0, p1, p2, p3, q0, q1, q2, q3, out):
 @njit
 def qnormalize(q):
     """Normalise the first four entries of ``q`` in place (rotations.quat_normalize)."""
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    q[0] /= n
-    q[1] /= n
-    q[2] /= n
-    q[3] /= n
+    r = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])  # one division, not four
+    q[0] *= r
+    q[1] *= r
+    q[2] *= r
+    q[3] *= r
 
 
 @njit

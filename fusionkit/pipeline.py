@@ -18,8 +18,8 @@ Per sample, in this fixed order:
    magnetometer reading: their magnetometer correction is skipped.
 
 Two paths run this: the readable reference (:meth:`Pipeline._step`) and, when every plugin has
-a numba kernel (an estimator, at most one detector, no corrector yet), one compiled loop built
-by closing over the plugins' kernels (:func:`_build_loop`). ``Result.diagnostics["backend"]``
+a numba kernel (an estimator, at most one detector, at most one ``state``-mode corrector), one
+compiled loop built by closing over the plugins' kernels (:func:`_build_loop`). ``Result.diagnostics["backend"]``
 says which ran; the tests hold the two to 1e-9 on every sample.
 
 ``quat[k]`` is the orientation after sample ``k`` has been processed; sample ``k``'s rate is
@@ -179,13 +179,19 @@ class Pipeline(Filter):
 
     # -- the compiled path -----------------------------------------------------------------
     def _kernels(self):
-        if self.correctors or len(self.detectors) > 1:
+        if len(self.correctors) > 1 or len(self.detectors) > 1:
             return None
         ek = self.estimator.kernel()
         dk = self.detectors[0].kernel() if self.detectors else None
+        ck = None
+        if self.correctors:
+            cor = self.correctors[0]
+            ck = cor.kernel(self.estimator) if cor.mode == "state" else None
+            if ck is None:
+                return None
         if ek is None or (self.detectors and dk is None):
             return None
-        return ek, dk
+        return ek, dk, ck
 
     def _loop_params(self) -> np.ndarray:
         pp = np.zeros(3)
@@ -195,13 +201,15 @@ class Pipeline(Filter):
         return pp
 
     def _run_compiled(self, st, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop) -> None:
-        ek, dk = self._kernels()
-        loop = _get_loop(ek, dk)
+        ek, dk, ck = self._kernels()
+        loop = _get_loop(ek, dk, ck)
         det_state = st["det"][0] if dk is not None else np.zeros(1)
         det_params = dk.params if dk is not None else np.zeros(1)
         det_flag = float(self.detectors[0].flag) if dk is not None else 0.0
+        cor_state = st["cor"][0] if ck is not None else np.zeros(1)
+        cor_params = ck.params if ck is not None else np.zeros(1)
         x = st["x"]
-        loop(gyr, acc, mag, dt, has_mag, x, ek.params, det_state, det_params, det_flag,
+        loop(gyr, acc, mag, dt, has_mag, x, ek.params, det_state, det_params, det_flag, cor_state, cor_params,
              st["align"], self.aligner(st["dt"]).params(), self._loop_params(), out_q, out_f, out_c, start, stop)
 
     # -- public ----------------------------------------------------------------------------
@@ -300,22 +308,32 @@ def _no_detector(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
     return 0
 
 
-def _get_loop(ek, dk):
-    key = (ek.propagate, ek.to_quat, ek.from_quat, None if dk is None else dk.step)
+@njit
+def _no_corrector(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, p):
+    return -1
+
+
+def _get_loop(ek, dk, ck):
+    direct = ck is not None and ek.unit_quat
+    key = (ek.propagate, ek.to_quat, ek.from_quat, None if dk is None else dk.step, None if ck is None else ck.correct,
+           direct)
     if key not in _LOOPS:
         _LOOPS[key] = _build_loop(ek.propagate, ek.to_quat, ek.from_quat,
-                                  _no_detector if dk is None else dk.step)
+                                  _no_detector if dk is None else dk.step,
+                                  _no_corrector if ck is None else ck.correct, ck is not None, direct)
     return _LOOPS[key]
 
 
-def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step):
-    """One compiled loop over a recording for an estimator and a detector kernel
-    (the same steps as :meth:`Pipeline._step`)."""
+def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_correct, has_corrector, direct):
+    """One compiled loop over a recording for an estimator, a detector and a state-mode
+    corrector kernel (the same steps as :meth:`Pipeline._step`). ``direct``: the estimator's state
+    is its unit quaternion (``EstimatorKernel.unit_quat``), so the corrector works on it in place."""
     if not HAVE_NUMBA:  # pragma: no cover
         raise ConfigError("numba is not installed")
 
     @njit(cache=False)
-    def loop(gyr, acc, mag, dt, has_mag, x, ep, ds, dp, det_flag, al, ap, pp, out_q, out_f, out_c, start, stop):
+    def loop(gyr, acc, mag, dt, has_mag, x, ep, ds, dp, det_flag, cs, cp, al, ap, pp, out_q, out_f, out_c, start,
+             stop):
         q = np.empty(4)
         motion = int(pp[2])
         dflag = int(det_flag)
@@ -344,6 +362,19 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step):
             if gyr_ok:
                 est_propagate(x, g0 - al[BIAS] + al[_RCORR], g1 - al[BIAS + 1] + al[_RCORR + 1],
                               g2 - al[BIAS + 2] + al[_RCORR + 2], dt[k], ep)
+            if has_corrector:  # the magnetometer withheld on MAG_DISTURBED, as in the reference
+                gm_ok = mag_ok and (flags & 256) == 0
+                if direct:
+                    cf = cor_correct(x, x, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
+                                     m0, m1, m2, acc_ok, gm_ok, dt[k], cp)
+                else:
+                    est_to_quat(x, q)
+                    cf = cor_correct(x, q, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
+                                     m0, m1, m2, acc_ok, gm_ok, dt[k], cp)
+                    if cf >= 0:
+                        est_from_quat(q, x)
+                if cf > 0:
+                    flags |= cf
             est_to_quat(x, q)
             out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
             out_f[k] = flags

@@ -33,6 +33,7 @@ __all__ = [
     "Correction",
     "EstimatorKernel",
     "DetectorKernel",
+    "CorrectorKernel",
     "DetectionResult",
     "KINDS",
 ]
@@ -73,12 +74,15 @@ class Sample(NamedTuple):
 
 class EstimatorKernel(NamedTuple):
     """numba counterparts of an estimator: ``propagate(x, w0, w1, w2, dt, params)``,
-    ``to_quat(x, out4)``, ``from_quat(q4, x)``, and the parameter vector."""
+    ``to_quat(x, out4)``, ``from_quat(q4, x)``, and the parameter vector. ``unit_quat``: the
+    state *is* the unit quaternion after every propagation (a compiled pipeline then hands it to a
+    state-mode corrector directly, without the round trip through ``to_quat`` / ``from_quat``)."""
 
     propagate: Callable
     to_quat: Callable
     from_quat: Callable
     params: np.ndarray
+    unit_quat: bool = False
 
 
 class DetectorKernel(NamedTuple):
@@ -86,6 +90,17 @@ class DetectorKernel(NamedTuple):
     -> int`` (the criteria bitmask), and the parameter vector."""
 
     step: Callable
+    params: np.ndarray
+
+
+class CorrectorKernel(NamedTuple):
+    """numba counterpart of a ``mode == "state"`` corrector: ``correct(x, q, s, g0, g1, g2, a0, a1,
+    a2, m0, m1, m2, acc_ok, mag_ok, dt, params) -> int``. ``x`` is the estimator's state, ``q`` its
+    quaternion (``to_quat(x)``), ``s`` the corrector's state; it writes the corrected quaternion
+    into ``q`` and returns the flag bits, or -1 when it left the estimator alone (the pipeline then
+    does not write ``q`` back with ``from_quat``). ``g`` is the rate the estimator integrated."""
+
+    correct: Callable
     params: np.ndarray
 
 
@@ -144,6 +159,10 @@ class Corrector(Plugin, ABC):
     def correct(self, estimator: Estimator, est_state: np.ndarray, state: np.ndarray, sample: Sample,
                 flags: int) -> Correction:
         """Correct after the propagation of ``sample``; ``flags`` are the sample's flags so far."""
+
+    def kernel(self, estimator: Estimator) -> CorrectorKernel | None:
+        """The compiled counterpart for this estimator (``mode == "state"`` only), or None."""
+        return None
 
 
 @dataclass

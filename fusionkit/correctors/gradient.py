@@ -47,10 +47,11 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from .._numba import njit
 from ..config import PluginConfig, param
 from ..conventions import north_vector, up_vector
-from ..protocols import Correction, Corrector
 from ..errors import ConfigError
+from ..protocols import Correction, Corrector, CorrectorKernel
 from ..rotations import quat_conj, quat_mul, quat_normalize, quat_to_matrix
 
 __all__ = ["GradientCorrector", "objective", "jacobian_t_times"]
@@ -159,6 +160,8 @@ class GradientCorrector(Corrector):
                 raise ConfigError("gradient_at='previous' needs the poisson-quat estimator (first-order step)")
             if state[_HAVE]:
                 q_prev = state[_QPREV:_QPREV + 4]
+            elif not np.isfinite(sample.gyr).all():  # the first sample held (no propagation to undo)
+                q_prev = est_state[:4]
             else:  # the first sample: undo the first-order step q_w = q (x) p, p = [1, w dt/2]
                 p = np.concatenate([[1.0], 0.5 * sample.gyr * sample.dt])
                 q_prev = quat_mul(est_state[:4], quat_conj(p)) / (p @ p)
@@ -194,9 +197,136 @@ class GradientCorrector(Corrector):
                     step = base
             q = quat_normalize(q - step * grad / n)
             i += 1
+            if i == cap:  # the loop ends anyway: no stop test, no next gradient
+                break
             grad, res = self.gradient(q, acc_dir, mag_dir, state)  # the next step's gradient and the stop test
             if res < c.epsilon:
                 break
         estimator.set_quat(est_state, q)
         state[_QPREV:_QPREV + 4], state[_HAVE], state[_ITERS] = q, 1.0, i
         return Correction(None)
+
+    def kernel(self, estimator) -> CorrectorKernel | None:
+        c = self.config
+        if c.gradient_at == "previous" and estimator.name != "poisson-quat":
+            return None  # the reference raises the ConfigError
+        p = np.array([
+            c.beta, float(c.beta_scale == "rate"), float(c.iterations or 0), float(c.max_iterations), c.epsilon,
+            float(c.beta_mode == "variable"), c.beta_raise_above, c.beta_lower_below, c.beta_max,
+            float(c.gradient_at == "previous"), float(c.use_mag), c.raise_after,
+            c.static_gate if c.static_gate is not None else math.inf, c.gravity,
+        ])
+        return CorrectorKernel(_gradient_correct, p)
+
+
+# ---- the kernel (GradientCorrector.correct with scalars) --------------------------------------
+
+@njit
+def _jt_f(q0, q1, q2, q3, d0, d1, d2, s0, s1, s2):
+    """``(J^T f, |f|)`` as five scalars, ``f = R(q)^T d - s`` (:func:`objective`,
+    :func:`jacobian_t_times`)."""
+    w, x, y, z = q0, q1, q2, q3
+    f0 = (1 - 2 * (y * y + z * z)) * d0 + 2 * (x * y + w * z) * d1 + 2 * (x * z - w * y) * d2 - s0
+    f1 = 2 * (x * y - w * z) * d0 + (1 - 2 * (x * x + z * z)) * d1 + 2 * (y * z + w * x) * d2 - s1
+    f2 = 2 * (x * z + w * y) * d0 + 2 * (y * z - w * x) * d1 + (1 - 2 * (x * x + y * y)) * d2 - s2
+    j00, j01, j02, j03 = z * d1 - y * d2, y * d1 + z * d2, -2 * y * d0 + x * d1 - w * d2, -2 * z * d0 + w * d1 + x * d2
+    j10, j11, j12, j13 = -z * d0 + x * d2, y * d0 - 2 * x * d1 + w * d2, x * d0 + z * d2, -w * d0 - 2 * z * d1 + y * d2
+    j20, j21, j22, j23 = y * d0 - x * d1, z * d0 - w * d1 - 2 * x * d2, w * d0 + z * d1 - 2 * y * d2, x * d0 + y * d1
+    return (2.0 * (j00 * f0 + j10 * f1 + j20 * f2), 2.0 * (j01 * f0 + j11 * f1 + j21 * f2),
+            2.0 * (j02 * f0 + j12 * f1 + j22 * f2), 2.0 * (j03 * f0 + j13 * f1 + j23 * f2),
+            math.sqrt(f0 * f0 + f1 * f1 + f2 * f2))
+
+
+@njit
+def _gradient_at(q0, q1, q2, q3, s, ax, ay, az, has_m, mx, my, mz):
+    """:meth:`GradientCorrector.gradient`: ``(grad0..3, accelerometer residual)``."""
+    u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
+    e0, e1, e2, e3, res = _jt_f(q0, q1, q2, q3, u0, u1, u2, ax, ay, az)
+    if has_m:
+        w, x, y, z = q0, q1, q2, q3
+        h0 = (1 - 2 * (y * y + z * z)) * mx + 2 * (x * y - w * z) * my + 2 * (x * z + w * y) * mz
+        h1 = 2 * (x * y + w * z) * mx + (1 - 2 * (x * x + z * z)) * my + 2 * (y * z - w * x) * mz
+        h2 = 2 * (x * z - w * y) * mx + 2 * (y * z + w * x) * my + (1 - 2 * (x * x + y * y)) * mz
+        vert = h0 * u0 + h1 * u1 + h2 * u2
+        v0, v1, v2 = h0 - vert * u0, h1 - vert * u1, h2 - vert * u2
+        hor = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        k0, k1, k2, k3, _ = _jt_f(q0, q1, q2, q3, hor * s[_N] + vert * u0, hor * s[_N + 1] + vert * u1,
+                                  hor * s[_N + 2] + vert * u2, mx, my, mz)
+        e0, e1, e2, e3 = e0 + k0, e1 + k1, e2 + k2, e3 + k3
+    return e0, e1, e2, e3, res
+
+
+@njit
+def _gradient_correct(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, p):
+    beta, rate_scaled, iterations, max_iterations, epsilon = p[0], p[1] != 0.0, int(p[2]), int(p[3]), p[4]
+    variable, raise_above, lower_below, beta_max = p[5] != 0.0, p[6], p[7], p[8]
+    previous, use_mag, raise_after, static_gate, gravity = p[9] != 0.0, p[10] != 0.0, p[11], p[12], p[13]
+    if not acc_ok:
+        s[_QPREV], s[_QPREV + 1], s[_QPREV + 2], s[_QPREV + 3], s[_HAVE] = q[0], q[1], q[2], q[3], 1.0
+        return -1
+    # reciprocals: one division each instead of a chain of them (same values to ~1e-16)
+    na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    r = 1.0 / na
+    ax, ay, az = a0 * r, a1 * r, a2 * r
+    has_m = use_mag and mag_ok
+    mx = my = mz = 0.0
+    if has_m:
+        r = 1.0 / math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        mx, my, mz = m0 * r, m1 * r, m2 * r
+    step = beta * dt if rate_scaled else beta
+    base = step
+    if previous:  # Madgwick: gradient at the previous estimate, added to the raw propagation
+        if s[_HAVE] != 0.0:
+            p0, p1, p2, p3 = s[_QPREV], s[_QPREV + 1], s[_QPREV + 2], s[_QPREV + 3]
+        elif not (math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)):
+            p0, p1, p2, p3 = x[0], x[1], x[2], x[3]
+        else:  # undo the first-order step: q_prev = x (x) conj(p) / |p|^2, p = [1, w dt/2]
+            h0, h1, h2 = 0.5 * g0 * dt, 0.5 * g1 * dt, 0.5 * g2 * dt
+            pp = 1.0 + h0 * h0 + h1 * h1 + h2 * h2
+            w, xx, y, z = x[0], x[1], x[2], x[3]
+            p0 = (w + xx * h0 + y * h1 + z * h2) / pp
+            p1 = (-w * h0 + xx - y * h2 + z * h1) / pp
+            p2 = (-w * h1 + xx * h2 + y - z * h0) / pp
+            p3 = (-w * h2 - xx * h1 + y * h0 + z) / pp
+        e0, e1, e2, e3, _ = _gradient_at(p0, p1, p2, p3, s, ax, ay, az, has_m, mx, my, mz)
+        n = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3)
+        k = step / n if n > 0.0 else 0.0
+        q[0], q[1], q[2], q[3] = x[0] - k * e0, x[1] - k * e1, x[2] - k * e2, x[3] - k * e3
+        r = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        for i in range(4):
+            q[i] *= r
+            s[_QPREV + i] = q[i]
+        s[_HAVE], s[_ITERS] = 1.0, 1.0
+        return 0
+    e0, e1, e2, e3, res = _gradient_at(q[0], q[1], q[2], q[3], s, ax, ay, az, has_m, mx, my, mz)
+    s[_PERSIST] = s[_PERSIST] + dt if res > raise_above else 0.0
+    may_raise = s[_PERSIST] >= raise_after
+    static = abs(na / gravity - 1.0) <= static_gate
+    cap = iterations if iterations > 0 else max_iterations
+    if variable and not (may_raise and static):
+        cap = 1
+    i = 0
+    while i < cap:
+        n = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3)
+        if n == 0.0:
+            break
+        if variable and cap > 1:
+            if res > raise_above and may_raise:
+                step = min(max(0.5 * res, base), beta_max)
+            elif res < lower_below:
+                step = base
+        k = step / n
+        q[0], q[1], q[2], q[3] = q[0] - k * e0, q[1] - k * e1, q[2] - k * e2, q[3] - k * e3
+        r = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        for j in range(4):
+            q[j] *= r
+        i += 1
+        if i == cap:  # the loop ends anyway: no stop test, no next gradient
+            break
+        e0, e1, e2, e3, res = _gradient_at(q[0], q[1], q[2], q[3], s, ax, ay, az, has_m, mx, my, mz)
+        if res < epsilon:
+            break
+    for j in range(4):
+        s[_QPREV + j] = q[j]
+    s[_HAVE], s[_ITERS] = 1.0, float(i)
+    return 0

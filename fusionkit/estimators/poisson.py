@@ -76,7 +76,7 @@ class PoissonQuat(Estimator):
 
     def kernel(self) -> EstimatorKernel:
         p = np.array([_STEPS[self.config.step], float(self.config.normalize)])
-        return EstimatorKernel(_quat_propagate, _quat_to_quat, _quat_from_quat, p)
+        return EstimatorKernel(_quat_propagate, _quat_to_quat, _quat_from_quat, p, self.config.normalize)
 
 
 class PoissonDcmConfig(PluginConfig):
@@ -125,7 +125,15 @@ def _quat_propagate(x, w0, w1, w2, dt, p):
     x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
     qmul_into(x0, x1, x2, x3, d0, d1, d2, d3, x)
     if p[1] != 0.0:
-        qnormalize(x)
+        # |q (x) d| = |q| |d|: |d| comes from the gyro alone and 1/|q| (|q| = 1 to rounding: the
+        # state is normalised every step) is one Newton step, (3 - |q|^2) / 2, exact to O((|q|^2 - 1)^2).
+        # The same value as normalising the product, without a square root and a division on the
+        # sample-to-sample dependency chain (the kernel's speed is that chain's latency).
+        r = (1.5 - 0.5 * (x0 * x0 + x1 * x1 + x2 * x2 + x3 * x3)) / math.sqrt(d0 * d0 + d1 * d1 + d2 * d2 + d3 * d3)
+        x[0] *= r
+        x[1] *= r
+        x[2] *= r
+        x[3] *= r
 
 
 @njit
