@@ -92,6 +92,9 @@ class AlignmentConfig(PluginConfig):
         description="initial heading: 0 (source 000), from the mean magnetometer, or 'auto' (magnetometer when given)",
     )
     estimate_bias: bool = param(True, unit="-", description="subtract the mean gyro output of the window")
+    max_rate: float | None = param(
+        None, unit="rad/s", description="extension: a gyro sample above this ends the alignment before it (the "
+        "recording did not start still; that sample is navigated); None: off (source 000)", gt=0)
     initial_quat: tuple[float, float, float, float] = param(
         (1.0, 0.0, 0.0, 0.0), unit="-", description="start attitude for mode 'none' (w, x, y, z), body->frame"
     )

@@ -70,3 +70,27 @@ def test_kernel_matches_reference():
             kq(*f, *m, use_mag, q_frame, out)
             ref = alignment_quat(f, m if use_mag else None, frame)
             assert min(np.abs(out - ref).max(), np.abs(out + ref).max()) < 1e-12
+
+
+def test_max_rate_ends_the_alignment_when_the_recording_starts_moving():
+    """A recording that starts in motion: with max_rate the alignment ends at the first fast
+    sample (no bias from moving samples); source 000 (max_rate None) averages through it."""
+    import fusionkit as fk
+    from fusionkit import sim
+
+    deg = np.pi / 180
+    moving = sim.simulate([sim.Rest(0.5), sim.Rotate((0, 0, 1), 180 * deg, 2.0), sim.Rest(1.0)], rate=100.0, seed=1)
+    spec = {"estimator": "poisson-quat", "alignment": {"mode": "fixed", "duration": 3.0, "max_rate": 0.1}}
+    for backend in ("reference", "numba"):
+        res = fk.compose(spec).run(moving, backend=backend)
+        end = res.diagnostics["alignment_end_index"]
+        assert 58 <= end <= 65, end  # 0.5 s rest + about 11 samples until the smooth turn exceeds 0.1 rad/s
+        # the turn's first samples, still below max_rate, are averaged in: a little bias (0.006 rad/s)
+        assert np.linalg.norm(res.diagnostics["bias"]) < 0.01
+    plain = fk.compose({**spec, "alignment": {"mode": "fixed", "duration": 3.0}}).run(moving)
+    assert np.linalg.norm(plain.diagnostics["bias"]) > 0.3  # the mean of the turning gyro
+    n = 200  # turning at 1 rad/s from the first sample: that sample's tilt, no bias
+    first = fk.Recording(gyr=np.tile([1.0, 0.0, 0.0], (n, 1)), acc=np.tile([0.0, 0.0, 9.81], (n, 1)), rate=100.0)
+    res = fk.compose(spec).run(first)
+    assert res.diagnostics["alignment_end_index"] == 1
+    np.testing.assert_array_equal(res.diagnostics["bias"], 0.0)

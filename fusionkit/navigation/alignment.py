@@ -13,6 +13,8 @@ extension, the heading that points the horizontal magnetic field to north.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .._kernels import alignment_quat as _k_alignment_quat
@@ -98,6 +100,10 @@ class Aligner:
         if al[PHASE] != 0.0:
             return NAVIGATING, None
         mode = self.config.mode
+        if self.config.max_rate is not None and gyr_ok and np.linalg.norm(gyr) > self.config.max_rate:
+            if al[SEEN] > 0:  # moving: the alignment ends before this sample
+                return ALIGNED_BEFORE, self._finish(al)
+            gyr_ok = False  # moving from the first sample: its tilt (and heading), no bias
         if mode == "motion" and al[SEEN] >= self.n_align and motion:
             return ALIGNED_BEFORE, self._finish(al)
         if mode == "motion" and motion:
@@ -123,13 +129,14 @@ class Aligner:
         from ..conventions import change_frame
 
         c = self.config
-        ap = np.zeros(12)
+        ap = np.zeros(13)
         ap[0] = MODES[c.mode]
         ap[1] = self.n_align
         ap[2] = float(c.heading != "zero")
         ap[3:7] = change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "NUE", self.frame)
         ap[7:11] = c.initial_quat
         ap[11] = float(c.estimate_bias)
+        ap[12] = c.max_rate if c.max_rate is not None else np.inf
         return ap
 
 
@@ -162,6 +169,11 @@ def align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_o
     if al[PHASE] != 0.0:
         return NAVIGATING
     mode = ap[0]
+    if gyr_ok and math.sqrt(g0 * g0 + g1 * g1 + g2 * g2) > ap[12]:
+        if al[SEEN] > 0.0:
+            _k_finish(al, ap, q)
+            return ALIGNED_BEFORE
+        gyr_ok = False
     if mode == 2.0 and al[SEEN] >= ap[1] and motion:
         _k_finish(al, ap, q)
         return ALIGNED_BEFORE
