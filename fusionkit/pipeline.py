@@ -202,6 +202,8 @@ class Pipeline(Filter):
 
     def _run_compiled(self, st, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop) -> None:
         ek, dk, ck = self._kernels()
+        if dk is not None and not has_mag and self.detectors[0].needs_mag:
+            dk = None  # it cannot fire, and its reference step leaves its state alone
         loop = _get_loop(ek, dk, ck)
         det_state = st["det"][0] if dk is not None else np.zeros(1)
         det_params = dk.params if dk is not None else np.zeros(1)

@@ -197,6 +197,9 @@ class Detector(Plugin, ABC):
     kind: ClassVar[str] = "detector"
     flag: ClassVar[Flag] = Flag.NONE
     criteria_names: ClassVar[tuple[str, ...]] = ()
+    #: fires only on magnetometer samples (and leaves its state alone without them): a compiled
+    #: pipeline leaves it out on a recording without a magnetometer
+    needs_mag: ClassVar[bool] = False
 
     @abstractmethod
     def initial_state(self, dt: float) -> np.ndarray:

@@ -101,10 +101,12 @@ def field_norm_dip(mag, up) -> tuple[float, float]:
 
 @njit
 def _magnetic_kernel(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
-    nm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-    na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-    if nm == 0.0 or not math.isfinite(nm):  # no magnetometer sample
+    if m0 == 0.0 and m1 == 0.0 and m2 == 0.0:  # no magnetometer (a 6D recording) or no sample: nothing to do
         return 0
+    nm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+    if not math.isfinite(nm):  # an invalid sample
+        return 0
+    na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     dip = math.asin(max(-1.0, min(1.0, (m0 * a0 + m1 * a1 + m2 * a2) / (nm * na))))
     rate = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
     code = magnetic_step(s, nm, dip, rate, dt, p[0], p[1], p[2], p[3], p[4], p[5])
@@ -118,6 +120,7 @@ class MagneticDetector(Detector):
     Config = MagneticConfig
     flag: ClassVar[Flag] = Flag.MAG_DISTURBED
     criteria_names: ClassVar[tuple[str, ...]] = ("disturbed",)
+    needs_mag: ClassVar[bool] = True
     source: ClassVar[str] = "fusionkit (state of the art: field norm and dip against a learned reference)"
     summary: ClassVar[str] = "magnetic disturbance: field norm or dip off the learned reference; recovers on a new field"
 
