@@ -2,8 +2,10 @@
 
     python benchmarks/side_by_side.py [--data DIR] [--jobs 2] [--no-write]
 
-Every registered filter that can run without GNSS, with its default parameters, plus two reference rows: ahrs' Madgwick with the
-BROAD-tuned beta 0.12 and VQF in 6D (magnetometer-free). 9D filters are judged on total RMSE,
+Every registered filter that can run without GNSS, with its default parameters, plus reference
+rows: ahrs' Madgwick with the BROAD-tuned beta 0.12, VQF and ``recommended`` in 6D
+(magnetometer-free), and the documents' own modes of ``gradient-descent`` (the patent: no
+initial-rest alignment, no magnetic rejection) and ``channel-dcm`` (the paper: no bias). 9D filters are judged on total RMSE,
 6D ones on inclination RMSE (BROAD's rule). The tables replace the section between the
 ``side-by-side`` markers in BENCHMARKS.md; the plots go to docs/img/.
 """
@@ -27,7 +29,9 @@ def main() -> None:
     args = ap.parse_args()
     # every filter that can run on BROAD (a GNSS-aided one cannot: BROAD has no GNSS)
     names = [n for n in fk.available("filter") if n != "pipeline" and not fk.get(n, "filter").requires_gnss]
-    filters = names + [("ahrs-madgwick", {"gain": 0.12}), ("vqf", {"mode": "6D"})]
+    filters = names + [("ahrs-madgwick", {"gain": 0.12}), ("vqf", {"mode": "6D"}), ("recommended", {"use_mag": False}),
+                       ("gradient-descent", {"initial_rest": 0.0, "mag_rejection": False}),  # the patent
+                       ("channel-dcm", {"initial_rest": 0.0})]  # the paper
     res = bench(filters, args.data, jobs=args.jobs, progress=True)
     out = [f"Measured with `python benchmarks/side_by_side.py` on {machine()}; "
            f"{len(res.trials)} trials; throughput is one core per trial (median over trials).", "",
@@ -44,7 +48,8 @@ def main() -> None:
     plot_by_group(res, img / "broad_by_group.png")
     plot_throughput(res, img / "broad_throughput.png")
     trial = discover(args.data, ["04"])[0]
-    plot_error_over_time(["vqf", "imufusion", ("ahrs-madgwick", {"gain": 0.12}), "poisson"], trial,
+    plot_error_over_time(["recommended", "vqf", "ekf", "gradient-descent", "channel-dcm", ("ahrs-madgwick", {"gain": 0.12})],
+                         trial,
                          img / "broad_error_04.png")
     if not args.no_write:
         path = REPO / "BENCHMARKS.md"

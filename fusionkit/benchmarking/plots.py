@@ -65,8 +65,10 @@ def plot_by_group(result, path, metric: str = "score") -> Path:
     x = np.arange(len(groups))
     w = 0.8 / max(1, len(filters))
     fig, ax = plt.subplots(figsize=(max(8, len(groups) * 0.9) + 2.5, 4.5))
+    # one colour per filter: tab10 repeats after ten, tab20 (pairs of shades) after twenty
+    cmap = plt.get_cmap("tab10" if len(filters) <= 10 else "tab20")
     for i, f in enumerate(filters):
-        ax.bar(x + i * w, [bg.get(f, {}).get(g, np.nan) for g in groups], w, label=f)
+        ax.bar(x + i * w, [bg.get(f, {}).get(g, np.nan) for g in groups], w, label=f, color=cmap(i % cmap.N))
     ax.set_xticks(x + 0.4 - w / 2)
     ax.set_xticklabels(groups, rotation=35, ha="right")
     ax.set_ylabel("RMSE [deg] (9D: total, 6D: inclination)")
