@@ -37,7 +37,7 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   body) becomes the new reference.
 - **acceleration rejection** (``acc_gate``, off by default): samples whose ``| |a| - g |``
   exceeds the gate are left out of the low-pass (flag ACC_REJECTED). Measured on BROAD it costs
-  accuracy (0.80 -> 2.9 deg inclination at 4 m/s^2): leaving out the large samples makes the
+  accuracy (0.79 -> 6.2 deg 6D inclination at 4 m/s^2): leaving out the large samples makes the
   linear accelerations' average nonzero, which is exactly what the I-frame low-pass relies on.
 - **fast start** (``fast_start``): for the first ``tau_acc`` s the low-pass is replaced by the
   running mean of the samples so far (from the first sample on, no start transient), and the
