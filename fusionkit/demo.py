@@ -82,17 +82,23 @@ def plot_errors(curves, path) -> bool:
     except ImportError:
         return False
     recs = sorted({r for _, r in curves})
-    fig, axes = plt.subplots(len(recs), 1, figsize=(9, 2.6 * len(recs)), sharex=False, squeeze=False)
+    names = sorted({f for f, _ in curves})
+    # one colour per filter, the same in every panel; tab10 repeats after ten filters
+    cmap = plt.get_cmap("tab10" if len(names) <= 10 else "tab20")
+    colour = {f: cmap(i % cmap.N) for i, f in enumerate(names)}
+    fig, axes = plt.subplots(len(recs), 1, figsize=(11, 2.6 * len(recs)), sharex=False, squeeze=False)
     for ax, rec in zip(axes[:, 0], recs):
         for (f, r), (t, e) in sorted(curves.items()):
             if r == rec:
-                ax.plot(t, e, label=f, lw=1)
+                ax.plot(t, e, label=f, lw=1, color=colour[f])
         ax.set_title(rec)
         ax.set_ylabel("inclination error [deg]")
+        ax.set_yscale("symlog", linthresh=0.1)  # small errors of good filters and large ones of poor ones
         ax.grid(alpha=0.3)
-        ax.legend(loc="upper left", fontsize=8)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.tight_layout()
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="center left", bbox_to_anchor=(0.83, 0.5), fontsize=8)  # one legend, outside
+    fig.tight_layout(rect=(0, 0, 0.82, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return True
