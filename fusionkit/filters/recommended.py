@@ -44,6 +44,12 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   heading and field reference are the mean over the first ``magnetic.init_time`` s. Off: the
   low-pass and the heading start from the first sample.
 
+- **output lead** (``output_lead``, 0 by default): the output is predicted ahead by the gyro rate,
+  ``q (x) exp((w - bias) lead)``, to compensate a gyroscope that is late against the time base
+  (its filter's group delay); the state is not changed. On BROAD the IMU runs half a sample to a
+  sample behind the optical reference on 15 of 16 trials (BENCHMARKS.md); a lead there is a
+  property of that hardware, not a default for every sensor.
+
 Bad input: a non-finite gyroscope sample holds the state (GYR_INVALID); a non-finite or all-zero
 accelerometer (free fall, dropout) or magnetometer sample skips its correction (ACC_INVALID /
 MAG_INVALID); axes at ``gyr_range`` / ``acc_range`` are flagged SATURATED. The state cannot
@@ -106,6 +112,10 @@ class RecommendedConfig(FilterConfig):
         None, unit="m/s^2", description="leave out samples with | |a| - gravity | above this; None: off "
         "(costs accuracy on BROAD, see the module docs)", gt=0)
     gravity: float = param(9.81, unit="m/s^2", description="g for acc_gate", gt=0)
+    output_lead: float = param(
+        0.0, unit="s", description="output the orientation this far ahead, q (x) exp((w - bias) lead): compensates a "
+        "known delay of the gyroscope against the time base (its filter's group delay; on BROAD one sample, see "
+        "BENCHMARKS.md); the state is not changed. 0: the estimate itself", ge=0)
 
 
 def lowpass_coefficients(tau: float, dt: float) -> tuple[float, float, float, float, float]:
@@ -168,7 +178,7 @@ class RecommendedFilter(StepFilter):
             c.motion_bias_tau if c.motion_bias_tau is not None else 0.0, c.bias_max, float(c.mag_rejection),
             *self.magnetic.params(), c.acc_gate if c.acc_gate is not None else math.inf, c.gravity,
             c.gyr_range if c.gyr_range is not None else math.inf,
-            c.acc_range if c.acc_range is not None else math.inf, float(c.use_mag), float(c.mag_bias),
+            c.acc_range if c.acc_range is not None else math.inf, float(c.use_mag), float(c.mag_bias), c.output_lead,
         ])
 
     # -- the readable reference --------------------------------------------------------------
@@ -208,6 +218,8 @@ class RecommendedFilter(StepFilter):
             flags |= self._heading(x, quat_to_matrix(q6) @ mag, q6, dt, rest)
         half = 0.5 * x[_DELTA]
         q = quat_mul(np.array([math.cos(half), 0.0, 0.0, math.sin(half)]), q6)
+        if c.output_lead > 0.0 and gyr_ok:  # a prediction for the output only
+            q = quat_mul(q, quat_from_rotvec((gyr - bias) * c.output_lead))
         return quat_mul(self.qf, q), flags
 
     def _tilt(self, x, a_i, dt, rest) -> None:
@@ -316,7 +328,7 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
     rest_bias, rest_bias_tau, mb_tau, bias_max = p[8] != 0.0, p[9], p[10], p[11]
     mag_rej = p[12] != 0.0
     m_init, m_nth, m_dth, m_new_t, m_new_rate, m_ref_tau = p[13], p[14], p[15], p[16], p[17], p[18]
-    acc_gate, grav, gyr_range, acc_range, mag_bias = p[19], p[20], p[21], p[22], p[24] != 0.0
+    acc_gate, grav, gyr_range, acc_range, mag_bias, lead = p[19], p[20], p[21], p[22], p[24] != 0.0, p[25]
     ms = x[_MAG:_MAG + MAG_SIZE]
     rs = x[_REST:_REST + REST_SIZE]
     qg = x[_QG:_QG + 4]
@@ -325,6 +337,7 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
     u4 = np.empty(4)
     q6 = np.empty(4)
     v3 = np.empty(3)
+    l4 = np.empty(4)
     last_dt = -1.0
     b0 = b1 = b2 = a1 = a2 = k_rb = k_mag = 0.0
     for k in range(gyr.shape[0]):
@@ -426,6 +439,13 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
         half = 0.5 * x[_DELTA]
         t4[0], t4[1], t4[2], t4[3] = math.cos(half), 0.0, 0.0, math.sin(half)
         _qmul(t4, q6, u4)
+        if lead > 0.0 and gyr_ok:  # a prediction for the output only
+            r0, r1, r2 = (g0 - x[_BIAS]) * lead, (g1 - x[_BIAS + 1]) * lead, (g2 - x[_BIAS + 2]) * lead
+            ang = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+            s = 0.5 - ang * ang / 48.0 if ang < 1e-8 else math.sin(0.5 * ang) / ang
+            l4[0], l4[1], l4[2], l4[3] = math.cos(0.5 * ang), s * r0, s * r1, s * r2
+            _qmul(u4, l4, q6)
+            u4[0], u4[1], u4[2], u4[3] = q6[0], q6[1], q6[2], q6[3]
         _qmul(qf, u4, t4)
         out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = t4[0], t4[1], t4[2], t4[3]
         out_f[k] = flags
