@@ -80,3 +80,18 @@ def test_nan_raises_by_default_naming_the_sample(damaged, name):
         fk.make(name).run(dataclasses.replace(bad, acc=np.where(np.isnan(bad.acc), np.nan, bad.acc + 0.0)))
     with pytest.raises(fk.InputError, match="not finite"):
         fk.make(name).update([np.nan, 0.0, 0.0], [0.0, 0.0, 9.81], None, dt=0.01)
+
+
+@pytest.mark.parametrize("name", FILTERS)
+def test_degenerate_poses_and_fields(name):
+    """Starting with the body's y axis vertical and no magnetometer, or with a field along the
+    vertical (no heading in it): finite, unit quaternions on every backend."""
+    n = 300
+    up_y = fk.Recording(gyr=np.zeros((n, 3)) + 0.001, acc=np.tile([0.0, 9.81, 0.0], (n, 1)), rate=100.0)
+    vertical_field = fk.Recording(gyr=np.zeros((n, 3)) + 0.001, acc=np.tile([0.0, 0.0, 9.81], (n, 1)),
+                                  mag=np.tile([0.0, 0.0, -45.0], (n, 1)), rate=100.0)
+    for rec in (up_y, vertical_field):
+        for backend in backends(name):
+            q = fk.make(name).run(rec, backend=backend).quat
+            assert np.isfinite(q).all(), (name, backend)
+            np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-9)

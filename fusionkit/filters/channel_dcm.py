@@ -28,7 +28,8 @@ the gyro over the first seconds of a recording that starts at rest and removes i
 above ``rest_rate`` ends that early; the attitude is held meanwhile, flag ALIGNING). On BROAD
 it is what brings the 9D error from 7.2 to 4.3 deg (BENCHMARKS.md).
 The start attitude comes from the first valid sample (TRIAD: ``d3`` from the accelerometer,
-``d2`` from the field; heading zero without one).
+``d2`` from the field; without a field, or with one along the vertical, heading zero: body y
+north, or body x when y is near vertical).
 """
 
 from __future__ import annotations
@@ -101,8 +102,11 @@ class ChannelDcmFilter(StepFilter):
         if not x[_START]:
             if acc_ok:  # TRIAD from the first valid sample
                 d3 = acc / np.linalg.norm(acc)
-                ref = mag if mag_ok else np.array([0.0, 1.0, 0.0])  # heading zero: body y north
+                ref = mag / np.linalg.norm(mag) if mag_ok else np.zeros(3)
                 d2 = ref - (ref @ d3) * d3
+                if np.linalg.norm(d2) < 1e-6:  # no field, or one along the vertical: heading zero,
+                    ref = np.array([0.0, 1.0, 0.0] if abs(d3[1]) < 0.9 else [1.0, 0.0, 0.0])  # body y (x) north
+                    d2 = ref - (ref @ d3) * d3
                 d[:, 2], d[:, 1] = d3, d2 / np.linalg.norm(d2)
                 d[:, 0] = np.cross(d[:, 1], d[:, 2])
                 x[_START] = 1.0
@@ -134,8 +138,11 @@ class ChannelDcmFilter(StepFilter):
                 x[_H] = math.sqrt(max(0.0, 1.0 - x[_Z] ** 2))
                 x[_HZ] = 1.0
             mh = m - (m @ d[:, 2]) * d[:, 2]
-            mh /= np.linalg.norm(mh)
-            if method == "vectors":
+            nh = np.linalg.norm(mh)
+            mh = mh / nh if nh > 1e-6 else None  # a field along the vertical: no heading in it
+            if mh is None:
+                pass
+            elif method == "vectors":
                 d[:] = rodrigues(c.k_mag * dt * np.cross(d[:, 1], mh)) @ d
             elif method == "columns":
                 d[:, 1] += c.k_mag * dt * (mh - d[:, 1])
@@ -197,10 +204,18 @@ def _dcm_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             if acc_ok:
                 na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
                 u0, u1, u2 = a0 / na, a1 / na, a2 / na
-                r0, r1, r2 = (m0, m1, m2) if mag_ok else (0.0, 1.0, 0.0)
+                r0 = r1 = r2 = 0.0
+                if mag_ok:
+                    nm = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+                    r0, r1, r2 = m0 / nm, m1 / nm, m2 / nm
                 dp = r0 * u0 + r1 * u1 + r2 * u2
                 v0, v1, v2 = r0 - dp * u0, r1 - dp * u1, r2 - dp * u2
                 nv = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+                if nv < 1e-6:  # no field, or one along the vertical: body y north (body x if y is vertical)
+                    r0, r1, r2 = (0.0, 1.0, 0.0) if abs(u1) < 0.9 else (1.0, 0.0, 0.0)
+                    dp = r0 * u0 + r1 * u1 + r2 * u2
+                    v0, v1, v2 = r0 - dp * u0, r1 - dp * u1, r2 - dp * u2
+                    nv = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
                 v0, v1, v2 = v0 / nv, v1 / nv, v2 / nv
                 d[2], d[5], d[8] = u0, u1, u2
                 d[1], d[4], d[7] = v0, v1, v2
@@ -242,8 +257,11 @@ def _dcm_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
                     x[_HZ] = 1.0
                 h0, h1, h2 = u0 - dz * d[2], u1 - dz * d[5], u2 - dz * d[8]
                 nh = math.sqrt(h0 * h0 + h1 * h1 + h2 * h2)
-                h0, h1, h2 = h0 / nh, h1 / nh, h2 / nh
-                if method == 1:
+                if nh > 1e-6:
+                    h0, h1, h2 = h0 / nh, h1 / nh, h2 / nh
+                if nh <= 1e-6:  # a field along the vertical: no heading in it
+                    pass
+                elif method == 1:
                     kk = k_mag * h
                     _rotate(d, kk * (d[4] * h2 - d[7] * h1), kk * (d[7] * h0 - d[1] * h2),
                             kk * (d[1] * h1 - d[4] * h0), rm, tmp)

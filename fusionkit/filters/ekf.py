@@ -241,6 +241,8 @@ class EkfFilter(StepFilter):
                           and c.mag_rejection)
             if not mag_ok:
                 flags |= Flag.MAG_DISTURBED
+            elif m_e[0] ** 2 + m_e[1] ** 2 < 1e-12 * norm ** 2:  # a vertical field: no heading in it
+                mag_ok = False
         if mag_ok:
             psi = math.atan2(-m_e[0], m_e[1])
             hj = np.zeros((1, 6))
