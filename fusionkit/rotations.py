@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
+    "wrap_angle",
     "quat_mul",
     "quat_conj",
     "quat_normalize",
@@ -182,3 +183,12 @@ def orthonormalize(c):
     """One symmetric (Bjorck) step ``C <- C - C (C^T C - I) / 2`` towards the nearest rotation."""
     c = np.asarray(c, dtype=float)
     return c - 0.5 * c @ (np.swapaxes(c, -1, -2) @ c - np.eye(3))
+
+
+def wrap_angle(a: float) -> float:
+    """A scalar angle (rad) in (-pi, pi]."""
+    while a > np.pi:
+        a -= 2.0 * np.pi
+    while a <= -np.pi:
+        a += 2.0 * np.pi
+    return a

@@ -39,7 +39,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from .._kernels import dcm_to_quat, qmul_into, rodrigues_into, validity_flags
+from .._kernels import dcm_to_quat, matmul3_into, qmul_into, rodrigues_into, validity_flags
 from .._numba import njit
 from ..config import FilterConfig, param
 from ..rotations import matrix_to_quat, quat_mul, rodrigues
@@ -175,9 +175,7 @@ def _col_normalize(d, j):
 def _rotate(d, r0, r1, r2, rm, tmp):
     """``D <- exp([r x]) D``."""
     rodrigues_into(r0, r1, r2, rm)
-    for i in range(3):
-        for j in range(3):
-            tmp[3 * i + j] = rm[3 * i] * d[j] + rm[3 * i + 1] * d[3 + j] + rm[3 * i + 2] * d[6 + j]
+    matmul3_into(rm, d, tmp)
     for i in range(9):
         d[i] = tmp[i]
 

@@ -63,7 +63,7 @@ from ..config import FilterConfig, param
 from ..detectors.magnetic import MAG_DISTURBED, MAG_SIZE, MagneticConfig, MagneticDetector, field_norm_dip
 from ..errors import PluginError
 from ..navigation.alignment import alignment_quat
-from ..rotations import quat_to_matrix
+from ..rotations import quat_to_matrix, wrap_angle as _wrap
 from ..types import Flag, sample_validity
 from ._step_filter import StepFilter
 
@@ -108,10 +108,6 @@ class EkfConfig(FilterConfig):
     initial_tilt_std: float = param(0.05, unit="rad", description="initial roll/pitch std", gt=0)
     initial_heading_std: float = param(0.3, unit="rad", description="initial heading std", gt=0)
     initial_bias_std: float = param(0.01, unit="rad/s", description="initial gyro bias std", gt=0)
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 class EkfFilter(StepFilter):

@@ -43,7 +43,6 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   running mean of the samples so far (from the first sample on, no start transient), and the
   heading and field reference are the mean over the first ``magnetic.init_time`` s. Off: the
   low-pass and the heading start from the first sample.
-
 - **output lead** (``output_lead``, 0 by default): the output is predicted ahead by the gyro rate,
   ``q (x) exp((w - bias) lead)``, to compensate a gyroscope that is late against the time base
   (its filter's group delay); the state is not changed. On BROAD the IMU runs half a sample to a
@@ -67,14 +66,14 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .._kernels import validity_flags
+from .._kernels import rotvec_quat, validity_flags
 from .._numba import njit
 from ..config import FilterConfig, param
 from ..detectors.magnetic import (MAG_COUNT, MAG_DISTURBED, MAG_LEARNING, MAG_SIZE, MagneticConfig,
                                   MagneticDetector, field_norm_dip, magnetic_step)
 from ..detectors.rest import REST_SIZE, RestConfig, RestDetector, rest_step
 from ..protocols import Sample
-from ..rotations import quat_from_rotvec, quat_mul, quat_normalize, quat_to_matrix
+from ..rotations import quat_from_rotvec, quat_mul, quat_normalize, quat_to_matrix, wrap_angle
 from ..types import Flag, sample_validity
 from ._step_filter import StepFilter
 
@@ -130,16 +129,8 @@ def lowpass_coefficients(tau: float, dt: float) -> tuple[float, float, float, fl
 _lp_coeffs = njit(lowpass_coefficients)
 
 
-def _wrap(a: float) -> float:
-    """``a`` in (-pi, pi]."""
-    while a > math.pi:
-        a -= 2.0 * math.pi
-    while a <= -math.pi:
-        a += 2.0 * math.pi
-    return a
-
-
-_kwrap = njit(_wrap)
+_wrap = wrap_angle
+_kwrap = njit(wrap_angle)
 
 
 class RecommendedFilter(StepFilter):
@@ -366,9 +357,7 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             r0 = (g0 - x[_BIAS]) * h
             r1 = (g1 - x[_BIAS + 1]) * h
             r2 = (g2 - x[_BIAS + 2]) * h
-            ang = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-            s = 0.5 - ang * ang / 48.0 if ang < 1e-8 else math.sin(0.5 * ang) / ang
-            t4[0], t4[1], t4[2], t4[3] = math.cos(0.5 * ang), s * r0, s * r1, s * r2
+            rotvec_quat(r0, r1, r2, t4)
             _qmul(qg, t4, u4)
             n = math.sqrt(u4[0] * u4[0] + u4[1] * u4[1] + u4[2] * u4[2] + u4[3] * u4[3])
             for i in range(4):
@@ -441,9 +430,7 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
         _qmul(t4, q6, u4)
         if lead > 0.0 and gyr_ok:  # a prediction for the output only
             r0, r1, r2 = (g0 - x[_BIAS]) * lead, (g1 - x[_BIAS + 1]) * lead, (g2 - x[_BIAS + 2]) * lead
-            ang = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-            s = 0.5 - ang * ang / 48.0 if ang < 1e-8 else math.sin(0.5 * ang) / ang
-            l4[0], l4[1], l4[2], l4[3] = math.cos(0.5 * ang), s * r0, s * r1, s * r2
+            rotvec_quat(r0, r1, r2, l4)
             _qmul(u4, l4, q6)
             u4[0], u4[1], u4[2], u4[3] = q6[0], q6[1], q6[2], q6[3]
         _qmul(qf, u4, t4)
