@@ -15,10 +15,11 @@ Per sample, in this fixed order:
 4. **propagation**: ``estimator.propagate(gyr - bias + correction_rate, dt)``.
 5. **correctors**, in order; rate correctors' outputs are summed into the next correction rate.
    A sample flagged MAG_DISTURBED (by the ``magnetic`` detector) reaches them without its
-   magnetometer reading: their magnetometer correction is skipped.
+   magnetometer reading, one flagged ACC_REJECTED (by the ``acceleration`` detector) without its
+   accelerometer reading: that correction is skipped.
 
 Two paths run this: the readable reference (:meth:`Pipeline._step`) and, when every plugin has
-a numba kernel (an estimator, at most one detector, at most one ``state``-mode corrector), one
+a numba kernel (an estimator, any detectors, at most one ``state``-mode corrector), one
 compiled loop built by closing over the plugins' kernels (:func:`_build_loop`). ``Result.diagnostics["backend"]``
 says which ran; the tests hold the two to 1e-9 on every sample.
 
@@ -38,12 +39,22 @@ import numpy as np
 from ._kernels import validity_flags
 from ._numba import HAVE_NUMBA, njit, resolve_backend
 from .config import PipelineConfig
+from .detectors.gnss_gap import gnss_sample_rows
 from .errors import ConfigError, InputError
 from .navigation.alignment import (
-    ALIGN_SIZE, ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, DISTURBED, END, PHASE, SEEN, Aligner, align_step,
+    ALIGN_SIZE,
+    ALIGNED_BEFORE,
+    ALIGNED_NOW,
+    ALIGNING,
+    BIAS,
+    DISTURBED,
+    END,
+    PHASE,
+    SEEN,
+    Aligner,
+    align_step,
 )
-from .detectors.gnss_gap import gnss_sample_rows
-from .protocols import Detector, DetectionResult, Filter, Sample
+from .protocols import DetectionResult, Detector, Filter, Sample
 from .registry import Registry, default_registry
 from .types import Flag, Recording, Result, sample_validity
 from .validation import as_vector, check_finite_all, check_positive
@@ -80,6 +91,10 @@ class Pipeline(Filter):
                 "alignment mode 'motion' ends on a MOTION flag, but no detector sets it: add the "
                 "'motion' detector or use mode 'fixed'"
             )
+        for c in self.correctors:
+            if c.requires_flag and not any(d.flag & c.requires_flag for d in self.detectors):
+                raise ConfigError(f"corrector {c.name!r} acts on {c.requires_flag.name} samples, but no detector "
+                                  f"sets that flag: add one (e.g. 'rest' for REST)")
         self._stream: dict[str, Any] | None = None
         self.last_flags = 0
 
@@ -169,6 +184,8 @@ class Pipeline(Filter):
             sample = sample._replace(gyr=gyr - al[BIAS:BIAS + 3])
             if flags & Flag.MAG_DISTURBED:
                 sample = sample._replace(mag=None)
+            if flags & Flag.ACC_REJECTED:
+                sample = sample._replace(acc=None)
             for i, cor in enumerate(self.correctors):
                 out = cor.correct(self.estimator, st["x"], st["cor"][i], sample, flags)
                 flags |= out.flags
@@ -179,19 +196,19 @@ class Pipeline(Filter):
 
     # -- the compiled path -----------------------------------------------------------------
     def _kernels(self):
-        if len(self.correctors) > 1 or len(self.detectors) > 1:
+        if len(self.correctors) > 1:
             return None
         ek = self.estimator.kernel()
-        dk = self.detectors[0].kernel() if self.detectors else None
+        dks = [d.kernel() for d in self.detectors]
         ck = None
         if self.correctors:
             cor = self.correctors[0]
             ck = cor.kernel(self.estimator) if cor.mode == "state" else None
             if ck is None:
                 return None
-        if ek is None or (self.detectors and dk is None):
+        if ek is None or any(dk is None for dk in dks):
             return None
-        return ek, dk, ck
+        return ek, dks, ck
 
     def _loop_params(self) -> np.ndarray:
         pp = np.zeros(3)
@@ -201,18 +218,24 @@ class Pipeline(Filter):
         return pp
 
     def _run_compiled(self, st, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop) -> None:
-        ek, dk, ck = self._kernels()
-        if dk is not None and not has_mag and self.detectors[0].needs_mag:
-            dk = None  # it cannot fire, and its reference step leaves its state alone
-        loop = _get_loop(ek, dk, ck)
-        det_state = st["det"][0] if dk is not None else np.zeros(1)
-        det_params = dk.params if dk is not None else np.zeros(1)
-        det_flag = float(self.detectors[0].flag) if dk is not None else 0.0
+        ek, dks, ck = self._kernels()
+        # a magnetometer-only detector cannot fire without one, and its reference step leaves its state alone
+        used = [i for i, d in enumerate(self.detectors) if has_mag or not d.needs_mag]
+        step = _get_detectors([(dks[i].step, int(self.detectors[i].flag), st["det"][i].size, dks[i].params.size,
+                                i == 0) for i in used])
+        det_state = np.concatenate([st["det"][i] for i in used] + [np.zeros(1)])
+        det_params = np.concatenate([dks[i].params for i in used] + [np.zeros(1)])
+        loop = _get_loop(ek, step, ck)
         cor_state = st["cor"][0] if ck is not None else np.zeros(1)
         cor_params = ck.params if ck is not None else np.zeros(1)
         x = st["x"]
-        loop(gyr, acc, mag, dt, has_mag, x, ek.params, det_state, det_params, det_flag, cor_state, cor_params,
+        loop(gyr, acc, mag, dt, has_mag, x, ek.params, det_state, det_params, cor_state, cor_params,
              st["align"], self.aligner(st["dt"]).params(), self._loop_params(), out_q, out_f, out_c, start, stop)
+        o = 0
+        for i in used:  # the detectors' states back from the concatenation
+            n = st["det"][i].size
+            st["det"][i][:] = det_state[o:o + n]
+            o += n
 
     # -- public ----------------------------------------------------------------------------
     def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
@@ -307,7 +330,7 @@ _LOOPS: dict[tuple, Any] = {}
 
 @njit
 def _no_detector(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
-    return 0
+    return 0, 0
 
 
 @njit
@@ -315,30 +338,58 @@ def _no_corrector(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, d
     return -1
 
 
-def _get_loop(ek, dk, ck):
+_DETECTOR_CHAINS: dict[tuple, Any] = {}
+
+
+def _get_detectors(specs):
+    """One compiled step for several detector kernels, ``step(s, g0, g1, g2, a0, a1, a2, m0, m1, m2,
+    dt, p) -> (criteria of detector 0, flags)``, over their states and parameters concatenated in
+    order. ``specs``: ``(kernel step, flag, state size, params size, is detector 0)`` each."""
+    key = tuple(specs)
+    if key not in _DETECTOR_CHAINS:
+        step = _no_detector
+        so = po = 0
+        for kstep, flag, sn, pn, first in specs:
+            step = _chain_detector(step, kstep, flag, so, sn, po, pn, first)
+            so, po = so + sn, po + pn
+        _DETECTOR_CHAINS[key] = step
+    return _DETECTOR_CHAINS[key]
+
+
+def _chain_detector(before, kstep, flag, so, sn, po, pn, first):
+    """``before`` followed by one detector kernel on ``s[so:so + sn]``, ``p[po:po + pn]``."""
+
+    @njit(cache=False)
+    def step(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
+        c0, flags = before(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p)
+        c = kstep(s[so:so + sn], g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p[po:po + pn])
+        if c != 0:
+            flags |= flag
+        return (c if first else c0), flags
+
+    return step
+
+
+def _get_loop(ek, det_step, ck):
     direct = ck is not None and ek.unit_quat
-    key = (ek.propagate, ek.to_quat, ek.from_quat, None if dk is None else dk.step, None if ck is None else ck.correct,
-           direct)
+    key = (ek.propagate, ek.to_quat, ek.from_quat, det_step, None if ck is None else ck.correct, direct)
     if key not in _LOOPS:
-        _LOOPS[key] = _build_loop(ek.propagate, ek.to_quat, ek.from_quat,
-                                  _no_detector if dk is None else dk.step,
+        _LOOPS[key] = _build_loop(ek.propagate, ek.to_quat, ek.from_quat, det_step,
                                   _no_corrector if ck is None else ck.correct, ck is not None, direct)
     return _LOOPS[key]
 
 
 def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_correct, has_corrector, direct):
-    """One compiled loop over a recording for an estimator, a detector and a state-mode
-    corrector kernel (the same steps as :meth:`Pipeline._step`). ``direct``: the estimator's state
+    """One compiled loop over a recording for an estimator, the detectors (one chained step, see
+    :func:`_get_detectors`) and a state-mode corrector kernel (the same steps as :meth:`Pipeline._step`). ``direct``: the estimator's state
     is its unit quaternion (``EstimatorKernel.unit_quat``), so the corrector works on it in place."""
     if not HAVE_NUMBA:  # pragma: no cover
         raise ConfigError("numba is not installed")
 
     @njit(cache=False)
-    def loop(gyr, acc, mag, dt, has_mag, x, ep, ds, dp, det_flag, cs, cp, al, ap, pp, out_q, out_f, out_c, start,
-             stop):
+    def loop(gyr, acc, mag, dt, has_mag, x, ep, ds, dp, cs, cp, al, ap, pp, out_q, out_f, out_c, start, stop):
         q = np.empty(4)
         motion = int(pp[2])
-        dflag = int(det_flag)
         for k in range(start, stop):
             g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
             a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
@@ -347,9 +398,8 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_correct
                                                             pp[1])
             crit = 0
             if gyr_ok and acc_ok:
-                crit = det_step(ds, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt[k], dp)
-                if crit != 0:
-                    flags |= dflag
+                crit, dflags = det_step(ds, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt[k], dp)
+                flags |= dflags
             out_c[k] = crit
             if al[PHASE] == 0.0:  # checked here so that navigation does not pay for the call
                 status = align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_ok,
@@ -364,15 +414,16 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_correct
             if gyr_ok:
                 est_propagate(x, g0 - al[BIAS] + al[_RCORR], g1 - al[BIAS + 1] + al[_RCORR + 1],
                               g2 - al[BIAS + 2] + al[_RCORR + 2], dt[k], ep)
-            if has_corrector:  # the magnetometer withheld on MAG_DISTURBED, as in the reference
+            if has_corrector:  # mag withheld on MAG_DISTURBED, acc on ACC_REJECTED, as in the reference
                 gm_ok = mag_ok and (flags & 256) == 0
+                ga_ok = acc_ok and (flags & 512) == 0
                 if direct:
                     cf = cor_correct(x, x, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
-                                     m0, m1, m2, acc_ok, gm_ok, dt[k], cp)
+                                     m0, m1, m2, ga_ok, gm_ok, dt[k], cp)
                 else:
                     est_to_quat(x, q)
                     cf = cor_correct(x, q, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
-                                     m0, m1, m2, acc_ok, gm_ok, dt[k], cp)
+                                     m0, m1, m2, ga_ok, gm_ok, dt[k], cp)
                     if cf >= 0:
                         est_from_quat(q, x)
                 if cf > 0:

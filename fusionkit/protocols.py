@@ -149,6 +149,8 @@ class Corrector(Plugin, ABC):
     kind: ClassVar[str] = "corrector"
     mode: ClassVar[Literal["rate", "state"]] = "rate"
     uses_mag: ClassVar[bool] = False  #: True for magnetometer correctors (makes a pipeline 9D)
+    #: a flag some detector of the pipeline must set (the pipeline refuses the composition otherwise)
+    requires_flag: ClassVar[Flag] = Flag.NONE
 
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         """The corrector's own state (empty by default); ``dt`` is the nominal sample interval,

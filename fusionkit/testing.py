@@ -199,8 +199,15 @@ def _check_detector(det: Detector, rec: Recording) -> None:
 
 def _check_corrector(cls, params, rec) -> None:
     from .pipeline import Pipeline
+    from .registry import default_registry
 
+    detectors = []
+    if cls.requires_flag:  # a registered detector that sets the flag it acts on
+        reg = default_registry()
+        found = [n for n in reg.names("detector") if reg.get(n, "detector").flag & cls.requires_flag]
+        assert found, f"{cls.name}: no registered detector sets {cls.requires_flag!r}, which it requires"
+        detectors = [found[0]]
     p = Pipeline({"estimator": "poisson-quat", "correctors": [{"name": cls.name, "params": params}],
-                  "alignment": {"mode": "fixed", "duration": 1.0}})
+                  "detectors": detectors, "alignment": {"mode": "fixed", "duration": 1.0}})
     res = p.run(rec, backend="reference")
     _assert_unit_quats(cls.name + " in a pipeline", res.quat, len(rec))
