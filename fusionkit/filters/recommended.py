@@ -48,6 +48,10 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   (its filter's group delay); the state is not changed. On BROAD the IMU runs half a sample to a
   sample behind the optical reference on 15 of 16 trials (BENCHMARKS.md); a lead there is a
   property of that hardware, not a default for every sensor.
+- **accelerometer delay** (``acc_delay``, 0 by default): an accelerometer later than the gyroscope
+  (a longer filter) describes an earlier orientation; each specific force is rotated into I with
+  ``q_gyr (x) exp(-(w - bias) acc_delay)``. Not identifiable from the IMU alone (BENCHMARKS.md):
+  a sensor property, like ``output_lead``.
 
 Bad input: a non-finite gyroscope sample holds the state (GYR_INVALID); a non-finite or all-zero
 accelerometer (free fall, dropout) or magnetometer sample skips its correction (ACC_INVALID /
@@ -115,6 +119,10 @@ class RecommendedConfig(FilterConfig):
         0.0, unit="s", description="output the orientation this far ahead, q (x) exp((w - bias) lead): compensates a "
         "known delay of the gyroscope against the time base (its filter's group delay; on BROAD one sample, see "
         "BENCHMARKS.md); the state is not changed. 0: the estimate itself", ge=0)
+    acc_delay: float = param(
+        0.0, unit="s", description="how much later than the gyroscope the accelerometer is (its filter's group delay): "
+        "each specific force is paired with the orientation this long before, R(q_gyr (x) exp(-(w - bias) d)) a; "
+        "negative: earlier. On BROAD about one sample, see BENCHMARKS.md. 0: the same instant")
 
 
 def lowpass_coefficients(tau: float, dt: float) -> tuple[float, float, float, float, float]:
@@ -170,6 +178,7 @@ class RecommendedFilter(StepFilter):
             *self.magnetic.params(), c.acc_gate if c.acc_gate is not None else math.inf, c.gravity,
             c.gyr_range if c.gyr_range is not None else math.inf,
             c.acc_range if c.acc_range is not None else math.inf, float(c.use_mag), float(c.mag_bias), c.output_lead,
+            c.acc_delay,
         ])
 
     # -- the readable reference --------------------------------------------------------------
@@ -201,7 +210,10 @@ class RecommendedFilter(StepFilter):
             if c.acc_gate is not None and abs(np.linalg.norm(acc) - c.gravity) > c.acc_gate:
                 flags |= Flag.ACC_REJECTED
             else:
-                self._tilt(x, quat_to_matrix(x[_QG:_QG + 4]) @ acc, dt, rest)
+                qg = x[_QG:_QG + 4]
+                if c.acc_delay != 0.0 and gyr_ok:  # the orientation the accelerometer sample belongs to
+                    qg = quat_mul(qg, quat_from_rotvec(-(gyr - bias) * c.acc_delay))
+                self._tilt(x, quat_to_matrix(qg) @ acc, dt, rest)
         q6 = quat_mul(x[_QA:_QA + 4], x[_QG:_QG + 4])
 
         # 4. heading from the magnetometer, about the vertical only
@@ -320,6 +332,7 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
     mag_rej = p[12] != 0.0
     m_init, m_nth, m_dth, m_new_t, m_new_rate, m_ref_tau = p[13], p[14], p[15], p[16], p[17], p[18]
     acc_gate, grav, gyr_range, acc_range, mag_bias, lead = p[19], p[20], p[21], p[22], p[24] != 0.0, p[25]
+    acc_delay = p[26]
     ms = x[_MAG:_MAG + MAG_SIZE]
     rs = x[_REST:_REST + REST_SIZE]
     qg = x[_QG:_QG + 4]
@@ -367,7 +380,13 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             if abs(math.sqrt(a0 * a0 + a1_ * a1_ + a2_ * a2_) - grav) > acc_gate:
                 flags |= 512
             else:
-                _rot(qg, a0, a1_, a2_, v3, False)
+                if acc_delay != 0.0 and gyr_ok:  # the orientation the accelerometer sample belongs to
+                    r0, r1, r2 = (x[_BIAS] - g0) * acc_delay, (x[_BIAS + 1] - g1) * acc_delay, (x[_BIAS + 2] - g2) * acc_delay
+                    rotvec_quat(r0, r1, r2, l4)
+                    _qmul(qg, l4, u4)
+                    _rot(u4, a0, a1_, a2_, v3, False)
+                else:
+                    _rot(qg, a0, a1_, a2_, v3, False)
                 x[_TACC] += h
                 if fast_start and x[_READY] == 0.0 and x[_TACC] + 0.5 * h < tau_acc:
                     x[_NMEAN] += 1.0
