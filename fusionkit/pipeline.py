@@ -381,8 +381,9 @@ def _get_loop(ek, det_step, ck):
 
 def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_correct, has_corrector, direct):
     """One compiled loop over a recording for an estimator, the detectors (one chained step, see
-    :func:`_get_detectors`) and a state-mode corrector kernel (the same steps as :meth:`Pipeline._step`). ``direct``: the estimator's state
-    is its unit quaternion (``EstimatorKernel.unit_quat``), so the corrector works on it in place."""
+    :func:`_get_detectors`) and a state-mode corrector kernel (the same steps as
+    :meth:`Pipeline._step`). ``direct``: the estimator's state is its unit quaternion
+    (``EstimatorKernel.unit_quat``), so the corrector works on it in place."""
     if not HAVE_NUMBA:  # pragma: no cover
         raise ConfigError("numba is not installed")
 

@@ -381,8 +381,8 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
                 flags |= 512
             else:
                 if acc_delay != 0.0 and gyr_ok:  # the orientation the accelerometer sample belongs to
-                    r0, r1, r2 = (x[_BIAS] - g0) * acc_delay, (x[_BIAS + 1] - g1) * acc_delay, (x[_BIAS + 2] - g2) * acc_delay
-                    rotvec_quat(r0, r1, r2, l4)
+                    d = acc_delay
+                    rotvec_quat((x[_BIAS] - g0) * d, (x[_BIAS + 1] - g1) * d, (x[_BIAS + 2] - g2) * d, l4)
                     _qmul(qg, l4, u4)
                     _rot(u4, a0, a1_, a2_, v3, False)
                 else:
