@@ -51,7 +51,8 @@ def test_reference_equals_numba_every_option(rec):
     bad.mag[700] = np.nan
     for params in [{}, {"fast_start": False}, {"acc_gate": 1.0}, {"motion_bias_tau": None, "rest_bias": False},
                    {"mag_rejection": False, "frame": "NED"}, {"use_mag": False, "gyr_range": 1.0},
-                   {"output_lead": 0.02}, {"acc_delay": 0.02}, {"acc_delay": -0.01, "use_mag": False}]:
+                   {"output_lead": 0.02}, {"acc_delay": 0.02}, {"acc_delay": -0.01, "use_mag": False},
+                   {"acc_delay": 0.0}]:
         f = fk.make("recommended", nan_policy="skip", **params)
         a, b = f.run(bad, backend="numba"), f.run(bad, backend="reference")
         np.testing.assert_allclose(a.quat, b.quat, atol=1e-9, err_msg=str(params))
@@ -207,21 +208,39 @@ def test_output_lead_compensates_a_delayed_gyro():
     assert err(lead.run(rec), rec) > err(plain.run(rec), rec)
 
 
+def test_accelerometer_paired_with_the_middle_of_the_step_by_default():
+    """The gyro's step k covers (t[k-1], t[k]]. An accelerometer sampled like the gyro (the
+    simulator's default: means over the interval) describes its middle, and the default pairing
+    (half a sample) is exact where the end of the step (``acc_delay=0``) is not; a point sample at
+    t[k] is the other way round."""
+    fast = [sim.Rest(3.0)] + [sim.Rotate(ax, 120 * DEG * s, 1.0) for s in (1, -1)
+                              for ax in ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0))] * 2
+    def err(rec, **kw):
+        return np.sqrt(np.mean(inclination(fk.make("recommended", use_mag=False, **kw).run(rec), rec) ** 2))
+
+    mean = sim.simulate(fast, rate=100.0, gnss_rate=None)
+    point = sim.simulate(fast, rate=100.0, gnss_rate=None, acc_sampling="point")
+    assert err(mean) < 0.01 and err(mean, acc_delay=0.0) > 0.1  # measured: 0.0007 vs 0.19 deg
+    assert err(point, acc_delay=0.0) < 0.01 and err(point) > 0.1
+    assert err(mean, acc_delay=0.005) == pytest.approx(err(mean), rel=1e-9)  # None: half the 10 ms interval
+
+
 def test_acc_delay_compensates_a_late_accelerometer():
     """An accelerometer 3 samples later than the gyroscope describes an earlier orientation;
-    pairing it with the orientation ``acc_delay`` before (the gyro's rotation taken back) removes
-    the inclination error that costs, and on data without delay the option costs accuracy."""
+    pairing it with the orientation ``acc_delay`` before (the gyro's rotation taken back: the
+    3 samples and the half sample of the default) removes the inclination error that costs, and
+    on data without delay the option costs accuracy."""
     rec = motion(seed=5, n=2, rest_every=False)
     late = dataclasses.replace(rec, acc=np.vstack([rec.acc[:1].repeat(3, axis=0), rec.acc[:-3]]))
     def err(r, x):
         return np.sqrt(np.mean(inclination(r, x)[600:] ** 2))
 
     plain = err(fk.make("recommended", use_mag=False).run(late), late)
-    fixed = err(fk.make("recommended", use_mag=False, acc_delay=0.03).run(late), late)
+    fixed = err(fk.make("recommended", use_mag=False, acc_delay=0.035).run(late), late)
     assert fixed < 0.7 * plain
     # the best delay is the delay itself
-    assert fixed < min(err(fk.make("recommended", use_mag=False, acc_delay=t).run(late), late) for t in (0.01, 0.05))
-    assert err(fk.make("recommended", use_mag=False, acc_delay=0.03).run(rec), rec) > err(
+    assert fixed < min(err(fk.make("recommended", use_mag=False, acc_delay=t).run(late), late) for t in (0.015, 0.055))
+    assert err(fk.make("recommended", use_mag=False, acc_delay=0.035).run(rec), rec) > err(
         fk.make("recommended", use_mag=False).run(rec), rec)
 
 

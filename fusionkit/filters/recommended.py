@@ -48,10 +48,17 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   (its filter's group delay); the state is not changed. On BROAD the IMU runs half a sample to a
   sample behind the optical reference on 15 of 16 trials (BENCHMARKS.md); a lead there is a
   property of that hardware, not a default for every sensor.
-- **accelerometer delay** (``acc_delay``, 0 by default): an accelerometer later than the gyroscope
-  (a longer filter) describes an earlier orientation; each specific force is rotated into I with
-  ``q_gyr (x) exp(-(w - bias) acc_delay)``. Not identifiable from the IMU alone (BENCHMARKS.md):
-  a sensor property, like ``output_lead``.
+- **accelerometer pairing** (``acc_delay``): gyro sample k's step covers ``(t[k-1], t[k]]`` and
+  ends at ``q_gyr``. An accelerometer sampled like the gyro describes the middle of that step
+  (a mean over the interval is centred there; with point samples the step itself runs half a
+  sample ahead of ``t[k]``), so by default (None) each specific force is rotated into I with
+  ``q_gyr (x) exp(-(w - bias) dt / 2)``. ``acc_delay=0`` pairs it with the end of the step (an
+  accelerometer sampled at ``t[k]`` next to a mean-rate gyro, the simulator's
+  ``acc_sampling="point"``); a larger value serves an accelerometer later than the gyroscope (a
+  longer filter). The wrong choice costs a tilt of ``|w| dt / 2`` about the rotation axis
+  (0.19 deg on a 100 Hz simulation at 2 rad/s, tested both ways). On BROAD the default gives
+  0.72 deg 6D inclination against 0.79 at the end of the step; BROAD's accelerometer is later
+  still (``acc_delay`` one sample, 3.5 ms: 0.68; BENCHMARKS.md), a property of its hardware.
 
 Bad input: a non-finite gyroscope sample holds the state (GYR_INVALID); a non-finite or all-zero
 accelerometer (free fall, dropout) or magnetometer sample skips its correction (ACC_INVALID /
@@ -119,10 +126,12 @@ class RecommendedConfig(FilterConfig):
         0.0, unit="s", description="output the orientation this far ahead, q (x) exp((w - bias) lead): compensates a "
         "known delay of the gyroscope against the time base (its filter's group delay; on BROAD one sample, see "
         "BENCHMARKS.md); the state is not changed. 0: the estimate itself", ge=0)
-    acc_delay: float = param(
-        0.0, unit="s", description="how much later than the gyroscope the accelerometer is (its filter's group delay): "
-        "each specific force is paired with the orientation this long before, R(q_gyr (x) exp(-(w - bias) d)) a; "
-        "negative: earlier. On BROAD about one sample, see BENCHMARKS.md. 0: the same instant")
+    acc_delay: float | None = param(
+        None, unit="s", description="how long before the end of the gyro's step the accelerometer sample describes: "
+        "it is paired with the orientation R(q_gyr (x) exp(-(w - bias) d)). None: half the sample interval, the middle "
+        "of the step (right when both sensors are sampled alike: point samples, or means over the interval). 0: the "
+        "end of the step (an accelerometer sampled at the instant a mean-rate gyro's interval ends). Larger: an "
+        "accelerometer later than the gyroscope (a longer filter; on BROAD about one sample, see BENCHMARKS.md)")
 
 
 def lowpass_coefficients(tau: float, dt: float) -> tuple[float, float, float, float, float]:
@@ -178,7 +187,7 @@ class RecommendedFilter(StepFilter):
             *self.magnetic.params(), c.acc_gate if c.acc_gate is not None else math.inf, c.gravity,
             c.gyr_range if c.gyr_range is not None else math.inf,
             c.acc_range if c.acc_range is not None else math.inf, float(c.use_mag), float(c.mag_bias), c.output_lead,
-            c.acc_delay,
+            c.acc_delay if c.acc_delay is not None else math.nan,
         ])
 
     # -- the readable reference --------------------------------------------------------------
@@ -211,8 +220,9 @@ class RecommendedFilter(StepFilter):
                 flags |= Flag.ACC_REJECTED
             else:
                 qg = x[_QG:_QG + 4]
-                if c.acc_delay != 0.0 and gyr_ok:  # the orientation the accelerometer sample belongs to
-                    qg = quat_mul(qg, quat_from_rotvec(-(gyr - bias) * c.acc_delay))
+                d = 0.5 * dt if c.acc_delay is None else c.acc_delay
+                if d != 0.0 and gyr_ok:  # the orientation the accelerometer sample belongs to
+                    qg = quat_mul(qg, quat_from_rotvec(-(gyr - bias) * d))
                 self._tilt(x, quat_to_matrix(qg) @ acc, dt, rest)
         q6 = quat_mul(x[_QA:_QA + 4], x[_QG:_QG + 4])
 
@@ -380,8 +390,8 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             if abs(math.sqrt(a0 * a0 + a1_ * a1_ + a2_ * a2_) - grav) > acc_gate:
                 flags |= 512
             else:
-                if acc_delay != 0.0 and gyr_ok:  # the orientation the accelerometer sample belongs to
-                    d = acc_delay
+                d = 0.5 * h if math.isnan(acc_delay) else acc_delay
+                if d != 0.0 and gyr_ok:  # the orientation the accelerometer sample belongs to
                     rotvec_quat((x[_BIAS] - g0) * d, (x[_BIAS + 1] - g1) * d, (x[_BIAS + 2] - g2) * d, l4)
                     _qmul(qg, l4, u4)
                     _rot(u4, a0, a1_, a2_, v3, False)

@@ -10,7 +10,10 @@ profile that starts and ends at rest:
 :func:`simulate` returns a :class:`~fusionkit.types.Recording` with the true orientation
 (body->ENU) as ``truth`` and ``movement`` marking the non-rest segments. Gyro sample ``k`` is
 the mean rate over ``(t[k-1], t[k]]`` (so integrating it with the exact step reproduces the
-truth), specific force is ``R^T (a + [0, 0, g])`` and the magnetometer reads ``R^T m``.
+truth). Accelerometer sample ``k`` is, by default (``acc_sampling="mean"``), the mean specific
+force ``R^T (a + [0, 0, g])`` over the same interval, as an IMU that samples both sensors alike
+reports it (Gauss-Legendre quadrature, exact to far below the noise); ``acc_sampling="point"``
+gives its value at ``t[k]`` instead. The magnetometer reads ``R^T m`` at ``t[k]``.
 """
 
 from __future__ import annotations
@@ -65,6 +68,27 @@ class Noise:
                    mag_noise=0.3)
 
 
+_QUADRATURE_NODES = 5  # Gauss-Legendre nodes per sample for the interval-mean accelerometer
+
+
+def _segment_motion(seg, q0, u, duration):
+    """Orientation (body->ENU) and ENU acceleration at progress ``u`` of ``seg`` from ``q0``."""
+    acc_e = np.zeros((u.size, 3))
+    if isinstance(seg, Rotate):
+        quat = quat_mul(q0, quat_from_axis_angle(seg.axis, seg.angle * _progress(u)))
+    else:
+        quat = np.tile(q0, (u.size, 1))
+        if isinstance(seg, Translate):
+            d = np.asarray(seg.direction, dtype=float)
+            acc_e = (2.0 * np.pi * seg.distance / duration**2 * np.sin(2.0 * np.pi * u))[:, None] * (d / np.linalg.norm(d))
+    return quat, acc_e
+
+
+def _specific_force(quat, acc_e, g_e):
+    """Body-frame specific force ``R^T (a + g)``."""
+    return np.einsum("nji,nj->ni", quat_to_matrix(quat), acc_e + g_e)
+
+
 def _progress(u):
     """Raised-cosine displacement profile on [0, 1] with zero rate at both ends."""
     return u - np.sin(2.0 * np.pi * u) / (2.0 * np.pi)
@@ -72,14 +96,20 @@ def _progress(u):
 
 def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0, 0.0, 0.0, 0.0),
              mag_field=KYIV_FIELD_ENU, gravity: float = 9.81, seed: int | None = 0, name: str = "sim",
-             gnss_rate: float | None = 10.0, gnss_vel_noise: float = 0.0, initial_velocity=(0.0, 0.0, 0.0)) -> Recording:
+             gnss_rate: float | None = 10.0, gnss_vel_noise: float = 0.0, initial_velocity=(0.0, 0.0, 0.0),
+             acc_sampling: str = "mean") -> Recording:
     """Simulate ``segments`` at ``rate`` Hz (see module doc); ``seed`` makes the noise repeatable.
+
+    ``acc_sampling``: ``"mean"`` (the specific force averaged over each sample's interval, like
+    the gyro) or ``"point"`` (its value at the sample's time).
 
     With ``gnss_rate`` (Hz) the recording carries a GNSS velocity stream (ENU, white noise of
     ``gnss_vel_noise`` m/s per axis) sampled from the true velocity.
     """
     if rate <= 0:
         raise InputError(f"rate must be > 0, got {rate}")
+    if acc_sampling not in ("mean", "point"):
+        raise InputError(f"acc_sampling must be 'mean' or 'point', got {acc_sampling!r}")
     segments = list(segments)
     if not segments:
         raise InputError("segments is empty")
@@ -92,33 +122,33 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     gyr = np.zeros((n, 3))
     q = quat_normalize(np.asarray(initial, dtype=float))
     quat[0] = q
+    g_e = np.array([0.0, 0.0, gravity])
+    acc = np.empty((n, 3))
+    acc[0] = quat_to_matrix(q).T @ g_e
+    nodes, weights = np.polynomial.legendre.leggauss(_QUADRATURE_NODES)
+    nodes = 0.5 * (nodes + 1.0)  # on (0, 1)
+    weights = 0.5 * weights
     k = 1
     for seg, m in zip(segments, counts):
+        if not isinstance(seg, (Rest, Rotate, Translate)):
+            raise InputError(f"unknown segment {seg!r}: use Rest, Rotate or Translate")
         u = np.arange(1, m + 1) / m  # progress at the segment's samples
+        quat[k:k + m], acc_e[k:k + m] = _segment_motion(seg, q, u, m * dt)
         if isinstance(seg, Rotate):
             axis = np.asarray(seg.axis, dtype=float)
-            axis = axis / np.linalg.norm(axis)
             ang = seg.angle * _progress(u)
-            quat[k:k + m] = quat_mul(q, quat_from_axis_angle(axis, ang))
-            gyr[k:k + m] = np.diff(np.concatenate([[0.0], ang]))[:, None] / dt * axis
-            q = quat[k + m - 1].copy()
-            moving[k:k + m] = True
-        elif isinstance(seg, Translate):
-            d = np.asarray(seg.direction, dtype=float)
-            d = d / np.linalg.norm(d)
-            big_t = m * dt
-            acc_e[k:k + m] = (2.0 * np.pi * seg.distance / big_t**2 * np.sin(2.0 * np.pi * u))[:, None] * d
-            quat[k:k + m] = q
-            moving[k:k + m] = True
-        elif isinstance(seg, Rest):
-            quat[k:k + m] = q
-        else:
-            raise InputError(f"unknown segment {seg!r}: use Rest, Rotate or Translate")
+            gyr[k:k + m] = np.diff(np.concatenate([[0.0], ang]))[:, None] / dt * (axis / np.linalg.norm(axis))
+        moving[k:k + m] = not isinstance(seg, Rest)
+        if acc_sampling == "point":
+            acc[k:k + m] = _specific_force(quat[k:k + m], acc_e[k:k + m], g_e)
+        else:  # the mean over each sample's interval ((j - 1) / m, j / m]
+            acc[k:k + m] = 0.0
+            for c, w in zip(nodes, weights):
+                qn, an = _segment_motion(seg, q, (np.arange(m) + c) / m, m * dt)
+                acc[k:k + m] += w * _specific_force(qn, an, g_e)
+        q = quat[k + m - 1].copy()
         k += m
-    r = quat_to_matrix(quat)
-    rt = np.swapaxes(r, 1, 2)
-    f_e = acc_e + np.array([0.0, 0.0, gravity])
-    acc = np.einsum("nij,nj->ni", rt, f_e)
+    rt = np.swapaxes(quat_to_matrix(quat), 1, 2)
     mag = np.einsum("nij,j->ni", rt, np.asarray(mag_field, dtype=float))
     rng = np.random.default_rng(seed)
     gyr = gyr + np.asarray(noise.gyr_bias) + noise.gyr_noise * rng.standard_normal((n, 3))
