@@ -10,6 +10,14 @@ Units
     rest); magnetometer any unit (only its direction is used); time s; angles rad unless a name
     ends in ``_deg``.
 
+Timing
+    ``quat[k]`` is the orientation after sample ``k``, at ``t[k]``; sample ``k``'s rate is held
+    over ``(t[k-1], t[k]]``. An accelerometer or magnetometer sampled like the gyro (point
+    samples, or means over the interval) describes the middle of that step: ``recommended``
+    pairs them there by default (its ``acc_delay`` / ``mag_delay``; 0 is the end of the step);
+    the source filters pair them with the end of the step, as their documents do. The
+    simulator's ``sampling`` option makes either kind of data.
+
 Earth frames (:data:`FRAMES`)
     ``"ENU"`` (default): x East, y North, z Up.
     ``"NED"``: x North, y East, z Down.

@@ -41,7 +41,7 @@ def trajectory(seed):
     noise = sim.Noise(gyr_noise=G_NOISE, gyr_bias=bias, acc_noise=A_NOISE, mag_noise=M_NOISE)
     # point-sampled accelerometer: the EKF's model pairs it with the predicted state, the end of
     # the gyro's step (the simulator's interval means sit half a sample earlier: ANEES 27)
-    return (sim.simulate(segs, rate=RATE, noise=noise, seed=seed, gnss_rate=None, acc_sampling="point"),
+    return (sim.simulate(segs, rate=RATE, noise=noise, seed=seed, gnss_rate=None, sampling="point"),
             np.array(bias))
 
 

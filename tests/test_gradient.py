@@ -173,7 +173,8 @@ def test_extensions_and_the_patent_mode():
     bias = (0.01, -0.02, 0.015)
     rec = sim.simulate([sim.Rest(4.0), sim.Rotate((0, 0, 1), 90 * deg, 2.0), sim.Rotate((1, 0, 0), 40 * deg, 1.5),
                         sim.Rest(3.0)], rate=100.0, seed=2,
-                       noise=sim.Noise(gyr_noise=0.003, gyr_bias=bias, acc_noise=0.03, mag_noise=0.2))
+                       noise=sim.Noise(gyr_noise=0.003, gyr_bias=bias, acc_noise=0.03, mag_noise=0.2),
+                       sampling="point")  # the patent pairs each sample with the end of the step
     res = fk.make("gradient-descent").run(rec)
     np.testing.assert_allclose(res.diagnostics["bias"], bias, atol=0.001)
     assert np.all(res.flags[:299] & fk.Flag.ALIGNING) and not np.any(res.flags[301:] & fk.Flag.ALIGNING)

@@ -52,7 +52,7 @@ def test_reference_equals_numba_every_option(rec):
     for params in [{}, {"fast_start": False}, {"acc_gate": 1.0}, {"motion_bias_tau": None, "rest_bias": False},
                    {"mag_rejection": False, "frame": "NED"}, {"use_mag": False, "gyr_range": 1.0},
                    {"output_lead": 0.02}, {"acc_delay": 0.02}, {"acc_delay": -0.01, "use_mag": False},
-                   {"acc_delay": 0.0}]:
+                   {"acc_delay": 0.0, "mag_delay": 0.0}, {"mag_delay": 0.02}]:
         f = fk.make("recommended", nan_policy="skip", **params)
         a, b = f.run(bad, backend="numba"), f.run(bad, backend="reference")
         np.testing.assert_allclose(a.quat, b.quat, atol=1e-9, err_msg=str(params))
@@ -208,21 +208,25 @@ def test_output_lead_compensates_a_delayed_gyro():
     assert err(lead.run(rec), rec) > err(plain.run(rec), rec)
 
 
-def test_accelerometer_paired_with_the_middle_of_the_step_by_default():
-    """The gyro's step k covers (t[k-1], t[k]]. An accelerometer sampled like the gyro (the
-    simulator's default: means over the interval) describes its middle, and the default pairing
-    (half a sample) is exact where the end of the step (``acc_delay=0``) is not; a point sample at
-    t[k] is the other way round."""
+def test_sensors_paired_with_the_middle_of_the_step_by_default():
+    """The gyro's step k covers (t[k-1], t[k]]. An accelerometer and magnetometer sampled like the
+    gyro (the simulator's default: means over the interval) describe its middle: the default
+    pairing (half a sample) is exact where the end of the step (``acc_delay=0``, ``mag_delay=0``)
+    is not. Point samples at t[k] are the other way round."""
     fast = [sim.Rest(3.0)] + [sim.Rotate(ax, 120 * DEG * s, 1.0) for s in (1, -1)
                               for ax in ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0))] * 2
-    def err(rec, **kw):
-        return np.sqrt(np.mean(inclination(fk.make("recommended", use_mag=False, **kw).run(rec), rec) ** 2))
+    def err(rec, **kw):  # (inclination, heading) RMSE, deg
+        e = broad_errors(fk.make("recommended", **kw).run(rec).quat, rec.truth)
+        return np.sqrt(np.mean(e["inclination"] ** 2)), np.sqrt(np.mean(e["heading"] ** 2))
 
+    end = {"acc_delay": 0.0, "mag_delay": 0.0}
     mean = sim.simulate(fast, rate=100.0, gnss_rate=None)
-    point = sim.simulate(fast, rate=100.0, gnss_rate=None, acc_sampling="point")
-    assert err(mean) < 0.01 and err(mean, acc_delay=0.0) > 0.1  # measured: 0.0007 vs 0.19 deg
-    assert err(point, acc_delay=0.0) < 0.01 and err(point) > 0.1
-    assert err(mean, acc_delay=0.005) == pytest.approx(err(mean), rel=1e-9)  # None: half the 10 ms interval
+    point = sim.simulate(fast, rate=100.0, gnss_rate=None, sampling="point")
+    # measured: (0.0006, 0.0009) vs (0.19, 0.09) deg, and the same the other way round
+    assert max(err(mean)) < 0.005 and max(err(point, **end)) < 0.005
+    assert err(mean, acc_delay=0.0)[0] > 0.1 and err(point)[0] > 0.1
+    assert err(mean, mag_delay=0.0)[1] > 0.05 and err(point, acc_delay=0.0)[1] > 0.05
+    assert err(mean, acc_delay=0.005, mag_delay=0.005) == pytest.approx(err(mean), rel=1e-9)  # half of 10 ms
 
 
 def test_acc_delay_compensates_a_late_accelerometer():

@@ -73,7 +73,7 @@ def test_rotating_motion_on_simulated_data():
     deg = np.pi / 180
     rec = sim.simulate([sim.Rest(1.0), sim.Rotate((0, 0, 1), 90 * deg, 2.0), sim.Translate((1, 0, 0), 2.0, 2.0),
                         sim.Rotate((1, 1, 0), 60 * deg, 2.0), sim.Translate((0, 0, 1), 1.0, 2.0)], rate=200.0,
-                       gravity=G, seed=0, acc_sampling="point")  # the trapezoidal rule's point samples
+                       gravity=G, seed=0, sampling="point")  # the trapezoidal rule's point samples
     r = strapdown(rec.gyr, rec.acc, rec.dt, quat0=rec.truth[0], gravity=G)
     assert quat_angle(r.quat, rec.truth).max() < 1e-9  # exact attitude for the simulator's mean rates
     assert np.abs(r.pos[-1] - [2.0, 0.0, 1.0]).max() < 5e-3  # trapezoidal rule, O(dt^2)

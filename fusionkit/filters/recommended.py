@@ -48,17 +48,19 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   (its filter's group delay); the state is not changed. On BROAD the IMU runs half a sample to a
   sample behind the optical reference on 15 of 16 trials (BENCHMARKS.md); a lead there is a
   property of that hardware, not a default for every sensor.
-- **accelerometer pairing** (``acc_delay``): gyro sample k's step covers ``(t[k-1], t[k]]`` and
-  ends at ``q_gyr``. An accelerometer sampled like the gyro describes the middle of that step
-  (a mean over the interval is centred there; with point samples the step itself runs half a
-  sample ahead of ``t[k]``), so by default (None) each specific force is rotated into I with
-  ``q_gyr (x) exp(-(w - bias) dt / 2)``. ``acc_delay=0`` pairs it with the end of the step (an
-  accelerometer sampled at ``t[k]`` next to a mean-rate gyro, the simulator's
-  ``acc_sampling="point"``); a larger value serves an accelerometer later than the gyroscope (a
-  longer filter). The wrong choice costs a tilt of ``|w| dt / 2`` about the rotation axis
-  (0.19 deg on a 100 Hz simulation at 2 rad/s, tested both ways). On BROAD the default gives
-  0.72 deg 6D inclination against 0.79 at the end of the step; BROAD's accelerometer is later
-  still (``acc_delay`` one sample, 3.5 ms: 0.68; BENCHMARKS.md), a property of its hardware.
+- **sensor pairing** (``acc_delay``, ``mag_delay``): gyro sample k's step covers
+  ``(t[k-1], t[k]]`` and ends at ``q_gyr``. An accelerometer or magnetometer sampled like the
+  gyro describes the middle of that step (a mean over the interval is centred there; with point
+  samples the step itself runs half a sample ahead of ``t[k]``), so by default (None) each
+  specific force is rotated into I with ``q_gyr (x) exp(-(w - bias) dt / 2)`` and each field
+  into the levelled frame with ``q6 (x) exp(-(w - bias) dt / 2)``. 0 pairs the sample with the
+  end of the step (a sensor sampled at ``t[k]`` next to a mean-rate gyro, the simulator's
+  ``sampling="point"``); a larger value serves a sensor later than the gyroscope (a longer
+  filter). The wrong choice costs a rotation of ``|w| dt / 2`` about the rotation axis (on a
+  100 Hz simulation at 2 rad/s: 0.19 deg inclination, 0.07 deg heading; tested both ways). On
+  BROAD the defaults give 0.72 deg 6D inclination (0.79 at the end of the step) and 2.15 deg 9D
+  total (2.19); its accelerometer and magnetometer are later still (one sample: 0.68 and 2.09,
+  BENCHMARKS.md), a property of its hardware.
 
 Bad input: a non-finite gyroscope sample holds the state (GYR_INVALID); a non-finite or all-zero
 accelerometer (free fall, dropout) or magnetometer sample skips its correction (ACC_INVALID /
@@ -132,6 +134,9 @@ class RecommendedConfig(FilterConfig):
         "of the step (right when both sensors are sampled alike: point samples, or means over the interval). 0: the "
         "end of the step (an accelerometer sampled at the instant a mean-rate gyro's interval ends). Larger: an "
         "accelerometer later than the gyroscope (a longer filter; on BROAD about one sample, see BENCHMARKS.md)")
+    mag_delay: float | None = param(
+        None, unit="s", description="the same for the magnetometer: it is paired with R(q (x) exp(-(w - bias) d)). "
+        "None: half the sample interval (the middle of the step); 0: the end of the step")
 
 
 def lowpass_coefficients(tau: float, dt: float) -> tuple[float, float, float, float, float]:
@@ -188,6 +193,7 @@ class RecommendedFilter(StepFilter):
             c.gyr_range if c.gyr_range is not None else math.inf,
             c.acc_range if c.acc_range is not None else math.inf, float(c.use_mag), float(c.mag_bias), c.output_lead,
             c.acc_delay if c.acc_delay is not None else math.nan,
+            c.mag_delay if c.mag_delay is not None else math.nan,
         ])
 
     # -- the readable reference --------------------------------------------------------------
@@ -228,7 +234,11 @@ class RecommendedFilter(StepFilter):
 
         # 4. heading from the magnetometer, about the vertical only
         if mag_ok:
-            flags |= self._heading(x, quat_to_matrix(q6) @ mag, q6, dt, rest)
+            qm = q6
+            d = 0.5 * dt if c.mag_delay is None else c.mag_delay
+            if d != 0.0 and gyr_ok:  # the orientation the magnetometer sample belongs to
+                qm = quat_mul(q6, quat_from_rotvec(-(gyr - bias) * d))
+            flags |= self._heading(x, quat_to_matrix(qm) @ mag, q6, dt, rest)
         half = 0.5 * x[_DELTA]
         q = quat_mul(np.array([math.cos(half), 0.0, 0.0, math.sin(half)]), q6)
         if c.output_lead > 0.0 and gyr_ok:  # a prediction for the output only
@@ -342,7 +352,7 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
     mag_rej = p[12] != 0.0
     m_init, m_nth, m_dth, m_new_t, m_new_rate, m_ref_tau = p[13], p[14], p[15], p[16], p[17], p[18]
     acc_gate, grav, gyr_range, acc_range, mag_bias, lead = p[19], p[20], p[21], p[22], p[24] != 0.0, p[25]
-    acc_delay = p[26]
+    acc_delay, mag_delay = p[26], p[27]
     ms = x[_MAG:_MAG + MAG_SIZE]
     rs = x[_REST:_REST + REST_SIZE]
     qg = x[_QG:_QG + 4]
@@ -437,7 +447,13 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
         _qmul(qa, qg, q6)
         # 4. heading
         if mag_ok:
-            _rot(q6, m0, m1, m2, v3, False)
+            d = 0.5 * h if math.isnan(mag_delay) else mag_delay
+            if d != 0.0 and gyr_ok:  # the orientation the magnetometer sample belongs to
+                rotvec_quat((x[_BIAS] - g0) * d, (x[_BIAS + 1] - g1) * d, (x[_BIAS + 2] - g2) * d, l4)
+                _qmul(q6, l4, u4)
+                _rot(u4, m0, m1, m2, v3, False)
+            else:
+                _rot(q6, m0, m1, m2, v3, False)
             norm = math.sqrt(v3[0] * v3[0] + v3[1] * v3[1] + v3[2] * v3[2])
             dip = math.asin(max(-1.0, min(1.0, v3[2] / norm)))
             target = 0.5 * math.pi - math.atan2(v3[1], v3[0])

@@ -10,10 +10,10 @@ profile that starts and ends at rest:
 :func:`simulate` returns a :class:`~fusionkit.types.Recording` with the true orientation
 (body->ENU) as ``truth`` and ``movement`` marking the non-rest segments. Gyro sample ``k`` is
 the mean rate over ``(t[k-1], t[k]]`` (so integrating it with the exact step reproduces the
-truth). Accelerometer sample ``k`` is, by default (``acc_sampling="mean"``), the mean specific
-force ``R^T (a + [0, 0, g])`` over the same interval, as an IMU that samples both sensors alike
-reports it (Gauss-Legendre quadrature, exact to far below the noise); ``acc_sampling="point"``
-gives its value at ``t[k]`` instead. The magnetometer reads ``R^T m`` at ``t[k]``.
+truth). Accelerometer and magnetometer sample ``k`` are, by default (``sampling="mean"``), the
+means of the specific force ``R^T (a + [0, 0, g])`` and of the field ``R^T m`` over the same
+interval, as an IMU that samples all its sensors alike reports them (Gauss-Legendre quadrature,
+exact to far below the noise); ``sampling="point"`` gives their values at ``t[k]`` instead.
 """
 
 from __future__ import annotations
@@ -84,9 +84,9 @@ def _segment_motion(seg, q0, u, duration):
     return quat, acc_e
 
 
-def _specific_force(quat, acc_e, g_e):
-    """Body-frame specific force ``R^T (a + g)``."""
-    return np.einsum("nji,nj->ni", quat_to_matrix(quat), acc_e + g_e)
+def _in_body(quat, v_e):
+    """ENU vectors ``v_e`` ((n, 3) or (3,)) seen in the body: ``R^T v``."""
+    return np.einsum("nji,nj->ni", quat_to_matrix(quat), np.broadcast_to(v_e, (len(quat), 3)))
 
 
 def _progress(u):
@@ -97,19 +97,19 @@ def _progress(u):
 def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0, 0.0, 0.0, 0.0),
              mag_field=KYIV_FIELD_ENU, gravity: float = 9.81, seed: int | None = 0, name: str = "sim",
              gnss_rate: float | None = 10.0, gnss_vel_noise: float = 0.0, initial_velocity=(0.0, 0.0, 0.0),
-             acc_sampling: str = "mean") -> Recording:
+             sampling: str = "mean") -> Recording:
     """Simulate ``segments`` at ``rate`` Hz (see module doc); ``seed`` makes the noise repeatable.
 
-    ``acc_sampling``: ``"mean"`` (the specific force averaged over each sample's interval, like
-    the gyro) or ``"point"`` (its value at the sample's time).
+    ``sampling``: ``"mean"`` (the specific force and the field averaged over each sample's
+    interval, like the gyro's rate) or ``"point"`` (their values at the sample's time).
 
     With ``gnss_rate`` (Hz) the recording carries a GNSS velocity stream (ENU, white noise of
     ``gnss_vel_noise`` m/s per axis) sampled from the true velocity.
     """
     if rate <= 0:
         raise InputError(f"rate must be > 0, got {rate}")
-    if acc_sampling not in ("mean", "point"):
-        raise InputError(f"acc_sampling must be 'mean' or 'point', got {acc_sampling!r}")
+    if sampling not in ("mean", "point"):
+        raise InputError(f"sampling must be 'mean' or 'point', got {sampling!r}")
     segments = list(segments)
     if not segments:
         raise InputError("segments is empty")
@@ -123,8 +123,9 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     q = quat_normalize(np.asarray(initial, dtype=float))
     quat[0] = q
     g_e = np.array([0.0, 0.0, gravity])
-    acc = np.empty((n, 3))
-    acc[0] = quat_to_matrix(q).T @ g_e
+    m_e = np.asarray(mag_field, dtype=float)
+    acc, mag = np.empty((n, 3)), np.empty((n, 3))
+    acc[0], mag[0] = quat_to_matrix(q).T @ g_e, quat_to_matrix(q).T @ m_e
     nodes, weights = np.polynomial.legendre.leggauss(_QUADRATURE_NODES)
     nodes = 0.5 * (nodes + 1.0)  # on (0, 1)
     weights = 0.5 * weights
@@ -139,17 +140,17 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
             ang = seg.angle * _progress(u)
             gyr[k:k + m] = np.diff(np.concatenate([[0.0], ang]))[:, None] / dt * (axis / np.linalg.norm(axis))
         moving[k:k + m] = not isinstance(seg, Rest)
-        if acc_sampling == "point":
-            acc[k:k + m] = _specific_force(quat[k:k + m], acc_e[k:k + m], g_e)
-        else:  # the mean over each sample's interval ((j - 1) / m, j / m]
-            acc[k:k + m] = 0.0
+        if sampling == "point":
+            acc[k:k + m] = _in_body(quat[k:k + m], acc_e[k:k + m] + g_e)
+            mag[k:k + m] = _in_body(quat[k:k + m], m_e)
+        else:  # the means over each sample's interval ((j - 1) / m, j / m]
+            acc[k:k + m] = mag[k:k + m] = 0.0
             for c, w in zip(nodes, weights):
                 qn, an = _segment_motion(seg, q, (np.arange(m) + c) / m, m * dt)
-                acc[k:k + m] += w * _specific_force(qn, an, g_e)
+                acc[k:k + m] += w * _in_body(qn, an + g_e)
+                mag[k:k + m] += w * _in_body(qn, m_e)
         q = quat[k + m - 1].copy()
         k += m
-    rt = np.swapaxes(quat_to_matrix(quat), 1, 2)
-    mag = np.einsum("nij,j->ni", rt, np.asarray(mag_field, dtype=float))
     rng = np.random.default_rng(seed)
     gyr = gyr + np.asarray(noise.gyr_bias) + noise.gyr_noise * rng.standard_normal((n, 3))
     acc = acc + np.asarray(noise.acc_bias) + noise.acc_noise * rng.standard_normal((n, 3))
