@@ -226,7 +226,7 @@ def test_sensors_paired_with_the_middle_of_the_step_by_default():
     assert max(err(mean)) < 0.005 and max(err(point, **end)) < 0.005
     assert err(mean, acc_delay=0.0)[0] > 0.1 and err(point)[0] > 0.1
     assert err(mean, mag_delay=0.0)[1] > 0.05 and err(point, acc_delay=0.0)[1] > 0.05
-    assert err(mean, acc_delay=0.005, mag_delay=0.005) == pytest.approx(err(mean), rel=1e-9)  # half of 10 ms
+    assert err(mean, acc_delay=0.005, mag_delay=0.005) == pytest.approx(err(mean), abs=1e-9)  # half of 10 ms
 
 
 def test_acc_delay_compensates_a_late_accelerometer():
@@ -250,7 +250,7 @@ def test_acc_delay_compensates_a_late_accelerometer():
 
 def test_broad_targets(broad_dir):
     """Default parameters, one set for all trials (BROAD's metrics): 9D total at or below 2.5 deg
-    (VQF: 2.83); 6D inclination at or below 0.80 deg (VQF: 0.80; the issue's 0.7 is not reached,
-    see BENCHMARKS.md)."""
+    (VQF: 2.83; measured 2.15); 6D inclination at or below 0.73 deg (VQF: 0.80; measured 0.724;
+    the issue's 0.7 is not reached, see BENCHMARKS.md)."""
     assert broad_mean(broad_dir, "recommended", "total") <= 2.5
-    assert broad_mean(broad_dir, "recommended", "inclination", six_d=True) <= 0.80
+    assert broad_mean(broad_dir, "recommended", "inclination", six_d=True) <= 0.73

@@ -37,7 +37,7 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   body) becomes the new reference.
 - **acceleration rejection** (``acc_gate``, off by default): samples whose ``| |a| - g |``
   exceeds the gate are left out of the low-pass (flag ACC_REJECTED). Measured on BROAD it costs
-  accuracy (0.79 -> 6.2 deg 6D inclination at 4 m/s^2): leaving out the large samples makes the
+  accuracy (0.72 -> 6.1 deg 6D inclination at 4 m/s^2): leaving out the large samples makes the
   linear accelerations' average nonzero, which is exactly what the I-frame low-pass relies on.
 - **fast start** (``fast_start``): for the first ``tau_acc`` s the low-pass is replaced by the
   running mean of the samples so far (from the first sample on, no start transient), and the
@@ -59,8 +59,8 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   filter). The wrong choice costs a rotation of ``|w| dt / 2`` about the rotation axis (on a
   100 Hz simulation at 2 rad/s: 0.19 deg inclination, 0.07 deg heading; tested both ways). On
   BROAD the defaults give 0.72 deg 6D inclination (0.79 at the end of the step) and 2.15 deg 9D
-  total (2.19); its accelerometer and magnetometer are later still (one sample: 0.68 and 2.09,
-  BENCHMARKS.md), a property of its hardware.
+  total (2.19); its accelerometer and magnetometer are later still (a one-sample ``acc_delay``
+  gives 0.68, a one-sample ``mag_delay`` 2.09; BENCHMARKS.md), a property of its hardware.
 
 Bad input: a non-finite gyroscope sample holds the state (GYR_INVALID); a non-finite or all-zero
 accelerometer (free fall, dropout) or magnetometer sample skips its correction (ACC_INVALID /
@@ -216,28 +216,33 @@ class RecommendedFilter(StepFilter):
                 if c.rest_bias:
                     bias += (1.0 - math.exp(-dt / c.rest_bias_tau)) * (RestDetector.lowpassed_gyr(rest_state) - bias)
 
-        # 2. gyroscope strapdown, body -> I
+        # 2. gyroscope strapdown, body -> I, in two half steps; q_mid: the middle of the step
+        q_mid = x[_QG:_QG + 4].copy()
         if gyr_ok:
-            x[_QG:_QG + 4] = quat_normalize(quat_mul(x[_QG:_QG + 4], quat_from_rotvec((gyr - bias) * dt)))
+            half_step = quat_from_rotvec((gyr - bias) * (0.5 * dt))
+            q_mid = quat_mul(q_mid, half_step)
+            x[_QG:_QG + 4] = quat_normalize(quat_mul(q_mid, half_step))
 
         # 3. inclination: the specific force low-passed in I, made vertical by q_tilt
         if acc_ok:
             if c.acc_gate is not None and abs(np.linalg.norm(acc) - c.gravity) > c.acc_gate:
                 flags |= Flag.ACC_REJECTED
             else:
-                qg = x[_QG:_QG + 4]
-                d = 0.5 * dt if c.acc_delay is None else c.acc_delay
-                if d != 0.0 and gyr_ok:  # the orientation the accelerometer sample belongs to
-                    qg = quat_mul(qg, quat_from_rotvec(-(gyr - bias) * d))
+                qg = x[_QG:_QG + 4]  # the orientation the accelerometer sample belongs to:
+                if c.acc_delay is None:
+                    qg = q_mid
+                elif c.acc_delay != 0.0 and gyr_ok:
+                    qg = quat_mul(qg, quat_from_rotvec(-(gyr - bias) * c.acc_delay))
                 self._tilt(x, quat_to_matrix(qg) @ acc, dt, rest)
         q6 = quat_mul(x[_QA:_QA + 4], x[_QG:_QG + 4])
 
         # 4. heading from the magnetometer, about the vertical only
         if mag_ok:
-            qm = q6
-            d = 0.5 * dt if c.mag_delay is None else c.mag_delay
-            if d != 0.0 and gyr_ok:  # the orientation the magnetometer sample belongs to
-                qm = quat_mul(q6, quat_from_rotvec(-(gyr - bias) * d))
+            qm = q6  # the orientation the magnetometer sample belongs to:
+            if c.mag_delay is None:
+                qm = quat_mul(x[_QA:_QA + 4], q_mid)
+            elif c.mag_delay != 0.0 and gyr_ok:
+                qm = quat_mul(q6, quat_from_rotvec(-(gyr - bias) * c.mag_delay))
             flags |= self._heading(x, quat_to_matrix(qm) @ mag, q6, dt, rest)
         half = 0.5 * x[_DELTA]
         q = quat_mul(np.array([math.cos(half), 0.0, 0.0, math.sin(half)]), q6)
@@ -360,6 +365,7 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
     t4 = np.empty(4)
     u4 = np.empty(4)
     q6 = np.empty(4)
+    qm = np.empty(4)
     v3 = np.empty(3)
     l4 = np.empty(4)
     last_dt = -1.0
@@ -385,13 +391,14 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
                 if rest_bias:
                     for i in range(3):
                         x[_BIAS + i] += k_rb * (rs[i] - x[_BIAS + i])
-        # 2. strapdown
+        # 2. strapdown in two half steps; qm: the middle of the step (the default pairing)
+        for i in range(4):
+            qm[i] = qg[i]
         if gyr_ok:
-            r0 = (g0 - x[_BIAS]) * h
-            r1 = (g1 - x[_BIAS + 1]) * h
-            r2 = (g2 - x[_BIAS + 2]) * h
-            rotvec_quat(r0, r1, r2, t4)
-            _qmul(qg, t4, u4)
+            hh = 0.5 * h
+            rotvec_quat((g0 - x[_BIAS]) * hh, (g1 - x[_BIAS + 1]) * hh, (g2 - x[_BIAS + 2]) * hh, t4)
+            _qmul(qg, t4, qm)
+            _qmul(qm, t4, u4)
             n = math.sqrt(u4[0] * u4[0] + u4[1] * u4[1] + u4[2] * u4[2] + u4[3] * u4[3])
             for i in range(4):
                 qg[i] = u4[i] / n
@@ -400,8 +407,10 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             if abs(math.sqrt(a0 * a0 + a1_ * a1_ + a2_ * a2_) - grav) > acc_gate:
                 flags |= 512
             else:
-                d = 0.5 * h if math.isnan(acc_delay) else acc_delay
-                if d != 0.0 and gyr_ok:  # the orientation the accelerometer sample belongs to
+                if math.isnan(acc_delay):  # the orientation the accelerometer sample belongs to
+                    _rot(qm, a0, a1_, a2_, v3, False)
+                elif acc_delay != 0.0 and gyr_ok:
+                    d = acc_delay
                     rotvec_quat((x[_BIAS] - g0) * d, (x[_BIAS + 1] - g1) * d, (x[_BIAS + 2] - g2) * d, l4)
                     _qmul(qg, l4, u4)
                     _rot(u4, a0, a1_, a2_, v3, False)
@@ -447,8 +456,11 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
         _qmul(qa, qg, q6)
         # 4. heading
         if mag_ok:
-            d = 0.5 * h if math.isnan(mag_delay) else mag_delay
-            if d != 0.0 and gyr_ok:  # the orientation the magnetometer sample belongs to
+            if math.isnan(mag_delay):  # the orientation the magnetometer sample belongs to
+                _qmul(qa, qm, u4)
+                _rot(u4, m0, m1, m2, v3, False)
+            elif mag_delay != 0.0 and gyr_ok:
+                d = mag_delay
                 rotvec_quat((x[_BIAS] - g0) * d, (x[_BIAS + 1] - g1) * d, (x[_BIAS + 2] - g2) * d, l4)
                 _qmul(q6, l4, u4)
                 _rot(u4, m0, m1, m2, v3, False)
