@@ -19,8 +19,8 @@ Per sample, in this fixed order:
    accelerometer reading: that correction is skipped.
 
 Two paths run this: the readable reference (:meth:`Pipeline._step`) and, when every plugin has
-a numba kernel (an estimator, any detectors, at most one ``state``-mode corrector), one
-compiled loop built by closing over the plugins' kernels (:func:`_build_loop`). ``Result.diagnostics["backend"]``
+a numba kernel (an estimator, any detectors, any correctors of either mode), one compiled loop
+built by closing over the plugins' kernels (:func:`_build_loop`). ``Result.diagnostics["backend"]``
 says which ran; the tests hold the two to 1e-9 on every sample.
 
 ``quat[k]`` is the orientation after sample ``k`` has been processed; sample ``k``'s rate is
@@ -196,19 +196,15 @@ class Pipeline(Filter):
 
     # -- the compiled path -----------------------------------------------------------------
     def _kernels(self):
-        if len(self.correctors) > 1:
-            return None
         ek = self.estimator.kernel()
         dks = [d.kernel() for d in self.detectors]
-        ck = None
-        if self.correctors:
-            cor = self.correctors[0]
-            ck = cor.kernel(self.estimator) if cor.mode == "state" else None
-            if ck is None:
-                return None
-        if ek is None or any(dk is None for dk in dks):
+        cks = [c.kernel(self.estimator) for c in self.correctors]
+        if ek is None or any(k is None for k in dks + cks):
             return None
-        return ek, dks, ck
+        for c, k in zip(self.correctors, cks):
+            if k.mode != c.mode:
+                raise ConfigError(f"corrector {c.name!r}: its kernel's mode {k.mode!r} is not its mode {c.mode!r}")
+        return ek, dks, cks
 
     def _loop_params(self) -> np.ndarray:
         pp = np.zeros(3)
@@ -218,24 +214,22 @@ class Pipeline(Filter):
         return pp
 
     def _run_compiled(self, st, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop) -> None:
-        ek, dks, ck = self._kernels()
+        ek, dks, cks = self._kernels()
         # a magnetometer-only detector cannot fire without one, and its reference step leaves its state alone
         used = [i for i, d in enumerate(self.detectors) if has_mag or not d.needs_mag]
         step = _get_detectors([(dks[i].step, int(self.detectors[i].flag), st["det"][i].size, dks[i].params.size,
                                 i == 0) for i in used])
-        det_state = np.concatenate([st["det"][i] for i in used] + [np.zeros(1)])
-        det_params = np.concatenate([dks[i].params for i in used] + [np.zeros(1)])
-        loop = _get_loop(ek, step, ck)
-        cor_state = st["cor"][0] if ck is not None else np.zeros(1)
-        cor_params = ck.params if ck is not None else np.zeros(1)
+        det_state = _concat([st["det"][i] for i in used])
+        det_params = _concat([dks[i].params for i in used])
+        cor_step = _get_correctors(ek, [(k.correct, k.mode, s.size, k.params.size) for k, s in zip(cks, st["cor"])])
+        cor_state = _concat(st["cor"])
+        cor_params = _concat([k.params for k in cks])
+        loop = _get_loop(ek, step, cor_step, bool(cks), any(k.mode == "rate" for k in cks))
         x = st["x"]
         loop(gyr, acc, mag, dt, has_mag, x, ek.params, det_state, det_params, cor_state, cor_params,
              st["align"], self.aligner(st["dt"]).params(), self._loop_params(), out_q, out_f, out_c, start, stop)
-        o = 0
-        for i in used:  # the detectors' states back from the concatenation
-            n = st["det"][i].size
-            st["det"][i][:] = det_state[o:o + n]
-            o += n
+        _split(det_state, [st["det"][i] for i in used])  # the states back from the concatenations
+        _split(cor_state, st["cor"])
 
     # -- public ----------------------------------------------------------------------------
     def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
@@ -333,9 +327,22 @@ def _no_detector(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
     return 0, 0
 
 
+def _concat(arrays) -> np.ndarray:
+    """Plugins' states or parameters end to end (one spare element: never empty for numba)."""
+    return np.concatenate([np.asarray(a, dtype=float).ravel() for a in arrays] + [np.zeros(1)])
+
+
+def _split(joined: np.ndarray, arrays) -> None:
+    """Copy ``joined`` (from :func:`_concat`) back into ``arrays``."""
+    o = 0
+    for a in arrays:
+        a[...] = joined[o:o + a.size].reshape(a.shape)
+        o += a.size
+
+
 @njit
-def _no_corrector(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, p):
-    return -1
+def _no_corrector(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate):
+    return flags
 
 
 _DETECTOR_CHAINS: dict[tuple, Any] = {}
@@ -370,26 +377,73 @@ def _chain_detector(before, kstep, flag, so, sn, po, pn, first):
     return step
 
 
-def _get_loop(ek, det_step, ck):
-    direct = ck is not None and ek.unit_quat
-    key = (ek.propagate, ek.to_quat, ek.from_quat, det_step, None if ck is None else ck.correct, direct)
+_CORRECTOR_CHAINS: dict[tuple, Any] = {}
+
+
+def _get_correctors(ek, specs):
+    """One compiled step for the correctors in order, ``step(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1,
+    m2, acc_ok, mag_ok, flags, dt, p, rate) -> flags``, over their states and parameters
+    concatenated. ``specs``: ``(kernel correct, mode, state size, params size)`` each. A state
+    corrector corrects the estimator (through ``q`` unless its state is its unit quaternion); a
+    rate corrector reads the current quaternion and adds into ``rate``."""
+    direct = ek.unit_quat
+    key = (ek.to_quat, ek.from_quat, direct, tuple(specs))
+    if key not in _CORRECTOR_CHAINS:
+        step = _no_corrector
+        so = po = 0
+        for correct, mode, sn, pn in specs:
+            step = _chain_corrector(step, correct, mode == "rate", ek.to_quat, ek.from_quat, direct, so, sn, po, pn)
+            so, po = so + sn, po + pn
+        _CORRECTOR_CHAINS[key] = step
+    return _CORRECTOR_CHAINS[key]
+
+
+def _chain_corrector(before, correct, is_rate, to_quat, from_quat, direct, so, sn, po, pn):
+    """``before`` followed by one corrector kernel on ``s[so:so + sn]``, ``p[po:po + pn]``."""
+
+    @njit(cache=False)
+    def step(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate):
+        flags = before(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate)
+        cs, cp = s[so:so + sn], p[po:po + pn]
+        if is_rate:
+            if direct:
+                cf = correct(x, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, cp, rate)
+            else:
+                to_quat(x, q)
+                cf = correct(q, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, cp, rate)
+        elif direct:
+            cf = correct(x, x, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, cp)
+        else:
+            to_quat(x, q)
+            cf = correct(x, q, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, cp)
+            if cf >= 0:
+                from_quat(q, x)
+        if cf > 0:
+            flags |= cf
+        return flags
+
+    return step
+
+
+def _get_loop(ek, det_step, cor_step, has_corrector, has_rate):
+    key = (ek.propagate, ek.to_quat, ek.from_quat, det_step, cor_step, has_corrector, has_rate)
     if key not in _LOOPS:
-        _LOOPS[key] = _build_loop(ek.propagate, ek.to_quat, ek.from_quat, det_step,
-                                  _no_corrector if ck is None else ck.correct, ck is not None, direct)
+        _LOOPS[key] = _build_loop(ek.propagate, ek.to_quat, ek.from_quat, det_step, cor_step, has_corrector, has_rate)
     return _LOOPS[key]
 
 
-def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_correct, has_corrector, direct):
+def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_step, has_corrector, has_rate):
     """One compiled loop over a recording for an estimator, the detectors (one chained step, see
-    :func:`_get_detectors`) and a state-mode corrector kernel (the same steps as
-    :meth:`Pipeline._step`). ``direct``: the estimator's state is its unit quaternion
-    (``EstimatorKernel.unit_quat``), so the corrector works on it in place."""
+    :func:`_get_detectors`) and the correctors (one chained step, :func:`_get_correctors`): the
+    same steps as :meth:`Pipeline._step`. ``has_rate``: some corrector returns a rate, the sum is
+    fed into the next propagation."""
     if not HAVE_NUMBA:  # pragma: no cover
         raise ConfigError("numba is not installed")
 
     @njit(cache=False)
     def loop(gyr, acc, mag, dt, has_mag, x, ep, ds, dp, cs, cp, al, ap, pp, out_q, out_f, out_c, start, stop):
         q = np.empty(4)
+        rate = np.zeros(3)
         motion = int(pp[2])
         for k in range(start, stop):
             g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
@@ -416,19 +470,13 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_correct
                 est_propagate(x, g0 - al[BIAS] + al[_RCORR], g1 - al[BIAS + 1] + al[_RCORR + 1],
                               g2 - al[BIAS + 2] + al[_RCORR + 2], dt[k], ep)
             if has_corrector:  # mag withheld on MAG_DISTURBED, acc on ACC_REJECTED, as in the reference
-                gm_ok = mag_ok and (flags & 256) == 0
-                ga_ok = acc_ok and (flags & 512) == 0
-                if direct:
-                    cf = cor_correct(x, x, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
-                                     m0, m1, m2, ga_ok, gm_ok, dt[k], cp)
-                else:
-                    est_to_quat(x, q)
-                    cf = cor_correct(x, q, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
-                                     m0, m1, m2, ga_ok, gm_ok, dt[k], cp)
-                    if cf >= 0:
-                        est_from_quat(q, x)
-                if cf > 0:
-                    flags |= cf
+                if has_rate:
+                    rate[0] = rate[1] = rate[2] = 0.0
+                flags = cor_step(x, q, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
+                                 m0, m1, m2, acc_ok and (flags & 512) == 0, mag_ok and (flags & 256) == 0, flags,
+                                 dt[k], cp, rate)
+                if has_rate:  # (without rate correctors it stays 0, as in the reference)
+                    al[_RCORR], al[_RCORR + 1], al[_RCORR + 2] = rate[0], rate[1], rate[2]
             est_to_quat(x, q)
             out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
             out_f[k] = flags

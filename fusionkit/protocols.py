@@ -94,14 +94,25 @@ class DetectorKernel(NamedTuple):
 
 
 class CorrectorKernel(NamedTuple):
-    """numba counterpart of a ``mode == "state"`` corrector: ``correct(x, q, s, g0, g1, g2, a0, a1,
-    a2, m0, m1, m2, acc_ok, mag_ok, dt, params) -> int``. ``x`` is the estimator's state, ``q`` its
-    quaternion (``to_quat(x)``), ``s`` the corrector's state; it writes the corrected quaternion
-    into ``q`` and returns the flag bits, or -1 when it left the estimator alone (the pipeline then
-    does not write ``q`` back with ``from_quat``). ``g`` is the rate the estimator integrated."""
+    """numba counterpart of a corrector.
+
+    ``mode == "state"``: ``correct(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt,
+    params) -> int``. ``x`` is the estimator's state, ``q`` its quaternion (``to_quat(x)``), ``s``
+    the corrector's state; it writes the corrected quaternion into ``q`` and returns the flag bits,
+    or -1 when it left the estimator alone (the pipeline then does not write ``q`` back with
+    ``from_quat``).
+
+    ``mode == "rate"``: ``correct(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags,
+    dt, params, rate) -> int``: ``q`` is the estimate's quaternion (read only), ``flags`` the
+    sample's flags so far; it *adds* its correction rate into ``rate`` (summed with the other rate
+    correctors, fed into the next propagation) and returns its flag bits.
+
+    In both, ``g`` is the gyroscope with the alignment's bias removed (as in the reference's
+    ``sample.gyr``); ``acc_ok`` / ``mag_ok`` are False where the reference's sample has None."""
 
     correct: Callable
     params: np.ndarray
+    mode: str = "state"
 
 
 class Correction(NamedTuple):
@@ -163,7 +174,7 @@ class Corrector(Plugin, ABC):
         """Correct after the propagation of ``sample``; ``flags`` are the sample's flags so far."""
 
     def kernel(self, estimator: Estimator) -> CorrectorKernel | None:
-        """The compiled counterpart for this estimator (``mode == "state"`` only), or None."""
+        """The compiled counterpart for this estimator (its ``mode`` that of the corrector), or None."""
         return None
 
 

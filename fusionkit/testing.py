@@ -10,7 +10,8 @@ over equals one run, a NaN sample raises ``InputError`` naming it (``nan_policy=
 is held and flagged (``"skip"``), a wrong shape raises ``InputError``, and the numba backend
 (when the filter has one) matches the reference to 1e-9. Estimators: the state round-trips a
 quaternion and the kernel matches the reference. Detectors: one criteria value per sample and
-kernel == reference. Correctors: they run inside a pipeline with finite unit output.
+kernel == reference. Correctors: they run inside a pipeline with finite unit output, and the
+pipeline compiled with their kernel (when they have one) matches the reference to 1e-9.
 """
 
 from __future__ import annotations
@@ -211,3 +212,12 @@ def _check_corrector(cls, params, rec) -> None:
                   "detectors": detectors, "alignment": {"mode": "fixed", "duration": 1.0}})
     res = p.run(rec, backend="reference")
     _assert_unit_quats(cls.name + " in a pipeline", res.quat, len(rec))
+    kernel = p.correctors[0].kernel(p.estimator)
+    if kernel is not None and HAVE_NUMBA:
+        assert kernel.mode == cls.mode, f"{cls.name}: its kernel's mode {kernel.mode!r} is not its mode {cls.mode!r}"
+        fast = p.run(rec, backend="numba")
+        d = np.abs(fast.quat - res.quat).max()
+        assert d < TOL, f"{cls.name}: kernel and reference differ by {d:.2e} in a pipeline"
+        assert np.array_equal(fast.flags, res.flags), f"{cls.name}: kernel and reference flags differ"
+        for a, b in zip(fast.diagnostics["state"]["cor"], res.diagnostics["state"]["cor"]):
+            assert np.allclose(a, b, rtol=0, atol=TOL), f"{cls.name}: kernel and reference states differ"

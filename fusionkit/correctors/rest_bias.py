@@ -14,7 +14,9 @@ propagation, summed with the other rate correctors). So the estimator integrates
 detector took for rest cannot teach a bias larger than any the gyro has).
 
 The pipeline refuses this corrector without a detector that sets ``Flag.REST`` (it would never
-learn). The ``recommended`` filter does the same inside its own loop (``rest_bias``).
+learn). The ``recommended`` filter does the same inside its own loop (``rest_bias``). The
+readable reference is :meth:`RestBiasCorrector.correct`; :func:`rest_bias_correct` is its
+kernel (rate mode, any estimator), held to it on every sample by the tests.
 """
 
 from __future__ import annotations
@@ -24,11 +26,14 @@ from typing import ClassVar
 
 import numpy as np
 
+from .._numba import njit
 from ..config import PluginConfig, param
-from ..protocols import Correction, Corrector
+from ..protocols import Correction, Corrector, CorrectorKernel
 from ..types import Flag
 
-__all__ = ["RestBiasConfig", "RestBiasCorrector"]
+__all__ = ["RestBiasConfig", "RestBiasCorrector", "rest_bias_correct"]
+
+_REST = int(Flag.REST)
 
 
 class RestBiasConfig(PluginConfig):
@@ -56,3 +61,26 @@ class RestBiasCorrector(Corrector):
             if n > self.config.max_bias:
                 state *= self.config.max_bias / n
         return Correction(-state.copy(), 0)
+
+    def kernel(self, estimator) -> CorrectorKernel:
+        return CorrectorKernel(rest_bias_correct, np.array([self.config.tau, self.config.max_bias]), mode="rate")
+
+
+@njit
+def rest_bias_correct(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate):
+    """The kernel of :meth:`RestBiasCorrector.correct`: ``s`` the bias, ``p = (tau, max_bias)``."""
+    if (flags & _REST) != 0 and math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2):
+        k = 1.0 - math.exp(-dt / p[0])
+        s[0] += k * (g0 - s[0])
+        s[1] += k * (g1 - s[1])
+        s[2] += k * (g2 - s[2])
+        n = math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
+        if n > p[1]:
+            f = p[1] / n
+            s[0] *= f
+            s[1] *= f
+            s[2] *= f
+    rate[0] -= s[0]
+    rate[1] -= s[1]
+    rate[2] -= s[2]
+    return 0
