@@ -20,13 +20,16 @@ except ImportError:  # pragma: no cover
 BACKENDS = ("auto", "numba", "reference")
 
 
-def njit(func=None, *, cache: bool = True):
-    """``numba.njit(cache=cache, fastmath=False, nogil=True)`` or the identity without numba."""
+def njit(func=None, *, cache: bool = True, inline: str = "never"):
+    """``numba.njit(cache=cache, fastmath=False, nogil=True, inline=inline)`` or the identity
+    without numba. ``inline="always"`` inlines the function into its callers at numba's IR level
+    (no call, no reference counting of the array arguments): for the small glue functions the
+    pipeline chains its plugins' kernels with."""
 
     def wrap(f):
         if not HAVE_NUMBA:
             return f
-        return _nb.njit(cache=cache, fastmath=False, nogil=True)(f)
+        return _nb.njit(cache=cache, fastmath=False, nogil=True, inline=inline)(f)
 
     return wrap(func) if func is not None else wrap
 

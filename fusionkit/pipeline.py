@@ -221,10 +221,15 @@ class Pipeline(Filter):
                                 i == 0) for i in used])
         det_state = _concat([st["det"][i] for i in used])
         det_params = _concat([dks[i].params for i in used])
-        cor_step = _get_correctors(ek, [(k.correct, k.mode, s.size, k.params.size) for k, s in zip(cks, st["cor"])])
+        if len(cks) == 1 and cks[0].mode == "state":  # the common case, called without the chain's glue
+            single, chain = cks[0].correct, _no_corrector
+        else:
+            single = _no_state_corrector
+            chain = _get_correctors(ek, [(k.correct, k.mode, s.size, k.params.size) for k, s in zip(cks, st["cor"])])
         cor_state = _concat(st["cor"])
         cor_params = _concat([k.params for k in cks])
-        loop = _get_loop(ek, step, cor_step, bool(cks), any(k.mode == "rate" for k in cks))
+        loop = _get_loop(ek, step, single, chain, 0 if not cks else 1 if single is not _no_state_corrector else 2,
+                         any(k.mode == "rate" for k in cks))
         x = st["x"]
         loop(gyr, acc, mag, dt, has_mag, x, ek.params, det_state, det_params, cor_state, cor_params,
              st["align"], self.aligner(st["dt"]).params(), self._loop_params(), out_q, out_f, out_c, start, stop)
@@ -322,7 +327,7 @@ def _progress(n: int, progress: bool | None, desc: str):
 _LOOPS: dict[tuple, Any] = {}
 
 
-@njit
+@njit(inline="always")
 def _no_detector(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
     return 0, 0
 
@@ -341,6 +346,11 @@ def _split(joined: np.ndarray, arrays) -> None:
 
 
 @njit
+def _no_state_corrector(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, p):
+    return -1
+
+
+@njit(inline="always")
 def _no_corrector(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate):
     return flags
 
@@ -366,7 +376,7 @@ def _get_detectors(specs):
 def _chain_detector(before, kstep, flag, so, sn, po, pn, first):
     """``before`` followed by one detector kernel on ``s[so:so + sn]``, ``p[po:po + pn]``."""
 
-    @njit(cache=False)
+    @njit(cache=False, inline="always")
     def step(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
         c0, flags = before(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p)
         c = kstep(s[so:so + sn], g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p[po:po + pn])
@@ -401,7 +411,7 @@ def _get_correctors(ek, specs):
 def _chain_corrector(before, correct, is_rate, to_quat, from_quat, direct, so, sn, po, pn):
     """``before`` followed by one corrector kernel on ``s[so:so + sn]``, ``p[po:po + pn]``."""
 
-    @njit(cache=False)
+    @njit(cache=False, inline="always")
     def step(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate):
         flags = before(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate)
         cs, cp = s[so:so + sn], p[po:po + pn]
@@ -425,18 +435,23 @@ def _chain_corrector(before, correct, is_rate, to_quat, from_quat, direct, so, s
     return step
 
 
-def _get_loop(ek, det_step, cor_step, has_corrector, has_rate):
-    key = (ek.propagate, ek.to_quat, ek.from_quat, det_step, cor_step, has_corrector, has_rate)
+def _get_loop(ek, det_step, cor_single, cor_chain, cor_kind, has_rate):
+    direct = ek.unit_quat
+    key = (ek.propagate, ek.to_quat, ek.from_quat, det_step, cor_single, cor_chain, cor_kind, has_rate, direct)
     if key not in _LOOPS:
-        _LOOPS[key] = _build_loop(ek.propagate, ek.to_quat, ek.from_quat, det_step, cor_step, has_corrector, has_rate)
+        _LOOPS[key] = _build_loop(ek.propagate, ek.to_quat, ek.from_quat, det_step, cor_single, cor_chain, cor_kind,
+                                  has_rate, direct)
     return _LOOPS[key]
 
 
-def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_step, has_corrector, has_rate):
+def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_single, cor_chain, cor_kind, has_rate,
+                direct):
     """One compiled loop over a recording for an estimator, the detectors (one chained step, see
-    :func:`_get_detectors`) and the correctors (one chained step, :func:`_get_correctors`): the
-    same steps as :meth:`Pipeline._step`. ``has_rate``: some corrector returns a rate, the sum is
-    fed into the next propagation."""
+    :func:`_get_detectors`) and the correctors: the same steps as :meth:`Pipeline._step`.
+    ``cor_kind``: 0 no corrector; 1 one state-mode kernel ``cor_single``, called directly (on the
+    estimator's state itself when ``direct``: it is its unit quaternion); 2 the chained step
+    ``cor_chain`` (:func:`_get_correctors`). ``has_rate``: some corrector returns a rate, the sum
+    is fed into the next propagation."""
     if not HAVE_NUMBA:  # pragma: no cover
         raise ConfigError("numba is not installed")
 
@@ -469,12 +484,26 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_step, h
             if gyr_ok:
                 est_propagate(x, g0 - al[BIAS] + al[_RCORR], g1 - al[BIAS + 1] + al[_RCORR + 1],
                               g2 - al[BIAS + 2] + al[_RCORR + 2], dt[k], ep)
-            if has_corrector:  # mag withheld on MAG_DISTURBED, acc on ACC_REJECTED, as in the reference
+            if cor_kind == 1:  # mag withheld on MAG_DISTURBED, acc on ACC_REJECTED, as in the reference
+                gm_ok = mag_ok and (flags & 256) == 0
+                ga_ok = acc_ok and (flags & 512) == 0
+                if direct:
+                    cf = cor_single(x, x, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
+                                    m0, m1, m2, ga_ok, gm_ok, dt[k], cp)
+                else:
+                    est_to_quat(x, q)
+                    cf = cor_single(x, q, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
+                                    m0, m1, m2, ga_ok, gm_ok, dt[k], cp)
+                    if cf >= 0:
+                        est_from_quat(q, x)
+                if cf > 0:
+                    flags |= cf
+            elif cor_kind == 2:
                 if has_rate:
                     rate[0] = rate[1] = rate[2] = 0.0
-                flags = cor_step(x, q, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
-                                 m0, m1, m2, acc_ok and (flags & 512) == 0, mag_ok and (flags & 256) == 0, flags,
-                                 dt[k], cp, rate)
+                flags = cor_chain(x, q, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
+                                  m0, m1, m2, acc_ok and (flags & 512) == 0, mag_ok and (flags & 256) == 0, flags,
+                                  dt[k], cp, rate)
                 if has_rate:  # (without rate correctors it stays 0, as in the reference)
                     al[_RCORR], al[_RCORR + 1], al[_RCORR + 2] = rate[0], rate[1], rate[2]
             est_to_quat(x, q)
