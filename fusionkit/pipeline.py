@@ -221,15 +221,15 @@ class Pipeline(Filter):
                                 i == 0) for i in used])
         det_state = _concat([st["det"][i] for i in used])
         det_params = _concat([dks[i].params for i in used])
+        single, chain, kind = _no_state_corrector, _no_corrector, 0  # no corrector
         if len(cks) == 1 and cks[0].mode == "state":  # the common case, called without the chain's glue
-            single, chain = cks[0].correct, _no_corrector
-        else:
-            single = _no_state_corrector
+            single, kind = cks[0].correct, 1
+        elif cks:
             chain = _get_correctors(ek, [(k.correct, k.mode, s.size, k.params.size) for k, s in zip(cks, st["cor"])])
+            kind = 2
         cor_state = _concat(st["cor"])
         cor_params = _concat([k.params for k in cks])
-        loop = _get_loop(ek, step, single, chain, 0 if not cks else 1 if single is not _no_state_corrector else 2,
-                         any(k.mode == "rate" for k in cks))
+        loop = _get_loop(ek, step, single, chain, kind, any(k.mode == "rate" for k in cks))
         x = st["x"]
         loop(gyr, acc, mag, dt, has_mag, x, ek.params, det_state, det_params, cor_state, cor_params,
              st["align"], self.aligner(st["dt"]).params(), self._loop_params(), out_q, out_f, out_c, start, stop)
