@@ -58,6 +58,11 @@ CASES = {
     "gradient-descent 9D, N = 1 (+ magnetic detector)": (lambda: fk.make("gradient-descent"), True, "ours"),
     "gradient-descent madgwick=True, 6D": (lambda: fk.make("gradient-descent", madgwick=True), False, "ours"),
     "channel-dcm 9D (source 002)": (lambda: fk.make("channel-dcm"), True, "ours"),
+    "pipeline: poisson-quat + gst corrector (rate mode)": (
+        pipe({"estimator": "poisson-quat", "detectors": ["motion"], "correctors": ["gst"]}), False, "ours"),
+    "pipeline: gradient-descent + rest-bias (state + rate, rest detector)": (
+        pipe({"estimator": "poisson-quat", "correctors": ["gradient-descent", "rest-bias"], "detectors": ["rest"],
+              "alignment": {"mode": "fixed", "duration": 3.0}}), False, "ours"),
     "recommended 9D": (lambda: fk.make("recommended"), True, "ours"),
     "recommended 6D": (lambda: fk.make("recommended"), False, "ours"),
     "ekf 9D (filterpy)": (lambda: fk.make("ekf"), True, "ref-only"),

@@ -208,6 +208,25 @@ def test_corrector_plugins_match_the_filters_in_a_pipeline(name):
         assert broad_errors(corrector_pipeline(name).run(rec).quat, rec.truth)["heading"][late].max() < 1.0
 
 
+@pytest.mark.parametrize("params", [{}, {"reject": False}])
+def test_gst_corrector_kernel_matches_reference(params):
+    """The autonomous corrector compiles (rate-mode kernel): equal to the reference on every
+    sample, rejections (ACC_REJECTED) included, and split runs equal one run. ``gst-gnss`` needs
+    the GNSS rows the compiled loop does not carry: it runs the reference path."""
+    rec = north_run(heading_deg=60.0)
+    p = corrector_pipeline("gst", **params)
+    a, b = p.run(rec, backend="numba"), p.run(rec, backend="reference")
+    assert a.diagnostics["backend"] == "numba"
+    assert np.abs(a.quat - b.quat).max() < 1e-9 and np.array_equal(a.flags, b.flags)
+    assert bool((a.flags & Flag.ACC_REJECTED).any()) == (params == {})
+    np.testing.assert_allclose(a.diagnostics["state"]["cor"][0], b.diagnostics["state"]["cor"][0], atol=1e-9)
+    n1 = len(rec) // 2
+    r1 = p.run(rec.slice(0, n1), backend="numba")
+    r2 = p.run(rec.slice(n1, len(rec)), backend="numba", state=r1.diagnostics["state"])
+    assert np.abs(np.vstack([r1.quat, r2.quat]) - a.quat).max() < 1e-12
+    assert corrector_pipeline("gst-gnss").run(rec).diagnostics["backend"] == "reference"
+
+
 def test_corrector_gap_flags_and_streaming():
     rec = north_run(accel_s=30.0, v=20.0)
     valid = rec.gnss.valid.copy()

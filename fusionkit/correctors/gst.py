@@ -14,6 +14,9 @@ is ``w_P = K u x d`` for the horizontal residual ``d`` (frame independent).
 
 The ``gst`` / ``gst-gnss`` filters implement the same laws on the document's azimuth-free
 platform with a compiled loop; these correctors let them be composed with other estimators.
+``gst`` has a kernel (:func:`gst_correct`, rate mode, held to the reference on every sample);
+``gst-gnss`` needs the sample's GNSS row, which the compiled pipeline does not carry, so a
+pipeline with it runs the reference path.
 """
 
 from __future__ import annotations
@@ -23,13 +26,14 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
+from .._numba import njit
 from ..config import PluginConfig, param
 from ..conventions import east_vector, north_vector, up_vector
-from ..protocols import Correction, Corrector
+from ..protocols import Correction, Corrector, CorrectorKernel
 from ..rotations import quat_to_matrix
 from ..types import Flag
 
-__all__ = ["GstCorrector", "GstGnssCorrector"]
+__all__ = ["GstCorrector", "GstGnssCorrector", "gst_correct"]
 
 _FORWARD = {"RFU": [0.0, 1.0, 0.0], "FRD": [1.0, 0.0, 0.0], "FLU": [1.0, 0.0, 0.0]}
 # state: up (3), north (3), east (3), lp auto (3), lp gnss (3), |f| at rest, seconds rejected,
@@ -96,6 +100,51 @@ class GstCorrector(Corrector):
         if d is None:
             return Correction(np.zeros(3), Flag.ACC_REJECTED)
         return Correction(self._rate(r, state, d, self.config.tau))
+
+
+    def kernel(self, estimator) -> CorrectorKernel | None:
+        if type(self) is not GstCorrector:  # gst-gnss: the compiled loop has no GNSS rows
+            return None
+        c = self.config
+        return CorrectorKernel(gst_correct, np.array([c.tau, c.lp, c.gravity, float(c.reject), c.reject_acc,
+                                                      c.reject_turn, c.reject_horizontal, c.reject_timeout]),
+                               mode="rate")
+
+
+_ACC_REJECTED = int(Flag.ACC_REJECTED)
+
+
+@njit
+def gst_correct(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate):
+    """The kernel of :meth:`GstCorrector.correct`: ``p`` = (tau, lp, gravity, reject, reject_acc,
+    reject_turn, reject_horizontal, reject_timeout)."""
+    if not acc_ok:
+        return 0
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    r00, r01, r02 = 1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)
+    r10, r11, r12 = 2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)
+    r20, r21, r22 = 2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)
+    u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
+    f0, f1, f2 = r00 * a0 + r01 * a1 + r02 * a2, r10 * a0 + r11 * a1 + r12 * a2, r20 * a0 + r21 * a1 + r22 * a2
+    fu = f0 * u0 + f1 * u1 + f2 * u2
+    w_up = ((r00 * g0 + r01 * g1 + r02 * g2) * u0 + (r10 * g0 + r11 * g1 + r12 * g2) * u1
+            + (r20 * g0 + r21 * g1 + r22 * g2) * u2)
+    k = 1.0 - math.exp(-dt / p[1])
+    s[_LPA] += k * ((f0 - fu * u0) - s[_LPA])
+    s[_LPA + 1] += k * ((f1 - fu * u1) - s[_LPA + 1])
+    s[_LPA + 2] += k * ((f2 - fu * u2) - s[_LPA + 2])
+    d0, d1, d2 = s[_LPA], s[_LPA + 1], s[_LPA + 2]
+    horizontal = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) > p[6]
+    s[_REJT] = s[_REJT] + dt if horizontal else 0.0
+    if p[3] != 0.0 and (abs(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) - p[2]) > p[4] or abs(w_up) > p[5]
+                        or (horizontal and s[_REJT] <= p[7])):
+        return _ACC_REJECTED
+    kg = 1.0 / (p[2] * p[0])  # w_P = K u x d, the rate -R^T w_P
+    wp0, wp1, wp2 = (u1 * d2 - u2 * d1) * kg, (u2 * d0 - u0 * d2) * kg, (u0 * d1 - u1 * d0) * kg
+    rate[0] -= r00 * wp0 + r10 * wp1 + r20 * wp2
+    rate[1] -= r01 * wp0 + r11 * wp1 + r21 * wp2
+    rate[2] -= r02 * wp0 + r12 * wp1 + r22 * wp2
+    return 0
 
 
 class GstGnssCorrectorConfig(GstCorrectorConfig):
