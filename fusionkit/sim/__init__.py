@@ -68,7 +68,7 @@ class Noise:
                    mag_noise=0.3)
 
 
-_QUADRATURE_NODES = 5  # Gauss-Legendre nodes per sample for the interval-mean accelerometer
+_QUADRATURE_NODES = 5  # Gauss-Legendre nodes per sample for the interval means (sampling="mean")
 
 
 def _segment_motion(seg, q0, u, duration):
@@ -80,7 +80,8 @@ def _segment_motion(seg, q0, u, duration):
         quat = np.tile(q0, (u.size, 1))
         if isinstance(seg, Translate):
             d = np.asarray(seg.direction, dtype=float)
-            acc_e = (2.0 * np.pi * seg.distance / duration**2 * np.sin(2.0 * np.pi * u))[:, None] * (d / np.linalg.norm(d))
+            d = d / np.linalg.norm(d)
+            acc_e = (2.0 * np.pi * seg.distance / duration**2 * np.sin(2.0 * np.pi * u))[:, None] * d
     return quat, acc_e
 
 
