@@ -155,6 +155,17 @@ _wrap = wrap_angle
 _kwrap = njit(wrap_angle)
 
 
+def _paired(q_end, q_mid, delay, rate, gyr_ok):
+    """The orientation a sample belongs to (``acc_delay`` / ``mag_delay``): ``q_mid``, the middle of
+    the step (``delay`` None); ``q_end (x) exp(-rate delay)``, ``delay`` before its end; or ``q_end``
+    (0, or no valid gyro sample)."""
+    if delay is None:
+        return q_mid
+    if delay != 0.0 and gyr_ok:
+        return quat_mul(q_end, quat_from_rotvec(-rate * delay))
+    return q_end
+
+
 class RecommendedFilter(StepFilter):
     """Gyro strapdown + inclination from the inertially low-passed accelerometer + separate
     heading from the magnetometer; rest/motion bias, magnetic disturbance rejection, fast start."""
@@ -228,21 +239,13 @@ class RecommendedFilter(StepFilter):
             if c.acc_gate is not None and abs(np.linalg.norm(acc) - c.gravity) > c.acc_gate:
                 flags |= Flag.ACC_REJECTED
             else:
-                qg = x[_QG:_QG + 4]  # the orientation the accelerometer sample belongs to:
-                if c.acc_delay is None:
-                    qg = q_mid
-                elif c.acc_delay != 0.0 and gyr_ok:
-                    qg = quat_mul(qg, quat_from_rotvec(-(gyr - bias) * c.acc_delay))
+                qg = _paired(x[_QG:_QG + 4], q_mid, c.acc_delay, gyr - bias, gyr_ok)
                 self._tilt(x, quat_to_matrix(qg) @ acc, dt, rest)
         q6 = quat_mul(x[_QA:_QA + 4], x[_QG:_QG + 4])
 
         # 4. heading from the magnetometer, about the vertical only
         if mag_ok:
-            qm = q6  # the orientation the magnetometer sample belongs to:
-            if c.mag_delay is None:
-                qm = quat_mul(x[_QA:_QA + 4], q_mid)
-            elif c.mag_delay != 0.0 and gyr_ok:
-                qm = quat_mul(q6, quat_from_rotvec(-(gyr - bias) * c.mag_delay))
+            qm = _paired(q6, quat_mul(x[_QA:_QA + 4], q_mid), c.mag_delay, gyr - bias, gyr_ok)
             flags |= self._heading(x, quat_to_matrix(qm) @ mag, q6, dt, rest)
         half = 0.5 * x[_DELTA]
         q = quat_mul(np.array([math.cos(half), 0.0, 0.0, math.sin(half)]), q6)
@@ -407,7 +410,7 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             if abs(math.sqrt(a0 * a0 + a1_ * a1_ + a2_ * a2_) - grav) > acc_gate:
                 flags |= 512
             else:
-                if math.isnan(acc_delay):  # the orientation the accelerometer sample belongs to
+                if math.isnan(acc_delay):  # the orientation the sample belongs to (as _paired)
                     _rot(qm, a0, a1_, a2_, v3, False)
                 elif acc_delay != 0.0 and gyr_ok:
                     d = acc_delay
@@ -456,7 +459,7 @@ def _rec_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
         _qmul(qa, qg, q6)
         # 4. heading
         if mag_ok:
-            if math.isnan(mag_delay):  # the orientation the magnetometer sample belongs to
+            if math.isnan(mag_delay):  # the orientation the sample belongs to (as _paired)
                 _qmul(qa, qm, u4)
                 _rot(u4, m0, m1, m2, v3, False)
             elif mag_delay != 0.0 and gyr_ok:
