@@ -1,5 +1,5 @@
 """The ``fusionkit`` command: ``list``, ``describe NAME``, ``run NAME|CONFIG INPUT -o OUT.csv``,
-``demo``."""
+``bench``, ``sweep``, ``lags INPUT...``, ``demo``."""
 
 from __future__ import annotations
 
@@ -163,6 +163,36 @@ def cmd_sweep(args) -> int:
     return 0
 
 
+def _recordings(specs: list[str]):
+    """(name, loader) for each input: a recording file, ``sim:NAME``, or a folder of trials."""
+    from .benchmarking.datasets import discover
+
+    for spec in specs:
+        if not spec.startswith("sim:") and Path(spec).is_dir():
+            for trial in discover(spec):
+                yield trial.name, trial.load
+        else:
+            yield spec, lambda spec=spec: _load_input(spec)
+
+
+def cmd_lags(args) -> int:
+    from .benchmarking.timing import sensor_lags
+
+    print("| recording | gyr lag (samples) | gyr lag (ms) | gyr residual (rad/s) | acc lag (samples) | acc lag (ms) "
+          "| acc residual (m/s^2) |\n|---|---:|---:|---:|---:|---:|---:|")
+    failed = 0
+    for name, load in _recordings(args.inputs):
+        rec = load()
+        if rec.truth is None:
+            print(f"| {name} | no reference | | | | | |")
+            failed += 1
+            continue
+        r = sensor_lags(rec, max_lag=args.max_lag, cutoff=args.cutoff)
+        print(f"| {name} | {r.gyr:+.2f} | {1e3 * r.gyr_seconds:+.2f} | {r.gyr_rms:.3f} | {r.acc:+.2f} | "
+              f"{1e3 * r.acc_seconds:+.2f} | {r.acc_rms:.3f} |")
+    return 1 if failed else 0
+
+
 def cmd_demo(args) -> int:
     from .demo import run_demo
 
@@ -209,6 +239,12 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--no-cache", action="store_true")
     s.add_argument("-o", "--output", default=None)
     s.set_defaults(func=cmd_sweep)
+    lg = sub.add_parser("lags", help="how many samples the gyro and accelerometer run behind the reference "
+                        "orientation (fusionkit's convention: 0.5)")
+    lg.add_argument("inputs", nargs="+", help="recording files, folders of trials, or sim:NAME")
+    lg.add_argument("--max-lag", type=float, default=3.0, help="search range, samples")
+    lg.add_argument("--cutoff", type=float, default=20.0, help="low-pass on both sides, Hz")
+    lg.set_defaults(func=cmd_lags)
     m = sub.add_parser("demo", help="every built-in filter side by side on simulated recordings")
     m.add_argument("--plot", default="fusionkit-demo.png", help="PNG to write ('' for none)")
     m.add_argument("--filters", default="", help="comma-separated filter names (default: all)")

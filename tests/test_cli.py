@@ -3,6 +3,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from fusionkit.cli import main
 
@@ -53,3 +54,19 @@ def test_progress_bar_on_request(capsys, imu_rec):
     assert "sample" in capsys.readouterr().err  # tqdm writes its bar to stderr
     fk.make("poisson").run(imu_rec)  # short input, not a terminal: no bar
     assert capsys.readouterr().err == ""
+
+
+def test_lags_table(tmp_path, capsys):
+    """``fusionkit lags``: the simulator follows fusionkit's convention (half a sample for both
+    sensors); a recording without a reference is reported and fails the command."""
+    assert main(["lags", "sim:fast-rotation"]) == 0
+    row = capsys.readouterr().out.splitlines()[-1].split("|")
+    assert float(row[2]) == pytest.approx(0.5, abs=0.05) and float(row[5]) == pytest.approx(0.5, abs=0.05)
+    from fusionkit import Recording, sim
+    from fusionkit.io.loaders import write_csv
+
+    rec = sim.demo_recordings()[0]
+    path = tmp_path / "no_truth.csv"
+    write_csv(Recording(gyr=rec.gyr, acc=rec.acc, rate=rec.rate), path)
+    assert main(["lags", str(path)]) == 1
+    assert "no reference" in capsys.readouterr().out

@@ -193,7 +193,8 @@ def test_bad_input_is_flagged_and_never_nan(rec):
 def test_output_lead_compensates_a_delayed_gyro():
     """A gyroscope whose samples arrive 2 samples late: the estimate lags the truth; an output
     lead of that delay predicts it back. The state is the same with and without the lead (only
-    the output changes), and on data without delay the lead costs accuracy (default 0)."""
+    the output changes), and on data without delay the lead costs accuracy (default 0). A longer
+    ``acc_delay`` does not do the lead's work."""
     rec = motion(seed=3, n=2)
     late = dataclasses.replace(rec, gyr=np.vstack([np.zeros((2, 3)) + BIAS, rec.gyr[:-2]]))
     plain, lead = fk.make("recommended"), fk.make("recommended", output_lead=0.02)
@@ -206,6 +207,9 @@ def test_output_lead_compensates_a_delayed_gyro():
     # the best lead is the delay itself
     assert err(b, late) < min(err(fk.make("recommended", output_lead=t).run(late), late) for t in (0.01, 0.03))
     assert err(lead.run(rec), rec) > err(plain.run(rec), rec)
+    # a late gyro is not a late accelerometer the other way round: pairing the accelerometer with
+    # an older orientation (a longer acc_delay) adds to the error instead of removing it
+    assert err(fk.make("recommended", acc_delay=0.02).run(late), late) > err(a, late)
 
 
 def test_sensors_paired_with_the_middle_of_the_step_by_default():

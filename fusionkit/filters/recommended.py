@@ -45,9 +45,11 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   low-pass and the heading start from the first sample.
 - **output lead** (``output_lead``, 0 by default): the output is predicted ahead by the gyro rate,
   ``q (x) exp((w - bias) lead)``, to compensate a gyroscope that is late against the time base
-  (its filter's group delay); the state is not changed. On BROAD the IMU runs half a sample to a
-  sample behind the optical reference on 15 of 16 trials (BENCHMARKS.md); a lead there is a
-  property of that hardware, not a default for every sensor.
+  (its filter's group delay); the state is not changed. ``fusionkit lags`` measures the delay
+  against a reference (:mod:`fusionkit.benchmarking.timing`): on every BROAD trial the gyroscope
+  is 1.2 samples behind the optical reference, 0.7 samples (2.45 ms) later than fusionkit's
+  convention, while the accelerometer follows the convention. A lead there is a property of that
+  hardware, not a default for every sensor.
 - **sensor pairing** (``acc_delay``, ``mag_delay``): gyro sample k's step covers
   ``(t[k-1], t[k]]`` and ends at ``q_gyr``. An accelerometer or magnetometer sampled like the
   gyro describes the middle of that step (a mean over the interval is centred there; with point
@@ -59,8 +61,10 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   filter). The wrong choice costs a rotation of ``|w| dt / 2`` about the rotation axis (on a
   100 Hz simulation at 2 rad/s: 0.19 deg inclination, 0.07 deg heading; tested both ways). On
   BROAD the defaults give 0.72 deg 6D inclination (0.79 at the end of the step) and 2.15 deg 9D
-  total (2.19); its accelerometer and magnetometer are later still (a one-sample ``acc_delay``
-  gives 0.68, a one-sample ``mag_delay`` 2.09; BENCHMARKS.md), a property of its hardware.
+  total (2.19). A longer pairing helps there too (a one-sample ``acc_delay`` gives 0.68, a
+  one-sample ``mag_delay`` 2.09; BENCHMARKS.md), but not because BROAD's accelerometer is late:
+  it follows the convention (``fusionkit lags``), and on simulated data a longer ``acc_delay``
+  does not make up for a late gyro, it adds to its error. Why it helps on BROAD is not known.
 
 Bad input: a non-finite gyroscope sample holds the state (GYR_INVALID); a non-finite or all-zero
 accelerometer (free fall, dropout) or magnetometer sample skips its correction (ACC_INVALID /
@@ -126,14 +130,14 @@ class RecommendedConfig(FilterConfig):
     gravity: float = param(9.81, unit="m/s^2", description="g for acc_gate", gt=0)
     output_lead: float = param(
         0.0, unit="s", description="output the orientation this far ahead, q (x) exp((w - bias) lead): compensates a "
-        "known delay of the gyroscope against the time base (its filter's group delay; on BROAD one sample, see "
-        "BENCHMARKS.md); the state is not changed. 0: the estimate itself", ge=0)
+        "known delay of the gyroscope against the time base (its filter's group delay; `fusionkit lags` measures it: "
+        "on BROAD 0.7 samples, see BENCHMARKS.md); the state is not changed. 0: the estimate itself", ge=0)
     acc_delay: float | None = param(
         None, unit="s", description="how long before the end of the gyro's step the accelerometer sample describes: "
         "it is paired with the orientation R(q_gyr (x) exp(-(w - bias) d)). None: half the sample interval, the middle "
         "of the step (right when both sensors are sampled alike: point samples, or means over the interval). 0: the "
         "end of the step (an accelerometer sampled at the instant a mean-rate gyro's interval ends). Larger: an "
-        "accelerometer later than the gyroscope (a longer filter; on BROAD about one sample, see BENCHMARKS.md)")
+        "accelerometer later than the gyroscope (a longer filter; `fusionkit lags` measures it against a reference)")
     mag_delay: float | None = param(
         None, unit="s", description="the same for the magnetometer: it is paired with R(q (x) exp(-(w - bias) d)). "
         "None: half the sample interval (the middle of the step); 0: the end of the step")

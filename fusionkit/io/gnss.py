@@ -3,6 +3,13 @@
 The recording keeps the file's frames: body FRD, ``truth`` = ``ref_quat`` body->NED
 (``truth_frame="NED"``), GNSS velocity in NED. Attributes and the reference velocity/position
 are kept in ``meta``.
+
+Timing: the file holds each rate forward, over ``[t[k], t[k+1])`` (its README), where fusionkit
+reads sample ``k`` as the interval that ends at ``t[k]``; ``fusionkit lags`` measures the gyro
+half a sample ahead of the reference (-0.50). The recording is kept as the file has it: moving
+every sensor one sample (gyro ``k`` paired with the reference at ``k + 1``) changes the source
+001 results by at most 0.016 deg (car heading after 200 s 0.113 -> 0.097), at these vehicles'
+rates (at most 41 deg/s, 100 Hz).
 """
 
 from __future__ import annotations

@@ -1,0 +1,179 @@
+"""How far each sensor runs behind a recording's reference orientation (a diagnostic).
+
+A filter compared with a reference (optical motion capture, a simulator's truth) is judged on
+both the estimate and the clocks. A gyroscope whose digital filter delays it by a sample shows
+up as an error of ``|w| dt`` at every rotation, in every filter alike, and no choice of
+parameters removes it. :func:`sensor_lags` measures those delays from the data:
+
+* gyroscope: the reference's body rate, by central differences of the reference quaternions
+  (``2 log(q[k-1]* q[k+1]) / (t[k+1] - t[k-1])``, centred on ``t[k]``), against the gyro;
+* accelerometer: the reference's gravity seen in the body, ``|g| R(q[k])^T up``, against the
+  specific force. Linear accelerations are not in that model, so the accelerometer's lag is
+  only meaningful where gravity's turning dominates them (rotation trials); its residual says
+  how well the model fits.
+
+Both sides are low-passed (zero phase, ``cutoff`` Hz). The lag ``L`` (samples) minimises the
+mean squared difference between ``x[k + L]`` (the sensor, linearly interpolated) and the
+reference at ``k``, over a grid of ``step`` and a parabola through the best three points, after
+one pass that leaves out samples whose residual exceeds ``outlier`` times the median (optical
+glitches). A lag is NaN when the best one lies on the edge of the range (no minimum inside it:
+the model does not fit, e.g. linear accelerations dominate). Only the ``movement`` samples are used when the recording has that mask (at rest
+there is nothing to time).
+
+Reading the result: ``L`` > 0 means sample ``k`` describes the reference at ``k - L``. A sensor
+that follows fusionkit's timing convention (a mean over the interval ``(t[k-1], t[k]]``, like the
+simulator's default) shows **0.5**; a point sample at ``t[k]`` shows 0. On BROAD the gyroscope
+shows about 1.2 and the accelerometer 0.5 on every rotation trial (BENCHMARKS.md): the gyro is
+0.7 samples later than the convention, which is what ``recommended``'s ``output_lead`` is for.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..conventions import change_frame
+from ..errors import InputError
+from ..rotations import (
+    quat_conj,
+    quat_mul,
+    quat_normalize,
+    quat_to_matrix,
+    quat_to_rotvec,
+)
+
+__all__ = ["SensorLags", "sensor_lags"]
+
+
+@dataclass(frozen=True)
+class SensorLags:
+    """Sensor lags against the reference, in samples (``L`` > 0: the sensor is late; NaN: no
+    minimum inside the search range).
+
+    ``gyr_rms`` (rad/s) and ``acc_rms`` (m/s^2) are the residuals at the lag; ``samples`` how
+    many samples the fit used; ``rate`` the sampling rate (Hz) that turns samples into seconds.
+    """
+
+    gyr: float
+    acc: float
+    gyr_rms: float
+    acc_rms: float
+    samples: int
+    rate: float
+
+    @property
+    def gyr_seconds(self) -> float:
+        return self.gyr / self.rate
+
+    @property
+    def acc_seconds(self) -> float:
+        return self.acc / self.rate
+
+    def __str__(self) -> str:
+        return (f"gyr {self.gyr:+.2f} samples ({1e3 * self.gyr_seconds:+.2f} ms, residual {self.gyr_rms:.3f} rad/s), "
+                f"acc {self.acc:+.2f} samples ({1e3 * self.acc_seconds:+.2f} ms, residual {self.acc_rms:.3f} m/s^2)")
+
+
+def _lowpass(x: np.ndarray, cutoff: float, rate: float) -> np.ndarray:
+    from scipy.signal import butter, filtfilt
+
+    if cutoff >= 0.5 * rate:
+        return x
+    b, a = butter(2, cutoff / (0.5 * rate))
+    return filtfilt(b, a, x, axis=0)
+
+
+def _shifted(x: np.ndarray, s: float) -> np.ndarray:
+    """``x[k + s]`` by linear interpolation (ends held)."""
+    n = len(x)
+    idx = np.clip(np.arange(n) + s, 0.0, n - 1.0)
+    i0 = np.minimum(np.floor(idx).astype(int), n - 2)
+    f = (idx - i0)[:, None]
+    return x[i0] * (1.0 - f) + x[i0 + 1] * f
+
+
+def _fit_lag(x: np.ndarray, ref: np.ndarray, mask: np.ndarray, lags: np.ndarray, outlier: float):
+    """Lag (samples) minimising the mean squared ``x[k + L] - ref[k]`` over ``mask``, and its RMS."""
+    def costs(m):
+        return np.array([np.mean(np.sum((_shifted(x, s)[m] - ref[m]) ** 2, axis=1)) for s in lags])
+
+    c = costs(mask)
+    resid = np.linalg.norm(_shifted(x, lags[np.argmin(c)]) - ref, axis=1)
+    keep = mask & (resid <= outlier * np.median(resid[mask]))
+    if keep.sum() >= 0.5 * mask.sum():
+        mask = keep
+        c = costs(mask)
+    i = int(np.argmin(c))
+    if i == 0 or i == len(lags) - 1:  # no minimum inside the range: the model does not fit
+        return math.nan, math.nan, int(mask.sum())
+    lag = float(lags[i])
+    den = c[i - 1] - 2.0 * c[i] + c[i + 1]  # parabola through the best three points
+    if den > 0:
+        lag += 0.5 * (c[i - 1] - c[i + 1]) / den * (lags[1] - lags[0])
+    rms = float(np.sqrt(np.mean(np.sum((_shifted(x, lag)[mask] - ref[mask]) ** 2, axis=1))))
+    return lag, rms, int(mask.sum())
+
+
+def sensor_lags(rec, max_lag: float = 3.0, step: float = 0.05, cutoff: float = 20.0,
+                outlier: float = 5.0) -> SensorLags:
+    """Lags (samples) of ``rec``'s gyroscope and accelerometer against ``rec.truth`` (module doc).
+
+    ``max_lag``: the search range ``[-max_lag, max_lag]`` samples; ``step``: its grid;
+    ``cutoff``: the low-pass (Hz) applied to both sides; ``outlier``: residuals above this many
+    times the median are left out after a first pass.
+    """
+    if rec.truth is None:
+        raise InputError(f"recording {rec.name!r} has no reference orientation (truth) to time the sensors against")
+    if not (max_lag > 0 and 0 < step <= max_lag and cutoff > 0 and outlier > 1):
+        raise InputError(f"need max_lag > 0, 0 < step <= max_lag, cutoff > 0, outlier > 1; got "
+                         f"{max_lag}, {step}, {cutoff}, {outlier}")
+    n = len(rec)
+    t = rec.time
+    dt = np.diff(t)
+    rate = 1.0 / float(np.median(dt))
+    if np.max(np.abs(dt * rate - 1.0)) > 0.01:
+        raise InputError("sensor_lags needs uniformly sampled data (sample intervals vary by more than 1%)")
+    edge = int(np.ceil(max_lag)) + int(rate / cutoff) + 2
+    if n < 4 * edge + 10:
+        raise InputError(f"recording {rec.name!r} is too short to time ({n} samples)")
+
+    q = change_frame(rec.truth, rec.truth_frame, "ENU")
+    ok = np.isfinite(q).all(axis=1)
+    if ok.sum() < 10:
+        raise InputError(f"recording {rec.name!r} has fewer than 10 finite reference samples")
+    hold = np.maximum.accumulate(np.where(ok, np.arange(n), 0))  # hold the last finite sample
+    hold[:np.argmax(ok)] = np.argmax(ok)
+    q = quat_normalize(q[hold])  # (rotvec takes the shorter of q and -q: no sign continuity needed)
+
+    w_ref = np.empty((n, 3))
+    w_ref[1:-1] = quat_to_rotvec(quat_mul(quat_conj(q[:-2]), q[2:])) / (t[2:] - t[:-2])[:, None]
+    w_ref[0], w_ref[-1] = w_ref[1], w_ref[-2]
+    acc_norm = np.linalg.norm(rec.acc, axis=1)
+    g = float(np.median(acc_norm[np.isfinite(acc_norm)]))
+    up_body = np.einsum("nji,j->ni", quat_to_matrix(q), np.array([0.0, 0.0, 1.0]))
+
+    gyr_ok = np.isfinite(rec.gyr).all(axis=1)
+    acc_ok = np.isfinite(rec.acc).all(axis=1)
+    # samples near a missing reference or sensor sample are left out (filter and difference reach)
+    bad = ~(ok & gyr_ok & acc_ok)
+    reach = int(rate / cutoff) + 2
+    near_bad = np.convolve(bad.astype(float), np.ones(2 * reach + 1), mode="same") > 0
+    mask = ~near_bad
+    mask[:edge] = mask[-edge:] = False
+    if rec.movement is not None:
+        mask &= rec.movement
+    if mask.sum() < 10:
+        raise InputError(f"recording {rec.name!r} has too few usable samples to time "
+                         "(movement samples with a finite reference and sensors)")
+
+    gyr = _lowpass(np.where(gyr_ok[:, None], rec.gyr, 0.0), cutoff, rate)
+    acc = _lowpass(np.where(acc_ok[:, None], rec.acc, 0.0), cutoff, rate)
+    w_ref = _lowpass(w_ref, cutoff, rate)
+    g_ref = _lowpass(g * up_body, cutoff, rate)
+    lags = np.arange(-max_lag, max_lag + 0.5 * step, step)
+    lg, rg, used = _fit_lag(gyr, w_ref, mask, lags, outlier)
+    la, ra, _ = _fit_lag(acc, g_ref, mask, lags, outlier)
+    return SensorLags(gyr=lg, acc=la, gyr_rms=rg, acc_rms=ra, samples=used, rate=rate)
+

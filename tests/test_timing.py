@@ -1,0 +1,124 @@
+"""Sensor lags against the reference (fusionkit.benchmarking.timing): known lags are recovered
+on simulated data, the search is robust to reference glitches and gaps, bad input is refused."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from fusionkit import sim
+from fusionkit.benchmarking.timing import sensor_lags
+from fusionkit.conventions import change_frame
+from fusionkit.errors import InputError
+
+DEG = np.pi / 180.0
+RATE = 200.0
+
+
+def _rotations(sampling="mean"):
+    segs = [sim.Rest(1.0)] + [sim.Rotate(ax, 150 * DEG * s, 0.8) for s in (1, -1)
+                              for ax in ((1, 0, 0), (0, 1, 0), (1, 1, 1), (0, 1, -1))] + [sim.Rest(1.0)]
+    return sim.simulate(segs, rate=RATE, gnss_rate=None, sampling=sampling)
+
+
+def _delayed(x, lag):
+    """``x`` seen ``lag`` samples late: sample k holds the value at k - lag (linear interpolation
+    of a signal sampled 20 times finer would be better; at these rates linear is exact enough)."""
+    n = len(x)
+    return np.stack([np.interp(np.arange(n) - lag, np.arange(n), x[:, i]) for i in range(3)], axis=1)
+
+
+def test_the_conventions_are_measured():
+    """Interval means (the default, fusionkit's convention) lag by half a sample; a point sample
+    at t[k] by none; the gyro (a mean rate) by half a sample in both."""
+    mean, point = sensor_lags(_rotations("mean")), sensor_lags(_rotations("point"))
+    assert mean.gyr == pytest.approx(0.5, abs=0.03)
+    assert mean.acc == pytest.approx(0.5, abs=0.03)
+    assert point.gyr == pytest.approx(0.5, abs=0.03)
+    assert point.acc == pytest.approx(0.0, abs=0.03)
+    assert mean.rate == pytest.approx(RATE)
+    assert mean.gyr_seconds == pytest.approx(mean.gyr / RATE)
+    assert "samples" in str(mean)
+
+
+@pytest.mark.parametrize("gyr_lag, acc_lag", [(0.75, 0.0), (-0.4, 1.3), (2.0, 0.5)])
+def test_a_known_delay_is_recovered(gyr_lag, acc_lag):
+    rec = _rotations("mean")
+    rec = dataclasses.replace(rec, gyr=_delayed(rec.gyr, gyr_lag), acc=_delayed(rec.acc, acc_lag))
+    lags = sensor_lags(rec)
+    assert lags.gyr == pytest.approx(0.5 + gyr_lag, abs=0.05)
+    assert lags.acc == pytest.approx(0.5 + acc_lag, abs=0.05)
+
+
+def test_reference_in_another_frame_gives_the_same_lags():
+    rec = _rotations("mean")
+    ned = dataclasses.replace(rec, truth=change_frame(rec.truth, rec.truth_frame, "NED"), truth_frame="NED")
+    a, b = sensor_lags(rec), sensor_lags(ned)
+    assert b.gyr == pytest.approx(a.gyr, abs=1e-9)
+    assert b.acc == pytest.approx(a.acc, abs=1e-9)
+
+
+def test_glitches_and_gaps_in_the_reference_do_not_move_the_lag():
+    """Optical references lose markers (NaN) and flip for a sample (a 90 degree jump): both are
+    left out, the lag stays; the residual without glitches is small."""
+    rec = _rotations("mean")
+    truth = rec.truth.copy()
+    truth[500:520] = np.nan
+    truth[900] = np.array([truth[900, 1], -truth[900, 0], truth[900, 3], -truth[900, 2]])  # 180 deg off
+    truth[1300] = np.array([0.5, 0.5, 0.5, 0.5])
+    gyr = rec.gyr.copy()
+    gyr[700] = np.nan
+    lags = sensor_lags(dataclasses.replace(rec, truth=truth, gyr=gyr))
+    assert lags.gyr == pytest.approx(0.5, abs=0.05)
+    assert lags.acc == pytest.approx(0.5, abs=0.05)
+    assert lags.samples < len(rec)
+    assert sensor_lags(rec).gyr_rms < 0.05
+
+
+def test_no_minimum_inside_the_range_is_nan():
+    rec = _rotations("mean")
+    lags = sensor_lags(dataclasses.replace(rec, acc=_delayed(rec.acc, 6.0)), max_lag=3.0)
+    assert math.isnan(lags.acc) and math.isnan(lags.acc_rms)
+    assert lags.gyr == pytest.approx(0.5, abs=0.03)
+
+
+def test_bad_input_is_refused():
+    rec = _rotations("mean")
+    with pytest.raises(InputError, match="no reference"):
+        sensor_lags(dataclasses.replace(rec, truth=None))
+    with pytest.raises(InputError, match="max_lag"):
+        sensor_lags(rec, step=0.0)
+    with pytest.raises(InputError, match="too short"):
+        sensor_lags(rec.slice(0, 20))
+    with pytest.raises(InputError, match="uniformly"):
+        t = rec.time.copy()
+        t[100:] += 0.5 / RATE
+        sensor_lags(dataclasses.replace(rec, t=t, rate=None))
+    with pytest.raises(InputError, match="too few usable"):
+        sensor_lags(dataclasses.replace(rec, movement=np.zeros(len(rec), bool)))
+    with pytest.raises(InputError, match="finite reference"):
+        sensor_lags(dataclasses.replace(rec, truth=np.full((len(rec), 4), np.nan)))
+
+
+def test_broad_gyro_runs_behind_its_reference(broad_dir):
+    """What BENCHMARKS.md states about BROAD's clocks (skipped without the data): on a rotation
+    trial the accelerometer follows fusionkit's convention (half a sample) and the gyroscope runs
+    0.7 samples later than that."""
+    import fusionkit as fk
+
+    for name in ("03_undisturbed_slow_rotation_C.hdf5", "06_undisturbed_fast_rotation_A.hdf5"):
+        lags = sensor_lags(fk.load(broad_dir / name))
+        assert lags.gyr == pytest.approx(1.2, abs=0.07), name
+        assert lags.acc == pytest.approx(0.5, abs=0.1), name
+
+
+def test_gnss_ins_sim_holds_the_rate_forward(broad_dir):
+    """gnss-ins-sim's documented timing (its README: the rate at t[k] is held over [t[k], t[k+1]))
+    is measured as a gyro half a sample *ahead* of the reference (skipped without the data)."""
+    import fusionkit as fk
+
+    path = broad_dir.parent / "gnss" / "heli_cruise" / "heli_cruise.h5"
+    if not path.exists():
+        pytest.skip("no gnss data")
+    assert sensor_lags(fk.load(path)).gyr == pytest.approx(-0.5, abs=0.03)
