@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -179,17 +180,19 @@ def cmd_lags(args) -> int:
     from .benchmarking.timing import sensor_lags
 
     print("| recording | gyr lag (samples) | gyr lag (ms) | gyr residual (rad/s) | acc lag (samples) | acc lag (ms) "
-          "| acc residual (m/s^2) |\n|---|---:|---:|---:|---:|---:|---:|")
+          "| acc residual (m/s^2) | acc model |\n|---|---:|---:|---:|---:|---:|---:|---|")
     failed = 0
     for name, load in _recordings(args.inputs):
         rec = load()
         if rec.truth is None:
-            print(f"| {name} | no reference | | | | | |")
+            print(f"| {name} | no reference | | | | | | |")
             failed += 1
             continue
         r = sensor_lags(rec, max_lag=args.max_lag, cutoff=args.cutoff)
-        print(f"| {name} | {r.gyr:+.2f} | {1e3 * r.gyr_seconds:+.2f} | {r.gyr_rms:.3f} | {r.acc:+.2f} | "
-              f"{1e3 * r.acc_seconds:+.2f} | {r.acc_rms:.3f} |")
+        cells = [f"{v:{fmt}}" if not math.isnan(v) else "-" for v, fmt in (
+            (r.gyr, "+.2f"), (1e3 * r.gyr_seconds, "+.2f"), (r.gyr_rms, ".3f"), (r.acc, "+.2f"),
+            (1e3 * r.acc_seconds, "+.2f"), (r.acc_rms, ".3f"))]  # NaN (no minimum in the range): "-"
+        print(f"| {name} | " + " | ".join(cells) + f" | {r.acc_model} |")
     return 1 if failed else 0
 
 

@@ -220,15 +220,20 @@ class Recording:
     def slice(self, start: int | None = None, stop: int | None = None) -> "Recording":
         """A new recording of samples ``[start, stop)``. With GNSS, the slice keeps the original
         clock (its ``t`` are the original sample times) and the GNSS epochs from the one current
-        at its first sample to its last sample, so that a run split in two equals one run."""
+        at its first sample to its last sample, so that a run split in two equals one run.
+        Per-sample arrays in ``meta`` (first dimension ``len(self)``, e.g. a reference position)
+        are sliced with the samples."""
         s = slice(start, stop)
+        n = len(self)
+        meta = {k: (v[s] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == n else v)
+                for k, v in self.meta.items()}
         keep_clock = self.gnss is not None
         out = Recording(
             gyr=self.gyr[s], acc=self.acc[s], mag=None if self.mag is None else self.mag[s],
             rate=None if keep_clock else self.rate, t=self.time[s] if keep_clock else (None if self.t is None else self.t[s]),
             truth=None if self.truth is None else self.truth[s], truth_frame=self.truth_frame,
             movement=None if self.movement is None else self.movement[s], name=self.name,
-            meta=dict(self.meta),
+            meta=meta,
         )
         if keep_clock:  # the epoch current at the first sample, and those up to the last one
             g, t = self.gnss, out.time

@@ -7,10 +7,12 @@ parameters removes it. :func:`sensor_lags` measures those delays from the data:
 
 * gyroscope: the reference's body rate, by central differences of the reference quaternions
   (``2 log(q[k-1]* q[k+1]) / (t[k+1] - t[k-1])``, centred on ``t[k]``), against the gyro;
-* accelerometer: the reference's gravity seen in the body, ``|g| R(q[k])^T up``, against the
-  specific force. Linear accelerations are not in that model, so the accelerometer's lag is
-  only meaningful where gravity's turning dominates them (rotation trials); its residual says
-  how well the model fits.
+* accelerometer: the reference's specific force in the body, ``R(q[k])^T (a[k] + |g| up)``,
+  against the specific force, with ``a`` the second difference of the reference position when
+  there is one (``position``; BROAD's and gnss-ins-sim's loaders keep it in
+  ``meta["ref_pos"]``). Without a position the model is gravity alone, and the accelerometer's
+  lag means something only where gravity's turning dominates the linear accelerations
+  (rotation trials); its residual says how well the model fits.
 
 Both sides are low-passed (zero phase, ``cutoff`` Hz). The lag ``L`` (samples) minimises the
 mean squared difference between ``x[k + L]`` (the sensor, linearly interpolated) and the
@@ -23,8 +25,8 @@ there is nothing to time).
 Reading the result: ``L`` > 0 means sample ``k`` describes the reference at ``k - L``. A sensor
 that follows fusionkit's timing convention (a mean over the interval ``(t[k-1], t[k]]``, like the
 simulator's default) shows **0.5**; a point sample at ``t[k]`` shows 0. On BROAD the gyroscope
-shows about 1.2 and the accelerometer 0.5 on every rotation trial (BENCHMARKS.md): the gyro is
-0.7 samples later than the convention, which is what ``recommended``'s ``output_lead`` is for.
+shows 1.2 and the accelerometer 0.4-0.8 on every trial (BENCHMARKS.md): the gyro is 0.6-0.7
+samples later than the accelerometer, which is what ``recommended``'s ``output_lead`` is for.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..conventions import change_frame
+from ..conventions import change_frame, frame_matrix
 from ..errors import InputError
 from ..rotations import (
     quat_conj,
@@ -53,7 +55,9 @@ class SensorLags:
     minimum inside the search range).
 
     ``gyr_rms`` (rad/s) and ``acc_rms`` (m/s^2) are the residuals at the lag; ``samples`` how
-    many samples the fit used; ``rate`` the sampling rate (Hz) that turns samples into seconds.
+    many samples the fit used; ``rate`` the sampling rate (Hz) that turns samples into seconds;
+    ``acc_model`` ``"position"`` (the reference position's acceleration was in the model) or
+    ``"gravity"`` (gravity alone).
     """
 
     gyr: float
@@ -62,6 +66,7 @@ class SensorLags:
     acc_rms: float
     samples: int
     rate: float
+    acc_model: str = "gravity"
 
     @property
     def gyr_seconds(self) -> float:
@@ -73,7 +78,8 @@ class SensorLags:
 
     def __str__(self) -> str:
         return (f"gyr {self.gyr:+.2f} samples ({1e3 * self.gyr_seconds:+.2f} ms, residual {self.gyr_rms:.3f} rad/s), "
-                f"acc {self.acc:+.2f} samples ({1e3 * self.acc_seconds:+.2f} ms, residual {self.acc_rms:.3f} m/s^2)")
+                f"acc {self.acc:+.2f} samples ({1e3 * self.acc_seconds:+.2f} ms, residual {self.acc_rms:.3f} m/s^2, "
+                f"{self.acc_model} model)")
 
 
 def _lowpass(x: np.ndarray, cutoff: float, rate: float) -> np.ndarray:
@@ -117,12 +123,14 @@ def _fit_lag(x: np.ndarray, ref: np.ndarray, mask: np.ndarray, lags: np.ndarray,
 
 
 def sensor_lags(rec, max_lag: float = 3.0, step: float = 0.05, cutoff: float = 20.0,
-                outlier: float = 5.0) -> SensorLags:
+                outlier: float = 5.0, position="auto") -> SensorLags:
     """Lags (samples) of ``rec``'s gyroscope and accelerometer against ``rec.truth`` (module doc).
 
     ``max_lag``: the search range ``[-max_lag, max_lag]`` samples; ``step``: its grid;
     ``cutoff``: the low-pass (Hz) applied to both sides; ``outlier``: residuals above this many
-    times the median are left out after a first pass.
+    times the median are left out after a first pass; ``position``: (N, 3) reference positions
+    (m, in ``rec.truth_frame``, NaN where missing) for the accelerometer's model, ``"auto"``
+    (default) ``rec.meta["ref_pos"]`` when the loader kept one, or None (gravity alone).
     """
     if rec.truth is None:
         raise InputError(f"recording {rec.name!r} has no reference orientation (truth) to time the sensors against")
@@ -139,8 +147,19 @@ def sensor_lags(rec, max_lag: float = 3.0, step: float = 0.05, cutoff: float = 2
     if n < 4 * edge + 10:
         raise InputError(f"recording {rec.name!r} is too short to time ({n} samples)")
 
+    if isinstance(position, str):
+        if position != "auto":
+            raise InputError(f"position must be an (N, 3) array, 'auto' or None, got {position!r}")
+        position = rec.meta.get("ref_pos")
+    if position is not None:
+        position = np.asarray(position, dtype=float)
+        if position.shape != (n, 3):
+            raise InputError(f"position must have shape ({n}, 3) like the recording, got {position.shape}")
+        position = position @ frame_matrix(rec.truth_frame, "ENU").T
     q = change_frame(rec.truth, rec.truth_frame, "ENU")
     ok = np.isfinite(q).all(axis=1)
+    if position is not None:
+        ok &= np.isfinite(position).all(axis=1)
     if ok.sum() < 10:
         raise InputError(f"recording {rec.name!r} has fewer than 10 finite reference samples")
     hold = np.maximum.accumulate(np.where(ok, np.arange(n), 0))  # hold the last finite sample
@@ -152,7 +171,11 @@ def sensor_lags(rec, max_lag: float = 3.0, step: float = 0.05, cutoff: float = 2
     w_ref[0], w_ref[-1] = w_ref[1], w_ref[-2]
     acc_norm = np.linalg.norm(rec.acc, axis=1)
     g = float(np.median(acc_norm[np.isfinite(acc_norm)]))
-    up_body = np.einsum("nji,j->ni", quat_to_matrix(q), np.array([0.0, 0.0, 1.0]))
+    force = np.tile([0.0, 0.0, g], (n, 1))  # the reference's specific force, ENU
+    if position is not None:
+        p = _lowpass(position[hold], cutoff, rate)
+        force[1:-1] += (p[2:] - 2.0 * p[1:-1] + p[:-2]) * rate * rate
+    f_body = np.einsum("nji,nj->ni", quat_to_matrix(q), force)
 
     gyr_ok = np.isfinite(rec.gyr).all(axis=1)
     acc_ok = np.isfinite(rec.acc).all(axis=1)
@@ -171,9 +194,10 @@ def sensor_lags(rec, max_lag: float = 3.0, step: float = 0.05, cutoff: float = 2
     gyr = _lowpass(np.where(gyr_ok[:, None], rec.gyr, 0.0), cutoff, rate)
     acc = _lowpass(np.where(acc_ok[:, None], rec.acc, 0.0), cutoff, rate)
     w_ref = _lowpass(w_ref, cutoff, rate)
-    g_ref = _lowpass(g * up_body, cutoff, rate)
+    f_ref = _lowpass(f_body, cutoff, rate)
     lags = np.arange(-max_lag, max_lag + 0.5 * step, step)
     lg, rg, used = _fit_lag(gyr, w_ref, mask, lags, outlier)
-    la, ra, _ = _fit_lag(acc, g_ref, mask, lags, outlier)
-    return SensorLags(gyr=lg, acc=la, gyr_rms=rg, acc_rms=ra, samples=used, rate=rate)
+    la, ra, _ = _fit_lag(acc, f_ref, mask, lags, outlier)
+    return SensorLags(gyr=lg, acc=la, gyr_rms=rg, acc_rms=ra, samples=used, rate=rate,
+                      acc_model="gravity" if position is None else "position")
 

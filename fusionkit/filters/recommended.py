@@ -48,7 +48,7 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   (its filter's group delay); the state is not changed. ``fusionkit lags`` measures the delay
   against a reference (:mod:`fusionkit.benchmarking.timing`): on every BROAD trial the gyroscope
   is 1.2 samples behind the optical reference, 0.7 samples (2.45 ms) later than fusionkit's
-  convention, while the accelerometer follows the convention. A lead there is a property of that
+  convention, while the accelerometer is near it (0.4-0.8). A lead there is a property of that
   hardware, not a default for every sensor.
 - **sensor pairing** (``acc_delay``, ``mag_delay``): gyro sample k's step covers
   ``(t[k-1], t[k]]`` and ends at ``q_gyr``. An accelerometer or magnetometer sampled like the
@@ -63,7 +63,7 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   BROAD the defaults give 0.72 deg 6D inclination (0.79 at the end of the step) and 2.15 deg 9D
   total (2.19). A longer pairing helps there too (a one-sample ``acc_delay`` gives 0.68, a
   one-sample ``mag_delay`` 2.09; BENCHMARKS.md), but not because BROAD's accelerometer is late:
-  it follows the convention (``fusionkit lags``), and on simulated data a longer ``acc_delay``
+  it is near the convention (``fusionkit lags``), and on simulated data a longer ``acc_delay``
   does not make up for a late gyro, it adds to its error. Why it helps on BROAD is not known.
 
 Bad input: a non-finite gyroscope sample holds the state (GYR_INVALID); a non-finite or all-zero

@@ -2,7 +2,10 @@
 
 The recording keeps the file's frames: body FRD, ``truth`` = ``ref_quat`` body->NED
 (``truth_frame="NED"``), GNSS velocity in NED. Attributes and the reference velocity/position
-are kept in ``meta``.
+are kept in ``meta``. (Not as ``ref_pos``, the reference position that
+:func:`fusionkit.benchmarking.timing.sensor_lags` differentiates: the file's position times like
+``p[k] = p[k-1] + v[k-1] dt``, one sample behind its velocity (measured), and would time the
+accelerometer a sample early.)
 
 Timing: the file holds each rate forward, over ``[t[k], t[k+1])`` (its README), where fusionkit
 reads sample ``k`` as the interval that ends at ``t[k]``; ``fusionkit lags`` measures the gyro

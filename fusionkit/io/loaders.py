@@ -50,7 +50,8 @@ def load(path, **kwargs) -> Recording:
 
 
 def load_broad(path) -> Recording:
-    """One BROAD trial: gyr, acc, mag, ``opt_quat`` as truth (body->ENU) and the ``movement`` mask."""
+    """One BROAD trial: gyr, acc, mag, ``opt_quat`` as truth (body->ENU) and the ``movement`` mask;
+    ``opt_pos`` (m, ENU, NaN where the markers were lost) as ``meta["ref_pos"]``."""
     try:
         import h5py
     except ImportError as exc:  # pragma: no cover
@@ -65,7 +66,7 @@ def load_broad(path) -> Recording:
             gyr=f["imu_gyr"][:], acc=f["imu_acc"][:], mag=f["imu_mag"][:] if "imu_mag" in f else None,
             rate=rate, truth=f["opt_quat"][:] if "opt_quat" in f else None, truth_frame="ENU",
             movement=f["movement"][:] if "movement" in f else None, name=p.stem,
-            meta={"path": str(p), "dataset": "BROAD"},
+            meta={"path": str(p), "dataset": "BROAD", **({"ref_pos": f["opt_pos"][:]} if "opt_pos" in f else {})},
         )
 
 
