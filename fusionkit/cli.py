@@ -180,19 +180,22 @@ def cmd_lags(args) -> int:
     from .benchmarking.timing import sensor_lags
 
     print("| recording | gyr lag (samples) | gyr lag (ms) | gyr residual (rad/s) | acc lag (samples) | acc lag (ms) "
-          "| acc residual (m/s^2) | acc model |\n|---|---:|---:|---:|---:|---:|---:|---|")
+          "| acc residual (m/s^2) | acc model | mag lag (samples) | mag lag (ms) | mag residual |\n"
+          "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|")
     failed = 0
     for name, load in _recordings(args.inputs):
         rec = load()
         if rec.truth is None:
-            print(f"| {name} | no reference | | | | | | |")
+            print(f"| {name} | no reference | | | | | | | | | |")
             failed += 1
             continue
         r = sensor_lags(rec, max_lag=args.max_lag, cutoff=args.cutoff)
         cells = [f"{v:{fmt}}" if not math.isnan(v) else "-" for v, fmt in (
             (r.gyr, "+.2f"), (1e3 * r.gyr_seconds, "+.2f"), (r.gyr_rms, ".3f"), (r.acc, "+.2f"),
             (1e3 * r.acc_seconds, "+.2f"), (r.acc_rms, ".3f"))]  # NaN (no minimum in the range): "-"
-        print(f"| {name} | " + " | ".join(cells) + f" | {r.acc_model} |")
+        mag = [f"{v:{fmt}}" if not math.isnan(v) else "-" for v, fmt in (
+            (r.mag, "+.2f"), (1e3 * r.mag_seconds, "+.2f"), (r.mag_rms, ".3f"))]
+        print(f"| {name} | " + " | ".join(cells) + f" | {r.acc_model} | " + " | ".join(mag) + " |")
     return 1 if failed else 0
 
 
@@ -242,10 +245,10 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--no-cache", action="store_true")
     s.add_argument("-o", "--output", default=None)
     s.set_defaults(func=cmd_sweep)
-    lg = sub.add_parser("lags", help="how many samples the gyro and accelerometer run behind the reference "
-                        "orientation (fusionkit's convention: 0.5)")
+    lg = sub.add_parser("lags", help="how many samples the gyro, accelerometer and magnetometer run behind the "
+                        "reference orientation (fusionkit's convention: 0.5)")
     lg.add_argument("inputs", nargs="+", help="recording files, folders of trials, or sim:NAME")
-    lg.add_argument("--max-lag", type=float, default=3.0, help="search range, samples")
+    lg.add_argument("--max-lag", type=float, default=8.0, help="search range, samples")
     lg.add_argument("--cutoff", type=float, default=20.0, help="low-pass on both sides, Hz")
     lg.set_defaults(func=cmd_lags)
     m = sub.add_parser("demo", help="every built-in filter side by side on simulated recordings")

@@ -35,20 +35,26 @@ def test_the_conventions_are_measured():
     mean, point = sensor_lags(_rotations("mean")), sensor_lags(_rotations("point"))
     assert mean.gyr == pytest.approx(0.5, abs=0.03)
     assert mean.acc == pytest.approx(0.5, abs=0.03)
+    assert mean.mag == pytest.approx(0.5, abs=0.03)
     assert point.gyr == pytest.approx(0.5, abs=0.03)
     assert point.acc == pytest.approx(0.0, abs=0.03)
+    assert point.mag == pytest.approx(0.0, abs=0.03)
+    assert mean.mag_rms < 0.05  # uT, the simulator's field is constant
+    assert math.isnan(sensor_lags(dataclasses.replace(_rotations(), mag=None)).mag)
     assert mean.rate == pytest.approx(RATE)
     assert mean.gyr_seconds == pytest.approx(mean.gyr / RATE)
     assert "samples" in str(mean)
 
 
-@pytest.mark.parametrize("gyr_lag, acc_lag", [(0.75, 0.0), (-0.4, 1.3), (2.0, 0.5)])
-def test_a_known_delay_is_recovered(gyr_lag, acc_lag):
+@pytest.mark.parametrize("gyr_lag, acc_lag, mag_lag", [(0.75, 0.0, 3.7), (-0.4, 1.3, 0.0), (2.0, 0.5, -1.2)])
+def test_a_known_delay_is_recovered(gyr_lag, acc_lag, mag_lag):
     rec = _rotations("mean")
-    rec = dataclasses.replace(rec, gyr=_delayed(rec.gyr, gyr_lag), acc=_delayed(rec.acc, acc_lag))
+    rec = dataclasses.replace(rec, gyr=_delayed(rec.gyr, gyr_lag), acc=_delayed(rec.acc, acc_lag),
+                              mag=_delayed(rec.mag, mag_lag))
     lags = sensor_lags(rec)
     assert lags.gyr == pytest.approx(0.5 + gyr_lag, abs=0.05)
     assert lags.acc == pytest.approx(0.5 + acc_lag, abs=0.05)
+    assert lags.mag == pytest.approx(0.5 + mag_lag, abs=0.05)
 
 
 def _translations():
@@ -123,6 +129,7 @@ def test_glitches_and_gaps_in_the_reference_do_not_move_the_lag():
 def test_no_minimum_inside_the_range_is_nan():
     rec = _rotations("mean")
     lags = sensor_lags(dataclasses.replace(rec, acc=_delayed(rec.acc, 6.0)), max_lag=3.0)
+    assert sensor_lags(dataclasses.replace(rec, acc=_delayed(rec.acc, 6.0))).acc == pytest.approx(6.5, abs=0.05)
     assert math.isnan(lags.acc) and math.isnan(lags.acc_rms)
     assert lags.gyr == pytest.approx(0.5, abs=0.03)
 
@@ -147,8 +154,8 @@ def test_bad_input_is_refused():
 
 def test_broad_gyro_runs_behind_its_reference(broad_dir):
     """What BENCHMARKS.md states about BROAD's clocks (skipped without the data): the
-    accelerometer is near fusionkit's convention (0.4-0.8 samples on every trial) and the
-    gyroscope runs behind it (1.2)."""
+    accelerometer is near fusionkit's convention (0.4-0.8 samples on every trial), the gyroscope
+    runs behind it (1.2) and the magnetometer further behind (2.6-5)."""
     import fusionkit as fk
 
     for name in ("03_undisturbed_slow_rotation_C.hdf5", "06_undisturbed_fast_rotation_A.hdf5",
@@ -159,6 +166,7 @@ def test_broad_gyro_runs_behind_its_reference(broad_dir):
         assert lags.gyr == pytest.approx(1.2, abs=0.07), name
         assert 0.35 < lags.acc < 0.85, name
         assert lags.gyr - lags.acc > 0.3, name
+        assert 2.5 < lags.mag < 5.0, name  # the magnetometer is later still
     # without the position, the fast translation cannot be timed (measured: 2.6 samples)
     assert not 0.35 < sensor_lags(rec, position=None).acc < 0.85
 

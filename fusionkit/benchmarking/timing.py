@@ -9,24 +9,28 @@ parameters removes it. :func:`sensor_lags` measures those delays from the data:
   (``2 log(q[k-1]* q[k+1]) / (t[k+1] - t[k-1])``, centred on ``t[k]``), against the gyro;
 * accelerometer: the reference's specific force in the body, ``R(q[k])^T (a[k] + |g| up)``,
   against the specific force, with ``a`` the second difference of the reference position when
-  there is one (``position``; BROAD's and gnss-ins-sim's loaders keep it in
-  ``meta["ref_pos"]``). Without a position the model is gravity alone, and the accelerometer's
+  there is one (``position``; BROAD's loader keeps it in ``meta["ref_pos"]``). Without a position the model is gravity alone, and the accelerometer's
   lag means something only where gravity's turning dominates the linear accelerations
-  (rotation trials); its residual says how well the model fits.
+  (rotation trials); its residual says how well the model fits;
+* magnetometer (when the recording has one): the reference's field in the body,
+  ``R(q[k])^T m``, with ``m`` the median of ``R(q[k]) mag[k + L]`` over the samples used (a
+  constant field, estimated again once the lag ``L`` is known; a disturbed one shows in the
+  residual).
 
 Both sides are low-passed (zero phase, ``cutoff`` Hz). The lag ``L`` (samples) minimises the
 mean squared difference between ``x[k + L]`` (the sensor, linearly interpolated) and the
-reference at ``k``, over a grid of ``step`` and a parabola through the best three points, after
-one pass that leaves out samples whose residual exceeds ``outlier`` times the median (optical
+reference at ``k``: a grid of 0.25 samples over ``[-max_lag, max_lag]`` (8 by default), then one
+of ``step`` around its best point and a parabola through the best three points, after one pass that leaves out samples whose residual exceeds ``outlier`` times the median (optical
 glitches). A lag is NaN when the best one lies on the edge of the range (no minimum inside it:
-the model does not fit, e.g. linear accelerations dominate). Only the ``movement`` samples are used when the recording has that mask (at rest
-there is nothing to time).
+the model does not fit, e.g. linear accelerations dominate). Only the ``movement`` samples are
+used when the recording has that mask (at rest there is nothing to time).
 
 Reading the result: ``L`` > 0 means sample ``k`` describes the reference at ``k - L``. A sensor
 that follows fusionkit's timing convention (a mean over the interval ``(t[k-1], t[k]]``, like the
 simulator's default) shows **0.5**; a point sample at ``t[k]`` shows 0. On BROAD the gyroscope
-shows 1.2 and the accelerometer 0.4-0.8 on every trial (BENCHMARKS.md): the gyro is 0.6-0.7
-samples later than the accelerometer, which is what ``recommended``'s ``output_lead`` is for.
+shows 1.2, the accelerometer 0.4-0.8 and the magnetometer 2.6-5 on every trial (BENCHMARKS.md):
+the gyro is 0.6-0.7 samples later than the accelerometer, which is what ``recommended``'s
+``output_lead`` is for, and the magnetometer later still (``mag_delay``).
 """
 
 from __future__ import annotations
@@ -57,7 +61,8 @@ class SensorLags:
     ``gyr_rms`` (rad/s) and ``acc_rms`` (m/s^2) are the residuals at the lag; ``samples`` how
     many samples the fit used; ``rate`` the sampling rate (Hz) that turns samples into seconds;
     ``acc_model`` ``"position"`` (the reference position's acceleration was in the model) or
-    ``"gravity"`` (gravity alone).
+    ``"gravity"`` (gravity alone); ``mag`` / ``mag_rms`` (the magnetometer's unit) NaN without a
+    magnetometer.
     """
 
     gyr: float
@@ -67,6 +72,8 @@ class SensorLags:
     samples: int
     rate: float
     acc_model: str = "gravity"
+    mag: float = math.nan
+    mag_rms: float = math.nan
 
     @property
     def gyr_seconds(self) -> float:
@@ -76,10 +83,14 @@ class SensorLags:
     def acc_seconds(self) -> float:
         return self.acc / self.rate
 
+    @property
+    def mag_seconds(self) -> float:
+        return self.mag / self.rate
+
     def __str__(self) -> str:
         return (f"gyr {self.gyr:+.2f} samples ({1e3 * self.gyr_seconds:+.2f} ms, residual {self.gyr_rms:.3f} rad/s), "
                 f"acc {self.acc:+.2f} samples ({1e3 * self.acc_seconds:+.2f} ms, residual {self.acc_rms:.3f} m/s^2, "
-                f"{self.acc_model} model)")
+                f"{self.acc_model} model), mag {self.mag:+.2f} samples (residual {self.mag_rms:.3f})")
 
 
 def _lowpass(x: np.ndarray, cutoff: float, rate: float) -> np.ndarray:
@@ -100,29 +111,36 @@ def _shifted(x: np.ndarray, s: float) -> np.ndarray:
     return x[i0] * (1.0 - f) + x[i0 + 1] * f
 
 
-def _fit_lag(x: np.ndarray, ref: np.ndarray, mask: np.ndarray, lags: np.ndarray, outlier: float):
-    """Lag (samples) minimising the mean squared ``x[k + L] - ref[k]`` over ``mask``, and its RMS."""
-    def costs(m):
+def _fit_lag(x: np.ndarray, ref: np.ndarray, mask: np.ndarray, max_lag: float, step: float, outlier: float):
+    """Lag (samples) minimising the mean squared ``x[k + L] - ref[k]`` over ``mask``, its RMS and
+    the number of samples used: a coarse grid over ``[-max_lag, max_lag]``, then ``step`` around
+    its best point."""
+    def costs(lags, m):
         return np.array([np.mean(np.sum((_shifted(x, s)[m] - ref[m]) ** 2, axis=1)) for s in lags])
 
-    c = costs(mask)
-    resid = np.linalg.norm(_shifted(x, lags[np.argmin(c)]) - ref, axis=1)
+    coarse = np.arange(-max_lag, max_lag + 1e-9, max(step, min(0.25, max_lag / 4)))
+    c = costs(coarse, mask)
+    resid = np.linalg.norm(_shifted(x, coarse[np.argmin(c)]) - ref, axis=1)
     keep = mask & (resid <= outlier * np.median(resid[mask]))
     if keep.sum() >= 0.5 * mask.sum():
         mask = keep
-        c = costs(mask)
+        c = costs(coarse, mask)
     i = int(np.argmin(c))
-    if i == 0 or i == len(lags) - 1:  # no minimum inside the range: the model does not fit
+    if i == 0 or i == len(coarse) - 1:  # no minimum inside the range: the model does not fit
         return math.nan, math.nan, int(mask.sum())
+    lags = np.arange(coarse[i - 1], coarse[i + 1] + 1e-9, step)
+    c = costs(lags, mask)
+    i = int(np.argmin(c))
     lag = float(lags[i])
-    den = c[i - 1] - 2.0 * c[i] + c[i + 1]  # parabola through the best three points
-    if den > 0:
-        lag += 0.5 * (c[i - 1] - c[i + 1]) / den * (lags[1] - lags[0])
+    if 0 < i < len(lags) - 1:
+        den = c[i - 1] - 2.0 * c[i] + c[i + 1]  # parabola through the best three points
+        if den > 0:
+            lag += 0.5 * (c[i - 1] - c[i + 1]) / den * step
     rms = float(np.sqrt(np.mean(np.sum((_shifted(x, lag)[mask] - ref[mask]) ** 2, axis=1))))
     return lag, rms, int(mask.sum())
 
 
-def sensor_lags(rec, max_lag: float = 3.0, step: float = 0.05, cutoff: float = 20.0,
+def sensor_lags(rec, max_lag: float = 8.0, step: float = 0.05, cutoff: float = 20.0,
                 outlier: float = 5.0, position="auto") -> SensorLags:
     """Lags (samples) of ``rec``'s gyroscope and accelerometer against ``rec.truth`` (module doc).
 
@@ -195,9 +213,23 @@ def sensor_lags(rec, max_lag: float = 3.0, step: float = 0.05, cutoff: float = 2
     acc = _lowpass(np.where(acc_ok[:, None], rec.acc, 0.0), cutoff, rate)
     w_ref = _lowpass(w_ref, cutoff, rate)
     f_ref = _lowpass(f_body, cutoff, rate)
-    lags = np.arange(-max_lag, max_lag + 0.5 * step, step)
-    lg, rg, used = _fit_lag(gyr, w_ref, mask, lags, outlier)
-    la, ra, _ = _fit_lag(acc, f_ref, mask, lags, outlier)
+    lg, rg, used = _fit_lag(gyr, w_ref, mask, max_lag, step, outlier)
+    la, ra, _ = _fit_lag(acc, f_ref, mask, max_lag, step, outlier)
+    lm = rm = math.nan
+    if rec.mag is not None:
+        mag_ok = np.isfinite(rec.mag).all(axis=1)
+        m_mask = mask & ~(np.convolve((~mag_ok).astype(float), np.ones(2 * reach + 1), mode="same") > 0)
+        if m_mask.sum() >= 10:
+            rot = quat_to_matrix(q)
+            mag = _lowpass(np.where(mag_ok[:, None], rec.mag, 0.0), cutoff, rate)
+            shift = 0.0
+            for _ in range(2):  # the earth field (median of R mag), then again with the lagged samples
+                field = np.median(np.einsum("nij,nj->ni", rot[m_mask], _shifted(mag, shift)[m_mask]), axis=0)
+                m_ref = _lowpass(np.einsum("nji,j->ni", rot, field), cutoff, rate)
+                lm, rm, _ = _fit_lag(mag, m_ref, m_mask, max_lag, step, outlier)
+                if math.isnan(lm):
+                    break
+                shift = lm
     return SensorLags(gyr=lg, acc=la, gyr_rms=rg, acc_rms=ra, samples=used, rate=rate,
-                      acc_model="gravity" if position is None else "position")
+                      acc_model="gravity" if position is None else "position", mag=lm, mag_rms=rm)
 
