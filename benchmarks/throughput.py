@@ -20,14 +20,19 @@ import fusionkit as fk
 from _common import machine
 
 
-def recording(n: int, rate: float = 285.7, mag: bool = True) -> fk.Recording:
+def recording(n: int, rate: float = 285.7, mag: bool = True, gnss: bool = False) -> fk.Recording:
     rng = np.random.default_rng(0)
     rest = int(12 * rate)
     gyr = 0.01 * rng.standard_normal((n, 3))
     gyr[rest:] += np.sin(np.arange(n - rest)[:, None] / rate * [1.0, 1.3, 0.7])  # moving after 12 s
     acc = np.array([0.0, 0.0, 9.81]) + 0.03 * rng.standard_normal((n, 3))
     m = np.array([0.0, 19.0, -47.0]) + 0.3 * rng.standard_normal((n, 3)) if mag else None
-    return fk.Recording(gyr=gyr, acc=acc, mag=m, rate=rate)
+    g = None
+    if gnss:  # 10 Hz, 20 m/s north, a 20 s gap every 100 s
+        t = np.arange(0.0, (n - 1) / rate, 0.1)
+        vel = np.tile([0.0, 20.0, 0.0], (t.size, 1)) + 0.05 * rng.standard_normal((t.size, 3))
+        g = fk.Gnss(t=t, vel=vel, valid=(t % 100.0) < 80.0, frame="ENU")
+    return fk.Recording(gyr=gyr, acc=acc, mag=m, rate=rate, gnss=g)
 
 
 def best_rate(f, rec, backend, repeat) -> float:
@@ -43,7 +48,7 @@ def pipe(spec):
     return lambda: fk.compose(spec)
 
 
-# name: (factory, 9D?, kind) with kind "ours" (numba and reference), "ref-only" (no kernel),
+# name: (factory, 9D? ("gnss": 6D with a GNSS stream), kind) with kind "ours" (numba and reference), "ref-only" (no kernel),
 # "peer-fast" (compiled peer, big recording), "peer-slow" (Python peer, small recording)
 CASES = {
     "poisson-quat first-order (integrator)": (pipe({"estimator": "poisson-quat", "alignment": {"mode": "none"}}),
@@ -60,6 +65,9 @@ CASES = {
     "channel-dcm 9D (source 002)": (lambda: fk.make("channel-dcm"), True, "ours"),
     "pipeline: poisson-quat + gst corrector (rate mode)": (
         pipe({"estimator": "poisson-quat", "detectors": ["motion"], "correctors": ["gst"]}), False, "ours"),
+    "pipeline: poisson-quat + gst-gnss corrector + gnss-gap detector (GNSS rows, 10 Hz)": (
+        pipe({"estimator": "poisson-quat", "detectors": ["gnss-gap", "motion"], "correctors": ["gst-gnss"]}), "gnss",
+        "ours"),
     "pipeline: gradient-descent + rest-bias (state + rate, rest detector)": (
         pipe({"estimator": "poisson-quat", "correctors": ["gradient-descent", "rest-bias"], "detectors": ["rest"],
               "alignment": {"mode": "fixed", "duration": 3.0}}), False, "ours"),
@@ -81,8 +89,8 @@ def main() -> None:
     ap.add_argument("--reference-samples", type=int, default=20_000)
     ap.add_argument("--only", default="", help="comma-separated substrings of case names")
     args = ap.parse_args()
-    recs = {(size, nine): recording(n, mag=nine) for size, n in (("big", args.samples), ("small", args.reference_samples))
-            for nine in (False, True)}
+    recs = {(size, kind): recording(n, mag=kind is True, gnss=kind == "gnss")
+            for size, n in (("big", args.samples), ("small", args.reference_samples)) for kind in (False, True, "gnss")}
     print(f"machine: {machine()}")
     print(f"| case | compiled samples/s ({args.samples:,} samples) | reference samples/s "
           f"({args.reference_samples:,}) |")

@@ -39,7 +39,7 @@ import numpy as np
 from ._kernels import validity_flags
 from ._numba import HAVE_NUMBA, njit, resolve_backend
 from .config import PipelineConfig
-from .detectors.gnss_gap import gnss_sample_rows
+from .detectors.gnss_gap import NO_GNSS, gnss_sample_rows
 from .errors import ConfigError, InputError
 from .navigation.alignment import (
     ALIGN_SIZE,
@@ -213,26 +213,29 @@ class Pipeline(Filter):
         pp[2] = float(Flag.MOTION)
         return pp
 
-    def _run_compiled(self, st, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop) -> None:
+    def _run_compiled(self, st, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop, gn=None) -> None:
         ek, dks, cks = self._kernels()
         # a magnetometer-only detector cannot fire without one, and its reference step leaves its state alone
         used = [i for i, d in enumerate(self.detectors) if has_mag or not d.needs_mag]
         step = _get_detectors([(dks[i].step, int(self.detectors[i].flag), st["det"][i].size, dks[i].params.size,
-                                i == 0) for i in used])
+                                i == 0, dks[i].gnss) for i in used])
         det_state = _concat([st["det"][i] for i in used])
         det_params = _concat([dks[i].params for i in used])
         single, chain, kind = _no_state_corrector, _no_corrector, 0  # no corrector
-        if len(cks) == 1 and cks[0].mode == "state":  # the common case, called without the chain's glue
+        if len(cks) == 1 and cks[0].mode == "state" and not cks[0].gnss:  # the common case, without the chain's glue
             single, kind = cks[0].correct, 1
         elif cks:
-            chain = _get_correctors(ek, [(k.correct, k.mode, s.size, k.params.size) for k, s in zip(cks, st["cor"])])
+            chain = _get_correctors(ek, [(k.correct, k.mode, s.size, k.params.size, k.gnss)
+                                         for k, s in zip(cks, st["cor"])])
             kind = 2
         cor_state = _concat(st["cor"])
         cor_params = _concat([k.params for k in cks])
-        loop = _get_loop(ek, step, single, chain, kind, any(k.mode == "rate" for k in cks))
+        uses_gnss = any(k.gnss for k in cks) or any(dks[i].gnss for i in used)
+        loop = _get_loop(ek, step, single, chain, kind, any(k.mode == "rate" for k in cks), uses_gnss)
         x = st["x"]
         loop(gyr, acc, mag, dt, has_mag, x, ek.params, det_state, det_params, cor_state, cor_params,
-             st["align"], self.aligner(st["dt"]).params(), self._loop_params(), out_q, out_f, out_c, start, stop)
+             st["align"], self.aligner(st["dt"]).params(), self._loop_params(), out_q, out_f, out_c, start, stop,
+             gn if gn is not None else NO_GNSS[None, :])
         _split(det_state, [st["det"][i] for i in used])  # the states back from the concatenations
         _split(cor_state, st["cor"])
 
@@ -253,7 +256,9 @@ class Pipeline(Filter):
         st = self._check_state(copy.deepcopy(state)) if state is not None else self.new_state(rec.nominal_dt)
         mag = rec.mag if has_mag else np.zeros((n, 3))
         dt = rec.dt
-        gn = gnss_sample_rows(rec) if rec.gnss is not None else None
+        # the GNSS rows: the reference's samples carry them; compiled, only kernels that take them
+        want = used != "numba" or any(k.gnss for k in kernels[1] + kernels[2])
+        gn = gnss_sample_rows(rec) if rec.gnss is not None and want else None
         out_q = np.empty((n, 4))
         out_f = np.zeros(n, dtype=np.uint32)
         out_c = np.zeros(n, dtype=np.uint32)
@@ -261,7 +266,7 @@ class Pipeline(Filter):
         for start in range(0, n, _CHUNK):
             stop = min(n, start + _CHUNK)
             if used == "numba":
-                self._run_compiled(st, rec.gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop)
+                self._run_compiled(st, rec.gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop, gn)
             else:
                 for k in range(start, stop):
                     q, f, c = self._step(st, rec.gyr[k], rec.acc[k], mag[k], dt[k], has_mag,
@@ -328,7 +333,7 @@ _LOOPS: dict[tuple, Any] = {}
 
 
 @njit(inline="always")
-def _no_detector(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
+def _no_detector(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p, n0, n1, n2, n3, n4, n5):
     return 0, 0
 
 
@@ -351,7 +356,8 @@ def _no_state_corrector(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag
 
 
 @njit(inline="always")
-def _no_corrector(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate):
+def _no_corrector(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate, n0, n1, n2, n3,
+                  n4, n5):
     return flags
 
 
@@ -360,26 +366,30 @@ _DETECTOR_CHAINS: dict[tuple, Any] = {}
 
 def _get_detectors(specs):
     """One compiled step for several detector kernels, ``step(s, g0, g1, g2, a0, a1, a2, m0, m1, m2,
-    dt, p) -> (criteria of detector 0, flags)``, over their states and parameters concatenated in
-    order. ``specs``: ``(kernel step, flag, state size, params size, is detector 0)`` each."""
+    dt, p, n0..n5) -> (criteria of detector 0, flags)``, over their states and parameters
+    concatenated in order (``n0..n5``: the sample's GNSS row, passed to the kernels that take it).
+    ``specs``: ``(kernel step, flag, state size, params size, is detector 0, takes GNSS)`` each."""
     key = tuple(specs)
     if key not in _DETECTOR_CHAINS:
         step = _no_detector
         so = po = 0
-        for kstep, flag, sn, pn, first in specs:
-            step = _chain_detector(step, kstep, flag, so, sn, po, pn, first)
+        for kstep, flag, sn, pn, first, gnss in specs:
+            step = _chain_detector(step, kstep, flag, so, sn, po, pn, first, gnss)
             so, po = so + sn, po + pn
         _DETECTOR_CHAINS[key] = step
     return _DETECTOR_CHAINS[key]
 
 
-def _chain_detector(before, kstep, flag, so, sn, po, pn, first):
+def _chain_detector(before, kstep, flag, so, sn, po, pn, first, gnss):
     """``before`` followed by one detector kernel on ``s[so:so + sn]``, ``p[po:po + pn]``."""
 
     @njit(cache=False, inline="always")
-    def step(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
-        c0, flags = before(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p)
-        c = kstep(s[so:so + sn], g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p[po:po + pn])
+    def step(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p, n0, n1, n2, n3, n4, n5):
+        c0, flags = before(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p, n0, n1, n2, n3, n4, n5)
+        if gnss:
+            c = kstep(s[so:so + sn], g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p[po:po + pn], n0, n1, n2, n3, n4, n5)
+        else:
+            c = kstep(s[so:so + sn], g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p[po:po + pn])
         if c != 0:
             flags |= flag
         return (c if first else c0), flags
@@ -392,41 +402,51 @@ _CORRECTOR_CHAINS: dict[tuple, Any] = {}
 
 def _get_correctors(ek, specs):
     """One compiled step for the correctors in order, ``step(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1,
-    m2, acc_ok, mag_ok, flags, dt, p, rate) -> flags``, over their states and parameters
-    concatenated. ``specs``: ``(kernel correct, mode, state size, params size)`` each. A state
-    corrector corrects the estimator (through ``q`` unless its state is its unit quaternion); a
-    rate corrector reads the current quaternion and adds into ``rate``."""
+    m2, acc_ok, mag_ok, flags, dt, p, rate, n0..n5) -> flags``, over their states and parameters
+    concatenated (``n0..n5``: the sample's GNSS row). ``specs``: ``(kernel correct, mode, state
+    size, params size, takes GNSS)`` each. A state corrector corrects the estimator (through
+    ``q`` unless its state is its unit quaternion); a rate corrector reads the current quaternion
+    and adds into ``rate``."""
     direct = ek.unit_quat
     key = (ek.to_quat, ek.from_quat, direct, tuple(specs))
     if key not in _CORRECTOR_CHAINS:
         step = _no_corrector
         so = po = 0
-        for correct, mode, sn, pn in specs:
-            step = _chain_corrector(step, correct, mode == "rate", ek.to_quat, ek.from_quat, direct, so, sn, po, pn)
+        for correct, mode, sn, pn, gnss in specs:
+            step = _chain_corrector(step, correct, mode == "rate", ek.to_quat, ek.from_quat, direct, so, sn, po, pn,
+                                    gnss)
             so, po = so + sn, po + pn
         _CORRECTOR_CHAINS[key] = step
     return _CORRECTOR_CHAINS[key]
 
 
-def _chain_corrector(before, correct, is_rate, to_quat, from_quat, direct, so, sn, po, pn):
+def _chain_corrector(before, correct, is_rate, to_quat, from_quat, direct, so, sn, po, pn, gnss):
     """``before`` followed by one corrector kernel on ``s[so:so + sn]``, ``p[po:po + pn]``."""
 
     @njit(cache=False, inline="always")
-    def step(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate):
-        flags = before(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate)
+    def step(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate, n0, n1, n2, n3, n4, n5):
+        flags = before(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate, n0, n1, n2, n3,
+                       n4, n5)
         cs, cp = s[so:so + sn], p[po:po + pn]
         if is_rate:
-            if direct:
-                cf = correct(x, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, cp, rate)
-            else:
+            if not direct:
                 to_quat(x, q)
-                cf = correct(q, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, cp, rate)
-        elif direct:
-            cf = correct(x, x, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, cp)
+            qq = x if direct else q
+            if gnss:
+                cf = correct(qq, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, cp, rate,
+                             n0, n1, n2, n3, n4, n5)
+            else:
+                cf = correct(qq, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, cp, rate)
         else:
-            to_quat(x, q)
-            cf = correct(x, q, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, cp)
-            if cf >= 0:
+            if not direct:
+                to_quat(x, q)
+            qq = x if direct else q
+            if gnss:
+                cf = correct(x, qq, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, cp, n0, n1, n2, n3, n4,
+                             n5)
+            else:
+                cf = correct(x, qq, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, cp)
+            if not direct and cf >= 0:
                 from_quat(q, x)
         if cf > 0:
             flags |= cf
@@ -435,40 +455,47 @@ def _chain_corrector(before, correct, is_rate, to_quat, from_quat, direct, so, s
     return step
 
 
-def _get_loop(ek, det_step, cor_single, cor_chain, cor_kind, has_rate):
+def _get_loop(ek, det_step, cor_single, cor_chain, cor_kind, has_rate, uses_gnss):
     direct = ek.unit_quat
-    key = (ek.propagate, ek.to_quat, ek.from_quat, det_step, cor_single, cor_chain, cor_kind, has_rate, direct)
+    key = (ek.propagate, ek.to_quat, ek.from_quat, det_step, cor_single, cor_chain, cor_kind, has_rate, direct,
+           uses_gnss)
     if key not in _LOOPS:
         _LOOPS[key] = _build_loop(ek.propagate, ek.to_quat, ek.from_quat, det_step, cor_single, cor_chain, cor_kind,
-                                  has_rate, direct)
+                                  has_rate, direct, uses_gnss)
     return _LOOPS[key]
 
 
 def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_single, cor_chain, cor_kind, has_rate,
-                direct):
+                direct, uses_gnss):
     """One compiled loop over a recording for an estimator, the detectors (one chained step, see
     :func:`_get_detectors`) and the correctors: the same steps as :meth:`Pipeline._step`.
     ``cor_kind``: 0 no corrector; 1 one state-mode kernel ``cor_single``, called directly (on the
     estimator's state itself when ``direct``: it is its unit quaternion); 2 the chained step
     ``cor_chain`` (:func:`_get_correctors`). ``has_rate``: some corrector returns a rate, the sum
-    is fed into the next propagation."""
+    is fed into the next propagation. ``uses_gnss``: some kernel takes the GNSS row ``gn[k]`` (``gn``
+    has one row per sample, or the single row of "no GNSS")."""
     if not HAVE_NUMBA:  # pragma: no cover
         raise ConfigError("numba is not installed")
 
     @njit(cache=False)
-    def loop(gyr, acc, mag, dt, has_mag, x, ep, ds, dp, cs, cp, al, ap, pp, out_q, out_f, out_c, start, stop):
+    def loop(gyr, acc, mag, dt, has_mag, x, ep, ds, dp, cs, cp, al, ap, pp, out_q, out_f, out_c, start, stop, gn):
         q = np.empty(4)
         rate = np.zeros(3)
         motion = int(pp[2])
+        last = gn.shape[0] - 1
+        n0 = n1 = n2 = n3 = n4 = n5 = 0.0
         for k in range(start, stop):
             g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
             a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
             m0, m1, m2 = mag[k, 0], mag[k, 1], mag[k, 2]
+            if uses_gnss:
+                r = min(k, last)
+                n0, n1, n2, n3, n4, n5 = gn[r, 0], gn[r, 1], gn[r, 2], gn[r, 3], gn[r, 4], gn[r, 5]
             gyr_ok, acc_ok, mag_ok, flags = validity_flags(g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, pp[0],
                                                             pp[1])
             crit = 0
             if gyr_ok and acc_ok:
-                crit, dflags = det_step(ds, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt[k], dp)
+                crit, dflags = det_step(ds, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt[k], dp, n0, n1, n2, n3, n4, n5)
                 flags |= dflags
             out_c[k] = crit
             if al[PHASE] == 0.0:  # checked here so that navigation does not pay for the call
@@ -503,7 +530,7 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_single,
                     rate[0] = rate[1] = rate[2] = 0.0
                 flags = cor_chain(x, q, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
                                   m0, m1, m2, acc_ok and (flags & 512) == 0, mag_ok and (flags & 256) == 0, flags,
-                                  dt[k], cp, rate)
+                                  dt[k], cp, rate, n0, n1, n2, n3, n4, n5)
                 if has_rate:  # (without rate correctors it stays 0, as in the reference)
                     al[_RCORR], al[_RCORR + 1], al[_RCORR + 2] = rate[0], rate[1], rate[2]
             est_to_quat(x, q)
@@ -518,27 +545,41 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_single,
 _DET_LOOPS: dict[Any, Any] = {}
 
 
-def _get_det_loop(step):
-    if step not in _DET_LOOPS:
+def _get_det_loop(step, gnss=False):
+    key = (step, gnss)
+    if key not in _DET_LOOPS:
 
         @njit(cache=False)
-        def loop(gyr, acc, mag, dt, ok, s, p, out):
+        def loop(gyr, acc, mag, dt, ok, s, p, out, gn):
+            last = gn.shape[0] - 1
             for k in range(gyr.shape[0]):
                 if ok[k]:
-                    out[k] = step(s, gyr[k, 0], gyr[k, 1], gyr[k, 2], acc[k, 0], acc[k, 1], acc[k, 2],
-                                  mag[k, 0], mag[k, 1], mag[k, 2], dt[k], p)
+                    if gnss:
+                        r = min(k, last)
+                        out[k] = step(s, gyr[k, 0], gyr[k, 1], gyr[k, 2], acc[k, 0], acc[k, 1], acc[k, 2],
+                                      mag[k, 0], mag[k, 1], mag[k, 2], dt[k], p, gn[r, 0], gn[r, 1], gn[r, 2],
+                                      gn[r, 3], gn[r, 4], gn[r, 5])
+                    else:
+                        out[k] = step(s, gyr[k, 0], gyr[k, 1], gyr[k, 2], acc[k, 0], acc[k, 1], acc[k, 2],
+                                      mag[k, 0], mag[k, 1], mag[k, 2], dt[k], p)
 
-        _DET_LOOPS[step] = loop
-    return _DET_LOOPS[step]
+        _DET_LOOPS[key] = loop
+    return _DET_LOOPS[key]
 
 
-def run_detector(det: Detector, rec: Recording, *, nan_policy: str = "raise", backend: str = "auto") -> DetectionResult:
-    """Run one detector over a recording (see :meth:`Detector.run`)."""
+def run_detector(det: Detector, rec: Recording, *, nan_policy: str = "raise", backend: str = "auto",
+                 every_sample: bool = False) -> DetectionResult:
+    """Run one detector over a recording (see :meth:`Detector.run`): on the samples with a valid
+    gyroscope and accelerometer (as in a pipeline), or on ``every_sample``. Detectors that read
+    GNSS get the sample's GNSS row (:func:`~fusionkit.detectors.gnss_gap.gnss_sample_rows`)."""
     if not isinstance(rec, Recording):
         raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
     check_finite_all({"gyr": rec.gyr, "acc": rec.acc}, nan_policy)
-    ok = np.isfinite(rec.gyr).all(axis=1) & np.isfinite(rec.acc).all(axis=1)
-    ok &= np.any(rec.acc != 0.0, axis=1)
+    if every_sample:
+        ok = np.ones(len(rec), dtype=bool)
+    else:
+        ok = np.isfinite(rec.gyr).all(axis=1) & np.isfinite(rec.acc).all(axis=1)
+        ok &= np.any(rec.acc != 0.0, axis=1)
     kernel = det.kernel()
     used = resolve_backend(backend, kernel is not None)
     s = det.initial_state(rec.nominal_dt)
@@ -546,12 +587,14 @@ def run_detector(det: Detector, rec: Recording, *, nan_policy: str = "raise", ba
     out = np.zeros(n, dtype=np.uint32)
     mag = rec.mag if rec.mag is not None else np.zeros((n, 3))
     dt = rec.dt
+    gn = gnss_sample_rows(rec) if rec.gnss is not None else None
     if used == "numba":
-        _get_det_loop(kernel.step)(rec.gyr, rec.acc, mag, dt, ok, s, kernel.params, out)
+        _get_det_loop(kernel.step, kernel.gnss)(rec.gyr, rec.acc, mag, dt, ok, s, kernel.params, out,
+                                                gn if gn is not None else NO_GNSS[None, :])
     else:
         for k in range(n):
             if ok[k]:
                 m = mag[k] if rec.mag is not None else None
-                out[k] = det.step(s, Sample(rec.gyr[k], rec.acc[k], m, dt[k]))
+                out[k] = det.step(s, Sample(rec.gyr[k], rec.acc[k], m, dt[k], None if gn is None else gn[k]))
     fired = np.flatnonzero(out)
     return DetectionResult(out, int(fired[0]) if fired.size else None, det.criteria_names, used)

@@ -87,10 +87,13 @@ class EstimatorKernel(NamedTuple):
 
 class DetectorKernel(NamedTuple):
     """numba counterpart of a detector: ``step(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, params)
-    -> int`` (the criteria bitmask), and the parameter vector."""
+    -> int`` (the criteria bitmask), and the parameter vector. ``gnss=True``: the step takes the
+    sample's GNSS row as six more arguments, ``..., params, vn, ve, valid, age, new, t_epoch``
+    (:data:`Sample.gnss`'s fields; ``nan, nan, 0, inf, 0, nan`` without a GNSS stream)."""
 
     step: Callable
     params: np.ndarray
+    gnss: bool = False
 
 
 class CorrectorKernel(NamedTuple):
@@ -108,11 +111,14 @@ class CorrectorKernel(NamedTuple):
     correctors, fed into the next propagation) and returns its flag bits.
 
     In both, ``g`` is the gyroscope with the alignment's bias removed (as in the reference's
-    ``sample.gyr``); ``acc_ok`` / ``mag_ok`` are False where the reference's sample has None."""
+    ``sample.gyr``); ``acc_ok`` / ``mag_ok`` are False where the reference's sample has None.
+    ``gnss=True``: ``correct`` takes the sample's GNSS row as six more arguments at the end,
+    ``vn, ve, valid, age, new, t_epoch`` (as :class:`DetectorKernel`)."""
 
     correct: Callable
     params: np.ndarray
     mode: str = "state"
+    gnss: bool = False
 
 
 class Correction(NamedTuple):

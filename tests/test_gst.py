@@ -208,30 +208,55 @@ def test_corrector_plugins_match_the_filters_in_a_pipeline(name):
         assert broad_errors(corrector_pipeline(name).run(rec).quat, rec.truth)["heading"][late].max() < 1.0
 
 
-@pytest.mark.parametrize("params", [{}, {"reject": False}])
-def test_gst_corrector_kernel_matches_reference(params):
-    """The autonomous corrector compiles (rate-mode kernel): equal to the reference on every
-    sample, rejections (ACC_REJECTED) included, and split runs equal one run. ``gst-gnss`` needs
-    the GNSS rows the compiled loop does not carry: it runs the reference path."""
-    rec = north_run(heading_deg=60.0)
-    p = corrector_pipeline("gst", **params)
+def _with_gap(rec, t0=20.0, t1=30.0):
+    valid = rec.gnss.valid.copy()
+    valid[(rec.gnss.t > t0) & (rec.gnss.t < t1)] = False
+    rec.gnss = fk.Gnss(t=rec.gnss.t, vel=rec.gnss.vel, valid=valid, frame="ENU")
+    return rec
+
+
+@pytest.mark.parametrize("name, params", [("gst", {}), ("gst", {"reject": False}), ("gst-gnss", {}),
+                                          ("gst-gnss", {"heading_init": "blend", "reject": False})])
+def test_gst_corrector_kernels_match_reference(name, params):
+    """Both correctors compile (rate-mode kernels; ``gst-gnss``'s takes the sample's GNSS row):
+    equal to the reference on every sample, flags (ACC_REJECTED, GNSS_GAP) and corrector state
+    included, through a GNSS gap, and split runs equal one run."""
+    rec = _with_gap(north_run(heading_deg=60.0, accel_s=30.0, v=20.0))
+    p = corrector_pipeline(name, **params)
     a, b = p.run(rec, backend="numba"), p.run(rec, backend="reference")
     assert a.diagnostics["backend"] == "numba"
     assert np.abs(a.quat - b.quat).max() < 1e-9 and np.array_equal(a.flags, b.flags)
-    assert bool((a.flags & Flag.ACC_REJECTED).any()) == (params == {})
+    assert bool((a.flags & Flag.ACC_REJECTED).any()) == (params.get("reject", True))
+    assert bool((a.flags & Flag.GNSS_GAP).any()) == (name == "gst-gnss")
     np.testing.assert_allclose(a.diagnostics["state"]["cor"][0], b.diagnostics["state"]["cor"][0], atol=1e-9)
     n1 = len(rec) // 2
     r1 = p.run(rec.slice(0, n1), backend="numba")
     r2 = p.run(rec.slice(n1, len(rec)), backend="numba", state=r1.diagnostics["state"])
     assert np.abs(np.vstack([r1.quat, r2.quat]) - a.quat).max() < 1e-12
-    assert corrector_pipeline("gst-gnss").run(rec).diagnostics["backend"] == "reference"
+
+
+def test_gnss_gap_detector_and_gst_gnss_compile_together():
+    """The ``gnss-gap`` detector's kernel takes the GNSS row too: a pipeline with it and
+    ``gst-gnss`` compiles and equals the reference (criteria included); without a GNSS stream
+    every sample is a gap in both."""
+    rec = _with_gap(north_run(accel_s=30.0, v=20.0))
+    p = fk.compose({"estimator": "poisson-quat", "detectors": ["gnss-gap", "motion"], "correctors": ["gst-gnss"],
+                    "alignment": {"mode": "fixed", "duration": 5.0}})
+    a, b = p.run(rec, backend="numba"), p.run(rec, backend="reference")
+    assert a.diagnostics["backend"] == "numba"
+    assert np.abs(a.quat - b.quat).max() < 1e-9 and np.array_equal(a.flags, b.flags)
+    np.testing.assert_array_equal(a.diagnostics["criteria"], b.diagnostics["criteria"])
+    crit = a.diagnostics["criteria"]
+    assert (crit[(rec.time > 20.6) & (rec.time < 30.0)] == 1).all() and (crit[rec.time < 11.0] == 2).all()
+    assert (crit[(rec.time > 18.0) & (rec.time < 20.0)] == 0).all()  # above 5 m/s
+    bare = fk.Recording(gyr=rec.gyr, acc=rec.acc, rate=100.0)
+    c, d = p.run(bare, backend="numba"), p.run(bare, backend="reference")
+    assert np.abs(c.quat - d.quat).max() < 1e-9 and np.array_equal(c.flags, d.flags)
+    assert (c.diagnostics["criteria"] == 1).all()
 
 
 def test_corrector_gap_flags_and_streaming():
-    rec = north_run(accel_s=30.0, v=20.0)
-    valid = rec.gnss.valid.copy()
-    valid[(rec.gnss.t > 20.0) & (rec.gnss.t < 30.0)] = False
-    rec.gnss = fk.Gnss(t=rec.gnss.t, vel=rec.gnss.vel, valid=valid, frame="ENU")
+    rec = _with_gap(north_run(accel_s=30.0, v=20.0))
     p = corrector_pipeline("gst-gnss")
     res = p.run(rec, backend="reference")
     assert (res.flags[(rec.time > 20.6) & (rec.time < 30.0)] & Flag.GNSS_GAP).all()

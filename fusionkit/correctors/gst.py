@@ -14,9 +14,9 @@ is ``w_P = K u x d`` for the horizontal residual ``d`` (frame independent).
 
 The ``gst`` / ``gst-gnss`` filters implement the same laws on the document's azimuth-free
 platform with a compiled loop; these correctors let them be composed with other estimators.
-``gst`` has a kernel (:func:`gst_correct`, rate mode, held to the reference on every sample);
-``gst-gnss`` needs the sample's GNSS row, which the compiled pipeline does not carry, so a
-pipeline with it runs the reference path.
+Both have kernels (:func:`gst_correct`, :func:`gst_gnss_correct`; rate mode, held to the
+reference on every sample); ``gst-gnss``'s takes the sample's GNSS row, which a compiled
+pipeline passes to the kernels that declare ``gnss=True``.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from ..protocols import Correction, Corrector, CorrectorKernel
 from ..rotations import quat_to_matrix
 from ..types import Flag
 
-__all__ = ["GstCorrector", "GstGnssCorrector", "gst_correct"]
+__all__ = ["GstCorrector", "GstGnssCorrector", "gst_correct", "gst_gnss_correct"]
 
 _FORWARD = {"RFU": [0.0, 1.0, 0.0], "FRD": [1.0, 0.0, 0.0], "FLU": [1.0, 0.0, 0.0]}
 # state: up (3), north (3), east (3), lp auto (3), lp gnss (3), |f| at rest, seconds rejected,
@@ -102,16 +102,56 @@ class GstCorrector(Corrector):
         return Correction(self._rate(r, state, d, self.config.tau))
 
 
-    def kernel(self, estimator) -> CorrectorKernel | None:
-        if type(self) is not GstCorrector:  # gst-gnss: the compiled loop has no GNSS rows
-            return None
+    def _params(self) -> list[float]:
         c = self.config
-        return CorrectorKernel(gst_correct, np.array([c.tau, c.lp, c.gravity, float(c.reject), c.reject_acc,
-                                                      c.reject_turn, c.reject_horizontal, c.reject_timeout]),
-                               mode="rate")
+        return [c.tau, c.lp, c.gravity, float(c.reject), c.reject_acc, c.reject_turn, c.reject_horizontal,
+                c.reject_timeout]
+
+    def kernel(self, estimator) -> CorrectorKernel | None:
+        return CorrectorKernel(gst_correct, np.array(self._params()), mode="rate")
 
 
 _ACC_REJECTED = int(Flag.ACC_REJECTED)
+_GNSS_GAP = int(Flag.GNSS_GAP)
+
+
+@njit(inline="always")
+def _inputs(q, s, g0, g1, g2, a0, a1, a2):
+    """What both kernels level on: ``R(q)``'s entries, the up vector, the earth-frame specific
+    force and the turn rate about up (:meth:`GstCorrector._horizontal`)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    r00, r01, r02 = 1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)
+    r10, r11, r12 = 2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)
+    r20, r21, r22 = 2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)
+    u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
+    f0, f1, f2 = r00 * a0 + r01 * a1 + r02 * a2, r10 * a0 + r11 * a1 + r12 * a2, r20 * a0 + r21 * a1 + r22 * a2
+    w_up = ((r00 * g0 + r01 * g1 + r02 * g2) * u0 + (r10 * g0 + r11 * g1 + r12 * g2) * u1
+            + (r20 * g0 + r21 * g1 + r22 * g2) * u2)
+    return r00, r01, r02, r10, r11, r12, r20, r21, r22, u0, u1, u2, f0, f1, f2, w_up
+
+
+@njit(inline="always")
+def _autonomous(s, f0, f1, f2, u0, u1, u2, a0, a1, a2, w_up, dt, p):
+    """:meth:`GstCorrector._autonomous` on the earth-frame specific force ``f``: the aperiodic
+    link of its horizontal part (``s[_LPA:_LPA + 3]``) and the gate; True when it pauses."""
+    fu = f0 * u0 + f1 * u1 + f2 * u2
+    k = 1.0 - math.exp(-dt / p[1])
+    s[_LPA] += k * ((f0 - fu * u0) - s[_LPA])
+    s[_LPA + 1] += k * ((f1 - fu * u1) - s[_LPA + 1])
+    s[_LPA + 2] += k * ((f2 - fu * u2) - s[_LPA + 2])
+    d0, d1, d2 = s[_LPA], s[_LPA + 1], s[_LPA + 2]
+    horizontal = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) > p[6]
+    s[_REJT] = s[_REJT] + dt if horizontal else 0.0
+    return p[3] != 0.0 and (abs(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) - p[2]) > p[4] or abs(w_up) > p[5]
+                            or (horizontal and s[_REJT] <= p[7]))
+
+
+@njit(inline="always")
+def _turn(r00, r01, r02, r10, r11, r12, r20, r21, r22, w0, w1, w2, rate):
+    """``rate -= R^T w``: an earth-frame platform rate ``w`` as a body-rate correction."""
+    rate[0] -= r00 * w0 + r10 * w1 + r20 * w2
+    rate[1] -= r01 * w0 + r11 * w1 + r21 * w2
+    rate[2] -= r02 * w0 + r12 * w1 + r22 * w2
 
 
 @njit
@@ -120,30 +160,68 @@ def gst_correct(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags,
     reject_turn, reject_horizontal, reject_timeout)."""
     if not acc_ok:
         return 0
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    r00, r01, r02 = 1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)
-    r10, r11, r12 = 2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)
-    r20, r21, r22 = 2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)
-    u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
-    f0, f1, f2 = r00 * a0 + r01 * a1 + r02 * a2, r10 * a0 + r11 * a1 + r12 * a2, r20 * a0 + r21 * a1 + r22 * a2
-    fu = f0 * u0 + f1 * u1 + f2 * u2
-    w_up = ((r00 * g0 + r01 * g1 + r02 * g2) * u0 + (r10 * g0 + r11 * g1 + r12 * g2) * u1
-            + (r20 * g0 + r21 * g1 + r22 * g2) * u2)
-    k = 1.0 - math.exp(-dt / p[1])
-    s[_LPA] += k * ((f0 - fu * u0) - s[_LPA])
-    s[_LPA + 1] += k * ((f1 - fu * u1) - s[_LPA + 1])
-    s[_LPA + 2] += k * ((f2 - fu * u2) - s[_LPA + 2])
-    d0, d1, d2 = s[_LPA], s[_LPA + 1], s[_LPA + 2]
-    horizontal = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) > p[6]
-    s[_REJT] = s[_REJT] + dt if horizontal else 0.0
-    if p[3] != 0.0 and (abs(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) - p[2]) > p[4] or abs(w_up) > p[5]
-                        or (horizontal and s[_REJT] <= p[7])):
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, u0, u1, u2, f0, f1, f2, w_up = _inputs(q, s, g0, g1, g2, a0, a1, a2)
+    if _autonomous(s, f0, f1, f2, u0, u1, u2, a0, a1, a2, w_up, dt, p):
         return _ACC_REJECTED
+    d0, d1, d2 = s[_LPA], s[_LPA + 1], s[_LPA + 2]
     kg = 1.0 / (p[2] * p[0])  # w_P = K u x d, the rate -R^T w_P
-    wp0, wp1, wp2 = (u1 * d2 - u2 * d1) * kg, (u2 * d0 - u0 * d2) * kg, (u0 * d1 - u1 * d0) * kg
-    rate[0] -= r00 * wp0 + r10 * wp1 + r20 * wp2
-    rate[1] -= r01 * wp0 + r11 * wp1 + r21 * wp2
-    rate[2] -= r02 * wp0 + r12 * wp1 + r22 * wp2
+    _turn(r00, r01, r02, r10, r11, r12, r20, r21, r22,
+          (u1 * d2 - u2 * d1) * kg, (u2 * d0 - u0 * d2) * kg, (u0 * d1 - u1 * d0) * kg, rate)
+    return 0
+
+
+@njit
+def gst_gnss_correct(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate,
+                     vn, ve, valid, age, new, t_epoch):
+    """The kernel of :meth:`GstGnssCorrector.correct` (it takes the sample's GNSS row): ``p`` =
+    (gst's 8 parameters, tau_gnss, lp_gnss, heading_T, heading_init == "track", min_speed,
+    gnss_max_age, the body's forward axis (3))."""
+    if not acc_ok:
+        return 0
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, u0, u1, u2, f0, f1, f2, w_up = _inputs(q, s, g0, g1, g2, a0, a1, a2)
+    rejected = _autonomous(s, f0, f1, f2, u0, u1, u2, a0, a1, a2, w_up, dt, p)
+    usable = valid != 0.0 and age <= p[13]
+    if new != 0.0 and valid != 0.0:  # a new valid epoch: ground speed and its derivative
+        v = math.hypot(vn, ve)
+        if math.isfinite(s[_TPREV]) and t_epoch > s[_TPREV]:
+            s[_ALONG] = (v - s[_VPREV]) / (t_epoch - s[_TPREV])
+        s[_VPREV], s[_TPREV], s[_V] = v, t_epoch, v
+    elif valid == 0.0:
+        s[_TPREV] = math.nan
+    if not usable:  # the autonomous loop
+        if rejected:
+            return _ACC_REJECTED | _GNSS_GAP
+        d0, d1, d2 = s[_LPA], s[_LPA + 1], s[_LPA + 2]
+        kg = 1.0 / (p[2] * p[0])
+        _turn(r00, r01, r02, r10, r11, r12, r20, r21, r22,
+              (u1 * d2 - u2 * d1) * kg, (u2 * d0 - u0 * d2) * kg, (u0 * d1 - u1 * d0) * kg, rate)
+        return _GNSS_GAP
+    b0, b1, b2 = p[14], p[15], p[16]  # the forward axis, levelled
+    e0, e1, e2 = r00 * b0 + r01 * b1 + r02 * b2, r10 * b0 + r11 * b1 + r12 * b2, r20 * b0 + r21 * b1 + r22 * b2
+    eu = e0 * u0 + e1 * u1 + e2 * u2
+    e0, e1, e2 = e0 - eu * u0, e1 - eu * u1, e2 - eu * u2
+    en = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    e0, e1, e2 = e0 / en, e1 / en, e2 / en
+    h0, h1, h2 = e1 * u2 - e2 * u1, e2 * u0 - e0 * u2, e0 * u1 - e1 * u0  # right = fwd x up
+    along, lateral = s[_ALONG], s[_V] * (-w_up)
+    fu = f0 * u0 + f1 * u1 + f2 * u2
+    k = 1.0 - math.exp(-dt / p[9])
+    s[_LPG] += k * (((f0 - fu * u0) - (along * e0 + lateral * h0)) - s[_LPG])
+    s[_LPG + 1] += k * (((f1 - fu * u1) - (along * e1 + lateral * h1)) - s[_LPG + 1])
+    s[_LPG + 2] += k * (((f2 - fu * u2) - (along * e2 + lateral * h2)) - s[_LPG + 2])
+    d0, d1, d2 = s[_LPG], s[_LPG + 1], s[_LPG + 2]
+    kg = 1.0 / (p[2] * p[8])
+    _turn(r00, r01, r02, r10, r11, r12, r20, r21, r22,
+          (u1 * d2 - u2 * d1) * kg, (u2 * d0 - u0 * d2) * kg, (u0 * d1 - u1 * d0) * kg, rate)
+    if s[_V] >= p[12]:  # eq. 5: pull the heading towards the track angle
+        heading = math.atan2(e0 * s[_E] + e1 * s[_E + 1] + e2 * s[_E + 2], e0 * s[_N] + e1 * s[_N + 1] + e2 * s[_N + 2])
+        err = (math.atan2(ve, vn) - heading + math.pi) % (2.0 * math.pi) - math.pi
+        if s[_HINIT] == 0.0 and p[11] != 0.0:
+            turn = err / dt  # the whole offset in one sample
+        else:
+            turn = err / p[10]
+        s[_HINIT] = 1.0
+        _turn(r00, r01, r02, r10, r11, r12, r20, r21, r22, turn * u0, turn * u1, turn * u2, rate)
     return 0
 
 
@@ -205,3 +283,9 @@ class GstGnssCorrector(GstCorrector):
             state[_HINIT] = 1.0
             rate = rate - r.T @ (turn * up)  # clockwise (heading up) is negative about "up"
         return Correction(rate)
+
+    def kernel(self, estimator) -> CorrectorKernel | None:
+        c = self.config
+        p = self._params() + [c.tau_gnss, c.lp_gnss, c.heading_T, float(c.heading_init == "track"), c.min_speed,
+                              c.gnss_max_age] + _FORWARD[c.body]
+        return CorrectorKernel(gst_gnss_correct, np.array(p), mode="rate", gnss=True)

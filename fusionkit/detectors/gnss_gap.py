@@ -2,21 +2,24 @@
 
 GNSS counts as usable on an IMU sample when the latest epoch at or before it is valid (flag set
 and finite velocity) and not older than ``max_age``. The track angle is usable only above
-``min_speed`` (below it the direction of a noisy velocity means nothing).
+``min_speed`` (below it the direction of a noisy velocity means nothing). The kernel
+(:func:`gnss_gap_step`) takes the sample's GNSS row, which a compiled pipeline passes to it.
 """
 
 from __future__ import annotations
 
+import math
 from typing import ClassVar
 
 import numpy as np
 
+from .._numba import njit
 from ..config import PluginConfig, param
 from ..errors import InputError
-from ..protocols import DetectionResult, Detector, Sample
+from ..protocols import DetectionResult, Detector, DetectorKernel, Sample
 from ..types import Flag, Recording
 
-__all__ = ["GnssGapDetector", "GnssGapConfig", "NO_GNSS", "gnss_per_sample", "gnss_sample_rows"]
+__all__ = ["GnssGapDetector", "GnssGapConfig", "NO_GNSS", "gnss_gap_step", "gnss_per_sample", "gnss_sample_rows"]
 
 
 class GnssGapConfig(PluginConfig):
@@ -83,14 +86,26 @@ class GnssGapDetector(Detector):
         return 2 if np.hypot(vn, ve) < self.config.min_speed else 0
 
     def step(self, state, sample: Sample) -> int:
-        g = getattr(sample, "gnss", None)
+        g = sample.gnss  # the row vn, ve, valid, age, new, t_epoch, or None without a stream
         if g is None:
             return 1
-        return self.classify(g["valid"], g["age"], g["vel"][0], g["vel"][1])
+        return self.classify(bool(g[2]), g[3], g[0], g[1])
+
+    def kernel(self) -> DetectorKernel:
+        return DetectorKernel(gnss_gap_step, np.array([self.config.max_age, self.config.min_speed]), gnss=True)
 
     def run(self, rec, *, nan_policy: str = "raise", backend: str = "auto") -> DetectionResult:
-        per = gnss_per_sample(rec)
-        crit = np.array([self.classify(v, a, x[0], x[1]) for v, a, x in zip(per["valid"], per["age"], per["vel"])],
-                        dtype=np.uint32)
-        fired = np.flatnonzero(crit & 1)
-        return DetectionResult(crit, int(fired[0]) if fired.size else None, self.criteria_names, "reference")
+        """Every sample is classified (GNSS does not depend on the IMU sample being valid)."""
+        from ..pipeline import run_detector
+
+        if rec.gnss is None:
+            raise InputError(f"recording {rec.name!r} has no GNSS stream")
+        return run_detector(self, rec, nan_policy=nan_policy, backend=backend, every_sample=True)
+
+
+@njit
+def gnss_gap_step(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p, vn, ve, valid, age, new, t_epoch):
+    """The kernel of :meth:`GnssGapDetector.step`: ``p`` = (max_age, min_speed)."""
+    if valid == 0.0 or age > p[0]:
+        return 1
+    return 2 if math.hypot(vn, ve) < p[1] else 0
