@@ -189,7 +189,12 @@ def cmd_lags(args) -> int:
             print(f"| {name} | no reference | | | | | | | | | |")
             failed += 1
             continue
-        r = sensor_lags(rec, max_lag=args.max_lag, cutoff=args.cutoff)
+        try:
+            r = sensor_lags(rec, max_lag=args.max_lag, cutoff=args.cutoff)
+        except FusionkitError as exc:  # reported in its row; the other recordings go on
+            print(f"| {name} | error: {exc} | | | | | | | | | |")
+            failed += 1
+            continue
         cells = [f"{v:{fmt}}" if not math.isnan(v) else "-" for v, fmt in (
             (r.gyr, "+.2f"), (1e3 * r.gyr_seconds, "+.2f"), (r.gyr_rms, ".3f"), (r.acc, "+.2f"),
             (1e3 * r.acc_seconds, "+.2f"), (r.acc_rms, ".3f"))]  # NaN (no minimum in the range): "-"

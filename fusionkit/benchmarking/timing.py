@@ -23,7 +23,9 @@ reference at ``k``: a grid of 0.25 samples over ``[-max_lag, max_lag]`` (8 by de
 of ``step`` around its best point and a parabola through the best three points, after one pass that leaves out samples whose residual exceeds ``outlier`` times the median (optical
 glitches). A lag is NaN when the best one lies on the edge of the range (no minimum inside it:
 the model does not fit, e.g. linear accelerations dominate). Only the ``movement`` samples are
-used when the recording has that mask (at rest there is nothing to time).
+used when the recording has that mask (at rest there is nothing to time). Timestamps may jitter:
+lags are found on the clock ``(t - t[0]) / median(dt)``, and the samples next to a dropout (an
+interval over 1.5 nominal ones) are left out.
 
 Reading the result: ``L`` > 0 means sample ``k`` describes the reference at ``k - L``. A sensor
 that follows fusionkit's timing convention (a mean over the interval ``(t[k-1], t[k]]``, like the
@@ -102,25 +104,27 @@ def _lowpass(x: np.ndarray, cutoff: float, rate: float) -> np.ndarray:
     return filtfilt(b, a, x, axis=0)
 
 
-def _shifted(x: np.ndarray, s: float) -> np.ndarray:
-    """``x[k + s]`` by linear interpolation (ends held)."""
+def _shifted(x: np.ndarray, s: float, u: np.ndarray) -> np.ndarray:
+    """``x`` at the sample clock ``u + s`` (``u`` = time in nominal samples, ``k`` when uniform),
+    by linear interpolation between samples (ends held)."""
     n = len(x)
-    idx = np.clip(np.arange(n) + s, 0.0, n - 1.0)
+    idx = np.interp(u + s, u, np.arange(n, dtype=float))
     i0 = np.minimum(np.floor(idx).astype(int), n - 2)
     f = (idx - i0)[:, None]
     return x[i0] * (1.0 - f) + x[i0 + 1] * f
 
 
-def _fit_lag(x: np.ndarray, ref: np.ndarray, mask: np.ndarray, max_lag: float, step: float, outlier: float):
+def _fit_lag(x: np.ndarray, ref: np.ndarray, mask: np.ndarray, max_lag: float, step: float, outlier: float,
+             u: np.ndarray):
     """Lag (samples) minimising the mean squared ``x[k + L] - ref[k]`` over ``mask``, its RMS and
     the number of samples used: a coarse grid over ``[-max_lag, max_lag]``, then ``step`` around
     its best point."""
     def costs(lags, m):
-        return np.array([np.mean(np.sum((_shifted(x, s)[m] - ref[m]) ** 2, axis=1)) for s in lags])
+        return np.array([np.mean(np.sum((_shifted(x, s, u)[m] - ref[m]) ** 2, axis=1)) for s in lags])
 
     coarse = np.arange(-max_lag, max_lag + 1e-9, max(step, min(0.25, max_lag / 4)))
     c = costs(coarse, mask)
-    resid = np.linalg.norm(_shifted(x, coarse[np.argmin(c)]) - ref, axis=1)
+    resid = np.linalg.norm(_shifted(x, coarse[np.argmin(c)], u) - ref, axis=1)
     keep = mask & (resid <= outlier * np.median(resid[mask]))
     if keep.sum() >= 0.5 * mask.sum():
         mask = keep
@@ -136,7 +140,7 @@ def _fit_lag(x: np.ndarray, ref: np.ndarray, mask: np.ndarray, max_lag: float, s
         den = c[i - 1] - 2.0 * c[i] + c[i + 1]  # parabola through the best three points
         if den > 0:
             lag += 0.5 * (c[i - 1] - c[i + 1]) / den * step
-    rms = float(np.sqrt(np.mean(np.sum((_shifted(x, lag)[mask] - ref[mask]) ** 2, axis=1))))
+    rms = float(np.sqrt(np.mean(np.sum((_shifted(x, lag, u)[mask] - ref[mask]) ** 2, axis=1))))
     return lag, rms, int(mask.sum())
 
 
@@ -159,8 +163,10 @@ def sensor_lags(rec, max_lag: float = 8.0, step: float = 0.05, cutoff: float = 2
     t = rec.time
     dt = np.diff(t)
     rate = 1.0 / float(np.median(dt))
-    if np.max(np.abs(dt * rate - 1.0)) > 0.01:
-        raise InputError("sensor_lags needs uniformly sampled data (sample intervals vary by more than 1%)")
+    u = (t - t[0]) * rate  # the sample clock: time in nominal samples
+    gap = np.zeros(n, dtype=bool)  # samples next to a dropout (an interval over 1.5 nominal ones)
+    gap[1:] |= dt * rate > 1.5
+    gap[:-1] |= dt * rate > 1.5
     edge = int(np.ceil(max_lag)) + int(rate / cutoff) + 2
     if n < 4 * edge + 10:
         raise InputError(f"recording {rec.name!r} is too short to time ({n} samples)")
@@ -198,7 +204,7 @@ def sensor_lags(rec, max_lag: float = 8.0, step: float = 0.05, cutoff: float = 2
     gyr_ok = np.isfinite(rec.gyr).all(axis=1)
     acc_ok = np.isfinite(rec.acc).all(axis=1)
     # samples near a missing reference or sensor sample are left out (filter and difference reach)
-    bad = ~(ok & gyr_ok & acc_ok)
+    bad = ~(ok & gyr_ok & acc_ok) | gap
     reach = int(rate / cutoff) + 2
     near_bad = np.convolve(bad.astype(float), np.ones(2 * reach + 1), mode="same") > 0
     mask = ~near_bad
@@ -213,8 +219,8 @@ def sensor_lags(rec, max_lag: float = 8.0, step: float = 0.05, cutoff: float = 2
     acc = _lowpass(np.where(acc_ok[:, None], rec.acc, 0.0), cutoff, rate)
     w_ref = _lowpass(w_ref, cutoff, rate)
     f_ref = _lowpass(f_body, cutoff, rate)
-    lg, rg, used = _fit_lag(gyr, w_ref, mask, max_lag, step, outlier)
-    la, ra, _ = _fit_lag(acc, f_ref, mask, max_lag, step, outlier)
+    lg, rg, used = _fit_lag(gyr, w_ref, mask, max_lag, step, outlier, u)
+    la, ra, _ = _fit_lag(acc, f_ref, mask, max_lag, step, outlier, u)
     lm = rm = math.nan
     if rec.mag is not None:
         mag_ok = np.isfinite(rec.mag).all(axis=1)
@@ -224,9 +230,9 @@ def sensor_lags(rec, max_lag: float = 8.0, step: float = 0.05, cutoff: float = 2
             mag = _lowpass(np.where(mag_ok[:, None], rec.mag, 0.0), cutoff, rate)
             shift = 0.0
             for _ in range(2):  # the earth field (median of R mag), then again with the lagged samples
-                field = np.median(np.einsum("nij,nj->ni", rot[m_mask], _shifted(mag, shift)[m_mask]), axis=0)
+                field = np.median(np.einsum("nij,nj->ni", rot[m_mask], _shifted(mag, shift, u)[m_mask]), axis=0)
                 m_ref = _lowpass(np.einsum("nji,j->ni", rot, field), cutoff, rate)
-                lm, rm, _ = _fit_lag(mag, m_ref, m_mask, max_lag, step, outlier)
+                lm, rm, _ = _fit_lag(mag, m_ref, m_mask, max_lag, step, outlier, u)
                 if math.isnan(lm):
                     break
                 shift = lm
