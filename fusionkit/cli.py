@@ -195,12 +195,12 @@ def cmd_lags(args) -> int:
             print(f"| {name} | error: {exc} | | | | | | | | | |")
             failed += 1
             continue
-        cells = [f"{v:{fmt}}" if not math.isnan(v) else "-" for v, fmt in (
+        cells = ["-" if math.isnan(v) else f"{v:{fmt}}" for v, fmt in (  # NaN (no minimum in the range): "-"
             (r.gyr, "+.2f"), (1e3 * r.gyr_seconds, "+.2f"), (r.gyr_rms, ".3f"), (r.acc, "+.2f"),
-            (1e3 * r.acc_seconds, "+.2f"), (r.acc_rms, ".3f"))]  # NaN (no minimum in the range): "-"
-        mag = [f"{v:{fmt}}" if not math.isnan(v) else "-" for v, fmt in (
-            (r.mag, "+.2f"), (1e3 * r.mag_seconds, "+.2f"), (r.mag_rms, ".3f"))]
-        print(f"| {name} | " + " | ".join(cells) + f" | {r.acc_model} | " + " | ".join(mag) + " |")
+            (1e3 * r.acc_seconds, "+.2f"), (r.acc_rms, ".3f"), (r.mag, "+.2f"), (1e3 * r.mag_seconds, "+.2f"),
+            (r.mag_rms, ".3f"))]
+        cells.insert(6, r.acc_model)
+        print(f"| {name} | " + " | ".join(cells) + " |")
     return 1 if failed else 0
 
 

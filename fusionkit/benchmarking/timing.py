@@ -104,6 +104,11 @@ def _lowpass(x: np.ndarray, cutoff: float, rate: float) -> np.ndarray:
     return filtfilt(b, a, x, axis=0)
 
 
+def _near(bad: np.ndarray, reach: int) -> np.ndarray:
+    """The samples within ``reach`` of a ``bad`` one (filters and differences reach that far)."""
+    return np.convolve(bad.astype(float), np.ones(2 * reach + 1), mode="same") > 0
+
+
 def _shifted(x: np.ndarray, s: float, u: np.ndarray) -> np.ndarray:
     """``x`` at the sample clock ``u + s`` (``u`` = time in nominal samples, ``k`` when uniform),
     by linear interpolation between samples (ends held)."""
@@ -146,7 +151,8 @@ def _fit_lag(x: np.ndarray, ref: np.ndarray, mask: np.ndarray, max_lag: float, s
 
 def sensor_lags(rec, max_lag: float = 8.0, step: float = 0.05, cutoff: float = 20.0,
                 outlier: float = 5.0, position="auto") -> SensorLags:
-    """Lags (samples) of ``rec``'s gyroscope and accelerometer against ``rec.truth`` (module doc).
+    """Lags (samples) of ``rec``'s gyroscope, accelerometer and magnetometer against ``rec.truth``
+    (module doc).
 
     ``max_lag``: the search range ``[-max_lag, max_lag]`` samples; ``step``: its grid;
     ``cutoff``: the low-pass (Hz) applied to both sides; ``outlier``: residuals above this many
@@ -199,15 +205,14 @@ def sensor_lags(rec, max_lag: float = 8.0, step: float = 0.05, cutoff: float = 2
     if position is not None:
         p = _lowpass(position[hold], cutoff, rate)
         force[1:-1] += (p[2:] - 2.0 * p[1:-1] + p[:-2]) * rate * rate
-    f_body = np.einsum("nji,nj->ni", quat_to_matrix(q), force)
+    rot = quat_to_matrix(q)
+    f_body = np.einsum("nji,nj->ni", rot, force)
 
     gyr_ok = np.isfinite(rec.gyr).all(axis=1)
     acc_ok = np.isfinite(rec.acc).all(axis=1)
-    # samples near a missing reference or sensor sample are left out (filter and difference reach)
-    bad = ~(ok & gyr_ok & acc_ok) | gap
+    # samples near a missing reference or sensor sample, or a dropout, are left out
     reach = int(rate / cutoff) + 2
-    near_bad = np.convolve(bad.astype(float), np.ones(2 * reach + 1), mode="same") > 0
-    mask = ~near_bad
+    mask = ~_near(~(ok & gyr_ok & acc_ok) | gap, reach)
     mask[:edge] = mask[-edge:] = False
     if rec.movement is not None:
         mask &= rec.movement
@@ -224,9 +229,8 @@ def sensor_lags(rec, max_lag: float = 8.0, step: float = 0.05, cutoff: float = 2
     lm = rm = math.nan
     if rec.mag is not None:
         mag_ok = np.isfinite(rec.mag).all(axis=1)
-        m_mask = mask & ~(np.convolve((~mag_ok).astype(float), np.ones(2 * reach + 1), mode="same") > 0)
+        m_mask = mask & ~_near(~mag_ok, reach)
         if m_mask.sum() >= 10:
-            rot = quat_to_matrix(q)
             mag = _lowpass(np.where(mag_ok[:, None], rec.mag, 0.0), cutoff, rate)
             shift = 0.0
             for _ in range(2):  # the earth field (median of R mag), then again with the lagged samples
