@@ -101,7 +101,6 @@ class GstCorrector(Corrector):
             return Correction(np.zeros(3), Flag.ACC_REJECTED)
         return Correction(self._rate(r, state, d, self.config.tau))
 
-
     def _params(self) -> list[float]:
         c = self.config
         return [c.tau, c.lp, c.gravity, float(c.reject), c.reject_acc, c.reject_turn, c.reject_horizontal,
@@ -154,6 +153,15 @@ def _turn(r00, r01, r02, r10, r11, r12, r20, r21, r22, w0, w1, w2, rate):
     rate[2] -= r02 * w0 + r12 * w1 + r22 * w2
 
 
+@njit(inline="always")
+def _level(r00, r01, r02, r10, r11, r12, r20, r21, r22, u0, u1, u2, s, i, kg, rate):
+    """Level on the residual ``d = s[i:i + 3]``: the platform rate ``w_P = K u x d`` (``K = kg``)
+    as the body-rate correction ``-R^T w_P``."""
+    d0, d1, d2 = s[i], s[i + 1], s[i + 2]
+    _turn(r00, r01, r02, r10, r11, r12, r20, r21, r22,
+          (u1 * d2 - u2 * d1) * kg, (u2 * d0 - u0 * d2) * kg, (u0 * d1 - u1 * d0) * kg, rate)
+
+
 @njit
 def gst_correct(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate):
     """The kernel of :meth:`GstCorrector.correct`: ``p`` = (tau, lp, gravity, reject, reject_acc,
@@ -163,10 +171,7 @@ def gst_correct(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags,
     r00, r01, r02, r10, r11, r12, r20, r21, r22, u0, u1, u2, f0, f1, f2, w_up = _inputs(q, s, g0, g1, g2, a0, a1, a2)
     if _autonomous(s, f0, f1, f2, u0, u1, u2, a0, a1, a2, w_up, dt, p):
         return _ACC_REJECTED
-    d0, d1, d2 = s[_LPA], s[_LPA + 1], s[_LPA + 2]
-    kg = 1.0 / (p[2] * p[0])  # w_P = K u x d, the rate -R^T w_P
-    _turn(r00, r01, r02, r10, r11, r12, r20, r21, r22,
-          (u1 * d2 - u2 * d1) * kg, (u2 * d0 - u0 * d2) * kg, (u0 * d1 - u1 * d0) * kg, rate)
+    _level(r00, r01, r02, r10, r11, r12, r20, r21, r22, u0, u1, u2, s, _LPA, 1.0 / (p[2] * p[0]), rate)
     return 0
 
 
@@ -191,10 +196,7 @@ def gst_gnss_correct(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, f
     if not usable:  # the autonomous loop
         if rejected:
             return _ACC_REJECTED | _GNSS_GAP
-        d0, d1, d2 = s[_LPA], s[_LPA + 1], s[_LPA + 2]
-        kg = 1.0 / (p[2] * p[0])
-        _turn(r00, r01, r02, r10, r11, r12, r20, r21, r22,
-              (u1 * d2 - u2 * d1) * kg, (u2 * d0 - u0 * d2) * kg, (u0 * d1 - u1 * d0) * kg, rate)
+        _level(r00, r01, r02, r10, r11, r12, r20, r21, r22, u0, u1, u2, s, _LPA, 1.0 / (p[2] * p[0]), rate)
         return _GNSS_GAP
     b0, b1, b2 = p[14], p[15], p[16]  # the forward axis, levelled
     e0, e1, e2 = r00 * b0 + r01 * b1 + r02 * b2, r10 * b0 + r11 * b1 + r12 * b2, r20 * b0 + r21 * b1 + r22 * b2
@@ -209,10 +211,7 @@ def gst_gnss_correct(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, f
     s[_LPG] += k * (((f0 - fu * u0) - (along * e0 + lateral * h0)) - s[_LPG])
     s[_LPG + 1] += k * (((f1 - fu * u1) - (along * e1 + lateral * h1)) - s[_LPG + 1])
     s[_LPG + 2] += k * (((f2 - fu * u2) - (along * e2 + lateral * h2)) - s[_LPG + 2])
-    d0, d1, d2 = s[_LPG], s[_LPG + 1], s[_LPG + 2]
-    kg = 1.0 / (p[2] * p[8])
-    _turn(r00, r01, r02, r10, r11, r12, r20, r21, r22,
-          (u1 * d2 - u2 * d1) * kg, (u2 * d0 - u0 * d2) * kg, (u0 * d1 - u1 * d0) * kg, rate)
+    _level(r00, r01, r02, r10, r11, r12, r20, r21, r22, u0, u1, u2, s, _LPG, 1.0 / (p[2] * p[8]), rate)
     if s[_V] >= p[12]:  # eq. 5: pull the heading towards the track angle
         heading = math.atan2(e0 * s[_E] + e1 * s[_E + 1] + e2 * s[_E + 2], e0 * s[_N] + e1 * s[_N + 1] + e2 * s[_N + 2])
         err = (math.atan2(ve, vn) - heading + math.pi) % (2.0 * math.pi) - math.pi
