@@ -5,6 +5,9 @@ Per sample, in this fixed order:
 1. **validity**: a non-finite gyr sample is flagged GYR_INVALID (state held), a non-finite or
    all-zero acc / mag sample ACC_INVALID / MAG_INVALID (their use skipped); axes at or above
    ``gyr_range`` / ``acc_range`` are flagged SATURATED (and still used).
+   **sensor models** (``models``, in order; :class:`~fusionkit.protocols.SensorModel`) then
+   correct the sample (calibration, time offsets), reading the previous output orientation;
+   validity is judged again on what they return.
 2. **detectors** (each on samples with valid gyr and acc): a nonzero criteria mask sets the
    detector's flag.
 3. **alignment** while it runs (source 000): the sample is added to the means and the output is
@@ -19,9 +22,10 @@ Per sample, in this fixed order:
    accelerometer reading: that correction is skipped.
 
 Two paths run this: the readable reference (:meth:`Pipeline._step`) and, when every plugin has
-a numba kernel (an estimator, any detectors, any correctors of either mode), one compiled loop
-built by closing over the plugins' kernels (:func:`_build_loop`). ``Result.diagnostics["backend"]``
-says which ran; the tests hold the two to 1e-9 on every sample.
+a numba kernel (an estimator, any models, detectors and correctors of either mode), one compiled
+loop generated for the composition and cached on disk (:mod:`fusionkit._loopgen`), whose
+one-sample twin also serves :meth:`Pipeline.update`. ``Result.diagnostics["backend"]`` says which
+ran; the tests hold the two to 1e-9 on every sample.
 
 ``quat[k]`` is the orientation after sample ``k`` has been processed; sample ``k``'s rate is
 held over ``dt[k] = t[k] - t[k-1]``.
@@ -36,7 +40,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ._kernels import validity_flags
+from . import _loopgen
 from ._numba import HAVE_NUMBA, njit, resolve_backend
 from .config import PipelineConfig
 from .detectors.gnss_gap import NO_GNSS, gnss_sample_rows
@@ -49,21 +53,21 @@ from .navigation.alignment import (
     BIAS,
     DISTURBED,
     END,
-    PHASE,
     SEEN,
     Aligner,
-    align_step,
 )
 from .protocols import DetectionResult, Detector, Filter, Sample
 from .registry import Registry, default_registry
 from .types import Flag, Recording, Result, sample_validity
-from .validation import as_vector, check_finite_all, check_positive
+from .validation import as_vector, check_finite_all, check_positive, floats3
 
 __all__ = ["Pipeline", "run_detector"]
 
-# the pipeline's run state "align": the alignment's fields, then the pending correction rate
+# the pipeline's run state "align": the alignment's fields, the pending correction rate, and the
+# previous output quaternion (what sensor models read)
 _RCORR = ALIGN_SIZE
-_STATE_SIZE = ALIGN_SIZE + 3
+_QPREV = ALIGN_SIZE + 3
+_STATE_SIZE = ALIGN_SIZE + 7
 _CHUNK = 200_000
 
 
@@ -86,6 +90,10 @@ class Pipeline(Filter):
         self.estimator = reg.make(spec.estimator.name, "estimator", spec.estimator.params)
         self.correctors = [reg.make(c.name, "corrector", c.params) for c in spec.correctors]
         self.detectors = [reg.make(d.name, "detector", d.params) for d in spec.detectors]
+        self.models = [reg.make(m.name, "model", m.params) for m in spec.models]
+        #: "auto": update() runs the compiled step when every plugin has a kernel; "reference":
+        #: the readable one (the same numbers to 1e-9)
+        self.update_backend = "auto"
         if spec.alignment.mode == "motion" and not any(d.flag & Flag.MOTION for d in self.detectors):
             raise ConfigError(
                 "alignment mode 'motion' ends on a MOTION flag, but no detector sets it: add the "
@@ -96,6 +104,7 @@ class Pipeline(Filter):
                 raise ConfigError(f"corrector {c.name!r} acts on {c.requires_flag.name} samples, but no detector "
                                   f"sets that flag: add one (e.g. 'rest' for REST)")
         self._stream: dict[str, Any] | None = None
+        self._packed: tuple | None = None  # the compiled stream: (step, S, P, O, q, has_mag)
         self.last_flags = 0
 
     def pipeline_config(self) -> PipelineConfig:
@@ -119,9 +128,11 @@ class Pipeline(Filter):
         """A fresh run state for nominal sample interval ``dt``."""
         al = self.aligner(dt).new_state(_STATE_SIZE)
         q0 = np.array(self.spec.alignment.initial_quat)
+        al[_QPREV:_QPREV + 4] = q0
         return {
             "dt": float(dt),
             "x": self.estimator.initial_state(q0),
+            "mod": [m.initial_state(dt) for m in self.models],
             "det": [d.initial_state(dt) for d in self.detectors],
             "cor": [c.initial_state(dt, self.spec.frame) for c in self.correctors],
             "align": al,
@@ -130,26 +141,30 @@ class Pipeline(Filter):
     @property
     def state(self) -> dict[str, Any] | None:
         """A deep copy of the streaming state (None before the first ``update``)."""
+        self._sync_stream()
         return copy.deepcopy(self._stream)
 
     def set_state(self, state: dict[str, Any]) -> None:
         """Restore a state from :attr:`state` or ``Result.diagnostics["state"]``."""
         self._stream = self._check_state(copy.deepcopy(state))
+        self._packed = None
 
     def _check_state(self, st: dict[str, Any]) -> dict[str, Any]:
-        keys = {"dt", "x", "det", "cor", "align"}
+        keys = {"dt", "x", "mod", "det", "cor", "align"}
         if not isinstance(st, dict) or set(st) != keys:
             raise InputError(f"state must be a dict with keys {sorted(keys)}")
         ref = self.new_state(st["dt"])
         for k in ("x", "align"):
             if np.shape(st[k]) != ref[k].shape:
                 raise InputError(f"state[{k!r}] has shape {np.shape(st[k])}, expected {ref[k].shape}")
-        if len(st["det"]) != len(ref["det"]) or len(st["cor"]) != len(ref["cor"]):
-            raise InputError("state does not belong to this pipeline (detector/corrector count differs)")
+        for k in ("mod", "det", "cor"):
+            if len(st[k]) != len(ref[k]) or any(np.shape(a) != b.shape for a, b in zip(st[k], ref[k])):
+                raise InputError(f"state[{k!r}] does not belong to this pipeline (its plugins' states differ)")
         return st
 
     def reset(self) -> None:
         self._stream = None
+        self._packed = None
 
     # -- the readable reference path -------------------------------------------------------
     def _step(self, st, gyr, acc, mag, dt, has_mag, gnss=None) -> tuple[np.ndarray, int, int]:
@@ -157,6 +172,18 @@ class Pipeline(Filter):
         cfg, al = self.spec, st["align"]
         gyr_ok, acc_ok, mag_ok, flags = sample_validity(gyr, acc, mag if has_mag else None, cfg.gyr_range,
                                                         cfg.acc_range)
+        if self.models:  # 1b. sensor models; validity judged again on what they give
+            sample = Sample(np.array(gyr, dtype=float), acc if acc_ok else None, mag if mag_ok else None, dt, gnss)
+            mflags = 0
+            for i, mod in enumerate(self.models):
+                sample, f = mod.apply(st["mod"][i], sample, al[_QPREV:_QPREV + 4].copy())
+                mflags |= f
+            gyr = sample.gyr
+            acc = sample.acc if sample.acc is not None else np.zeros(3)
+            mag = sample.mag if sample.mag is not None else np.zeros(3)
+            gyr_ok, acc_ok, mag_ok, flags = sample_validity(gyr, acc, mag if has_mag else None, cfg.gyr_range,
+                                                            cfg.acc_range)
+            flags |= mflags
         sample = Sample(gyr, acc if acc_ok else None, mag if mag_ok else None, dt, gnss)
 
         # 2. detectors
@@ -173,6 +200,7 @@ class Pipeline(Filter):
         if status in (ALIGNED_NOW, ALIGNED_BEFORE):
             st["x"] = self.estimator.initial_state(q)
         if status in (ALIGNING, ALIGNED_NOW):
+            al[_QPREV:_QPREV + 4] = q
             return q, flags | Flag.ALIGNING, crit0
         # 4. propagation
         al[SEEN] += 1.0
@@ -192,19 +220,24 @@ class Pipeline(Filter):
                 if out.rate is not None:
                     rate += out.rate
             al[_RCORR:_RCORR + 3] = rate
-        return self.estimator.quat(st["x"]), flags, crit0
+        q = self.estimator.quat(st["x"])
+        al[_QPREV:_QPREV + 4] = q
+        return q, flags, crit0
 
     # -- the compiled path -----------------------------------------------------------------
     def _kernels(self):
+        """The plugins' kernels ``(estimator, models, detectors, correctors)``, or None when one has
+        none (the reference path runs)."""
         ek = self.estimator.kernel()
+        mks = [m.kernel() for m in self.models]
         dks = [d.kernel() for d in self.detectors]
         cks = [c.kernel(self.estimator) for c in self.correctors]
-        if ek is None or any(k is None for k in dks + cks):
+        if ek is None or any(k is None for k in mks + dks + cks):
             return None
         for c, k in zip(self.correctors, cks):
             if k.mode != c.mode:
                 raise ConfigError(f"corrector {c.name!r}: its kernel's mode {k.mode!r} is not its mode {c.mode!r}")
-        return ek, dks, cks
+        return ek, mks, dks, cks
 
     def _loop_params(self) -> np.ndarray:
         pp = np.zeros(3)
@@ -213,31 +246,35 @@ class Pipeline(Filter):
         pp[2] = float(Flag.MOTION)
         return pp
 
-    def _run_compiled(self, st, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop, gn=None) -> None:
-        ek, dks, cks = self._kernels()
+    def _compiled(self, st, kernels, dets):
+        """The compiled module for this composition with detectors ``dets`` (indices), and
+        ``(S, P, O, states)``: the run state ``st`` and every parameter vector packed for it."""
+        ek, mks, dks, cks = kernels
+        specs = [_loopgen.KernelSpec(k.apply, "model") for k in mks]
+        specs += [_loopgen.KernelSpec(dks[i].step, "det", dks[i].gnss, int(self.detectors[i].flag), i == 0)
+                  for i in dets]
+        specs += [_loopgen.KernelSpec(k.correct, k.mode, k.gnss) for k in cks]
+        lay = _loopgen.Layout((ek.propagate, ek.to_quat, ek.from_quat), bool(ek.unit_quat), tuple(specs),
+                              _RCORR, _QPREV)
+        states = [st["x"], *st["mod"], *[st["det"][i] for i in dets], *st["cor"], st["align"]]
+        params = [ek.params, *[k.params for k in mks], *[dks[i].params for i in dets], *[k.params for k in cks],
+                  self.aligner(st["dt"]).params(), self._loop_params()]
+        S, P, O = _loopgen.pack(states, params)
+        return _loopgen.get_compiled(lay), S, P, O, states
+
+    def _run_compiled(self, st, kernels, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop,
+                      gn=None) -> None:
         # a magnetometer-only detector cannot fire without one, and its reference step leaves its state alone
-        used = [i for i, d in enumerate(self.detectors) if has_mag or not d.needs_mag]
-        step = _get_detectors([(dks[i].step, int(self.detectors[i].flag), st["det"][i].size, dks[i].params.size,
-                                i == 0, dks[i].gnss) for i in used])
-        det_state = _concat([st["det"][i] for i in used])
-        det_params = _concat([dks[i].params for i in used])
-        single, chain, kind = _no_state_corrector, _no_corrector, 0  # no corrector
-        if len(cks) == 1 and cks[0].mode == "state" and not cks[0].gnss:  # the common case, without the chain's glue
-            single, kind = cks[0].correct, 1
-        elif cks:
-            chain = _get_correctors(ek, [(k.correct, k.mode, s.size, k.params.size, k.gnss)
-                                         for k, s in zip(cks, st["cor"])])
-            kind = 2
-        cor_state = _concat(st["cor"])
-        cor_params = _concat([k.params for k in cks])
-        uses_gnss = any(k.gnss for k in cks) or any(dks[i].gnss for i in used)
-        loop = _get_loop(ek, step, single, chain, kind, any(k.mode == "rate" for k in cks), uses_gnss)
-        x = st["x"]
-        loop(gyr, acc, mag, dt, has_mag, x, ek.params, det_state, det_params, cor_state, cor_params,
-             st["align"], self.aligner(st["dt"]).params(), self._loop_params(), out_q, out_f, out_c, start, stop,
-             gn if gn is not None else NO_GNSS[None, :])
-        _split(det_state, [st["det"][i] for i in used])  # the states back from the concatenations
-        _split(cor_state, st["cor"])
+        dets = [i for i, d in enumerate(self.detectors) if has_mag or not d.needs_mag]
+        mod, S, P, O, states = self._compiled(st, kernels, dets)
+        mod.loop(gyr, acc, mag, dt, has_mag, S, P, O, out_q, out_f, out_c, start, stop,
+                 gn if gn is not None else NO_GNSS[None, :])
+        _loopgen.unpack(S, O, states)
+
+    def _sync_stream(self) -> None:
+        """Copy the compiled stream's packed state back into the state dict."""
+        if self._packed and self._stream is not None:
+            _loopgen.unpack(self._packed[1], self._packed[3], self._packed[5])
 
     # -- public ----------------------------------------------------------------------------
     def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
@@ -257,7 +294,7 @@ class Pipeline(Filter):
         mag = rec.mag if has_mag else np.zeros((n, 3))
         dt = rec.dt
         # the GNSS rows: the reference's samples carry them; compiled, only kernels that take them
-        want = used != "numba" or any(k.gnss for k in kernels[1] + kernels[2])
+        want = used != "numba" or any(k.gnss for k in kernels[2] + kernels[3])
         gn = gnss_sample_rows(rec) if rec.gnss is not None and want else None
         out_q = np.empty((n, 4))
         out_f = np.zeros(n, dtype=np.uint32)
@@ -266,7 +303,8 @@ class Pipeline(Filter):
         for start in range(0, n, _CHUNK):
             stop = min(n, start + _CHUNK)
             if used == "numba":
-                self._run_compiled(st, rec.gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop, gn)
+                self._run_compiled(st, kernels, rec.gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop,
+                                   gn)
             else:
                 for k in range(start, stop):
                     q, f, c = self._step(st, rec.gyr[k], rec.acc[k], mag[k], dt[k], has_mag,
@@ -294,8 +332,24 @@ class Pipeline(Filter):
 
     def update(self, gyr, acc, mag=None, dt: float | None = None, gnss=None) -> np.ndarray:
         """Process one sample of a stream (``dt`` in s is required; ``gnss`` the latest epoch's
-        row, see :class:`~fusionkit.protocols.Sample`); same numbers as :meth:`run` with the
-        reference backend. ``last_flags`` holds the sample's flags."""
+        row, see :class:`~fusionkit.protocols.Sample`); the same numbers as :meth:`run`. It runs
+        the composition's compiled one-sample step when every plugin has a kernel (see
+        ``update_backend``), else the reference. ``last_flags`` holds the sample's flags."""
+        pk = self._packed if self._stream is not None else None
+        if pk and gnss is None and type(dt) is float and 0.0 < dt < math.inf:
+            # the fast path of the compiled stream: plain float64 vectors, all finite
+            g, a = floats3(gyr), floats3(acc)
+            m = _ZEROS if mag is None else floats3(mag)
+            if g is not None and a is not None and m is not None and math.isfinite(sum(g) + sum(a) + sum(m)):
+                step, S, P, O, q, _ = pk
+                f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, mag is not None, S, P, O, q,
+                            *_NO_GNSS)
+                self.last_flags = f
+                return q.copy()
+        return self._update_checked(gyr, acc, mag, dt, gnss)
+
+    def _update_checked(self, gyr, acc, mag, dt, gnss) -> np.ndarray:
+        """:meth:`update` with every check, on either path."""
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
         dt = check_positive("dt", dt)
@@ -309,10 +363,39 @@ class Pipeline(Filter):
                     raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
         if self._stream is None:
             self._stream = self.new_state(dt)
+        pk = self._stream_kernel()
+        if pk is not None:
+            step, S, P, O, q, _ = pk
+            n = _NO_GNSS if gnss is None else as_vector("gnss", gnss, width=6).tolist()
+            g, a, m = g.tolist(), a.tolist(), m.tolist()
+            f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q, *n)
+            self.last_flags = int(f)
+            return q.copy()
         gn = None if gnss is None else np.asarray(gnss, dtype=float)
         q, f, _ = self._step(self._stream, g, a, m, dt, has_mag, gn)
         self.last_flags = int(f)
         return q
+
+    def _stream_kernel(self):
+        """The compiled stream ``(step, S, P, O, q, states)`` (built on first use), or None for the
+        reference path (``update_backend="reference"``, or a plugin without a kernel)."""
+        if self.update_backend == "reference" or not HAVE_NUMBA:
+            if self._packed:
+                self._sync_stream()
+            self._packed = None
+            return None
+        if self._packed is None:
+            kernels = self._kernels()
+            if kernels is None:
+                self._packed = False
+            else:  # every detector: whether a sample has a magnetometer is known per call only
+                mod, S, P, O, states = self._compiled(self._stream, kernels, list(range(len(self.detectors))))
+                self._packed = (mod.step, S, P, O, np.empty(4), states)
+        return self._packed or None
+
+
+_ZEROS = (0.0, 0.0, 0.0)
+_NO_GNSS = tuple(NO_GNSS.tolist())
 
 
 def _progress(n: int, progress: bool | None, desc: str):
@@ -325,219 +408,6 @@ def _progress(n: int, progress: bool | None, desc: str):
     except ImportError:  # pragma: no cover
         return None
     return tqdm(total=n, desc=desc, unit="sample", unit_scale=True, leave=False)
-
-
-# ---- the compiled loop ------------------------------------------------------------------------
-
-_LOOPS: dict[tuple, Any] = {}
-
-
-@njit(inline="always")
-def _no_detector(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p, n0, n1, n2, n3, n4, n5):
-    return 0, 0
-
-
-def _concat(arrays) -> np.ndarray:
-    """Plugins' states or parameters end to end (one spare element: never empty for numba)."""
-    return np.concatenate([np.asarray(a, dtype=float).ravel() for a in arrays] + [np.zeros(1)])
-
-
-def _split(joined: np.ndarray, arrays) -> None:
-    """Copy ``joined`` (from :func:`_concat`) back into ``arrays``."""
-    o = 0
-    for a in arrays:
-        a[...] = joined[o:o + a.size].reshape(a.shape)
-        o += a.size
-
-
-@njit
-def _no_state_corrector(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, p):
-    return -1
-
-
-@njit(inline="always")
-def _no_corrector(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate, n0, n1, n2, n3,
-                  n4, n5):
-    return flags
-
-
-_DETECTOR_CHAINS: dict[tuple, Any] = {}
-
-
-def _get_detectors(specs):
-    """One compiled step for several detector kernels, ``step(s, g0, g1, g2, a0, a1, a2, m0, m1, m2,
-    dt, p, n0..n5) -> (criteria of detector 0, flags)``, over their states and parameters
-    concatenated in order (``n0..n5``: the sample's GNSS row, passed to the kernels that take it).
-    ``specs``: ``(kernel step, flag, state size, params size, is detector 0, takes GNSS)`` each."""
-    key = tuple(specs)
-    if key not in _DETECTOR_CHAINS:
-        step = _no_detector
-        so = po = 0
-        for kstep, flag, sn, pn, first, gnss in specs:
-            step = _chain_detector(step, kstep, flag, so, sn, po, pn, first, gnss)
-            so, po = so + sn, po + pn
-        _DETECTOR_CHAINS[key] = step
-    return _DETECTOR_CHAINS[key]
-
-
-def _chain_detector(before, kstep, flag, so, sn, po, pn, first, gnss):
-    """``before`` followed by one detector kernel on ``s[so:so + sn]``, ``p[po:po + pn]``."""
-
-    @njit(cache=False, inline="always")
-    def step(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p, n0, n1, n2, n3, n4, n5):
-        c0, flags = before(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p, n0, n1, n2, n3, n4, n5)
-        if gnss:
-            c = kstep(s[so:so + sn], g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p[po:po + pn], n0, n1, n2, n3, n4, n5)
-        else:
-            c = kstep(s[so:so + sn], g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p[po:po + pn])
-        if c != 0:
-            flags |= flag
-        return (c if first else c0), flags
-
-    return step
-
-
-_CORRECTOR_CHAINS: dict[tuple, Any] = {}
-
-
-def _get_correctors(ek, specs):
-    """One compiled step for the correctors in order, ``step(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1,
-    m2, acc_ok, mag_ok, flags, dt, p, rate, n0..n5) -> flags``, over their states and parameters
-    concatenated (``n0..n5``: the sample's GNSS row). ``specs``: ``(kernel correct, mode, state
-    size, params size, takes GNSS)`` each. A state corrector corrects the estimator (through
-    ``q`` unless its state is its unit quaternion); a rate corrector reads the current quaternion
-    and adds into ``rate``."""
-    direct = ek.unit_quat
-    key = (ek.to_quat, ek.from_quat, direct, tuple(specs))
-    if key not in _CORRECTOR_CHAINS:
-        step = _no_corrector
-        so = po = 0
-        for correct, mode, sn, pn, gnss in specs:
-            step = _chain_corrector(step, correct, mode == "rate", ek.to_quat, ek.from_quat, direct, so, sn, po, pn,
-                                    gnss)
-            so, po = so + sn, po + pn
-        _CORRECTOR_CHAINS[key] = step
-    return _CORRECTOR_CHAINS[key]
-
-
-def _chain_corrector(before, correct, is_rate, to_quat, from_quat, direct, so, sn, po, pn, gnss):
-    """``before`` followed by one corrector kernel on ``s[so:so + sn]``, ``p[po:po + pn]``."""
-
-    @njit(cache=False, inline="always")
-    def step(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate, n0, n1, n2, n3, n4, n5):
-        flags = before(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate, n0, n1, n2, n3,
-                       n4, n5)
-        cs, cp = s[so:so + sn], p[po:po + pn]
-        if is_rate:
-            if not direct:
-                to_quat(x, q)
-            qq = x if direct else q
-            if gnss:
-                cf = correct(qq, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, cp, rate,
-                             n0, n1, n2, n3, n4, n5)
-            else:
-                cf = correct(qq, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, cp, rate)
-        else:
-            if not direct:
-                to_quat(x, q)
-            qq = x if direct else q
-            if gnss:
-                cf = correct(x, qq, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, cp, n0, n1, n2, n3, n4,
-                             n5)
-            else:
-                cf = correct(x, qq, cs, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, cp)
-            if not direct and cf >= 0:
-                from_quat(q, x)
-        if cf > 0:
-            flags |= cf
-        return flags
-
-    return step
-
-
-def _get_loop(ek, det_step, cor_single, cor_chain, cor_kind, has_rate, uses_gnss):
-    direct = ek.unit_quat
-    key = (ek.propagate, ek.to_quat, ek.from_quat, det_step, cor_single, cor_chain, cor_kind, has_rate, direct,
-           uses_gnss)
-    if key not in _LOOPS:
-        _LOOPS[key] = _build_loop(ek.propagate, ek.to_quat, ek.from_quat, det_step, cor_single, cor_chain, cor_kind,
-                                  has_rate, direct, uses_gnss)
-    return _LOOPS[key]
-
-
-def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_single, cor_chain, cor_kind, has_rate,
-                direct, uses_gnss):
-    """One compiled loop over a recording for an estimator, the detectors (one chained step, see
-    :func:`_get_detectors`) and the correctors: the same steps as :meth:`Pipeline._step`.
-    ``cor_kind``: 0 no corrector; 1 one state-mode kernel ``cor_single``, called directly (on the
-    estimator's state itself when ``direct``: it is its unit quaternion); 2 the chained step
-    ``cor_chain`` (:func:`_get_correctors`). ``has_rate``: some corrector returns a rate, the sum
-    is fed into the next propagation. ``uses_gnss``: some kernel takes the GNSS row ``gn[k]`` (``gn``
-    has one row per sample, or the single row of "no GNSS")."""
-    if not HAVE_NUMBA:  # pragma: no cover
-        raise ConfigError("numba is not installed")
-
-    @njit(cache=False)
-    def loop(gyr, acc, mag, dt, has_mag, x, ep, ds, dp, cs, cp, al, ap, pp, out_q, out_f, out_c, start, stop, gn):
-        q = np.empty(4)
-        rate = np.zeros(3)
-        motion = int(pp[2])
-        last = gn.shape[0] - 1
-        n0 = n1 = n2 = n3 = n4 = n5 = 0.0
-        for k in range(start, stop):
-            g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
-            a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
-            m0, m1, m2 = mag[k, 0], mag[k, 1], mag[k, 2]
-            if uses_gnss:
-                r = min(k, last)
-                n0, n1, n2, n3, n4, n5 = gn[r, 0], gn[r, 1], gn[r, 2], gn[r, 3], gn[r, 4], gn[r, 5]
-            gyr_ok, acc_ok, mag_ok, flags = validity_flags(g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, pp[0],
-                                                            pp[1])
-            crit = 0
-            if gyr_ok and acc_ok:
-                crit, dflags = det_step(ds, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt[k], dp, n0, n1, n2, n3, n4, n5)
-                flags |= dflags
-            out_c[k] = crit
-            if al[PHASE] == 0.0:  # checked here so that navigation does not pay for the call
-                status = align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_ok,
-                                    (flags & motion) != 0, q)
-                if status == ALIGNED_NOW or status == ALIGNED_BEFORE:  # start the estimator from the alignment
-                    est_from_quat(q, x)
-                if status == ALIGNING or status == ALIGNED_NOW:
-                    out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
-                    out_f[k] = flags | 1
-                    continue
-            al[SEEN] += 1.0
-            if gyr_ok:
-                est_propagate(x, g0 - al[BIAS] + al[_RCORR], g1 - al[BIAS + 1] + al[_RCORR + 1],
-                              g2 - al[BIAS + 2] + al[_RCORR + 2], dt[k], ep)
-            if cor_kind == 1:  # mag withheld on MAG_DISTURBED, acc on ACC_REJECTED, as in the reference
-                gm_ok = mag_ok and (flags & 256) == 0
-                ga_ok = acc_ok and (flags & 512) == 0
-                if direct:
-                    cf = cor_single(x, x, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
-                                    m0, m1, m2, ga_ok, gm_ok, dt[k], cp)
-                else:
-                    est_to_quat(x, q)
-                    cf = cor_single(x, q, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
-                                    m0, m1, m2, ga_ok, gm_ok, dt[k], cp)
-                    if cf >= 0:
-                        est_from_quat(q, x)
-                if cf > 0:
-                    flags |= cf
-            elif cor_kind == 2:
-                if has_rate:
-                    rate[0] = rate[1] = rate[2] = 0.0
-                flags = cor_chain(x, q, cs, g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2], a0, a1, a2,
-                                  m0, m1, m2, acc_ok and (flags & 512) == 0, mag_ok and (flags & 256) == 0, flags,
-                                  dt[k], cp, rate, n0, n1, n2, n3, n4, n5)
-                if has_rate:  # (without rate correctors it stays 0, as in the reference)
-                    al[_RCORR], al[_RCORR + 1], al[_RCORR + 2] = rate[0], rate[1], rate[2]
-            est_to_quat(x, q)
-            out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
-            out_f[k] = flags
-
-    return loop
 
 
 # ---- detectors on their own -------------------------------------------------------------------

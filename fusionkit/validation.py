@@ -35,6 +35,16 @@ def as_vector(name: str, x, width: int = 3) -> np.ndarray:
     return arr
 
 
+def floats3(v):
+    """A float64 vector of 3 as a list of floats, cheaply, or None for anything else (the streaming
+    fast paths then take the checked path, which names what is wrong)."""
+    if type(v) is np.ndarray and v.shape == (3,) and v.dtype == np.float64:
+        return v.tolist()
+    if type(v) in (list, tuple) and len(v) == 3 and all(type(e) is float for e in v):
+        return v
+    return None
+
+
 def finite_rows(x: np.ndarray) -> np.ndarray:
     """Boolean mask of the rows of ``x`` whose entries are all finite."""
     with np.errstate(over="ignore", invalid="ignore"):

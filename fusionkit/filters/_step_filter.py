@@ -15,16 +15,17 @@ over from an earlier run, streaming ``update`` (the same numbers as ``run``), ``
 
 from __future__ import annotations
 
+import math
 from typing import Any, Callable, ClassVar
 
 import numpy as np
 
-from .._numba import resolve_backend
+from .._numba import HAVE_NUMBA, resolve_backend
 from ..conventions import change_frame
 from ..errors import InputError
 from ..protocols import Filter
 from ..types import Recording, Result
-from ..validation import as_vector, check_finite_all, check_positive
+from ..validation import as_vector, check_finite_all, check_positive, floats3
 
 __all__ = ["StepFilter"]
 
@@ -43,6 +44,10 @@ class StepFilter(Filter):
         #: the ENU -> ``frame`` change, applied to every output quaternion (left factor)
         self.qf = change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "ENU", self.config.frame)
         self._stream: np.ndarray | None = None
+        self._buffers: tuple | None = None  # the compiled stream's one-sample arrays (see update)
+        #: "auto": update() runs the compiled loop on one sample when the filter has one;
+        #: "reference": the readable step (the same numbers to 1e-9)
+        self.update_backend = "auto"
         self.last_flags = 0
 
     # -- what a subclass provides ----------------------------------------------------------
@@ -126,9 +131,30 @@ class StepFilter(Filter):
 
     def reset(self) -> None:
         self._stream = None
+        self._buffers = None
 
     def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
-        """One sample of a stream; the same numbers as :meth:`run` (reference backend)."""
+        """One sample of a stream; the same numbers as :meth:`run`. It runs the compiled loop on
+        the one sample when the filter has one (``update_backend``), else the reference step."""
+        b = self._buffers if self._stream is not None else None
+        if b and type(dt) is float and 0.0 < dt < math.inf:
+            # the fast path: plain float64 vectors, all finite, written into the loop's arrays
+            g, a = floats3(gyr), floats3(acc)
+            use_mag = mag is not None and getattr(self.config, "use_mag", True)
+            m = floats3(mag) if use_mag else (0.0, 0.0, 0.0)
+            if g is not None and a is not None and m is not None and math.isfinite(sum(g) + sum(a) + sum(m)):
+                return self._update_compiled(b, g, a, m, dt, use_mag)
+        return self._update_checked(gyr, acc, mag, dt)
+
+    def _update_compiled(self, b, g, a, m, dt, has_mag) -> np.ndarray:
+        loop, p, Z, G, A, M, DT, Q, F = b
+        Z[:] = [*g, *a, *m, dt]  # one write: G, A, M and DT are views of Z
+        loop(G, A, M, DT, has_mag, self._stream, p, self.qf, Q, F)
+        self.last_flags = int(F[0])
+        return Q[0].copy()
+
+    def _update_checked(self, gyr, acc, mag, dt) -> np.ndarray:
+        """:meth:`update` with every check, on either path."""
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
         dt = check_positive("dt", dt)
@@ -140,6 +166,14 @@ class StepFilter(Filter):
                     raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
         if self._stream is None:
             self._stream = self.new_state()
+        if self._buffers is None:
+            loop = self._kernel() if self.update_backend != "reference" and HAVE_NUMBA else None
+            Z = np.zeros(10)  # the sample's gyr, acc, mag and dt, as the loop's (1, 3) and (1,) arrays
+            self._buffers = False if loop is None else (
+                loop, self.params(), Z, Z[0:3].reshape(1, 3), Z[3:6].reshape(1, 3), Z[6:9].reshape(1, 3), Z[9:10],
+                np.zeros((1, 4)), np.zeros(1, np.uint32))
+        if self._buffers and self.update_backend != "reference":
+            return self._update_compiled(self._buffers, g, a, (0.0, 0.0, 0.0) if m is None else m, dt, m is not None)
         q, f = self._step(self._stream, g, a, m, dt)
         self.last_flags = int(f)
         return q

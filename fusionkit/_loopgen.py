@@ -1,0 +1,323 @@
+"""The pipeline's compiled loop, written out as Python source and cached on disk.
+
+A pipeline of kernel-capable plugins runs as one numba loop. Its body depends on the
+composition (which kernels, in which order, which take GNSS rows), so it cannot be one static
+function. Closures over the kernels worked, but numba cannot cache closures: every new process
+paid the whole compile (1-3 s on this machine) before its first result.
+
+Here the loop is *generated as source text*: one module per composition that imports each
+plugin's kernel by its module and name and calls them in the pipeline's fixed per-sample order
+(:mod:`fusionkit.pipeline` documents it). The module is written to the cache directory
+(``$FUSIONKIT_CACHE_DIR``, else ``$XDG_CACHE_HOME/fusionkit`` or ``~/.cache/fusionkit``) under
+a name that hashes the source text, the numba and fusionkit versions, and the source of every
+module a kernel comes from, so numba's own on-disk cache (``cache=True``) serves the next
+process, and any change to a plugin's code makes a new file instead of a stale hit. Kernels that
+cannot be imported by name (closures, functions defined in ``__main__``) get the same source
+compiled in memory, without the disk cache.
+
+Two functions come out of one template, so they cannot drift apart:
+
+- ``loop(gyr, acc, mag, dt, has_mag, S, P, O, out_q, out_f, out_c, start, stop, gn)`` over a
+  recording, and
+- ``step(g0, g1, g2, a0, a1, a2, m0, m1, m2, h, has_mag, S, P, O, q, n0..n5) -> (flags, crit)``
+  for one sample, used by ``Pipeline.update()`` (``q`` receives the quaternion).
+
+``S`` is every state end to end (estimator, each kernel's, the pipeline's run state), ``P``
+every parameter vector end to end, ``O`` their bounds (:func:`pack`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from .navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, PHASE, SEEN
+
+__all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack"]
+
+
+@dataclass(frozen=True)
+class KernelSpec:
+    """One plugin kernel in the loop: its function, role (``"model"``, ``"det"``, ``"state"``,
+    ``"rate"``), whether it takes the GNSS row, and for detectors the flag it sets and whether
+    its criteria are the ones the pipeline reports (its first detector's)."""
+
+    func: Callable
+    role: str
+    gnss: bool = False
+    flag: int = 0
+    first: bool = False
+
+
+@dataclass(frozen=True)
+class Layout:
+    """The structure of a compiled pipeline: the estimator's ``(propagate, to_quat, from_quat)``,
+    whether its state is its unit quaternion, the kernels in order (their roles say where each
+    runs), and the offsets of the pending correction rate and of the previous output in the
+    pipeline's run state. Sizes are not part of it: the bounds of every state and parameter
+    vector in ``S`` and ``P`` come at run time in ``O`` (see :func:`pack`), so one compiled loop
+    serves every sample rate."""
+
+    est: tuple[Callable, Callable, Callable]
+    unit_quat: bool
+    kernels: tuple[KernelSpec, ...]
+    rcorr: int
+    qprev: int
+
+    @property
+    def uses_gnss(self) -> bool:
+        return any(k.gnss for k in self.kernels)
+
+
+def pack(states, params):
+    """``(S, P, O)``: the states (estimator, each kernel's, the run state) and the parameter
+    vectors (estimator, each kernel's, alignment, loop) end to end, and their bounds
+    ``O = [lo, hi] * len(states) + [lo, hi] * len(params)`` (int64)."""
+    import numpy as np
+
+    bounds = []
+    for group in (states, params):
+        o = 0
+        for a in group:
+            bounds += [o, o + a.size]
+            o += a.size
+    S = np.concatenate([np.asarray(a, dtype=float).ravel() for a in states])
+    P = np.concatenate([np.asarray(a, dtype=float).ravel() for a in params])
+    return S, P, np.array(bounds, dtype=np.int64)
+
+
+def unpack(S, O, states) -> None:
+    """Copy ``S`` back into ``states`` (the arrays :func:`pack` joined)."""
+    for i, a in enumerate(states):
+        a[...] = S[O[2 * i]:O[2 * i + 1]].reshape(a.shape)
+
+
+def _ref(func: Callable) -> tuple[str, str] | None:
+    """``(module, name)`` under which ``func`` can be imported, or None (a closure, ``__main__``)."""
+    py = getattr(func, "py_func", func)
+    mod, name = getattr(py, "__module__", None), getattr(py, "__qualname__", "")
+    if not mod or mod == "__main__" or "<" in name or "." in name:
+        return None
+    m = sys.modules.get(mod)
+    return (mod, name) if m is not None and getattr(m, name, None) is func else None
+
+
+_GN = "n0, n1, n2, n3, n4, n5"
+_SAMPLE = "g0, g1, g2, a0, a1, a2, m0, m1, m2"
+
+
+def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
+    """The per-sample lines (the order of :meth:`Pipeline._step`), indented by ``ind``; they end
+    with the output quaternion in ``q`` and ``flags``, ``crit`` set."""
+    rc, qp = lay.rcorr, lay.qprev
+    L = ["gyr_ok, acc_ok, mag_ok, flags = validity_flags(g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, "
+         "pp[0], pp[1])"]
+    models = [i for i, k in enumerate(lay.kernels) if k.role == "model"]
+    if models:  # 1b. sensor models correct the sample; validity is judged on what they give
+        L += [f"v[{j}] = {s}" for j, s in enumerate(_SAMPLE.split(", "))]
+        L.append("mflags = 0")
+        for i in models:
+            L += [f"c = {names[i]}(s{i}, v, gyr_ok, acc_ok, mag_ok, al[{qp}:{qp + 4}], h, p{i})",
+                  "if c > 0:", "    mflags |= c"]
+        L.append(f"{_SAMPLE} = v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8]")
+        L.append("gyr_ok, acc_ok, mag_ok, flags = validity_flags(g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, "
+                 "pp[0], pp[1])")
+        L.append("flags |= mflags")
+    L.append("crit = 0")
+    dets = [i for i, k in enumerate(lay.kernels) if k.role == "det"]
+    if dets:  # 2. detectors
+        L.append("if gyr_ok and acc_ok:")
+        for i in dets:
+            k = lay.kernels[i]
+            L += [f"    c = {names[i]}(s{i}, {_SAMPLE}, h, p{i}" + (f", {_GN})" if k.gnss else ")"),
+                  "    if c != 0:", f"        flags |= {k.flag}"]
+            if k.first:
+                L.append("    crit = c")
+    # 3. alignment
+    L += ["done = False",
+          f"if al[{PHASE}] == 0.0:",
+          f"    status = align_step(al, ap, {_SAMPLE}, gyr_ok, acc_ok, mag_ok, (flags & motion) != 0, q)",
+          f"    if status == {ALIGNED_NOW} or status == {ALIGNED_BEFORE}:",
+          "        e_from_quat(q, x)",
+          f"    if status == {ALIGNING} or status == {ALIGNED_NOW}:",
+          "        flags |= 1", "        done = True",
+          "if not done:",
+          f"    al[{SEEN}] += 1.0",
+          "    if gyr_ok:",
+          f"        e_propagate(x, g0 - al[{BIAS}] + al[{rc}], g1 - al[{BIAS + 1}] + al[{rc + 1}], "
+          f"g2 - al[{BIAS + 2}] + al[{rc + 2}], h, ep)"]
+    cors = [i for i, k in enumerate(lay.kernels) if k.role in ("state", "rate")]
+    if cors:  # 5. correctors (the bias removed; MAG_DISTURBED / ACC_REJECTED withhold a sensor)
+        has_rate = any(lay.kernels[i].role == "rate" for i in cors)
+        L += [f"    b0, b1, b2 = g0 - al[{BIAS}], g1 - al[{BIAS + 1}], g2 - al[{BIAS + 2}]",
+              "    ga_ok = acc_ok and (flags & 512) == 0", "    gm_ok = mag_ok and (flags & 256) == 0"]
+        if has_rate:
+            L.append("    rate[0] = rate[1] = rate[2] = 0.0")
+        qq = "x" if lay.unit_quat else "q"
+        for i in cors:
+            k = lay.kernels[i]
+            gn = f", {_GN})" if k.gnss else ")"
+            if not lay.unit_quat:
+                L.append("    e_to_quat(x, q)")
+            if k.role == "rate":
+                L.append(f"    cf = {names[i]}({qq}, s{i}, b0, b1, b2, a0, a1, a2, m0, m1, m2, ga_ok, gm_ok, flags, "
+                         f"h, p{i}, rate" + gn)
+            else:
+                L.append(f"    cf = {names[i]}(x, {qq}, s{i}, b0, b1, b2, a0, a1, a2, m0, m1, m2, ga_ok, gm_ok, h, "
+                         f"p{i}" + gn)
+                if not lay.unit_quat:
+                    L += ["    if cf >= 0:", "        e_from_quat(q, x)"]
+            L += ["    if cf > 0:", "        flags |= cf"]
+        if has_rate:
+            L.append(f"    al[{rc}], al[{rc + 1}], al[{rc + 2}] = rate[0], rate[1], rate[2]")
+    L.append("    e_to_quat(x, q)")
+    L.append(f"al[{qp}], al[{qp + 1}], al[{qp + 2}], al[{qp + 3}] = q[0], q[1], q[2], q[3]")
+    return [ind + s for s in L]
+
+
+def _views(lay: Layout) -> list[str]:
+    n = len(lay.kernels)
+
+    def pa(j):  # the bounds of parameter vector j in O (after the n + 2 states' bounds)
+        return 2 * (n + 2) + 2 * j
+
+    out = ["x = S[O[0]:O[1]]", f"al = S[O[{2 * n + 2}]:O[{2 * n + 3}]]",
+           f"ep = P[O[{pa(0)}]:O[{pa(0) + 1}]]", f"ap = P[O[{pa(n + 1)}]:O[{pa(n + 1) + 1}]]",
+           f"pp = P[O[{pa(n + 2)}]:O[{pa(n + 2) + 1}]]"]
+    for i in range(n):
+        out += [f"s{i} = S[O[{2 + 2 * i}]:O[{3 + 2 * i}]]", f"p{i} = P[O[{pa(i + 1)}]:O[{pa(i + 1) + 1}]]"]
+    out += ["rate = np.zeros(3)", "v = np.empty(9)", "motion = int(pp[2])"]
+    return ["    " + s for s in out]
+
+
+def source(lay: Layout, cache: bool, imports: dict[int, tuple[str, str]] | None,
+           est_imports: list[tuple[str, str]] | None = None) -> str:
+    """The module's text. ``imports``: kernel index -> (module, name) to import it from, and
+    ``est_imports`` the estimator's three functions; None: they are provided as globals
+    (``k0, k1, ...``, ``e_propagate``, ...) by the in-memory build."""
+    names = {i: f"k{i}" for i in range(len(lay.kernels))}
+    head = ["# Generated by fusionkit._loopgen: a pipeline's compiled loop. Do not edit."]
+    if imports is not None:
+        head += ["import numpy as np", "from fusionkit._numba import njit",
+                 "from fusionkit._kernels import validity_flags",
+                 "from fusionkit.navigation.alignment import align_step"]
+        head += [f"from {m} import {n} as e_{w}" for (m, n), w in
+                 zip(est_imports, ("propagate", "to_quat", "from_quat"))]
+        head += [f"from {mod} import {name} as {names[i]}" for i, (mod, name) in sorted(imports.items())]
+    gn_load = ["        r = min(k, last)",
+               "        n0, n1, n2, n3, n4, n5 = gn[r, 0], gn[r, 1], gn[r, 2], gn[r, 3], gn[r, 4], gn[r, 5]"]
+    loop = ["", "", f"@njit(cache={cache})",
+            "def loop(gyr, acc, mag, dt, has_mag, S, P, O, out_q, out_f, out_c, start, stop, gn):",
+            *_views(lay), "    q = np.empty(4)", "    last = gn.shape[0] - 1", "    n0 = n1 = n2 = n3 = n4 = n5 = 0.0",
+            "    for k in range(start, stop):",
+            "        g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]",
+            "        a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]",
+            "        m0, m1, m2 = mag[k, 0], mag[k, 1], mag[k, 2]",
+            "        h = dt[k]",
+            *(gn_load if lay.uses_gnss else []),
+            *_body(lay, names, "        "),
+            "        out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]",
+            "        out_f[k] = flags", "        out_c[k] = crit"]
+    step = ["", "", f"@njit(cache={cache})",
+            f"def step({_SAMPLE}, h, has_mag, S, P, O, q, {_GN}):",
+            *_views(lay), *_body(lay, names, "    "), "    return flags, crit", ""]
+    return "\n".join(head + loop + step)
+
+
+# -- building and caching -------------------------------------------------------------------
+
+_BUILT: dict[Any, Any] = {}
+_FINGERPRINTS: dict[str, str] = {}
+
+
+def cache_dir() -> Path | None:
+    """Where generated loops are written: ``$FUSIONKIT_CACHE_DIR``, else
+    ``$XDG_CACHE_HOME/fusionkit`` or ``~/.cache/fusionkit``, else a per-user temporary directory;
+    None when none is writable (the loops are then compiled in memory)."""
+    env = os.environ.get("FUSIONKIT_CACHE_DIR")
+    cands = [Path(env)] if env else [
+        Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fusionkit",
+        Path(tempfile.gettempdir()) / f"fusionkit-{os.getuid() if hasattr(os, 'getuid') else 'user'}"]
+    for d in cands:
+        try:
+            (d / "loops").mkdir(parents=True, exist_ok=True)
+            if os.access(d / "loops", os.W_OK):
+                return d / "loops"
+        except OSError:
+            continue
+    return None
+
+
+def _fingerprint(module: str) -> str:
+    """A hash of a kernel's module source; for fusionkit's own kernels, of the whole package (a
+    kernel calls helpers from other modules, which numba inlines into the cached loop)."""
+    top = module.split(".")[0]
+    key = top if top == "fusionkit" else module
+    if key not in _FINGERPRINTS:
+        h = hashlib.sha256()
+        m = sys.modules[key] if key in sys.modules else importlib.import_module(key)
+        path = Path(getattr(m, "__file__", "") or "")
+        files = sorted(path.parent.rglob("*.py")) if key == "fusionkit" else [path]
+        for f in files:
+            try:
+                h.update(f.read_bytes())
+            except OSError:
+                h.update(str(f).encode())
+        _FINGERPRINTS[key] = h.hexdigest()
+    return _FINGERPRINTS[key]
+
+
+def get_compiled(lay: Layout):
+    """The module holding ``loop`` and ``step`` for ``lay`` (built once per process; from the
+    disk cache when every kernel can be imported by name)."""
+    if lay in _BUILT:
+        return _BUILT[lay]
+    funcs = {i: k.func for i, k in enumerate(lay.kernels)}
+    refs = {i: _ref(f) for i, f in funcs.items()}
+    est_refs = [_ref(f) for f in lay.est]
+    where = cache_dir()
+    mod = None
+    if where is not None and all(r is not None for r in list(refs.values()) + est_refs):
+        import numba
+
+        from . import __version__
+
+        text = source(lay, True, refs, est_refs)
+        mods = sorted({m for m, _ in list(refs.values()) + est_refs})
+        digest = hashlib.sha256("\n".join([text, numba.__version__, __version__]
+                                          + [_fingerprint(m) for m in mods]).encode()).hexdigest()[:24]
+        path = where / f"loop_{digest}.py"
+        try:
+            if not path.exists():
+                tmp = path.with_suffix(f".{os.getpid()}.tmp")
+                tmp.write_text(text)
+                os.replace(tmp, path)
+            name = f"_fusionkit_loop_{digest}"
+            spec = importlib.util.spec_from_file_location(name, path)
+            mod = importlib.util.module_from_spec(spec)
+            sys.modules[name] = mod
+            spec.loader.exec_module(mod)
+        except OSError:
+            mod = None
+    if mod is None:  # in memory: the kernels as globals, no disk cache
+        import types
+
+        import numpy as np
+
+        from ._kernels import validity_flags
+        from ._numba import njit
+        from .navigation.alignment import align_step
+
+        mod = types.ModuleType("_fusionkit_loop_memory")
+        ns = mod.__dict__
+        ns.update({f"k{i}": f for i, f in funcs.items()}, np=np, njit=njit, validity_flags=validity_flags,
+                  align_step=align_step, e_propagate=lay.est[0], e_to_quat=lay.est[1], e_from_quat=lay.est[2])
+        exec(compile(source(lay, False, None), "<fusionkit pipeline loop>", "exec"), ns)
+    _BUILT[lay] = mod
+    return mod

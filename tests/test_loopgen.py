@@ -1,0 +1,135 @@
+"""The compiled pipeline loop: generated per composition, cached on disk for the next process,
+compiled in memory where a kernel cannot be imported by name; the one-sample step behind
+``update()``; chunked runs at compiled speed equal to one run."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import fusionkit as fk
+from fusionkit import _loopgen, sim
+from fusionkit._numba import HAVE_NUMBA, njit
+from fusionkit.protocols import Correction, Corrector, CorrectorKernel
+
+pytestmark = pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed")
+
+DEG = np.pi / 180
+CONFIG = {"estimator": "poisson-quat", "correctors": ["gradient-descent", "rest-bias"],
+          "detectors": ["rest", "magnetic"], "alignment": {"mode": "fixed", "duration": 1.0}}
+
+
+@pytest.fixture(scope="module")
+def rec():
+    segs = [sim.Rest(2.0), sim.Rotate((0, 0, 1), 90 * DEG, 1.5), sim.Rotate((1, 0, 0), 40 * DEG, 1.0), sim.Rest(1.0)]
+    return sim.simulate(segs, rate=100.0, noise=sim.Noise.mems(), seed=4)
+
+
+def test_a_new_process_loads_the_loop_from_disk(tmp_path, monkeypatch, rec):
+    monkeypatch.setenv("FUSIONKIT_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(_loopgen, "_BUILT", {})
+    fk.compose(CONFIG).run(rec, backend="numba")
+    written = list((tmp_path / "loops").glob("loop_*.py"))
+    assert len(written) == 1
+    code = textwrap.dedent(f"""
+        import numpy as np, fusionkit as fk
+        from fusionkit import _loopgen
+        rec = fk.Recording(gyr=np.zeros((50, 3)), acc=np.tile([0, 0, 9.81], (50, 1)), mag=np.ones((50, 3)), rate=100.0)
+        fk.compose({CONFIG!r}).run(rec, backend="numba")
+        (mod,) = _loopgen._BUILT.values()
+        print(mod.__name__, sum(mod.loop.stats.cache_hits.values()), sum(mod.loop.stats.cache_misses.values()))
+    """)
+    env = {**os.environ, "FUSIONKIT_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    name, hits, misses = out.stdout.split()
+    assert name == "_fusionkit_loop_" + written[0].stem[len("loop_"):]
+    assert (hits, misses) == ("1", "0")
+
+
+def test_a_changed_kernel_source_is_a_new_cache_entry(tmp_path, monkeypatch, rec):
+    """The file's name hashes the kernels' source: an edited plugin is never served stale code."""
+    monkeypatch.setenv("FUSIONKIT_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(_loopgen, "_BUILT", {})
+    fk.compose(CONFIG).run(rec, backend="numba")
+    monkeypatch.setattr(_loopgen, "_BUILT", {})
+    monkeypatch.setitem(_loopgen._FINGERPRINTS, "fusionkit", "an edited fusionkit")
+    fk.compose(CONFIG).run(rec, backend="numba")
+    assert len(list((tmp_path / "loops").glob("loop_*.py"))) == 2
+
+
+def test_a_kernel_that_cannot_be_imported_is_compiled_in_memory(rec):
+    """A corrector whose kernel is a closure: the same generated source, compiled without the cache."""
+    gain = 0.5
+
+    @njit(cache=False)
+    def pull(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate):
+        if acc_ok:  # a Mahony-like tilt pull: rate = gain * (acc x vertical in the body)
+            n = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+            w, x, y, z = q[0], q[1], q[2], q[3]
+            vx, vy, vz = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+            rate[0] += p[0] * (a1 * vz - a2 * vy) / n
+            rate[1] += p[0] * (a2 * vx - a0 * vz) / n
+            rate[2] += p[0] * (a0 * vy - a1 * vx) / n
+        return 0
+
+    class Pull(Corrector):
+        name = "test-pull"
+        mode = "rate"
+
+        def correct(self, estimator, est_state, state, sample, flags):
+            rate = np.zeros(3)
+            if sample.acc is not None:
+                q = estimator.quat(est_state)
+                v = fk.rotations.quat_to_matrix(q)[2]
+                a = sample.acc / np.sqrt(sample.acc[0] ** 2 + sample.acc[1] ** 2 + sample.acc[2] ** 2)
+                rate[:] = gain * np.array([a[1] * v[2] - a[2] * v[1], a[2] * v[0] - a[0] * v[2],
+                                           a[0] * v[1] - a[1] * v[0]])
+            return Correction(rate, 0)
+
+        def kernel(self, estimator):
+            return CorrectorKernel(pull, np.array([gain]), mode="rate")
+
+    from fusionkit.pipeline import Pipeline
+    from fusionkit.registry import Registry
+
+    reg = Registry()
+    reg.register(Pull)
+    p = Pipeline({"estimator": "poisson-quat", "correctors": ["test-pull"], "alignment": {"mode": "none"}},
+                 registry=reg)
+    fast = p.run(rec, backend="numba")
+    ref = p.run(rec, backend="reference")
+    assert np.abs(fast.quat - ref.quat).max() < 1e-9
+    assert any(m.__name__ == "_fusionkit_loop_memory" for m in _loopgen._BUILT.values())
+
+
+@pytest.mark.parametrize("name", ["gradient-descent", "poisson", "recommended", "channel-dcm", "gst"])
+def test_chunked_runs_are_compiled_and_equal_one_run(name, rec):
+    f = fk.make(name)
+    whole = f.run(rec, backend="numba")
+    parts, state = [], None
+    for lo, hi in ((0, 123), (123, 124), (124, 400), (400, len(rec))):
+        r = f.run(rec.slice(lo, hi), backend="numba", state=state)
+        assert r.diagnostics["backend"] == "numba"
+        parts.append(r.quat)
+        state = r.diagnostics["state"]
+    assert np.abs(np.vstack(parts) - whole.quat).max() < 1e-9
+
+
+@pytest.mark.parametrize("name", ["gradient-descent", "poisson", "recommended", "channel-dcm"])
+def test_update_runs_compiled_and_state_round_trips(name, rec):
+    """update() takes the compiled step; its state, read mid-stream and restored in a new filter,
+    continues the same stream."""
+    f = fk.make(name)
+    ref = f.run(rec, backend="reference").quat
+    g = fk.make(name)
+    h = len(rec) // 2
+    first = [g.update(rec.gyr[k], rec.acc[k], rec.mag[k], dt=float(rec.dt[k])) for k in range(h)]
+    assert g._packed if hasattr(g, "_packed") else g._buffers  # the compiled stream is in use
+    g2 = fk.make(name)
+    g2.set_state(g.state)
+    second = [g2.update(rec.gyr[k], rec.acc[k], rec.mag[k], dt=float(rec.dt[k])) for k in range(h, len(rec))]
+    assert np.abs(np.array(first + second) - ref).max() < 1e-9
