@@ -111,13 +111,15 @@ class AlignmentConfig(PluginConfig):
 class PipelineConfig(FilterConfig):
     """A filter composed from plugins: one estimator, correctors and detectors, plus alignment.
 
-    Per sample the pipeline runs, in this order: detectors -> alignment or propagation ->
-    correctors (see :mod:`fusionkit.pipeline`).
+    Per sample the pipeline runs, in this order: sensor models -> detectors -> alignment or
+    propagation -> correctors (see :mod:`fusionkit.pipeline`).
     """
 
     estimator: PluginSpec = param(..., unit="-", description="the estimator (owns the orientation state)")
     correctors: list[PluginSpec] = param([], unit="-", description="correctors, applied in this order")
-    detectors: list[PluginSpec] = param([], unit="-", description="detectors, run first on every sample")
+    detectors: list[PluginSpec] = param([], unit="-", description="detectors, run on every sample after the models")
+    models: list[PluginSpec] = param(
+        [], unit="-", description="sensor models (calibration, time offsets), applied first to every sample, in order")
     alignment: AlignmentConfig = param(AlignmentConfig(), unit="-", description="initial alignment")
 
     @field_validator("estimator", mode="before")
@@ -125,7 +127,7 @@ class PipelineConfig(FilterConfig):
     def _est(cls, v):
         return PluginSpec.coerce(v)
 
-    @field_validator("correctors", "detectors", mode="before")
+    @field_validator("correctors", "detectors", "models", mode="before")
     @classmethod
     def _lst(cls, v):
         return [PluginSpec.coerce(x) for x in v] if isinstance(v, (list, tuple)) else v
@@ -201,6 +203,57 @@ def load_config(source: Any) -> dict[str, Any]:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"config is not valid TOML: {exc}") from None
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return "nan" if v != v else ("inf" if v == float("inf") else "-inf" if v == float("-inf") else repr(v))
+    if isinstance(v, str):
+        return json.dumps(v)  # a JSON string is a valid TOML basic string
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise ConfigError(f"cannot write {type(v).__name__} {v!r} as TOML")
+
+
+def _toml_key(k: str) -> str:
+    return k if k.replace("_", "").replace("-", "").isalnum() else json.dumps(k)
+
+
+def to_toml(config: Mapping[str, Any]) -> str:
+    """A config dict (:func:`load_config`'s layout) as TOML text that reads back to the same dict.
+
+    TOML has no null: a ``None`` value is written as a comment (the key is left out, so the
+    field takes its default; where that default is not None, use JSON instead, which has null).
+    """
+    lines: list[str] = []
+
+    def table(prefix: str, d: Mapping[str, Any]) -> None:
+        subs, arrays = [], []
+        for k, v in d.items():
+            if isinstance(v, Mapping):
+                subs.append((k, v))
+            elif isinstance(v, (list, tuple)) and v and all(isinstance(x, Mapping) for x in v):
+                arrays.append((k, v))
+            elif v is None:
+                lines.append(f"# {_toml_key(k)} = None (TOML has no null: left out, the default applies)")
+            else:
+                lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
+        for k, v in subs:
+            name = f"{prefix}.{_toml_key(k)}" if prefix else _toml_key(k)
+            lines.extend(["", f"[{name}]"])
+            table(name, v)
+        for k, v in arrays:
+            name = f"{prefix}.{_toml_key(k)}" if prefix else _toml_key(k)
+            for item in v:
+                lines.extend(["", f"[[{name}]]"])
+                table(name, item)
+
+    table("", config)
+    return "\n".join(lines).lstrip("\n") + "\n"
 
 
 _OPS = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}

@@ -29,16 +29,18 @@ __all__ = [
     "Corrector",
     "Detector",
     "Filter",
+    "SensorModel",
     "Sample",
     "Correction",
     "EstimatorKernel",
     "DetectorKernel",
     "CorrectorKernel",
+    "SensorModelKernel",
     "DetectionResult",
     "KINDS",
 ]
 
-KINDS = ("filter", "estimator", "corrector", "detector")
+KINDS = ("filter", "estimator", "corrector", "detector", "model")
 
 
 class Plugin:
@@ -121,6 +123,16 @@ class CorrectorKernel(NamedTuple):
     gnss: bool = False
 
 
+class SensorModelKernel(NamedTuple):
+    """numba counterpart of a sensor model: ``apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, params) ->
+    int``. ``v`` holds the sample ``g0, g1, g2, a0, a1, a2, m0, m1, m2`` (the magnetometer zeros
+    without one) and is corrected in place; ``q`` is the pipeline's previous output quaternion
+    (read only); it returns flag bits (0 for none)."""
+
+    apply: Callable
+    params: np.ndarray
+
+
 class Correction(NamedTuple):
     """What a corrector returns for one sample: a correction rate (rad/s, body frame, added to the
     gyroscope on the next propagation) for ``mode == "rate"`` correctors, None for
@@ -181,6 +193,28 @@ class Corrector(Plugin, ABC):
 
     def kernel(self, estimator: Estimator) -> CorrectorKernel | None:
         """The compiled counterpart for this estimator (its ``mode`` that of the corrector), or None."""
+        return None
+
+
+class SensorModel(Plugin, ABC):
+    """Corrects the raw samples before anything else reads them: a calibration (biases, scale
+    factors, hard and soft iron), a time offset between sensors. It runs first on every sample
+    (after the validity check; validity is judged again on what it returns), may keep its own
+    state (an online estimate) and may read the previous output orientation. It never changes the
+    orientation state."""
+
+    kind: ClassVar[str] = "model"
+
+    def initial_state(self, dt: float) -> np.ndarray:
+        """The model's own state (empty by default); ``dt`` is the nominal sample interval."""
+        return np.zeros(0)
+
+    @abstractmethod
+    def apply(self, state: np.ndarray, sample: Sample, quat: np.ndarray) -> tuple[Sample, int]:
+        """The corrected ``sample`` (its ``acc`` / ``mag`` None where absent or invalid) and flag
+        bits; ``quat`` is the previous output orientation (body -> the pipeline's frame)."""
+
+    def kernel(self) -> SensorModelKernel | None:
         return None
 
 

@@ -1,0 +1,1 @@
+"""Sensor models: plugins that correct the raw samples before a pipeline reads them."""
