@@ -73,8 +73,17 @@ def cmd_list(args) -> int:
 
 def cmd_describe(args) -> int:
     from . import describe
+    from .config import to_toml
 
-    print(describe(args.name, args.kind))
+    info = describe(args.name, args.kind)
+    if args.toml or args.json:
+        cfg = info.config()
+        if cfg is None:
+            raise FusionkitError(f"{args.name!r} is a {info.kind}: only filters print a runnable config "
+                                 "(use it inside a pipeline config, see docs/configuration.md)")
+        print(json.dumps(cfg, indent=2) if args.json else to_toml(cfg), end="\n" if args.json else "")
+        return 0
+    print(info)
     return 0
 
 
@@ -216,7 +225,11 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("list", help="list registered plugins").set_defaults(func=cmd_list)
     d = sub.add_parser("describe", help="parameters and source of a plugin")
     d.add_argument("name")
-    d.add_argument("--kind", default=None, help="filter, estimator, corrector or detector")
+    d.add_argument("--kind", default=None, help="filter, estimator, corrector, detector or model")
+    fmt = d.add_mutually_exclusive_group()
+    fmt.add_argument("--toml", action="store_true", help="print a config to save, edit and pass to `fusionkit run` "
+                     "(a preset's composition; a monolithic filter's parameters)")
+    fmt.add_argument("--json", action="store_true", help="the same as JSON (which, unlike TOML, has null)")
     d.set_defaults(func=cmd_describe)
     r = sub.add_parser("run", help="run a filter (by name or a TOML/JSON pipeline config) on a recording")
     r.add_argument("filter", help="filter name or a .toml/.json config")

@@ -51,6 +51,19 @@ class PluginInfo:
     distribution: str
     target: str
     parameters: list[dict[str, Any]] = field(default_factory=list)
+    #: for a filter that is a preset (a pipeline over plugins): its composition with the default
+    #: parameters, as a :class:`~fusionkit.config.PipelineConfig` dict; None for other plugins
+    composition: dict[str, Any] | None = None
+
+    def config(self) -> dict[str, Any] | None:
+        """For a filter, a config ``fusionkit run`` and :func:`fusionkit.compose` / ``make`` take:
+        a preset's composition (change a plugin in it and run it), or ``{"filter": name,
+        "params": defaults}`` for a monolithic filter; None for other kinds."""
+        if self.kind != "filter":
+            return None
+        if self.composition is not None:
+            return self.composition
+        return {"filter": self.name, "params": {p["name"]: p["default"] for p in self.parameters}}
 
     def __str__(self) -> str:
         lines = [f"{self.name} ({self.kind}) from {self.distribution} [{self.target}]"]
@@ -58,6 +71,15 @@ class PluginInfo:
             lines.append(f"  {self.summary}")
         if self.source:
             lines.append(f"  source: {self.source}")
+        if self.composition is not None:
+            c = self.composition
+            lines.append("  composition (a preset: `fusionkit describe NAME --toml` prints it as a config to edit):")
+            lines.append(f"    estimator: {_spec_text(c['estimator'])}")
+            for key in ("models", "detectors", "correctors"):
+                if c.get(key):
+                    lines.append(f"    {key}: " + ", ".join(_spec_text(x) for x in c[key]))
+            al = c.get("alignment", {})
+            lines.append(f"    alignment: {al.get('mode')} ({al.get('duration')} s, heading {al.get('heading')})")
         if self.parameters:
             lines.append("  parameters:")
             for p in self.parameters:
@@ -67,6 +89,11 @@ class PluginInfo:
                 if p["description"]:
                     lines.append(f"        {p['description']}")
         return "\n".join(lines)
+
+
+def _spec_text(spec: dict[str, Any]) -> str:
+    params = ", ".join(f"{k}={v!r}" for k, v in spec.get("params", {}).items())
+    return f"{spec['name']}({params})" if params else spec["name"]
 
 
 class Registry:
@@ -186,9 +213,13 @@ class Registry:
     def describe(self, name: str, kind: str | None = None) -> PluginInfo:
         entry = self._find(name, kind)
         cls = self._load(entry)
+        composition = None
+        if entry.kind == "filter" and hasattr(cls, "pipeline_config") and entry.name != "pipeline":
+            composition = cls(registry=self).pipeline_config().model_dump()
         return PluginInfo(
             name=entry.name, kind=entry.kind, summary=cls.summary, source=cls.source,
             distribution=entry.distribution, target=entry.target, parameters=describe_config(cls.Config),
+            composition=composition,
         )
 
     def check_all(self) -> dict[str, str]:
