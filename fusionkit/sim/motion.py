@@ -48,6 +48,14 @@ def _segment_motion(seg, q0, u, duration):
     return quat, acc_e
 
 
+def _segment_position(seg, p0, u):
+    """Position (m, ENU, from ``p0`` at the segment's start) at progress ``u`` of ``seg``."""
+    if not isinstance(seg, Translate):
+        return np.tile(p0, (u.size, 1))
+    d = np.asarray(seg.direction, dtype=float)
+    return p0 + (seg.distance * _progress(u))[:, None] * (d / np.linalg.norm(d))
+
+
 def _in_body(quat, v_e):
     """ENU vectors ``v_e`` ((n, 3) or (3,)) seen in the body: ``R^T v``."""
     return np.einsum("nji,nj->ni", quat_to_matrix(quat), np.broadcast_to(v_e, (len(quat), 3)))
