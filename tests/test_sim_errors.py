@@ -168,3 +168,134 @@ def test_a_lowpass_group_delay_is_recovered_by_sensor_lags(order, cutoff):
     assert lags.acc == pytest.approx(0.5, abs=0.05)  # not filtered
     clean = _rotations()
     np.testing.assert_allclose(rec.gyr[:150], clean.gyr[:150], atol=1e-12)  # started at steady state
+
+
+# ---- geometry and biases -----------------------------------------------------------------------
+
+def test_scale_factor_and_misalignment_are_I_plus_S_plus_M():
+    s = (0.02, -0.01, 0.005)
+    m = np.array([[0.0, 0.003, -0.002], [0.001, 0.0, 0.004], [-0.003, 0.002, 0.0]])
+    rec = _turning(errors=sim.SensorErrors(gyr_scale=s, gyr_misalignment=m, acc_scale=(0.01, 0.0, -0.02)))
+    clean = _turning()
+    t = np.eye(3) + np.diag(s) + m
+    np.testing.assert_allclose(rec.gyr, clean.gyr @ t.T, atol=1e-14)
+    np.testing.assert_allclose(rec.acc, clean.acc * [1.01, 1.0, 0.98], atol=1e-14)
+    np.testing.assert_array_equal(rec.mag, clean.mag)
+    # what it does to the rate: a 2 % scale error on x shows as 2 % of the x rate
+    big = np.abs(clean.gyr[:, 0]) > 1.0
+    np.testing.assert_allclose((rec.gyr[big, 0] - clean.gyr[big, 0]) / clean.gyr[big, 0], 0.02, atol=0.01)
+
+
+def test_bias_random_walk_has_the_given_density():
+    """The bias' increments per sample have variance density^2 dt (to the 3 % a long rest
+    estimates it), the measured rate at rest is that bias (no other noise), and the bias wanders
+    as sqrt(t)."""
+    rate, dens_g, dens_a = 100.0, 1e-3, 4e-3
+    rec = sim.simulate([sim.Rest(600.0)], rate=rate, gnss_rate=None,
+                       errors=sim.SensorErrors(gyr_bias_rw=dens_g, acc_bias_rw=dens_a))
+    for name, dens in (("gyr", dens_g), ("acc", dens_a)):
+        bias = rec.meta[f"{name}_bias"]
+        assert bias.shape == (len(rec), 3) and np.all(bias[0] == 0.0)
+        inc = np.diff(bias, axis=0)
+        assert inc.var() == pytest.approx(dens**2 / rate, rel=0.03)
+        assert np.abs(inc.mean()) < 4 * dens / np.sqrt(rate) / np.sqrt(inc.size)
+    np.testing.assert_allclose(rec.gyr, rec.meta["gyr_bias"], atol=1e-15)
+    np.testing.assert_allclose(rec.acc - [0.0, 0.0, 9.81], rec.meta["acc_bias"], atol=1e-12)
+    # many walks: the spread after T seconds is density sqrt(T)
+    ends = np.array([sim.simulate([sim.Rest(10.0)], rate=rate, gnss_rate=None, seed=i,
+                                  errors=sim.SensorErrors(gyr_bias_rw=dens_g)).meta["gyr_bias"][-1]
+                     for i in range(60)])
+    assert ends.std() == pytest.approx(dens_g * np.sqrt(10.0), rel=0.15)
+
+
+def test_bias_walk_adds_to_the_constant_bias_and_keeps_the_white_noise():
+    noise = sim.Noise(gyr_noise=0.01, gyr_bias=(0.1, 0.0, -0.1))
+    a = sim.simulate([sim.Rest(5.0)], noise=noise, gnss_rate=None)
+    b = sim.simulate([sim.Rest(5.0)], noise=noise, gnss_rate=None, errors=sim.SensorErrors(gyr_bias_rw=1e-3))
+    walk = b.meta["gyr_bias"] - np.asarray(noise.gyr_bias)
+    np.testing.assert_allclose(b.gyr - walk, a.gyr, atol=1e-15)  # the same white noise draws
+    assert np.abs(walk).max() > 1e-4
+
+
+# ---- specific force -----------------------------------------------------------------------------
+
+def test_sinusoidal_vibration_at_its_frequency_and_amplitude():
+    amp, f, rate = np.array([0.5, 0.0, 2.0]), 37.0, 400.0
+    vib = sim.Vibration(amplitude=amp, frequency=f, start=1.0)
+    segs = [sim.Rest(1.0), sim.Rotate((0, 0, 1), 90 * DEG, 4.0), sim.Rest(5.0)]
+    clean = sim.simulate(segs, rate=rate, gnss_rate=None, sampling="point")
+    rec = sim.simulate(segs, rate=rate, gnss_rate=None, sampling="point", errors=sim.SensorErrors(vibration=vib))
+    t, extra = rec.time, rec.acc - clean.acc
+    np.testing.assert_allclose(extra, (t > 1.0)[:, None] * np.sin(2 * np.pi * f * t)[:, None] * amp, atol=1e-12)
+    np.testing.assert_array_equal(rec.truth, clean.truth)  # the orientation does not shake
+    np.testing.assert_array_equal(rec.gyr, clean.gyr)
+    # as the spectrum shows it: one line at f of the given amplitude; the interval mean scales it by sinc(f dt)
+    mean = sim.simulate(segs, rate=rate, gnss_rate=None, errors=sim.SensorErrors(vibration=vib))
+    x = (mean.acc - sim.simulate(segs, rate=rate, gnss_rate=None).acc)[t > 1.0]
+    spec = np.abs(np.fft.rfft(x[:, 2])) * 2 / len(x)
+    freqs = np.fft.rfftfreq(len(x), 1 / rate)
+    assert freqs[np.argmax(spec)] == pytest.approx(f, abs=rate / len(x))
+    assert spec.max() == pytest.approx(2.0 * np.sinc(f / rate), rel=0.02)
+
+
+def test_band_limited_vibration_has_its_rms_in_its_band():
+    vib = sim.Vibration(amplitude=(1.0, 1.0, 3.0), frequency=60.0, bandwidth=20.0)
+    rec = sim.simulate([sim.Rest(20.0)], rate=500.0, gnss_rate=None, sampling="point",
+                       errors=sim.SensorErrors(vibration=vib))
+    x = rec.acc - [0.0, 0.0, 9.81]
+    np.testing.assert_allclose(x.std(axis=0), [1.0, 1.0, 3.0], rtol=0.05)
+    power = np.abs(np.fft.rfft(x, axis=0)) ** 2
+    freqs = np.fft.rfftfreq(len(x), 1 / 500.0)
+    inband = (freqs > 45.0) & (freqs < 75.0)
+    assert power[inband].sum() / power.sum() > 0.9
+    again = sim.simulate([sim.Rest(20.0)], rate=500.0, gnss_rate=None, sampling="point",
+                         errors=sim.SensorErrors(vibration=vib))
+    np.testing.assert_array_equal(again.acc, rec.acc)  # seeded
+
+
+@pytest.mark.parametrize("sampling", ["mean", "point"])
+def test_taps_are_short_impulses(sampling):
+    """A tap is a half-sine of its peak over its duration: point samples see the peak, interval
+    means keep its impulse (peak * 2 duration / pi); nothing happens outside it."""
+    rate, tap = 1000.0, sim.Tap(time=2.0, amplitude=(0.0, 30.0, -10.0), duration=0.006)
+    late = sim.Tap(time=4.0001, amplitude=(5.0, 0.0, 0.0), duration=0.0023)
+    segs = [sim.Rest(1.0), sim.Rotate((1, 0, 0), 60 * DEG, 2.0), sim.Rest(3.0)]
+    clean = sim.simulate(segs, rate=rate, gnss_rate=None, sampling=sampling)
+    rec = sim.simulate(segs, rate=rate, gnss_rate=None, sampling=sampling, errors=sim.SensorErrors(taps=(tap, late)))
+    extra, t = rec.acc - clean.acc, rec.time
+    hit = np.flatnonzero(np.any(extra != 0.0, axis=1))
+    assert t[hit].min() > 2.0 - 1e-9 and t[hit].max() < 4.0001 + 0.0023 + 1e-3
+    first = t < 3.0
+    np.testing.assert_allclose(extra[first].sum(axis=0) / rate, np.multiply(tap.amplitude, 2 * tap.duration / np.pi),
+                               rtol=0.05 if sampling == "point" else 1e-9)
+    np.testing.assert_allclose(extra[~first].sum(axis=0) / rate, np.multiply(late.amplitude, 2 * late.duration / np.pi),
+                               rtol=0.15 if sampling == "point" else 1e-9)
+    if sampling == "point":
+        np.testing.assert_allclose(extra[first].max(axis=0)[1], 30.0, rtol=1e-9)  # a sample at the peak (2.003)
+
+
+# ---- transport ----------------------------------------------------------------------------------
+
+def test_dropped_samples_are_missing_rows_at_the_rate():
+    full = _turning(rate=200.0, noise=sim.Noise.mems())
+    rec = _turning(rate=200.0, noise=sim.Noise.mems(), errors=sim.SensorErrors(drop_rate=0.1))
+    kept = rec.meta["kept"]
+    n = len(full)
+    assert rec.rate is None and len(rec) == kept.size < n
+    assert (n - kept.size) / (n - 1) == pytest.approx(0.1, abs=3 * np.sqrt(0.1 * 0.9 / n))
+    np.testing.assert_allclose(rec.time, kept / 200.0, atol=1e-12)  # timestamps skip the lost rows
+    skips = np.diff(kept)
+    assert skips.max() >= 2 and np.all(skips >= 1)
+    for name in ("gyr", "acc", "mag", "truth", "movement"):  # what is left is what the sensor made
+        np.testing.assert_array_equal(getattr(rec, name), getattr(full, name)[kept], err_msg=name)
+
+
+def test_a_timestamp_gap_of_given_length():
+    rec = _turning(rate=100.0, errors=sim.SensorErrors(gaps=((2.0, 0.5), (5.005, 0.02))))
+    t = rec.time
+    assert not np.any((t >= 2.0 - 1e-9) & (t < 2.5 - 1e-9))
+    dt = np.diff(t)
+    big = np.sort(dt[dt > 0.015])
+    np.testing.assert_allclose(big, [0.03, 0.51], atol=1e-9)  # the gap plus the one interval that spans it
+    assert len(rec) == len(_turning(rate=100.0)) - 50 - 2
+    np.testing.assert_allclose(rec.dt[1:], dt)
