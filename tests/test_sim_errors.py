@@ -10,6 +10,8 @@ from fusionkit import sim
 from fusionkit.errors import InputError
 from fusionkit.rotations import quat_to_matrix
 
+from conftest import fit_ellipsoid
+
 DEG = np.pi / 180.0
 FIELD = np.asarray(sim.KYIV_FIELD_ENU)
 
@@ -24,17 +26,6 @@ def _turning(rate=100.0, **kw):
 def _earth(rec, x):
     """Body vectors ``x`` (N, 3) seen in the earth frame, ``R(q) x``."""
     return np.einsum("nij,nj->ni", quat_to_matrix(rec.truth), x)
-
-
-def fit_ellipsoid(x):
-    """Centre ``c`` and shape ``Q`` of the ellipsoid ``(x - c)^T Q (x - c) = 1`` through the points
-    (linear least squares on the general quadric)."""
-    d = np.column_stack([x[:, 0] ** 2, x[:, 1] ** 2, x[:, 2] ** 2, 2 * x[:, 0] * x[:, 1], 2 * x[:, 0] * x[:, 2],
-                         2 * x[:, 1] * x[:, 2], 2 * x[:, 0], 2 * x[:, 1], 2 * x[:, 2]])
-    p = np.linalg.lstsq(d, np.ones(len(x)), rcond=None)[0]
-    q = np.array([[p[0], p[3], p[4]], [p[3], p[1], p[5]], [p[4], p[5], p[2]]])
-    c = -np.linalg.solve(q, p[6:])
-    return c, q / (1.0 + c @ q @ c)
 
 
 # ---- all off ------------------------------------------------------------------------------------

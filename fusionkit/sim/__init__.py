@@ -18,11 +18,13 @@ exact to far below the noise); ``sampling="point"`` gives their values at ``t[k]
 
 from __future__ import annotations
 
+from . import scenarios
 from .errors import FieldPatch, MagneticDipole, SensorErrors, Tap, Vibration, lowpass_delay
 from .motion import Rest, Rotate, Translate
 from .noise import Noise
-from .scenarios import demo_recordings
+from .scenarios import SCENARIOS, demo_recordings, scenario
 from .sensors import KYIV_FIELD_ENU, simulate
 
 __all__ = ["Rest", "Rotate", "Translate", "Noise", "simulate", "demo_recordings", "KYIV_FIELD_ENU",
-           "SensorErrors", "MagneticDipole", "FieldPatch", "Vibration", "Tap", "lowpass_delay"]
+           "SensorErrors", "MagneticDipole", "FieldPatch", "Vibration", "Tap", "lowpass_delay", "scenarios",
+           "SCENARIOS", "scenario"]
