@@ -14,6 +14,15 @@ truth). Accelerometer and magnetometer sample ``k`` are, by default (``sampling=
 means of the specific force ``R^T (a + [0, 0, g])`` and of the field ``R^T m`` over the same
 interval, as an IMU that samples all its sensors alike reports them (Gauss-Legendre quadrature,
 exact to far below the noise); ``sampling="point"`` gives their values at ``t[k]`` instead.
+
+Sensor errors: :class:`Noise` (white noise, constant biases) and :class:`SensorErrors` (hard and
+soft iron, earth-fixed magnetic disturbances, inter-sensor delays and low-pass group delays,
+scale factor and misalignment, bias random walks, vibration, taps, dropped samples, timestamp
+gaps; every one off by default, :mod:`fusionkit.sim.errors`). :mod:`fusionkit.sim.scenarios`
+builds the recording that isolates each error (``scenario(name)``, ``SCENARIOS``).
+
+Modules: ``motion`` (segments), ``sensors`` (:func:`simulate`), ``noise``, ``errors``,
+``scenarios``. See ``docs/simulator.md``.
 """
 
 from __future__ import annotations
