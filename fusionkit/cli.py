@@ -49,9 +49,11 @@ def _load_input(spec: str):
 
     if spec.startswith("sim:"):
         name = spec[4:]
+        if name in sim.SCENARIOS:
+            return sim.scenario(name)
         recs = {r.name: r for r in sim.demo_recordings()}
         if name not in recs:
-            raise FusionkitError(f"unknown simulated recording {name!r}; choose from {sorted(recs)}")
+            raise FusionkitError(f"unknown simulated recording {name!r}; choose from {sorted(recs) + sorted(sim.SCENARIOS)}")
         return recs[name]
     return load(spec)
 

@@ -268,7 +268,7 @@ class Detector(Plugin, ABC):
     def run(self, rec, *, nan_policy: str = "raise", backend: str = "auto") -> DetectionResult:
         """Run over a :class:`~fusionkit.types.Recording`; samples with a non-finite gyr or acc
         raise (``nan_policy="raise"``) or are skipped with criteria 0 (``"skip"``)."""
-        from .pipeline import run_detector
+        from .detectors._run import run_detector
 
         return run_detector(self, rec, nan_policy=nan_policy, backend=backend)
 

@@ -60,3 +60,14 @@ def clean_rec() -> fk.Recording:
     segs = [sim.Rest(12.0), sim.Rotate((0, 0, 1), 90 * deg, 2.0), sim.Rotate((1, 0, 0), 40 * deg, 1.5),
             sim.Translate((1, 0, 0), 0.4, 1.0), sim.Rotate((0, 1, 0), -50 * deg, 1.5), sim.Rest(1.0)]
     return sim.simulate(segs, rate=100.0, seed=3)
+
+
+def fit_ellipsoid(x):
+    """Centre ``c`` and shape ``Q`` of the ellipsoid ``(x - c)^T Q (x - c) = 1`` through the points
+    (linear least squares on the general quadric)."""
+    d = np.column_stack([x[:, 0] ** 2, x[:, 1] ** 2, x[:, 2] ** 2, 2 * x[:, 0] * x[:, 1], 2 * x[:, 0] * x[:, 2],
+                         2 * x[:, 1] * x[:, 2], 2 * x[:, 0], 2 * x[:, 1], 2 * x[:, 2]])
+    p = np.linalg.lstsq(d, np.ones(len(x)), rcond=None)[0]
+    q = np.array([[p[0], p[3], p[4]], [p[3], p[1], p[5]], [p[4], p[5], p[2]]])
+    c = -np.linalg.solve(q, p[6:])
+    return c, q / (1.0 + c @ q @ c)

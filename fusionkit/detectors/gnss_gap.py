@@ -16,8 +16,9 @@ import numpy as np
 from .._numba import njit
 from ..config import PluginConfig, param
 from ..errors import InputError
+from ..gnss_rows import NO_GNSS, gnss_per_sample, gnss_sample_rows
 from ..protocols import DetectionResult, Detector, DetectorKernel, Sample
-from ..types import Flag, Recording
+from ..types import Flag
 
 __all__ = ["GnssGapDetector", "GnssGapConfig", "NO_GNSS", "gnss_gap_step", "gnss_per_sample", "gnss_sample_rows"]
 
@@ -25,45 +26,6 @@ __all__ = ["GnssGapDetector", "GnssGapConfig", "NO_GNSS", "gnss_gap_step", "gnss
 class GnssGapConfig(PluginConfig):
     max_age: float = param(0.5, unit="s", description="an epoch older than this is stale (a gap)", gt=0)
     min_speed: float = param(5.0, unit="m/s", description="below this ground speed the track angle is not used", ge=0)
-
-
-def gnss_per_sample(rec: Recording) -> dict[str, np.ndarray]:
-    """The latest GNSS epoch at each IMU sample: ``vel`` (N, 3, in the stream's frame, NaN
-    before the first epoch), ``valid`` (N,), ``age`` (N, s), ``new`` (N,: an epoch arrived
-    with this sample), ``index`` (N,, -1 before the first epoch), ``t`` (N,, the epoch's time)."""
-    g = rec.gnss
-    if g is None:
-        raise InputError(f"recording {rec.name!r} has no GNSS stream")
-    t = rec.time
-    idx = np.searchsorted(g.t, t, side="right") - 1
-    has = idx >= 0
-    safe = np.clip(idx, 0, None)
-    vel = np.where(has[:, None], g.vel[safe], np.nan)
-    valid = has & g.valid[safe]
-    age = np.where(has, t - g.t[safe], np.inf)
-    new = has & np.concatenate([[True], idx[1:] != idx[:-1]])
-    t_epoch = np.where(has, g.t[safe], np.nan)
-    return {"vel": vel, "valid": valid, "age": age, "new": new, "index": idx, "t": t_epoch}
-
-
-#: the GNSS row of a sample without GNSS (vn, ve, valid, age, new, t_epoch)
-NO_GNSS = np.array([np.nan, np.nan, 0.0, np.inf, 0.0, np.nan])
-
-
-def gnss_sample_rows(rec: Recording) -> np.ndarray:
-    """(N, 6) rows ``vn, ve, valid, age, new, t_epoch`` (velocity north/east in m/s) of the
-    latest GNSS epoch at each IMU sample: what GNSS-aided filters take per sample (also through
-    ``update(..., gnss=row)``). Without a GNSS stream every row is a gap."""
-    from ..conventions import frame_matrix
-
-    out = np.tile(NO_GNSS, (len(rec), 1))
-    if rec.gnss is None:
-        return out
-    per = gnss_per_sample(rec)
-    vel = per["vel"] @ frame_matrix(rec.gnss.frame, "NED").T
-    out[:, 0], out[:, 1] = vel[:, 0], vel[:, 1]
-    out[:, 2], out[:, 3], out[:, 4], out[:, 5] = per["valid"], per["age"], per["new"], per["t"]
-    return out
 
 
 class GnssGapDetector(Detector):
@@ -96,7 +58,7 @@ class GnssGapDetector(Detector):
 
     def run(self, rec, *, nan_policy: str = "raise", backend: str = "auto") -> DetectionResult:
         """Every sample is classified (GNSS does not depend on the IMU sample being valid)."""
-        from ..pipeline import run_detector
+        from ._run import run_detector
 
         if rec.gnss is None:
             raise InputError(f"recording {rec.name!r} has no GNSS stream")

@@ -1,0 +1,80 @@
+"""Running one detector over a recording on its own (:meth:`fusionkit.protocols.Detector.run`).
+
+Lives below the pipeline (which re-exports :func:`run_detector`) so that the protocols and the
+detectors never import the composition layer.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .._numba import njit, resolve_backend
+from ..errors import InputError
+from ..gnss_rows import NO_GNSS, gnss_sample_rows
+from ..protocols import DetectionResult, Detector, Sample
+from ..types import Recording
+from ..validation import check_finite_all
+
+__all__ = ["run_detector"]
+
+
+# ---- detectors on their own -------------------------------------------------------------------
+
+_DET_LOOPS: dict[Any, Any] = {}
+
+
+def _get_det_loop(step, gnss=False):
+    key = (step, gnss)
+    if key not in _DET_LOOPS:
+
+        @njit(cache=False)
+        def loop(gyr, acc, mag, dt, ok, s, p, out, gn):
+            last = gn.shape[0] - 1
+            for k in range(gyr.shape[0]):
+                if ok[k]:
+                    if gnss:
+                        r = min(k, last)
+                        out[k] = step(s, gyr[k, 0], gyr[k, 1], gyr[k, 2], acc[k, 0], acc[k, 1], acc[k, 2],
+                                      mag[k, 0], mag[k, 1], mag[k, 2], dt[k], p, gn[r, 0], gn[r, 1], gn[r, 2],
+                                      gn[r, 3], gn[r, 4], gn[r, 5])
+                    else:
+                        out[k] = step(s, gyr[k, 0], gyr[k, 1], gyr[k, 2], acc[k, 0], acc[k, 1], acc[k, 2],
+                                      mag[k, 0], mag[k, 1], mag[k, 2], dt[k], p)
+
+        _DET_LOOPS[key] = loop
+    return _DET_LOOPS[key]
+
+
+def run_detector(det: Detector, rec: Recording, *, nan_policy: str = "raise", backend: str = "auto",
+                 every_sample: bool = False) -> DetectionResult:
+    """Run one detector over a recording (see :meth:`Detector.run`): on the samples with a valid
+    gyroscope and accelerometer (as in a pipeline), or on ``every_sample``. Detectors that read
+    GNSS get the sample's GNSS row (:func:`~fusionkit.detectors.gnss_gap.gnss_sample_rows`)."""
+    if not isinstance(rec, Recording):
+        raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
+    check_finite_all({"gyr": rec.gyr, "acc": rec.acc}, nan_policy)
+    if every_sample:
+        ok = np.ones(len(rec), dtype=bool)
+    else:
+        ok = np.isfinite(rec.gyr).all(axis=1) & np.isfinite(rec.acc).all(axis=1)
+        ok &= np.any(rec.acc != 0.0, axis=1)
+    kernel = det.kernel()
+    used = resolve_backend(backend, kernel is not None)
+    s = det.initial_state(rec.nominal_dt)
+    n = len(rec)
+    out = np.zeros(n, dtype=np.uint32)
+    mag = rec.mag if rec.mag is not None else np.zeros((n, 3))
+    dt = rec.dt
+    gn = gnss_sample_rows(rec) if rec.gnss is not None else None
+    if used == "numba":
+        _get_det_loop(kernel.step, kernel.gnss)(rec.gyr, rec.acc, mag, dt, ok, s, kernel.params, out,
+                                                gn if gn is not None else NO_GNSS[None, :])
+    else:
+        for k in range(n):
+            if ok[k]:
+                m = mag[k] if rec.mag is not None else None
+                out[k] = det.step(s, Sample(rec.gyr[k], rec.acc[k], m, dt[k], None if gn is None else gn[k]))
+    fired = np.flatnonzero(out)
+    return DetectionResult(out, int(fired[0]) if fired.size else None, det.criteria_names, used)

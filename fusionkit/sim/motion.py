@@ -1,0 +1,66 @@
+"""Trajectories for the simulator: segments run one after the other, each with a smooth
+(raised-cosine) profile that starts and ends at rest, and the true motion they make."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..rotations import quat_from_axis_angle, quat_mul, quat_to_matrix
+
+__all__ = ["Rest", "Rotate", "Translate"]
+
+
+@dataclass(frozen=True)
+class Rest:
+    duration: float
+
+
+@dataclass(frozen=True)
+class Rotate:
+    axis: tuple[float, float, float]
+    angle: float
+    duration: float
+
+
+@dataclass(frozen=True)
+class Translate:
+    direction: tuple[float, float, float]
+    distance: float
+    duration: float
+
+
+_QUADRATURE_NODES = 5  # Gauss-Legendre nodes per sample for the interval means (sampling="mean")
+
+
+def _segment_motion(seg, q0, u, duration):
+    """Orientation (body->ENU) and ENU acceleration at progress ``u`` of ``seg`` from ``q0``."""
+    acc_e = np.zeros((u.size, 3))
+    if isinstance(seg, Rotate):
+        quat = quat_mul(q0, quat_from_axis_angle(seg.axis, seg.angle * _progress(u)))
+    else:
+        quat = np.tile(q0, (u.size, 1))
+        if isinstance(seg, Translate):
+            d = np.asarray(seg.direction, dtype=float)
+            d = d / np.linalg.norm(d)
+            acc_e = (2.0 * np.pi * seg.distance / duration**2 * np.sin(2.0 * np.pi * u))[:, None] * d
+    return quat, acc_e
+
+
+def _segment_position(seg, p0, u):
+    """Position (m, ENU, from ``p0`` at the segment's start) at progress ``u`` of ``seg``."""
+    if not isinstance(seg, Translate):
+        return np.tile(p0, (u.size, 1))
+    d = np.asarray(seg.direction, dtype=float)
+    return p0 + (seg.distance * _progress(u))[:, None] * (d / np.linalg.norm(d))
+
+
+def _in_body(quat, v_e):
+    """ENU vectors ``v_e`` ((n, 3) or (3,)) seen in the body: ``R^T v``."""
+    return np.einsum("nji,nj->ni", quat_to_matrix(quat), np.broadcast_to(v_e, (len(quat), 3)))
+
+
+def _progress(u):
+    """Raised-cosine displacement profile on [0, 1] with zero rate at both ends."""
+    return u - np.sin(2.0 * np.pi * u) / (2.0 * np.pi)
