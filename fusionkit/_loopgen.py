@@ -46,13 +46,15 @@ __all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack"
 class KernelSpec:
     """One plugin kernel in the loop: its function, role (``"model"``, ``"det"``, ``"state"``,
     ``"rate"``), whether it takes the GNSS row, and for detectors the flag it sets and whether
-    its criteria are the ones the pipeline reports (its first detector's)."""
+    its criteria are the ones the pipeline reports (its first detector's); for correctors, whether
+    it works on the estimator's state itself (its ``state_layout``: no quaternion round trip)."""
 
     func: Callable
     role: str
     gnss: bool = False
     flag: int = 0
     first: bool = False
+    on_x: bool = False  # a corrector that works on the estimator's state itself (``state_layout``)
 
 
 @dataclass(frozen=True)
@@ -159,11 +161,12 @@ def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
               "    ga_ok = acc_ok and (flags & 512) == 0", "    gm_ok = mag_ok and (flags & 256) == 0"]
         if has_rate:
             L.append("    rate[0] = rate[1] = rate[2] = 0.0")
-        qq = "x" if lay.unit_quat else "q"
         for i in cors:
             k = lay.kernels[i]
+            direct = lay.unit_quat or k.on_x  # the state is the quaternion, or the corrector works on it
+            qq = "x" if direct else "q"
             gn = f", {_GN})" if k.gnss else ")"
-            if not lay.unit_quat:
+            if not direct:
                 L.append("    e_to_quat(x, q)")
             if k.role == "rate":
                 L.append(f"    cf = {names[i]}({qq}, s{i}, b0, b1, b2, a0, a1, a2, m0, m1, m2, ga_ok, gm_ok, flags, "
@@ -171,7 +174,7 @@ def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
             else:
                 L.append(f"    cf = {names[i]}(x, {qq}, s{i}, b0, b1, b2, a0, a1, a2, m0, m1, m2, ga_ok, gm_ok, h, "
                          f"p{i}" + gn)
-                if not lay.unit_quat:
+                if not direct:
                     L += ["    if cf >= 0:", "        e_from_quat(q, x)"]
             L += ["    if cf > 0:", "        flags |= cf"]
         if has_rate:
