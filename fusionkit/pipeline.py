@@ -16,7 +16,9 @@ Per sample, in this fixed order:
 5. **correctors**, in order; rate correctors' outputs are summed into the next correction rate.
    A sample flagged MAG_DISTURBED (by the ``magnetic`` detector) reaches them without its
    magnetometer reading, one flagged ACC_REJECTED (by the ``acceleration`` detector) without its
-   accelerometer reading: that correction is skipped.
+   accelerometer reading: that correction is skipped. A corrector that names a
+   ``state_layout`` works on the estimator's state itself (e.g. a DCM's columns); the others
+   through its quaternion.
 
 Two paths run this: the readable reference (:meth:`Pipeline._step`) and, when every plugin has
 a numba kernel (an estimator, any detectors, any correctors of either mode), one compiled loop
@@ -92,6 +94,9 @@ class Pipeline(Filter):
                 "'motion' detector or use mode 'fixed'"
             )
         for c in self.correctors:
+            if c.state_layout and c.state_layout != self.estimator.state_layout:
+                raise ConfigError(f"corrector {c.name!r} works on a {c.state_layout!r} estimator state, but estimator "
+                                  f"{self.estimator.name!r} has layout {self.estimator.state_layout or 'private'!r}")
             if c.requires_flag and not any(d.flag & c.requires_flag for d in self.detectors):
                 raise ConfigError(f"corrector {c.name!r} acts on {c.requires_flag.name} samples, but no detector "
                                   f"sets that flag: add one (e.g. 'rest' for REST)")
@@ -222,16 +227,19 @@ class Pipeline(Filter):
         det_state = _concat([st["det"][i] for i in used])
         det_params = _concat([dks[i].params for i in used])
         single, chain, kind = _no_state_corrector, _no_corrector, 0  # no corrector
+        # a corrector with a state_layout works on the estimator's state x itself: no round trip through q
+        on_x = [bool(c.state_layout) for c in self.correctors]
         if len(cks) == 1 and cks[0].mode == "state" and not cks[0].gnss:  # the common case, without the chain's glue
             single, kind = cks[0].correct, 1
         elif cks:
-            chain = _get_correctors(ek, [(k.correct, k.mode, s.size, k.params.size, k.gnss)
-                                         for k, s in zip(cks, st["cor"])])
+            chain = _get_correctors(ek, [(k.correct, k.mode, s.size, k.params.size, k.gnss, o)
+                                         for k, s, o in zip(cks, st["cor"], on_x)])
             kind = 2
         cor_state = _concat(st["cor"])
         cor_params = _concat([k.params for k in cks])
         uses_gnss = any(k.gnss for k in cks) or any(dks[i].gnss for i in used)
-        loop = _get_loop(ek, step, single, chain, kind, any(k.mode == "rate" for k in cks), uses_gnss)
+        loop = _get_loop(ek, step, single, chain, kind, any(k.mode == "rate" for k in cks), uses_gnss,
+                         kind == 1 and on_x[0])
         x = st["x"]
         loop(gyr, acc, mag, dt, has_mag, x, ek.params, det_state, det_params, cor_state, cor_params,
              st["align"], self.aligner(st["dt"]).params(), self._loop_params(), out_q, out_f, out_c, start, stop,
@@ -404,17 +412,18 @@ def _get_correctors(ek, specs):
     """One compiled step for the correctors in order, ``step(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1,
     m2, acc_ok, mag_ok, flags, dt, p, rate, n0..n5) -> flags``, over their states and parameters
     concatenated (``n0..n5``: the sample's GNSS row). ``specs``: ``(kernel correct, mode, state
-    size, params size, takes GNSS)`` each. A state corrector corrects the estimator (through
-    ``q`` unless its state is its unit quaternion); a rate corrector reads the current quaternion
+    size, params size, takes GNSS, works on x)`` each. A state corrector corrects the estimator
+    (through ``q`` unless its state is its unit quaternion or the corrector works on the state
+    itself, see :attr:`Corrector.state_layout`); a rate corrector reads the current quaternion
     and adds into ``rate``."""
     direct = ek.unit_quat
     key = (ek.to_quat, ek.from_quat, direct, tuple(specs))
     if key not in _CORRECTOR_CHAINS:
         step = _no_corrector
         so = po = 0
-        for correct, mode, sn, pn, gnss in specs:
-            step = _chain_corrector(step, correct, mode == "rate", ek.to_quat, ek.from_quat, direct, so, sn, po, pn,
-                                    gnss)
+        for correct, mode, sn, pn, gnss, on_x in specs:
+            step = _chain_corrector(step, correct, mode == "rate", ek.to_quat, ek.from_quat, direct or on_x, so, sn,
+                                    po, pn, gnss)
             so, po = so + sn, po + pn
         _CORRECTOR_CHAINS[key] = step
     return _CORRECTOR_CHAINS[key]
@@ -455,8 +464,8 @@ def _chain_corrector(before, correct, is_rate, to_quat, from_quat, direct, so, s
     return step
 
 
-def _get_loop(ek, det_step, cor_single, cor_chain, cor_kind, has_rate, uses_gnss):
-    direct = ek.unit_quat
+def _get_loop(ek, det_step, cor_single, cor_chain, cor_kind, has_rate, uses_gnss, single_on_x=False):
+    direct = ek.unit_quat or single_on_x  # the single corrector gets x itself (see _build_loop)
     key = (ek.propagate, ek.to_quat, ek.from_quat, det_step, cor_single, cor_chain, cor_kind, has_rate, direct,
            uses_gnss)
     if key not in _LOOPS:
@@ -470,7 +479,8 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_single,
     """One compiled loop over a recording for an estimator, the detectors (one chained step, see
     :func:`_get_detectors`) and the correctors: the same steps as :meth:`Pipeline._step`.
     ``cor_kind``: 0 no corrector; 1 one state-mode kernel ``cor_single``, called directly (on the
-    estimator's state itself when ``direct``: it is its unit quaternion); 2 the chained step
+    estimator's state itself when ``direct``: it is its unit quaternion, or the corrector works
+    on the state); 2 the chained step
     ``cor_chain`` (:func:`_get_correctors`). ``has_rate``: some corrector returns a rate, the sum
     is fed into the next propagation. ``uses_gnss``: some kernel takes the GNSS row ``gn[k]`` (``gn``
     has one row per sample, or the single row of "no GNSS")."""
