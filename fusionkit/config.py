@@ -92,6 +92,10 @@ class AlignmentConfig(PluginConfig):
         description="initial heading: 0 (source 000), from the mean magnetometer, or 'auto' (magnetometer when given)",
     )
     estimate_bias: bool = param(True, unit="-", description="subtract the mean gyro output of the window")
+    attitude: Literal["mean", "first"] = param(
+        "mean", unit="-", description="'mean': the attitude from the window's mean specific force (and field) (source "
+        "000); 'first': from the first sample with a valid accelerometer (and its field), held while the window "
+        "estimates the bias (source 002's start)")
     max_rate: float | None = param(
         None, unit="rad/s", description="extension: a gyro sample above this ends the alignment before it (the "
         "recording did not start still; that sample is navigated); None: off (source 000)", gt=0)

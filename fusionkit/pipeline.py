@@ -19,7 +19,9 @@ Per sample, in this fixed order:
 5. **correctors**, in order; rate correctors' outputs are summed into the next correction rate.
    A sample flagged MAG_DISTURBED (by the ``magnetic`` detector) reaches them without its
    magnetometer reading, one flagged ACC_REJECTED (by the ``acceleration`` detector) without its
-   accelerometer reading: that correction is skipped.
+   accelerometer reading: that correction is skipped. A corrector that names a
+   ``state_layout`` works on the estimator's state itself (e.g. a DCM's columns); the others
+   through its quaternion.
 
 Two paths run this: the readable reference (:meth:`Pipeline._step`) and, when every plugin has
 a numba kernel (an estimator, any models, detectors and correctors of either mode), one compiled
@@ -101,6 +103,9 @@ class Pipeline(Filter):
                 "'motion' detector or use mode 'fixed'"
             )
         for c in self.correctors:
+            if c.state_layout and c.state_layout != self.estimator.state_layout:
+                raise ConfigError(f"corrector {c.name!r} works on a {c.state_layout!r} estimator state, but estimator "
+                                  f"{self.estimator.name!r} has layout {self.estimator.state_layout or 'private'!r}")
             if c.requires_flag and not any(d.flag & c.requires_flag for d in self.detectors):
                 raise ConfigError(f"corrector {c.name!r} acts on {c.requires_flag.name} samples, but no detector "
                                   f"sets that flag: add one (e.g. 'rest' for REST)")
@@ -254,7 +259,8 @@ class Pipeline(Filter):
         specs = [_loopgen.KernelSpec(k.apply, "model") for k in mks]
         specs += [_loopgen.KernelSpec(dks[i].step, "det", dks[i].gnss, int(self.detectors[i].flag), i == 0)
                   for i in dets]
-        specs += [_loopgen.KernelSpec(k.correct, k.mode, k.gnss) for k in cks]
+        specs += [_loopgen.KernelSpec(k.correct, k.mode, k.gnss, on_x=bool(c.state_layout))
+                  for c, k in zip(self.correctors, cks)]
         lay = _loopgen.Layout((ek.propagate, ek.to_quat, ek.from_quat), bool(ek.unit_quat), tuple(specs),
                               _RCORR, _QPREV)
         states = [st["x"], *st["mod"], *[st["det"][i] for i in dets], *st["cor"], st["align"]]

@@ -112,6 +112,10 @@ class CorrectorKernel(NamedTuple):
     sample's flags so far; it *adds* its correction rate into ``rate`` (summed with the other rate
     correctors, fed into the next propagation) and returns its flag bits.
 
+    A corrector with a ``state_layout`` (see :class:`Corrector`) corrects the estimator's state
+    ``x`` itself, in place: the pipeline then passes ``x`` as ``q`` too and does no
+    ``to_quat`` / ``from_quat`` round trip around it (the return value is only flag bits).
+
     In both, ``g`` is the gyroscope with the alignment's bias removed (as in the reference's
     ``sample.gyr``); ``acc_ok`` / ``mag_ok`` are False where the reference's sample has None.
     ``gnss=True``: ``correct`` takes the sample's GNSS row as six more arguments at the end,
@@ -146,6 +150,9 @@ class Estimator(Plugin, ABC):
     """Propagates orientation from gyroscope rates; owns the orientation state."""
 
     kind: ClassVar[str] = "estimator"
+    #: the name of the state array's layout (e.g. "dcm"), for correctors that work on the state
+    #: itself (:attr:`Corrector.state_layout`); "" for a private layout
+    state_layout: ClassVar[str] = ""
 
     @abstractmethod
     def initial_state(self, quat: np.ndarray) -> np.ndarray:
@@ -180,6 +187,10 @@ class Corrector(Plugin, ABC):
     uses_mag: ClassVar[bool] = False  #: True for magnetometer correctors (makes a pipeline 9D)
     #: a flag some detector of the pipeline must set (the pipeline refuses the composition otherwise)
     requires_flag: ClassVar[Flag] = Flag.NONE
+    #: a state-mode corrector that reads and writes the estimator's state itself (not through its
+    #: quaternion) names the layout it needs (:attr:`Estimator.state_layout`); the pipeline refuses
+    #: any other estimator. "": it works through the quaternion, with any estimator
+    state_layout: ClassVar[str] = ""
 
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         """The corrector's own state (empty by default); ``dt`` is the nominal sample interval,

@@ -233,7 +233,13 @@ def _check_corrector(cls, params, rec) -> None:
         found = [n for n in reg.names("detector") if reg.get(n, "detector").flag & cls.requires_flag]
         assert found, f"{cls.name}: no registered detector sets {cls.requires_flag!r}, which it requires"
         detectors = [found[0]]
-    p = Pipeline({"estimator": "poisson-quat", "correctors": [{"name": cls.name, "params": params}],
+    estimator = "poisson-quat"
+    if cls.state_layout:  # it works on the estimator's state: a registered estimator with that layout
+        reg = default_registry()
+        found = [n for n in reg.names("estimator") if reg.get(n, "estimator").state_layout == cls.state_layout]
+        assert found, f"{cls.name}: no registered estimator has the state layout {cls.state_layout!r} it needs"
+        estimator = found[0]
+    p = Pipeline({"estimator": estimator, "correctors": [{"name": cls.name, "params": params}],
                   "detectors": detectors, "alignment": {"mode": "fixed", "duration": 1.0}})
     res = p.run(rec, backend="reference")
     _assert_unit_quats(cls.name + " in a pipeline", res.quat, len(rec))

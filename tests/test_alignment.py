@@ -94,3 +94,26 @@ def test_max_rate_ends_the_alignment_when_the_recording_starts_moving():
     res = fk.compose(spec).run(first)
     assert res.diagnostics["alignment_end_index"] == 1
     np.testing.assert_array_equal(res.diagnostics["bias"], 0.0)
+
+
+def test_attitude_first_holds_the_first_valid_sample_and_averages_the_bias():
+    """attitude='first' (source 002's start): the attitude of the first sample with a valid
+    accelerometer (and its field), held over the window; the bias is still the window's mean."""
+    import fusionkit as fk
+    from fusionkit import sim
+
+    rec = sim.simulate([sim.Rest(2.0)], rate=100.0, noise=sim.Noise(gyr_noise=0.01, gyr_bias=(0.01, 0.0, -0.02),
+                                                                   acc_noise=0.2, mag_noise=2.0), seed=3)
+    acc = rec.acc.copy()
+    acc[0] = np.nan  # the first valid accelerometer sample is sample 1
+    bad = fk.Recording(gyr=rec.gyr, acc=acc, mag=rec.mag, rate=rec.rate)
+    spec = {"estimator": "poisson-quat", "nan_policy": "skip",
+            "alignment": {"mode": "fixed", "duration": 1.5, "heading": "auto", "attitude": "first"}}
+    first = alignment_quat(acc[1], rec.mag[1], "ENU")
+    for backend in ("reference", "numba"):
+        res = fk.compose(spec).run(bad, backend=backend)
+        np.testing.assert_allclose(res.quat[1:150] * np.sign(res.quat[1:150, :1]), np.tile(first, (149, 1)),
+                                   atol=1e-12)
+        np.testing.assert_allclose(res.diagnostics["bias"], rec.gyr[:150].mean(axis=0), atol=1e-12)
+    mean = fk.compose({**spec, "alignment": {**spec["alignment"], "attitude": "mean"}}).run(bad)
+    assert np.abs(mean.quat[149] - res.quat[149]).max() > 1e-4  # the mean moves on; 'first' does not

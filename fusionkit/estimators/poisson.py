@@ -57,6 +57,7 @@ class PoissonQuat(Estimator):
     """Quaternion Poisson integrator (source 000, section 4)."""
 
     name: ClassVar[str] = "poisson-quat"
+    state_layout: ClassVar[str] = "quat"
     Config = PoissonQuatConfig
     source: ClassVar[str] = "000 (AIST-350 report), section 4; exact step: extension"
     summary: ClassVar[str] = "quaternion Poisson integration, first-order (source 000) or exact step"
@@ -89,6 +90,8 @@ class PoissonDcm(Estimator):
     """Rotation-matrix Poisson integrator with source 004's exact (Rodrigues) increment."""
 
     name: ClassVar[str] = "poisson-dcm"
+    #: the body->frame rotation matrix, 9 entries row-major: row i is the frame's axis i seen in the body
+    state_layout: ClassVar[str] = "dcm"
     Config = PoissonDcmConfig
     source: ClassVar[str] = "004 (Pitts S-2B strapdown), attitude update"
     summary: ClassVar[str] = "DCM Poisson integration, C <- C exp([w dt x]) (Rodrigues)"

@@ -66,7 +66,9 @@ class Aligner:
     the current alignment attitude), ``ALIGNED_NOW`` (averaged, and the alignment ended with it:
     start the estimator from ``q``), ``ALIGNED_BEFORE`` (mode ``motion``: the sample moves, the
     alignment ended before it: start from ``q`` and navigate this sample) or ``NAVIGATING``.
-    :func:`align_step` is the numba twin, driven by :meth:`params`.
+    :func:`align_step` is the numba twin, driven by :meth:`params`. With the config's
+    ``attitude="first"`` only the first sample with a valid accelerometer (and its field) enters
+    the attitude, held over the window, while the gyro is averaged as usual (source 002's start).
     """
 
     def __init__(self, config, frame: str, dt: float) -> None:
@@ -108,6 +110,9 @@ class Aligner:
             return ALIGNED_BEFORE, self._finish(al)
         if mode == "motion" and motion:
             al[DISTURBED] = 1.0
+        if self.config.attitude == "first":  # only the first valid accelerometer sample (and its field) counts
+            first = acc_ok and al[NACC] == 0
+            acc_ok, mag_ok = first, mag_ok and first
         if acc_ok:
             al[NACC] += 1.0
             al[SACC:SACC + 3] += acc
@@ -129,7 +134,7 @@ class Aligner:
         from ..conventions import change_frame
 
         c = self.config
-        ap = np.zeros(13)
+        ap = np.zeros(14)
         ap[0] = MODES[c.mode]
         ap[1] = self.n_align
         ap[2] = float(c.heading != "zero")
@@ -137,6 +142,7 @@ class Aligner:
         ap[7:11] = c.initial_quat
         ap[11] = float(c.estimate_bias)
         ap[12] = c.max_rate if c.max_rate is not None else np.inf
+        ap[13] = float(c.attitude == "first")
         return ap
 
 
@@ -179,6 +185,9 @@ def align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_o
         return ALIGNED_BEFORE
     if mode == 2.0 and motion:
         al[DISTURBED] = 1.0
+    if ap[13] != 0.0:  # attitude "first": only the first valid accelerometer sample (and its field) counts
+        first = acc_ok and al[NACC] == 0.0
+        acc_ok, mag_ok = first, mag_ok and first
     if acc_ok:
         al[NACC] += 1.0
         al[SACC] += a0
