@@ -68,7 +68,9 @@ def cmd_list(args) -> int:
             summary = reg.get(name, kind).summary
             status = f"  {summary}" if summary else ""
         print(f"{kind:10s} {name:22s} [{dist}]{status}")
-    return 1 if errors else 0
+    for msg in reg.duplicates:
+        print(f"DUPLICATE: {msg}")
+    return 1 if errors or reg.duplicates else 0
 
 
 def cmd_describe(args) -> int:
