@@ -38,8 +38,11 @@ def _build_filter(spec: str, params: dict):
     if p.suffix in (".toml", ".json"):
         cfg = load_config(p)
         cfg.update(params)
-        if "filter" in cfg:  # {"filter": "poisson", "params": {...}}
-            return make(cfg.pop("filter"), **cfg.pop("params", {}), **cfg)
+        if "filter" in cfg:  # {"filter": "poisson", "params": {...}}: other keys are parameters too
+            name, fparams = cfg.pop("filter"), cfg.pop("params", {})
+            if not isinstance(name, str) or not isinstance(fparams, dict):
+                raise FusionkitError(f"{spec}: 'filter' must be a filter name and 'params' a table of its parameters")
+            return make(name, "filter", {**fparams, **cfg})
         return compose(cfg)
     return make(spec, **params)
 
@@ -265,9 +268,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except FusionkitError as exc:
-        print(f"fusionkit: error: {exc}", file=sys.stderr)
+    except FusionkitError as exc:  # one line: a config's several problems joined with "; "
+        first, *rest = [line.strip() for line in str(exc).splitlines() if line.strip()] or [type(exc).__name__]
+        print(f"fusionkit: error: {first} {'; '.join(rest)}".rstrip(), file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("fusionkit: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

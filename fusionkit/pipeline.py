@@ -21,7 +21,10 @@ Per sample, in this fixed order:
 Two paths run this: the readable reference (:meth:`Pipeline._step`) and, when every plugin has
 a numba kernel (an estimator, any detectors, any correctors of either mode), one compiled loop
 built by closing over the plugins' kernels (:func:`_build_loop`). ``Result.diagnostics["backend"]``
-says which ran; the tests hold the two to 1e-9 on every sample.
+says which ran; the tests hold the two to 1e-9 on every sample. The compiled chain of
+correctors is nested closures that numba inlines: its compile time grows faster than the count
+(docs/robustness.md), so more than :data:`MAX_COMPILED_CORRECTORS` run on the reference path
+(``backend="auto"``, with a warning) or are a :class:`ConfigError` (``backend="numba"``).
 
 ``quat[k]`` is the orientation after sample ``k`` has been processed; sample ``k``'s rate is
 held over ``dt[k] = t[k] - t[k-1]``.
@@ -32,6 +35,7 @@ from __future__ import annotations
 import copy
 import math
 import sys
+import warnings
 from typing import Any, ClassVar
 
 import numpy as np
@@ -65,6 +69,9 @@ __all__ = ["Pipeline", "run_detector"]
 _RCORR = ALIGN_SIZE
 _STATE_SIZE = ALIGN_SIZE + 3
 _CHUNK = 200_000
+#: the most correctors the compiled loop chains: beyond, its first compile grows steeply (measured
+#: in docs/robustness.md), while the reference path needs no compile and gives the same numbers
+MAX_COMPILED_CORRECTORS = 12
 
 
 class Pipeline(Filter):
@@ -252,6 +259,13 @@ class Pipeline(Filter):
         if self.spec.alignment.heading == "magnetometer" and not has_mag:
             raise InputError("alignment heading='magnetometer' needs mag in the recording")
         kernels = self._kernels()
+        if kernels is not None and len(self.correctors) > MAX_COMPILED_CORRECTORS and backend != "reference":
+            why = (f"{len(self.correctors)} correctors are more than the compiled loop chains "
+                   f"({MAX_COMPILED_CORRECTORS}: its compile time grows steeply with the count)")
+            if backend == "numba":
+                raise ConfigError(f"backend='numba': {why}; use backend='reference' or 'auto'")
+            warnings.warn(f"{self.name}: {why}; running the reference path (same numbers, slower)", stacklevel=2)
+            kernels = None
         used = resolve_backend(backend, kernels is not None)
         st = self._check_state(copy.deepcopy(state)) if state is not None else self.new_state(rec.nominal_dt)
         mag = rec.mag if has_mag else np.zeros((n, 3))

@@ -204,8 +204,9 @@ class Registry:
         """The plugin class registered as ``name`` (a filter first, unless ``kind`` is given)."""
         return self._load(self._find(name, kind))
 
-    def make(self, name: str, kind: str | None = None, config: Any = None, **params: Any) -> Plugin:
-        """Instantiate the plugin ``name`` with validated parameters."""
+    def make(self, name: str, /, kind: str | None = None, config: Any = None, **params: Any) -> Plugin:
+        """Instantiate the plugin ``name`` with validated parameters (a parameter called ``name``
+        is a parameter, refused by the config as unknown, not a second plugin name)."""
         return self.get(name, kind)(config, **params)
 
     def describe(self, name: str, kind: str | None = None) -> PluginInfo:
@@ -245,7 +246,7 @@ def available(kind: str | None = None):
     return _DEFAULT.available() if kind is None else _DEFAULT.names(kind)
 
 
-def make(name: str, kind: str | None = None, config: Any = None, **params: Any) -> Plugin:
+def make(name: str, /, kind: str | None = None, config: Any = None, **params: Any) -> Plugin:
     """Build a plugin by name: ``make("poisson", frame="NED")``. A filter name is resolved first;
     pass ``kind="detector"`` (etc.) for the other kinds. Parameters are validated."""
     return _DEFAULT.make(name, kind, config, **params)
