@@ -130,6 +130,10 @@ def cmd_bench(args) -> int:
     res = bench(filters, args.data, trials=trials, params=_flat_params(args.param), jobs=args.jobs,
                 cache=not args.no_cache, scheduler=args.scheduler, progress=None)
     text = res.table(args.format)
+    cached = sum(bool(r.get("cached")) for r in res.records)
+    if cached:  # on stderr: the table (or JSON) on stdout stays as it was
+        print(f"fusionkit: {cached} of {len(res.records)} results from the cache (same code, config and file); "
+              f"--no-cache recomputes them", file=sys.stderr)
     if args.format in ("table", "markdown"):
         text += "\n\nby group (mean; 9D filters: total RMSE, 6D: inclination RMSE, deg):\n" + res.group_table(
             format="markdown")
