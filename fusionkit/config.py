@@ -9,6 +9,7 @@ with pydantic's message (which names the field, the value and the rule).
 from __future__ import annotations
 
 import json
+import reprlib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
@@ -148,7 +149,7 @@ def _format_validation(where: str, exc: ValidationError) -> str:
         if err["type"] == "extra_forbidden":
             lines.append(f"  {loc}: unknown parameter")
         else:
-            lines.append(f"  {loc}: {err['msg']} (got {err.get('input')!r})")
+            lines.append(f"  {loc}: {err['msg']} (got {reprlib.repr(err.get('input'))})")
     return "\n".join(lines)
 
 
@@ -167,6 +168,7 @@ def build_config(cls: type[PluginConfig], config: Any = None, params: Mapping[st
     elif config is not None:
         raise ConfigError(f"{where}: config must be a {cls.__name__} or a mapping, got {type(config).__name__}")
     data.update(params or {})
+    _check_depth(data, where or cls.__name__)
     try:
         return cls(**data)
     except ValidationError as exc:

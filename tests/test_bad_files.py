@@ -75,6 +75,16 @@ def test_a_bad_recording_is_an_input_error_naming_the_file(case, tmp_path, csv_l
         fk.load(path)
 
 
+def test_a_broken_trials_json_is_an_input_error(tmp_path):
+    from fusionkit.benchmarking import discover
+
+    _hdf5(tmp_path / "01_trial.hdf5")
+    for text in (b"{not json", b"[1, 2]", b'{"trials": {"01_trial": 3}}', b"\xff\xfe"):
+        (tmp_path / "trials.json").write_bytes(text)
+        with pytest.raises(InputError, match=r"trials.json: not BROAD's trials.json"):
+            discover(tmp_path)
+
+
 def test_a_csv_with_a_byte_order_mark_reads_like_one_without(tmp_path, csv_lines):
     plain, bom = tmp_path / "plain.csv", tmp_path / "bom.csv"
     plain.write_text("\n".join(csv_lines))
@@ -114,6 +124,11 @@ def test_config_strings_and_names():
     assert load_config('[estimator]\nname = "poisson-quat"\n') == {"estimator": {"name": "poisson-quat"}}
     with pytest.raises(ConfigError, match="nests deeper"):
         fk.compose({"estimator": "poisson-quat", "x": [[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[1]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]]})
+    deep = 1
+    for _ in range(5000):
+        deep = [deep]
+    with pytest.raises(ConfigError, match=r"filter 'pipeline' nests deeper .*: correctors\.0\.0"):  # was RecursionError
+        fk.make("pipeline", estimator="poisson-quat", correctors=deep)
     # a parameter called "name" is an unknown parameter, not a second plugin name (was a TypeError)
     with pytest.raises(ConfigError, match=r"name: unknown parameter"):
         fk.make("poisson", name="x")
