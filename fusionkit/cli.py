@@ -276,6 +276,9 @@ def main(argv: list[str] | None = None) -> int:
         first, *rest = [line.strip() for line in str(exc).splitlines() if line.strip()] or [type(exc).__name__]
         print(f"fusionkit: error: {first} {'; '.join(rest)}".rstrip(), file=sys.stderr)
         return 2
+    except OSError as exc:  # a path given on the command line: missing folder, no permission, disk full
+        print(f"fusionkit: error: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("fusionkit: interrupted", file=sys.stderr)
         return 130

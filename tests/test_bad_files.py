@@ -163,6 +163,8 @@ def _cli_cases(tmp_path, csv_lines):
                   "frame: Input should be"))
     cases.append((["run", "poisson", "sim:translation", "-o", str(tmp_path / "o.csv"), "--param", "name=3"],
                   "name: unknown parameter"))
+    cases.append((["run", "poisson", "sim:translation", "-o", str(tmp_path / "no-such-folder" / "o.csv")],
+                  "no-such-folder"))
     return cases
 
 
