@@ -2,7 +2,6 @@
 FusionkitError` catches all), and the CLI one line on stderr, never a traceback (issue 16 item 12)."""
 
 import json
-import os
 
 import numpy as np
 import pytest
@@ -45,10 +44,12 @@ def _without_t(lines, comment):
     return "\n".join([comment] + [line.split(",", 1)[1] for line in lines])
 
 
+GARBAGE = np.random.default_rng(0).bytes(4000)
+
 # name -> (file name, writer(path, lines), the message's tail after the file name)
 BAD_RECORDINGS = {
     "truncated hdf5": ("trunc.hdf5", lambda p, ls: _hdf5(p, keep=0.5), r"cannot read this HDF5 file: OSError"),
-    "garbage hdf5": ("junk.h5", lambda p, ls: p.write_bytes(os.urandom(4000)), r"cannot read this HDF5 file: OSError"),
+    "garbage hdf5": ("junk.h5", lambda p, ls: p.write_bytes(GARBAGE), r"cannot read this HDF5 file: OSError"),
     "text in a csv": ("text.csv", lambda p, ls: p.write_text(_text_cell(ls)), r"line 6, column 3: 'abc' is not a number"),
     "rate=abc": ("rate.csv", lambda p, ls: p.write_text(_without_t(ls, "# rate=abc")),
                  r"line 1: '# rate=abc' is not a rate in Hz"),
@@ -59,7 +60,7 @@ BAD_RECORDINGS = {
                   r"line 4 has \d+ values, the header \d+ names"),
     "latin-1 csv": ("latin.csv", lambda p, ls: p.write_bytes("# caf\xe9\n".encode("latin-1") + "\n".join(ls).encode()),
                     r"cannot read this CSV file: UnicodeDecodeError"),
-    "garbage ulg": ("junk.ulg", lambda p, ls: p.write_bytes(b"ULog\x01\x12\x35" + os.urandom(3000)),
+    "garbage ulg": ("junk.ulg", lambda p, ls: p.write_bytes(b"not a flight log\n" * 200),
                     r"cannot read this ULog file"),
 }
 

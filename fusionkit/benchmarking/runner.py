@@ -135,7 +135,7 @@ def _plugin_code(f) -> dict[str, str] | None:
             return None
         h = hashlib.sha256()
         for file in files:
-            h.update(file.name.encode())
+            h.update(str(file).encode())
             h.update(file.read_bytes())
         dists = _distributions().get(top, [])
         version = ",".join(f"{d} {_version_of(d)}" for d in dists) or "(no distribution)"
