@@ -38,8 +38,11 @@ def _build_filter(spec: str, params: dict):
     if p.suffix in (".toml", ".json"):
         cfg = load_config(p)
         cfg.update(params)
-        if "filter" in cfg:  # {"filter": "poisson", "params": {...}}
-            return make(cfg.pop("filter"), **cfg.pop("params", {}), **cfg)
+        if "filter" in cfg:  # {"filter": "poisson", "params": {...}}: other keys are parameters too
+            name, fparams = cfg.pop("filter"), cfg.pop("params", {})
+            if not isinstance(name, str) or not isinstance(fparams, dict):
+                raise FusionkitError(f"{spec}: 'filter' must be a filter name and 'params' a table of its parameters")
+            return make(name, "filter", {**fparams, **cfg})
         return compose(cfg)
     return make(spec, **params)
 
@@ -70,7 +73,9 @@ def cmd_list(args) -> int:
             summary = reg.get(name, kind).summary
             status = f"  {summary}" if summary else ""
         print(f"{kind:10s} {name:22s} [{dist}]{status}")
-    return 1 if errors else 0
+    for msg in reg.duplicates:
+        print(f"DUPLICATE: {msg}")
+    return 1 if errors or reg.duplicates else 0
 
 
 def cmd_describe(args) -> int:
@@ -136,6 +141,10 @@ def cmd_bench(args) -> int:
     res = bench(filters, args.data, trials=trials, params=_flat_params(args.param), jobs=args.jobs,
                 cache=not args.no_cache, scheduler=args.scheduler, progress=None)
     text = res.table(args.format)
+    cached = sum(bool(r.get("cached")) for r in res.records)
+    if cached:  # on stderr: the table (or JSON) on stdout stays as it was
+        print(f"fusionkit: {cached} of {len(res.records)} results from the cache (same code, config and file); "
+              f"--no-cache recomputes them", file=sys.stderr)
     if args.format in ("table", "markdown"):
         text += "\n\nby group (mean; 9D filters: total RMSE, 6D: inclination RMSE, deg):\n" + res.group_table(
             format="markdown")
@@ -278,9 +287,16 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except FusionkitError as exc:
+    except FusionkitError as exc:  # one line: a config's several problems joined with "; "
+        first, *rest = [line.strip() for line in str(exc).splitlines() if line.strip()] or [type(exc).__name__]
+        print(f"fusionkit: error: {first} {'; '.join(rest)}".rstrip(), file=sys.stderr)
+        return 2
+    except OSError as exc:  # a path given on the command line: missing folder, no permission, disk full
         print(f"fusionkit: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("fusionkit: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

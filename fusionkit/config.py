@@ -9,6 +9,7 @@ with pydantic's message (which names the field, the value and the rule).
 from __future__ import annotations
 
 import json
+import reprlib
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
@@ -154,7 +155,7 @@ def _format_validation(where: str, exc: ValidationError) -> str:
         if err["type"] == "extra_forbidden":
             lines.append(f"  {loc}: unknown parameter")
         else:
-            lines.append(f"  {loc}: {err['msg']} (got {err.get('input')!r})")
+            lines.append(f"  {loc}: {err['msg']} (got {reprlib.repr(err.get('input'))})")
     return "\n".join(lines)
 
 
@@ -173,40 +174,80 @@ def build_config(cls: type[PluginConfig], config: Any = None, params: Mapping[st
     elif config is not None:
         raise ConfigError(f"{where}: config must be a {cls.__name__} or a mapping, got {type(config).__name__}")
     data.update(params or {})
+    _check_depth(data, where or cls.__name__)
     try:
         return cls(**data)
     except ValidationError as exc:
         raise ConfigError(_format_validation(where or cls.__name__, exc)) from None
 
 
+#: deeper nesting is not a configuration (a pipeline's deepest field is about 5 levels down): refused
+#: before it can exhaust Python's recursion limit in a parser or validator
+MAX_CONFIG_DEPTH = 32
+
+
 def load_config(source: Any) -> dict[str, Any]:
-    """Read a config from a dict, a JSON or TOML file path, or a JSON/TOML string."""
+    """Read a config from a dict, a JSON or TOML file path, or a JSON/TOML string.
+
+    Anything that is not a mapping of settings (unreadable or non-UTF-8 file, a syntax error, a
+    JSON list, nesting deeper than :data:`MAX_CONFIG_DEPTH`) is a :class:`ConfigError` naming
+    the file."""
     if isinstance(source, Mapping):
-        return dict(source)
+        return _check_depth(dict(source), "config")
     text: str
     suffix = ""
     if isinstance(source, Path) or (isinstance(source, str) and "\n" not in source and Path(source).suffix in (".json", ".toml")):
         path = Path(source)
+        where = f"config file {str(path)!r}"
         if not path.is_file():
-            raise ConfigError(f"config file {str(path)!r} does not exist")
-        text, suffix = path.read_text(), path.suffix
+            raise ConfigError(f"{where} does not exist")
+        try:
+            text, suffix = path.read_bytes().decode("utf-8-sig"), path.suffix
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"{where} is not UTF-8 text ({exc})") from None
+        except OSError as exc:
+            raise ConfigError(f"{where} cannot be read: {exc.strerror or exc}") from None
     elif isinstance(source, str):
-        text = source
+        text, where = source, "config"
     else:
         raise ConfigError(f"config must be a mapping, a path or a string, got {type(source).__name__}")
-    if suffix == ".json" or (not suffix and text.lstrip().startswith("{")):
-        try:
-            return json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ConfigError(f"config is not valid JSON: {exc}") from None
+    head = text.lstrip()[:1]
+    data: Any = None
     try:
-        import tomllib
-    except ImportError:  # Python 3.10
-        import tomli as tomllib  # type: ignore[no-redef]
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"config is not valid TOML: {exc}") from None
+        if suffix == ".json" or (not suffix and head in ("{", "[")):
+            try:
+                data = json.loads(text)
+            except json.JSONDecodeError as exc:
+                if suffix or head == "{":  # a string starting with "[" may be TOML ("[estimator]")
+                    raise ConfigError(f"{where} is not valid JSON: {exc}") from None
+        if data is None:
+            try:
+                import tomllib
+            except ImportError:  # Python 3.10
+                import tomli as tomllib  # type: ignore[no-redef]
+            try:
+                data = tomllib.loads(text)
+            except tomllib.TOMLDecodeError as exc:
+                raise ConfigError(f"{where} is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{where} nests deeper than a configuration can (at most {MAX_CONFIG_DEPTH} levels)") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where} must be an object of settings ({{\"estimator\": ...}} or name = value lines), "
+                          f"got a JSON {type(data).__name__}")
+    return _check_depth(data, where)
+
+
+def _check_depth(data: dict[str, Any], where: str) -> dict[str, Any]:
+    """``data`` unchanged, or a ConfigError naming the first path deeper than MAX_CONFIG_DEPTH."""
+    todo: list[tuple[Any, str, int]] = [(data, "", 1)]
+    while todo:
+        node, at, depth = todo.pop()
+        if depth > MAX_CONFIG_DEPTH:
+            raise ConfigError(f"{where} nests deeper than a configuration can (at most {MAX_CONFIG_DEPTH} levels): "
+                              f"{at[:80]}{'...' if len(at) > 80 else ''}")
+        items = node.items() if isinstance(node, Mapping) else enumerate(node) if isinstance(node, (list, tuple)) else ()
+        todo.extend((v, f"{at}.{k}" if at else str(k), depth + 1) for k, v in items)
+    return data
 
 
 def _toml_value(v: Any) -> str:

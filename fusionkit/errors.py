@@ -7,7 +7,7 @@ name the argument, what was expected and what was found (and the first bad index
 
 from __future__ import annotations
 
-__all__ = ["FusionkitError", "InputError", "ConfigError", "PluginError"]
+__all__ = ["FusionkitError", "InputError", "ConfigError", "PluginError", "PluginWarning"]
 
 
 class FusionkitError(Exception):
@@ -24,3 +24,7 @@ class ConfigError(FusionkitError, ValueError):
 
 class PluginError(FusionkitError, LookupError):
     """An unknown plugin name, a plugin that failed to load, or a duplicate name."""
+
+
+class PluginWarning(UserWarning):
+    """A plugin that is installed but not used: e.g. a third-party plugin named like a built-in."""

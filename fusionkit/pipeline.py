@@ -38,6 +38,7 @@ from __future__ import annotations
 import copy
 import math
 import sys
+import warnings
 from typing import Any, ClassVar
 
 import numpy as np
@@ -72,6 +73,10 @@ _RCORR = ALIGN_SIZE
 _QPREV = ALIGN_SIZE + 3
 _STATE_SIZE = ALIGN_SIZE + 7
 _CHUNK = 200_000
+#: the most correctors the compiled loop takes: its first compile grows by about half a second per
+#: corrector (measured in docs/robustness.md); beyond this a composition is more likely a mistake,
+#: and the reference path needs no compile and gives the same numbers
+MAX_COMPILED_CORRECTORS = 64
 
 
 class Pipeline(Filter):
@@ -296,6 +301,13 @@ class Pipeline(Filter):
         if self.spec.alignment.heading == "magnetometer" and not has_mag:
             raise InputError("alignment heading='magnetometer' needs mag in the recording")
         kernels = self._kernels()
+        if kernels is not None and len(self.correctors) > MAX_COMPILED_CORRECTORS and backend != "reference":
+            why = (f"{len(self.correctors)} correctors are more than the compiled loop chains "
+                   f"({MAX_COMPILED_CORRECTORS}: its compile time grows with the count)")
+            if backend == "numba":
+                raise ConfigError(f"backend='numba': {why}; use backend='reference' or 'auto'")
+            warnings.warn(f"{self.name}: {why}; running the reference path (same numbers, slower)", stacklevel=2)
+            kernels = None
         used = resolve_backend(backend, kernels is not None)
         st = self._check_state(copy.deepcopy(state)) if state is not None else self.new_state(rec.nominal_dt)
         mag = rec.mag if has_mag else np.zeros((n, 3))

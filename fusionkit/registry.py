@@ -16,17 +16,19 @@ same name in one kind are an error that names both.
 from __future__ import annotations
 
 import difflib
+import warnings
 from dataclasses import dataclass, field
 from importlib import metadata
 from typing import Any
 
 from .config import describe_config
-from .errors import PluginError
+from .errors import PluginError, PluginWarning
 from .protocols import KINDS, Plugin
 
 __all__ = ["Registry", "PluginInfo", "default_registry", "available", "make", "describe", "register", "get"]
 
 GROUPS = {kind: f"fusionkit.{kind}s" for kind in KINDS}
+BUILTIN = "fusionkit"  # the distribution whose plugins win a name clash
 
 
 @dataclass
@@ -38,6 +40,11 @@ class _Entry:
     loader: Any  # EntryPoint, or the class itself when registered in code
     cls: type | None = None
     error: str | None = None
+
+
+def _where(e: _Entry) -> str:
+    """``module:attr from distribution`` (a name clash's entry already names all of its plugins)."""
+    return e.target if e.error else f"{e.target} from {e.distribution}"
 
 
 @dataclass
@@ -103,6 +110,7 @@ class Registry:
         self._use_entry_points = use_entry_points
         self._entries: dict[str, dict[str, _Entry]] | None = None
         self._extra: list[_Entry] = []
+        self.duplicates: list[str] = []  #: third-party plugins shadowed by a built-in of the same name
 
     # -- discovery -------------------------------------------------------------------------
     def refresh(self) -> None:
@@ -120,14 +128,29 @@ class Registry:
                     dist = ep.dist.name if ep.dist is not None else "<unknown distribution>"
                     found.append(_Entry(ep.name, kind, ep.value, dist, ep))
         found.extend(self._extra)
+        duplicates = []
         for e in found:
             other = entries[e.kind].get(e.name)
-            if other is not None and (other.target, other.distribution) != (e.target, e.distribution):
-                raise PluginError(
-                    f"duplicate {e.kind} name {e.name!r}: {other.target} from {other.distribution} "
-                    f"and {e.target} from {e.distribution}; uninstall one or rename it"
+            if other is None or (other.target, other.distribution) == (e.target, e.distribution):
+                entries[e.kind][e.name] = e
+                continue
+            if BUILTIN in (other.distribution, e.distribution) and other.distribution != e.distribution:
+                builtin, shadowed = (other, e) if other.distribution == BUILTIN else (e, other)
+                entries[e.kind][e.name] = builtin
+                duplicates.append(
+                    f"{e.kind} {e.name!r}: {_where(shadowed)} is ignored, the built-in "
+                    f"{builtin.target} from {BUILTIN} is used; rename the third-party plugin"
                 )
-            entries[e.kind][e.name] = e
+                continue
+            # two third-party plugins: an entry that fails to load, naming all of them
+            both = f"{_where(other)} and {_where(e)}"
+            entries[e.kind][e.name] = _Entry(
+                e.name, e.kind, both, f"{other.distribution}, {e.distribution}", None,
+                error=f"duplicate {e.kind} name {e.name!r}: {both}; uninstall one or rename it")
+        for msg in duplicates:
+            if msg not in self.duplicates:
+                warnings.warn(f"duplicate plugin name: {msg}", PluginWarning, stacklevel=3)
+        self.duplicates = duplicates
         self._entries = entries
         return entries
 
@@ -187,7 +210,9 @@ class Registry:
             raise PluginError(entry.error)
         try:
             cls = entry.loader.load()
-        except Exception as exc:  # any import-time failure of a third-party module
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:  # any import-time failure of a third-party module, sys.exit() too
             entry.error = (
                 f"{entry.kind} plugin {entry.name!r} from distribution {entry.distribution!r} "
                 f"({entry.target}) failed to load: {type(exc).__name__}: {exc}"
@@ -206,8 +231,9 @@ class Registry:
         """The plugin class registered as ``name`` (a filter first, unless ``kind`` is given)."""
         return self._load(self._find(name, kind))
 
-    def make(self, name: str, kind: str | None = None, config: Any = None, **params: Any) -> Plugin:
-        """Instantiate the plugin ``name`` with validated parameters."""
+    def make(self, name: str, /, kind: str | None = None, config: Any = None, **params: Any) -> Plugin:
+        """Instantiate the plugin ``name`` with validated parameters (a parameter called ``name``
+        is a parameter, refused by the config as unknown, not a second plugin name)."""
         return self.get(name, kind)(config, **params)
 
     def describe(self, name: str, kind: str | None = None) -> PluginInfo:
@@ -251,7 +277,7 @@ def available(kind: str | None = None):
     return _DEFAULT.available() if kind is None else _DEFAULT.names(kind)
 
 
-def make(name: str, kind: str | None = None, config: Any = None, **params: Any) -> Plugin:
+def make(name: str, /, kind: str | None = None, config: Any = None, **params: Any) -> Plugin:
     """Build a plugin by name: ``make("poisson", frame="NED")``. A filter name is resolved first;
     pass ``kind="detector"`` (etc.) for the other kinds. Parameters are validated."""
     return _DEFAULT.make(name, kind, config, **params)

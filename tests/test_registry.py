@@ -1,5 +1,6 @@
 """Entry-point discovery, look-up errors, broken and duplicate plugins, the example package."""
 
+import re
 import subprocess
 import sys
 import textwrap
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 import fusionkit as fk
-from fusionkit.errors import PluginError
+from fusionkit.errors import PluginError, PluginWarning
 from fusionkit.registry import Registry
 
 REPO = Path(__file__).resolve().parents[1]
@@ -23,6 +24,22 @@ def fake_distribution(root: Path, name: str, entry_points: str, module: str | No
     (info / "entry_points.txt").write_text(textwrap.dedent(entry_points))
     if module:
         (root / f"{module}.py").write_text(textwrap.dedent(code))
+
+
+def fake_vqf_duplicate(root: Path) -> None:
+    """A third-party filter named like the built-in ``vqf``."""
+    fake_distribution(root, "fake-dup", """
+        [fusionkit.filters]
+        vqf = fake_dup_mod:Other
+        """, "fake_dup_mod", "Other = None\n")
+
+
+def fake_exiting_plugin(root: Path, code: int) -> None:
+    """A detector whose module calls ``sys.exit(code)`` on import."""
+    fake_distribution(root, "fake-exit", """
+        [fusionkit.detectors]
+        exiter = fake_exit_mod:D
+        """, "fake_exit_mod", f"import sys\nsys.exit({code})\n")
 
 
 @pytest.fixture
@@ -88,15 +105,57 @@ def test_non_plugin_object_is_rejected(on_path):
         Registry().get("notaplugin", "detector")
 
 
-def test_duplicate_names_are_an_error_naming_both(on_path):
-    fake_distribution(on_path, "fake-dup", """
-        [fusionkit.filters]
-        poisson = fake_dup_mod:Other
-        """, "fake_dup_mod", "Other = None\n")
-    with pytest.raises(PluginError, match=r"duplicate filter name 'poisson'") as info:
-        Registry().names()
-    assert "fusionkit.filters.poisson:PoissonFilter from fusionkit" in str(info.value)
-    assert "fake_dup_mod:Other from fake-dup" in str(info.value)
+def test_a_third_party_plugin_named_like_a_builtin_is_reported_and_the_builtin_wins(on_path):
+    fake_vqf_duplicate(on_path)
+    reg = Registry()
+    with pytest.warns(PluginWarning, match=r"filter 'vqf': fake_dup_mod:Other from fake-dup is ignored"):
+        names = reg.names("filter")
+    assert "vqf" in names and reg.make("poisson").name == "poisson"
+    from fusionkit.peers import VqfFilter
+
+    assert reg.get("vqf") is VqfFilter and ("filter", "vqf", "fusionkit") in reg.info()
+    assert len(reg.duplicates) == 1 and "fusionkit.peers:VqfFilter" in reg.duplicates[0]
+    assert reg.check_all() == {}
+
+
+def test_two_third_party_plugins_with_one_name_fail_only_when_asked_for(on_path):
+    for dist, mod in (("fake-one", "fake_one_mod"), ("fake-two", "fake_two_mod")):
+        fake_distribution(on_path, dist, """
+            [fusionkit.filters]
+            same-name = %s:F
+            """ % mod, mod, "F = None\n")
+    reg = Registry()
+    assert "same-name" in reg.names("filter") and reg.make("poisson").name == "poisson"
+    with pytest.raises(PluginError, match=r"duplicate filter name 'same-name'") as info:
+        reg.make("same-name")
+    assert "fake_one_mod:F from fake-one" in str(info.value) and "fake_two_mod:F from fake-two" in str(info.value)
+    assert list(reg.check_all()) == ["filter:same-name"]
+
+
+def test_a_plugin_calling_sys_exit_on_import_is_a_broken_plugin(on_path):
+    fake_exiting_plugin(on_path, 3)
+    reg = Registry()
+    with pytest.raises(PluginError, match=r"'exiter' from distribution 'fake-exit'.*SystemExit: 3"):
+        reg.make("exiter", kind="detector")
+    assert list(reg.check_all()) == ["detector:exiter"] and reg.make("motion").name == "motion"
+
+
+def test_cli_list_reports_a_duplicate_and_a_plugin_that_exits(on_path, capsys):
+    from fusionkit.cli import main
+
+    fake_vqf_duplicate(on_path)
+    fake_exiting_plugin(on_path, 0)
+    fk.default_registry().refresh()
+    try:
+        with pytest.warns(PluginWarning):
+            code = main(["list"])
+    finally:
+        fk.default_registry().refresh()
+    out = capsys.readouterr().out
+    assert code == 1
+    assert "DUPLICATE: filter 'vqf': fake_dup_mod:Other from fake-dup is ignored" in out
+    assert re.search(r"detector\s+exiter\s+\[fake-exit\]\s+BROKEN: .*SystemExit: 0", out)
+    assert re.search(r"filter\s+poisson\s+\[fusionkit\]", out)
 
 
 def test_register_in_code():

@@ -46,7 +46,10 @@ def _broad(folder: Path) -> list[Trial]:
     groups: dict[str, list[str]] = {}
     tj = folder / "trials.json"
     if tj.is_file():
-        groups = {k: v.get("groups", []) for k, v in json.loads(tj.read_text()).get("trials", {}).items()}
+        try:
+            groups = {k: v.get("groups", []) for k, v in json.loads(tj.read_text()).get("trials", {}).items()}
+        except (ValueError, AttributeError, TypeError) as exc:  # not JSON, not UTF-8, not BROAD's layout
+            raise InputError(f"{tj}: not BROAD's trials.json ({type(exc).__name__}: {exc})") from None
     return [Trial(p.stem, "broad", str(p), tuple(groups.get(p.stem, ["all_trials"]))) for p in sorted(folder.glob("*.hdf5"))]
 
 

@@ -9,9 +9,12 @@
      "backend": ..., "versions": {...}, "error": None | "Type: message", "cached": bool,
      "skipped": None | reason (e.g. a GNSS-aided filter on a recording without GNSS)}
 
-Results are cached by a hash of (filter, full config, trial file fingerprint, versions) in
-``$FUSIONKIT_CACHE`` (default ``~/.cache/fusionkit``), so a re-run is instant. A filter that
-raises on one trial gives a record with ``error`` set; the others continue.
+Results are cached by a hash of (filter, full config, trial file fingerprint, versions, the code
+that runs) in ``$FUSIONKIT_CACHE`` (default ``~/.cache/fusionkit``), so a re-run is instant. The
+code is fusionkit's own source files and, for a third-party plugin (the filter, or a plugin a
+pipeline composes), its distribution, version and source files (``versions["plugins"]``): fixing
+a plugin re-runs it. A record read from the cache has ``cached`` True, and tables mark it ``*``.
+A filter that raises on one trial gives a record with ``error`` set; the others continue.
 """
 
 from __future__ import annotations
@@ -91,6 +94,64 @@ def _code_fingerprint() -> str:
     return h.hexdigest()[:12]
 
 
+@functools.lru_cache(maxsize=1)
+def _distributions() -> dict[str, list[str]]:
+    from importlib import metadata
+
+    return metadata.packages_distributions()
+
+
+def _source_files(top: str) -> list[Path]:
+    """The ``.py`` files of the top-level module or package ``top`` (empty if it has none)."""
+    mod = sys.modules.get(top)
+    paths = list(getattr(mod, "__path__", []) or [])
+    if paths:
+        return sorted(f for d in paths for f in Path(d).rglob("*.py"))
+    file = getattr(mod, "__file__", None)
+    return [Path(file)] if file else []
+
+
+def _plugin_code(f) -> dict[str, str] | None:
+    """``{top-level module: "distribution version sha"}`` of the code outside fusionkit that the
+    built filter ``f`` runs: the modules of its class and of the plugins it holds (a pipeline's
+    estimator, correctors and detectors), with their base classes. None when a module's source
+    cannot be found (a class typed into a console): such a filter is never cached."""
+    from ..protocols import Plugin
+
+    seen: set[int] = set()
+    todo, tops = [f], set()
+    while todo:
+        obj = todo.pop()
+        if id(obj) in seen:
+            continue
+        seen.add(id(obj))
+        tops.update(c.__module__.partition(".")[0] for c in type(obj).__mro__)
+        for v in vars(obj).values():
+            todo.extend(x for x in (v if isinstance(v, (list, tuple)) else [v]) if isinstance(x, Plugin))
+    out = {}
+    for top in sorted(tops - {"fusionkit", "builtins"} - set(sys.stdlib_module_names)):
+        files = _source_files(top)
+        if not files:
+            return None
+        h = hashlib.sha256()
+        for file in files:
+            h.update(str(file).encode())
+            h.update(file.read_bytes())
+        dists = _distributions().get(top, [])
+        version = ",".join(f"{d} {_version_of(d)}" for d in dists) or "(no distribution)"
+        out[top] = f"{version} {h.hexdigest()[:12]}"
+    return out
+
+
+def _version_of(dist: str) -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return "?"
+
+
 def _versions() -> dict[str, str]:
     import numpy
 
@@ -130,6 +191,9 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
     try:
         f = spec.build()
         rec_out["config"] = f.config.model_dump(mode="json")
+        code = _plugin_code(f)
+        if code:  # third-party code: which distribution, version and source produced the numbers
+            rec_out["versions"] = {**rec_out["versions"], "plugins": code}
         rec = trial.load()
         rec_out["samples"] = len(rec)
         if f.requires_gnss and rec.gnss is None:
@@ -157,14 +221,24 @@ def _cache_dir(cache_dir) -> Path:
     return d
 
 
-def _key(spec: FilterSpec, trial: Trial) -> str:
+def _spec_key(spec: FilterSpec) -> str:
+    """The part of the cache key that does not depend on the trial; "" for a filter that cannot
+    be cached (it does not build, or its source cannot be found)."""
     try:
-        cfg = spec.build().config.model_dump(mode="json")
+        f = spec.build()
+        cfg = f.config.model_dump(mode="json")
+        code = _plugin_code(f)
     except Exception:  # unbuildable: never cached
         return ""
-    blob = json.dumps({"name": spec.name, "config": cfg, "trial": trial.fingerprint, "v": _versions()},
-                      sort_keys=True)
-    return hashlib.sha256(blob.encode()).hexdigest()[:32]
+    if code is None:
+        return ""
+    blob = json.dumps({"name": spec.name, "config": cfg, "v": _versions(), "plugins": code,
+                       "peer": _peer_version(spec.name)}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def _key(spec_key: str, trial: Trial) -> str:
+    return hashlib.sha256(f"{spec_key}:{trial.fingerprint}".encode()).hexdigest()[:32] if spec_key else ""
 
 
 def _peer_version(name: str) -> str:
@@ -195,12 +269,12 @@ def bench(filters: Iterable[Any], data: Any, *, trials: list[str] | None = None,
     records: list[dict | None] = [None] * len(tasks)
     cdir = _cache_dir(cache_dir) if cache else None
     keys = [""] * len(tasks)
+    spec_keys = {s: _spec_key(s) for s in specs} if cdir is not None else {}
     todo = []
     for i, (s, t) in enumerate(tasks):
         if cdir is not None:
-            keys[i] = _key(s, t)
-            if keys[i] and _peer_version(s.name) != "missing":
-                keys[i] = hashlib.sha256((keys[i] + _peer_version(s.name)).encode()).hexdigest()[:32]
+            keys[i] = _key(spec_keys[s], t)
+            if keys[i]:
                 hit = cdir / f"{keys[i]}.json"
                 if hit.is_file():
                     records[i] = {**json.loads(hit.read_text()), "cached": True}
@@ -340,7 +414,8 @@ class BenchResult:
                     row.append("error")
                 else:
                     v = r["metrics"].get(metric)
-                    row.append("-" if v is None else f"{v:.2f}")
+                    mark = "*" if r.get("cached") and format != "csv" else ""
+                    row.append("-" if v is None else f"{v:.2f}{mark}")
             rows.append(row)
         summ = {s["filter"]: s for s in self.summary(metric)}
         rows.append(["mean"] + [f"{summ[f]['mean']:.2f}" if summ[f]["trials"] else "n/a" for f in self.filters])
@@ -349,9 +424,14 @@ class BenchResult:
         rows.append(["judged as"] + [summ[f]["dimension"] for f in self.filters])
         if format == "csv":
             return "\n".join(",".join(c.replace(",", "") if i else c for i, c in enumerate(r)) for r in [head] + rows)
+        cached = sum(bool(r.get("cached")) for r in self.records)
+        note = (f"*: from the cache ({cached} of {len(self.records)} results): computed earlier with the same code, "
+                f"config and file; --no-cache (cache=False) recomputes") if cached else ""
         if format == "markdown":
             lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
             lines += ["| " + " | ".join(r) + " |" for r in rows]
+            if note:
+                lines.append(f"\n{note}")
             errors = [r for r in self.records if r["error"]]
             for r in errors:
                 lines.append(f"\nerror: {r['filter']} on {r['trial']}: {r['error']}")
@@ -360,6 +440,8 @@ class BenchResult:
         fmt = "  ".join(f"{{:<{w}}}" if i == 0 else f"{{:>{w}}}" for i, w in enumerate(widths))
         lines = [fmt.format(*head), "-" * (sum(widths) + 2 * len(widths))]
         lines += [fmt.format(*r) for r in rows]
+        if note:
+            lines.append(note)
         for r in self.records:
             if r["error"]:
                 lines.append(f"error: {r['filter']} on {r['trial']}: {r['error']}")

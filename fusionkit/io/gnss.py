@@ -24,10 +24,12 @@ import numpy as np
 
 from ..errors import InputError
 from ..types import Gnss, Recording
+from ._guard import file_errors
 
 __all__ = ["load_gnss_scenario", "is_gnss_scenario"]
 
 
+@file_errors("HDF5")
 def is_gnss_scenario(path) -> bool:
     import h5py
 
@@ -35,6 +37,7 @@ def is_gnss_scenario(path) -> bool:
         return "imu_time" in f and "gnss_time" in f
 
 
+@file_errors("HDF5")
 def load_gnss_scenario(path) -> Recording:
     import h5py
 

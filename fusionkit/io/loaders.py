@@ -17,12 +17,14 @@ A comment line ``# rate=285.7`` gives the rate when there is no ``t`` column.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
 from ..types import Recording
+from ._guard import file_errors
 
 __all__ = ["load", "load_broad", "load_csv", "write_csv"]
 
@@ -49,6 +51,7 @@ def load(path, **kwargs) -> Recording:
     raise InputError(f"cannot read {p.name!r}: supported are .hdf5/.h5 (BROAD, GNSS scenario), .ulg (PX4) and .csv")
 
 
+@file_errors("HDF5")
 def load_broad(path) -> Recording:
     """One BROAD trial: gyr, acc, mag, ``opt_quat`` as truth (body->ENU) and the ``movement`` mask;
     ``opt_pos`` (m, ENU, NaN where the markers were lost) as ``meta["ref_pos"]``."""
@@ -70,27 +73,41 @@ def load_broad(path) -> Recording:
         )
 
 
+@file_errors("CSV")
 def load_csv(path, rate: float | None = None) -> Recording:
     """A CSV file in the layout of the module doc."""
     p = Path(path)
     header, comment_rate, skip = None, None, 0
-    with open(p) as fh:
+    with open(p, encoding="utf-8-sig") as fh:  # a byte-order mark is not part of the first name
         for line in fh:
             skip += 1
             s = line.strip()
             if s.startswith("#"):
                 body = s.lstrip("#").strip()
                 if body.startswith("rate="):
-                    comment_rate = float(body.split("=", 1)[1])
+                    try:
+                        comment_rate = float(body.split("=", 1)[1])
+                    except ValueError:
+                        raise InputError(f"{p.name}: line {skip}: {s!r} is not a rate in Hz") from None
                 continue
             header = [c.strip() for c in s.split(",")]
             break
     if header is None:
         raise InputError(f"{p.name}: empty CSV file")
+    twice = sorted({c for c in header if header.count(c) > 1})
+    if twice:
+        raise InputError(f"{p.name}: column(s) {twice} appear more than once in the header")
     for k in ("gyr", "acc"):
         if not all(c in header for c in _VEC[k]):
             raise InputError(f"{p.name}: missing columns {_VEC[k]} (header is {header})")
-    data = np.loadtxt(p, delimiter=",", skiprows=skip, ndmin=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data": reported below
+        try:
+            data = np.loadtxt(p, delimiter=",", skiprows=skip, ndmin=2, encoding="utf-8-sig")
+        except ValueError:
+            raise InputError(f"{p.name}: {_bad_row(p, skip, len(header))}") from None
+    if data.size == 0:
+        raise InputError(f"{p.name}: no data rows after the header (line {skip})")
     if data.shape[1] != len(header):
         raise InputError(f"{p.name}: {data.shape[1]} columns of data but {len(header)} names in the header")
     col = {c: i for i, c in enumerate(header)}
@@ -109,6 +126,23 @@ def load_csv(path, rate: float | None = None) -> Recording:
         truth=pick(["qw", "qx", "qy", "qz"]) if all(c in col for c in ("qw", "qx", "qy", "qz")) else None,
         name=p.stem, meta={"path": str(p)},
     )
+
+
+def _bad_row(p: Path, skip: int, width: int) -> str:
+    """Where a CSV's data stop being ``width`` numbers per line: the line, the column, the text."""
+    with open(p, encoding="utf-8-sig") as fh:
+        for number, line in enumerate(fh, 1):
+            if number <= skip or not line.strip() or line.lstrip().startswith("#"):
+                continue
+            cells = line.strip().split(",")
+            if len(cells) != width:
+                return f"line {number} has {len(cells)} values, the header {width} names"
+            for j, cell in enumerate(cells):
+                try:
+                    float(cell)
+                except ValueError:
+                    return f"line {number}, column {j + 1}: {cell.strip()!r} is not a number"
+    return "a value that numpy cannot read as a number"
 
 
 def write_csv(rec: Recording, path) -> None:

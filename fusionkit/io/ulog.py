@@ -16,6 +16,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..types import Gnss, Recording
+from ._guard import file_errors
 
 __all__ = ["load_ulog"]
 
@@ -31,6 +32,7 @@ def _vec(data, prefix, n=3):
     return np.column_stack([data[f"{prefix}[{i}]"] for i in range(n)]).astype(float)
 
 
+@file_errors("ULog")
 def load_ulog(path) -> Recording:
     try:
         from pyulog import ULog
