@@ -176,9 +176,10 @@ class SensorErrors:
     Specific force: ``vibration`` (a :class:`Vibration` or a tuple of them), ``taps``
     (:class:`Tap` s).
 
-    Transport: ``drop_rate`` (0-1): each row after the first is lost with this probability;
-    ``gaps``: ``(start, length)`` pairs (s): every row with ``start <= t < start + length`` is
-    lost. The recording then has timestamps ``t`` instead of a ``rate``.
+    Transport: ``drop_rate`` (0-1): each row is lost with this probability; ``gaps``:
+    ``(start, length)`` pairs (s): every row with ``start <= t < start + length`` is lost. The
+    first and last rows are always kept (the time span stays). The recording then has
+    timestamps ``t`` instead of a ``rate``.
     """
 
     mag_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -368,11 +369,12 @@ def random_walk(n: int, density: float, dt: float, rng: np.random.Generator) -> 
 
 
 def kept_rows(errors: SensorErrors, t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Indices of the rows that survive dropped samples and timestamp gaps (the first always)."""
+    """Indices of the rows that survive dropped samples and timestamp gaps (the first and the
+    last always: the recording keeps its time span, and the GNSS stream with it)."""
     keep = np.ones(len(t), dtype=bool)
     if errors.drop_rate > 0:
         keep[1:] = rng.random(len(t) - 1) >= errors.drop_rate
     for start, length in errors.gaps:
         keep &= ~((t >= start) & (t < start + length))
-    keep[0] = True
+    keep[0] = keep[-1] = True
     return np.flatnonzero(keep)

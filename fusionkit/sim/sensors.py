@@ -88,7 +88,7 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
         moving[k:k + m] = not isinstance(seg, Rest)
         pos[k:k + m] = _segment_position(seg, p, u)
         if disturbed:
-            def field(v):  # the earth's field plus the earth-fixed disturbances at progress v
+            def field(v, seg=seg, p=p, k=k, m=m):  # the earth's field plus its disturbances at progress v
                 return m_e + _err.earth_disturbance(errors, _segment_position(seg, p, v), (k - 1 + v * m) * dt)
         else:
             def field(v):
