@@ -51,6 +51,8 @@ class PluginInfo:
     distribution: str
     target: str
     parameters: list[dict[str, Any]] = field(default_factory=list)
+    #: a preset's composition with its default config (one line per stage), empty for other plugins
+    composition: list[str] = field(default_factory=list)
 
     def __str__(self) -> str:
         lines = [f"{self.name} ({self.kind}) from {self.distribution} [{self.target}]"]
@@ -66,6 +68,9 @@ class PluginInfo:
                 lines.append(f"    {p['name']} = {p['default']!r}{unit}{cons}")
                 if p["description"]:
                     lines.append(f"        {p['description']}")
+        if self.composition:
+            lines.append("  composition (with the defaults):")
+            lines += [f"    {c}" for c in self.composition]
         return "\n".join(lines)
 
 
@@ -189,6 +194,7 @@ class Registry:
         return PluginInfo(
             name=entry.name, kind=entry.kind, summary=cls.summary, source=cls.source,
             distribution=entry.distribution, target=entry.target, parameters=describe_config(cls.Config),
+            composition=_composition(cls),
         )
 
     def check_all(self) -> dict[str, str]:
@@ -205,6 +211,20 @@ class Registry:
     def info(self) -> list[tuple[str, str, str]]:
         """``(kind, name, distribution)`` of every registered plugin, without loading them."""
         return [(k, n, e.distribution) for k, es in self._discover().items() for n, e in sorted(es.items())]
+
+
+def _composition(cls) -> list[str]:
+    """The stages of a preset (a filter that builds a pipeline from its own config) with defaults."""
+    from .pipeline import Pipeline
+
+    if not (isinstance(cls, type) and issubclass(cls, Pipeline)) or cls.pipeline_config is Pipeline.pipeline_config:
+        return []
+    spec = cls().spec
+    lines = [f"estimator: {spec.estimator.name} {spec.estimator.params}"]
+    lines += [f"corrector: {c.name} {c.params}" for c in spec.correctors]
+    lines += [f"detector: {d.name} {d.params}" for d in spec.detectors]
+    lines.append(f"alignment: {spec.alignment.model_dump()}")
+    return lines
 
 
 _DEFAULT = Registry()

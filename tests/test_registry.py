@@ -63,6 +63,16 @@ def test_describe_lists_parameters_with_units_and_defaults():
     assert "000" in info.source
     text = str(info)
     assert "velocity_threshold = 0.02 [m/s] (> 0)" in text
+    assert info.composition == []  # not a preset
+
+
+def test_describe_shows_a_presets_composition():
+    info = fk.describe("channel-dcm")
+    assert info.composition[:3] == ["estimator: poisson-dcm {'orthonormalize': False}",
+                                    "corrector: dcm-vertical {'method': 'columns', 'k_acc': 0.3, 'orthonormalize': False}",
+                                    "corrector: dcm-north {'method': 'columns', 'k_mag': 0.03}"]
+    assert "composition (with the defaults):" in str(info)
+    assert fk.describe("pipeline").composition == []  # composed by its user's config
 
 
 def test_broken_plugin_is_reported_with_its_distribution_and_others_still_work(on_path):
