@@ -99,33 +99,6 @@ def test_broad_target(broad_dir):
     assert broad_mean(broad_dir, "channel-dcm", "total") < 5.2
 
 
-@pytest.mark.parametrize("method", ["columns", "vectors", "unseparated"])
-def test_preset_equals_the_monolith(rec, method):
-    """TEMPORARY (with the monolith): where the arithmetic is the same (initial_rest=0: the start
-    from the first sample, no bias) every sample matches to 1e-9, both backends, every frame;
-    without a magnetometer the up axis in the body (the heading is a free gauge: the alignment's
-    heading zero is source 000's, the monolith's was body y north)."""
-    from fusionkit.conventions import up_vector
-    from fusionkit.rotations import quat_to_matrix
-
-    bad = dataclasses.replace(rec, gyr=rec.gyr.copy(), acc=rec.acc.copy(), mag=rec.mag.copy())
-    bad.gyr[100] = np.nan
-    bad.acc[600:620] = 0.0
-    bad.mag[700] = np.nan
-    for params in [{}, {"frame": "NED"}, {"frame": "NUE"}, {"k_acc": 2.0, "k_mag": 0.5}, {"use_mag": False}]:
-        kw = dict(method=method, nan_policy="skip", initial_rest=0.0, **params)
-        for backend in ("numba", "reference"):
-            a = fk.make("channel-dcm", **kw).run(bad, backend=backend)
-            b = fk.make("channel-dcm-monolith", **kw).run(bad, backend=backend)
-            if params.get("use_mag", True):
-                sign = np.sign(np.sum(a.quat * b.quat, axis=1))[:, None]
-                np.testing.assert_allclose(a.quat, sign * b.quat, atol=1e-9, err_msg=str(params))
-                np.testing.assert_array_equal(a.flags[1:], b.flags[1:])  # sample 0: the alignment (ALIGNING)
-            else:
-                up = up_vector(kw.get("frame", "ENU"))
-                np.testing.assert_allclose(up @ quat_to_matrix(a.quat), up @ quat_to_matrix(b.quat), atol=1e-9)
-
-
 def test_a_preset_over_plugins():
     """channel-dcm is a composition: poisson-dcm plus the DCM correctors of its method."""
     expect = {"columns": ["dcm-vertical", "dcm-north"], "vectors": ["dcm-vertical", "dcm-north"],
