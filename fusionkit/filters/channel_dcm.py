@@ -10,10 +10,11 @@ builds from the filter's flat config (``fusionkit describe channel-dcm`` prints 
   accelerometer corrects the vertical column ``d3``), then ``dcm-north`` (the horizontal field
   corrects the north column ``d2``) or, for ``method="unseparated"``, ``dcm-field`` (the whole
   field corrects ``d2`` and ``d3``); the last one restores orthogonality around ``d3``;
-- alignment (extension, :mod:`fusionkit.navigation.alignment`): source 000's over the first
-  ``initial_rest`` seconds (mean tilt and heading, the mean gyro output as its bias; a sample
-  above ``rest_rate`` ends it early); with ``initial_rest=0`` the first sample's attitude and no
-  bias (the paper).
+- the start (:mod:`fusionkit.navigation.alignment`, ``attitude="first"``): the attitude of the
+  first sample with a valid accelerometer (TRIAD: ``d3`` from it, ``d2`` from the field), held
+  over the first ``initial_rest`` seconds while the mean gyro output becomes its bias (an
+  extension; a sample above ``rest_rate`` ends it early); ``initial_rest=0``: the first sample's
+  attitude and no bias (the paper).
 
 ``method``: ``"columns"`` (the paper's method 1: each sensor blends its column),
 ``"vectors"`` (method 2: each turns the DCM, the magnetometer about the vertical) or
@@ -39,8 +40,8 @@ class ChannelDcmConfig(FilterConfig):
     k_mag: float = param(0.03, unit="1/s", description="magnetometer correction gain (fraction per second)", gt=0)
     use_mag: bool = param(True, unit="-", description="use the magnetometer when the recording has one (9D)")
     initial_rest: float = param(
-        3.0, unit="s", description="extension: align over this first stretch at rest (source 000: mean tilt, heading, "
-        "gyro bias); 0: the first sample's attitude, no bias (the paper)", ge=0)
+        3.0, unit="s", description="extension: hold the first sample's attitude over this first stretch at rest and "
+        "take the mean gyro output as the bias; 0: the first sample's attitude, no bias (the paper)", ge=0)
     rest_rate: float = param(
         math.radians(5.0), unit="rad/s", description="a gyro sample above this ends the initial rest early "
         "(the recording did not start at rest)", gt=0)
