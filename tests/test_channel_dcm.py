@@ -8,6 +8,7 @@ import pytest
 import fusionkit as fk
 from fusionkit import sim
 from fusionkit.benchmarking.metrics import broad_errors, rms_errors
+from fusionkit.rotations import quat_conj, quat_mul
 from fusionkit.types import Flag
 
 from conftest import broad_mean
@@ -81,7 +82,7 @@ def test_accuracy_bias_extension_and_paper_mode(rec):
         assert np.all(res.flags[1:300] & Flag.ALIGNING) and not np.any(res.flags[400:] & Flag.ALIGNING)
         np.testing.assert_allclose(res.diagnostics["bias"], (0.004, -0.003, 0.002), atol=0.001)
     paper = fk.make("channel-dcm", initial_rest=0.0).run(rec)
-    assert not np.any(paper.flags & Flag.ALIGNING)
+    assert not np.any(paper.flags[1:] & Flag.ALIGNING)  # the first sample gives the attitude, nothing else aligns
     np.testing.assert_array_equal(paper.diagnostics["bias"], 0.0)
     assert rms_errors(paper, rec)["total"] > rms_errors(fk.make("channel-dcm").run(rec), rec)["total"]
 
@@ -96,3 +97,33 @@ def test_update_equals_run(rec):
 def test_broad_target(broad_dir):
     """9D total below 5.2 deg, default parameters, mean over the trials."""
     assert broad_mean(broad_dir, "channel-dcm", "total") < 5.2
+
+
+def test_a_preset_over_plugins():
+    """channel-dcm is a composition: poisson-dcm plus the DCM correctors of its method."""
+    expect = {"columns": ["dcm-vertical", "dcm-north"], "vectors": ["dcm-vertical", "dcm-north"],
+              "unseparated": ["dcm-vertical", "dcm-field"]}
+    for method, names in expect.items():
+        f = fk.make("channel-dcm", method=method)
+        assert f.spec.estimator.name == "poisson-dcm" and not f.spec.estimator.params["orthonormalize"]
+        assert [c.name for c in f.spec.correctors] == names
+        assert not f.correctors[0].config.orthonormalize  # the magnetometer corrector restores orthogonality
+        assert f.correctors[0].config.method == ("vectors" if method == "vectors" else "columns")
+    free = fk.make("channel-dcm", use_mag=False, k_acc=0.7)
+    assert [c.name for c in free.spec.correctors] == ["dcm-vertical"] and free.correctors[0].config.orthonormalize
+    assert free.correctors[0].config.k_acc == 0.7
+
+
+def test_a_dead_accelerometer_does_not_freeze_the_output(rec):
+    """With nan_policy='skip' and no valid accelerometer sample at all, the gyroscope still turns
+    the estimate (the monolith waited for one and held identity); every sample is flagged."""
+    dead = dataclasses.replace(rec, acc=np.full_like(rec.acc, np.nan))
+    for use_mag in (True, False):
+        res = fk.make("channel-dcm", nan_policy="skip", use_mag=use_mag).run(dead)
+        assert np.all(res.flags & Flag.ACC_INVALID) and np.isfinite(res.quat).all()
+        # from 5 s on, the estimate turns with the truth (relative rotations agree within 2 deg)
+        k0, k1 = 500, 2500
+        rel = lambda q: quat_mul(quat_conj(q[k0]), q[k1])  # noqa: E731  body(k1) in body(k0)
+        rel_est, rel_true = rel(res.quat), rel(rec.truth)
+        assert 2 * np.degrees(np.arccos(min(1.0, abs(rel_true[0])))) > 20  # it did turn
+        assert 2 * np.degrees(np.arccos(min(1.0, abs(rel_est @ rel_true)))) < 2.0

@@ -80,6 +80,17 @@ def test_describe_lists_parameters_with_units_and_defaults():
     assert "000" in info.source
     text = str(info)
     assert "velocity_threshold = 0.02 [m/s] (> 0)" in text
+    assert info.composition is None  # not a preset
+
+
+def test_describe_shows_a_presets_composition():
+    info = fk.describe("channel-dcm")
+    c = info.composition
+    assert c["estimator"] == {"name": "poisson-dcm", "params": {"orthonormalize": False}}
+    assert [x["name"] for x in c["correctors"]] == ["dcm-vertical", "dcm-north"]
+    assert c["correctors"][0]["params"] == {"method": "columns", "k_acc": 0.3, "orthonormalize": False}
+    assert "correctors: dcm-vertical(method='columns'" in str(info)
+    assert fk.describe("pipeline").composition is None  # composed by its user's config
 
 
 def test_broken_plugin_is_reported_with_its_distribution_and_others_still_work(on_path):

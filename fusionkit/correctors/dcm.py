@@ -259,7 +259,7 @@ def _k_horizontal(x, s, m0, m1, m2):
     return u0, u1, u2, dz, h0, h1, h2, False
 
 
-@njit
+@njit(inline="always")  # no call and no reference counting of the arrays per sample
 def _vertical_kernel(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, p):
     if acc_ok:
         u0, u1, u2 = _normalized(a0, a1, a2)
@@ -275,7 +275,7 @@ def _vertical_kernel(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok
     return 0
 
 
-@njit
+@njit(inline="always")  # no call and no reference counting of the arrays per sample
 def _north_kernel(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, p):
     if mag_ok:
         u0, u1, u2, dz, h0, h1, h2, ok = _k_horizontal(x, s, m0, m1, m2)
@@ -290,7 +290,7 @@ def _north_kernel(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, d
     return 0
 
 
-@njit
+@njit(inline="always")  # no call and no reference counting of the arrays per sample
 def _field_kernel(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, p):
     if mag_ok:
         u0, u1, u2, dz, h0, h1, h2, ok = _k_horizontal(x, s, m0, m1, m2)
