@@ -1,0 +1,117 @@
+"""Speed and memory by construction (issue "fast from the first call"): no copies of the input,
+one pass for the unit checks, chunked runs equal to one run for every filter, compile time kept
+out of the CLI's throughput. No timing is asserted: each test checks the property that makes
+the path fast."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import fusionkit as fk
+from fusionkit import validation
+from fusionkit.errors import InputError
+
+
+def _arrays(n, seed=0):
+    rng = np.random.default_rng(seed)
+    gyr = 0.3 * rng.standard_normal((n, 3))
+    acc = np.array([0.0, 0.0, 9.81]) + 0.2 * rng.standard_normal((n, 3))
+    mag = np.array([0.0, 20.0, -45.0]) + rng.standard_normal((n, 3))
+    return gyr, acc, mag
+
+
+# ---- the Recording keeps the caller's arrays -------------------------------------------------
+
+def test_recording_shares_memory_with_c_contiguous_float64_input():
+    gyr, acc, mag = _arrays(1000)
+    truth = np.tile([1.0, 0.0, 0.0, 0.0], (1000, 1))
+    move = np.ones(1000, bool)
+    rec = fk.Recording(gyr=gyr, acc=acc, mag=mag, rate=100.0, truth=truth, movement=move)
+    for mine, theirs in ((rec.gyr, gyr), (rec.acc, acc), (rec.mag, mag), (rec.truth, truth),
+                         (rec.movement, move)):
+        assert np.shares_memory(mine, theirs)
+
+
+def test_recording_converts_units_into_a_new_array_leaving_the_input_alone():
+    gyr, acc, _ = _arrays(1000)
+    gyr_deg, acc_g = np.degrees(gyr), acc / 9.80665
+    keep_g, keep_a = gyr_deg.copy(), acc_g.copy()
+    rec = fk.Recording(gyr=gyr_deg, acc=acc_g, rate=100.0, gyr_unit="deg/s", acc_unit="g")
+    assert not np.shares_memory(rec.gyr, gyr_deg) and not np.shares_memory(rec.acc, acc_g)
+    np.testing.assert_array_equal(gyr_deg, keep_g)  # the caller's arrays are not scaled in place
+    np.testing.assert_array_equal(acc_g, keep_a)
+    np.testing.assert_allclose(rec.gyr, gyr, rtol=1e-15)
+
+
+def test_recording_copies_only_what_is_not_float64_c_contiguous():
+    gyr, acc, _ = _arrays(1000)
+    f32 = fk.Recording(gyr=gyr.astype(np.float32), acc=acc, rate=100.0)
+    strided = fk.Recording(gyr=np.asfortranarray(gyr), acc=acc, rate=100.0)
+    for rec in (f32, strided):
+        assert rec.gyr.dtype == np.float64 and rec.gyr.flags.c_contiguous
+        assert np.shares_memory(rec.acc, acc)
+
+
+# ---- the unit checks: one pass, numpy's median decisions -----------------------------------------
+
+def _numpy_decisions(gyr, acc):
+    """The checks as numpy's median makes them (the path small recordings take)."""
+    old = validation.SCAN_MIN_SAMPLES
+    validation.SCAN_MIN_SAMPLES = 1 << 62
+    try:
+        return validation._unit_medians(gyr, acc)
+    finally:
+        validation.SCAN_MIN_SAMPLES = old
+
+
+def _scan_decisions(gyr, acc):
+    old = validation.SCAN_MIN_SAMPLES
+    validation.SCAN_MIN_SAMPLES = 0
+    try:
+        return validation._unit_medians(gyr, acc)
+    finally:
+        validation.SCAN_MIN_SAMPLES = old
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 4, 7, 8, 50, 51])
+def test_unit_scan_makes_numpy_medians_decisions(n):
+    """Values on, just beside and across the thresholds, odd and even counts, ties, zeros,
+    non-finite rows: the compiled scan's comparisons equal those of np.median."""
+    rng = np.random.default_rng(n)
+    t_lo, t_hi = validation.ACC_G_WINDOW
+    t_g = validation.GYR_DEG_BOUND
+    pool_a = np.array([0.0, t_lo, np.nextafter(t_lo, 0), np.nextafter(t_lo, 1), 1.0, t_hi, np.nextafter(t_hi, 0),
+                       np.nextafter(t_hi, 9), 9.81, np.nan, np.inf])
+    pool_g = np.array([0.0, t_g, np.nextafter(t_g, 0), np.nextafter(t_g, 9), -t_g, 1.0, -20.0, 20.0, np.nan])
+    for _ in range(300):
+        norms = rng.choice(pool_a, n)
+        acc = np.zeros((n, 3))
+        acc[:, 2] = norms  # |a| exactly the chosen value
+        if rng.random() < 0.5:  # a mixed direction: norms not exactly representable
+            acc = rng.choice(pool_a[:9], (n, 3)) / np.sqrt(3.0)
+        gyr = rng.choice(pool_g, (n, 3))
+        assert _scan_decisions(gyr, acc) == _numpy_decisions(gyr, acc)
+
+
+def test_median_vs_matches_np_median_on_random_data():
+    rng = np.random.default_rng(1)
+    for _ in range(500):
+        n = int(rng.integers(1, 12))
+        v = rng.choice([0.5, 1.0, 1.5, 2.0, 2.5], n)
+        thr = float(rng.choice([0.5, 1.0, 1.25, 2.0, 3.0]))
+        lo, eq = int((v < thr).sum()), int((v == thr).sum())
+        mx = v[v < thr].max() if lo else -np.inf
+        mn = v[v > thr].min() if n - lo - eq else np.inf
+        m = np.median(v)
+        assert validation.median_vs(n, lo, eq, mx, mn, thr) == int(m > thr) - int(m < thr)
+
+
+@pytest.mark.parametrize("n", [200, 60_000])  # the numpy path and the compiled scan
+def test_unit_mistakes_still_refused_on_both_paths(n):
+    gyr, acc, _ = _arrays(n)
+    with pytest.raises(InputError, match="acc_unit='g'"):
+        fk.Recording(gyr=gyr, acc=acc / 9.80665, rate=100.0)
+    with pytest.raises(InputError, match="gyr_unit='deg/s'"):
+        fk.Recording(gyr=np.degrees(gyr) * 100.0, acc=acc, rate=100.0)
+    fk.Recording(gyr=gyr, acc=acc, rate=100.0)  # the right units pass
