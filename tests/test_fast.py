@@ -115,3 +115,70 @@ def test_unit_mistakes_still_refused_on_both_paths(n):
     with pytest.raises(InputError, match="gyr_unit='deg/s'"):
         fk.Recording(gyr=np.degrees(gyr) * 100.0, acc=acc, rate=100.0)
     fk.Recording(gyr=gyr, acc=acc, rate=100.0)  # the right units pass
+
+
+# ---- every filter runs in chunks ------------------------------------------------------------------
+
+def _chunk_rec():
+    from fusionkit import sim
+
+    deg = np.pi / 180
+    segs = [sim.Rest(3.0), sim.Rotate((0, 0, 1), 90 * deg, 2.0), sim.Rotate((1, 0, 0), 40 * deg, 1.5),
+            sim.Rest(1.0)]
+    return sim.simulate(segs, rate=100.0, noise=sim.Noise(gyr_noise=0.002, acc_noise=0.02, mag_noise=0.2), seed=3)
+
+
+STREAMING = [n for n in fk.available()["filters"] if n not in ("pipeline", "vqf-offline")]
+
+
+@pytest.mark.parametrize("name", STREAMING)
+def test_run_with_state_on_chunks_equals_one_run(name):
+    """Three chunks, the state of each run handed to the next, give one run's numbers (peers
+    included), also across samples held for non-finite input."""
+    rec = _chunk_rec()
+    rec.gyr = rec.gyr.copy()
+    rec.gyr[250] = np.nan  # held (nan_policy="skip") inside the second chunk
+    try:
+        f = fk.make(name, nan_policy="skip")
+        one = f.run(rec)
+    except (ImportError, fk.errors.PluginError) as exc:  # a peer that is not installed
+        pytest.skip(str(exc))
+    parts, state = [], None
+    for a, b in ((0, 170), (170, 480), (480, len(rec))):
+        r = f.run(rec.slice(a, b), state=state)
+        parts.append(r)
+        state = r.diagnostics["state"]
+    np.testing.assert_allclose(np.vstack([r.quat for r in parts]), one.quat, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(np.concatenate([r.flags for r in parts]), one.flags)
+
+
+def test_offline_vqf_refuses_a_state():
+    pytest.importorskip("vqf")
+    rec = _chunk_rec()
+    f = fk.make("vqf-offline")
+    assert "state" not in f.run(rec).diagnostics
+    with pytest.raises(InputError, match="offline"):
+        f.run(rec, state={})
+
+
+def test_peer_state_of_another_rate_or_filter_is_refused():
+    pytest.importorskip("vqf")
+    rec = _chunk_rec()
+    st = fk.make("vqf").run(rec.slice(0, 100)).diagnostics["state"]
+    fast = fk.Recording(gyr=rec.gyr, acc=rec.acc, mag=rec.mag, rate=200.0)
+    with pytest.raises(InputError, match="Hz"):
+        fk.make("vqf").run(fast, state=st)
+    with pytest.raises(InputError, match="vqf-basic"):
+        fk.make("vqf-basic").run(rec, state=st)
+
+
+def test_imufusion_state_continues_once():
+    """imufusion's objects cannot be copied: its state holds the live object and continues one
+    run; continuing an old state again is refused instead of giving wrong numbers."""
+    pytest.importorskip("imufusion")
+    rec = _chunk_rec()
+    f = fk.make("imufusion")
+    st = f.run(rec.slice(0, 100)).diagnostics["state"]
+    f.run(rec.slice(100, 200), state=st)
+    with pytest.raises(InputError, match="already continued"):
+        f.run(rec.slice(100, 200), state=st)
