@@ -214,3 +214,29 @@ def test_cli_run_throughput_excludes_compile(tmp_path, capsys, monkeypatch):
     assert calls[-1] == n and calls[0] < n  # a short warm-up run, then the timed one on every sample
     assert warm >= 0.5 and secs < 0.5  # the 0.5 s first call is the warm-up's, not the run's
     assert rate == pytest.approx(n / secs, rel=0.01 + 0.001 / secs)
+
+
+# ---- memory: the run allocates its result, not copies of the input --------------------------------
+
+@pytest.mark.parametrize("name", ["recommended", "gradient-descent"])
+def test_recording_and_run_allocate_the_result_not_copies_of_the_input(name):
+    """Peak numpy allocation of Recording(...) + run() on C-contiguous float64 arrays (9D): the
+    output (quaternions, flags, a pipeline's criteria) and the sample intervals, nothing the size of
+    the input (before: 1.44x the input for recommended; the copies of gyr and acc, the unit checks'
+    temporaries)."""
+    import tracemalloc
+
+    n = 200_000
+    gyr, acc, mag = _arrays(n)
+    f = fk.make(name)
+    f.run(fk.Recording(gyr=gyr[:100], acc=acc[:100], mag=mag[:100], rate=100.0))  # compile outside the trace
+    tracemalloc.start()
+    try:
+        res = f.run(fk.Recording(gyr=gyr, acc=acc, mag=mag, rate=100.0))
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    expected = res.quat.nbytes + res.flags.nbytes + n * 8  # + dt
+    if "criteria" in res.diagnostics:
+        expected += res.diagnostics["criteria"].nbytes
+    assert peak < expected + 0.05 * (gyr.nbytes * 3), (peak, expected)
