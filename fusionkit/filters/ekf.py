@@ -146,6 +146,7 @@ class EkfFilter(StepFilter):
         out = {"bias": x[_B:_B + 3].copy(), "P": x[_P:_P + 36].reshape(6, 6).copy()}
         if self.nis is not None:
             out["nis"] = np.array(self.nis)
+            out["states"] = np.array(self._states).reshape(-1, _SIZE)
         return out
 
     def _kernel(self):
@@ -165,13 +166,15 @@ class EkfFilter(StepFilter):
 
     def run(self, rec, *, backend: str = "auto", progress: bool | None = None, state=None, record: bool = False):
         """As :meth:`StepFilter.run`; ``record=True`` adds ``diagnostics["nis"]``, an (N, 2) array
-        of each sample's accelerometer and heading NIS (NaN where that update did not run): the
-        filterpy path records them, so it runs then."""
+        of each sample's accelerometer and heading NIS (NaN where that update did not run), and
+        ``diagnostics["states"]``, the state array after each sample (quaternion, bias, P: for
+        NEES): the filterpy path records them, so it runs then."""
         if record:
             if backend == "numba":
                 raise ConfigError("ekf: record=True runs the filterpy path; use backend='auto' or 'reference'")
             backend = "reference"
         self.nis = [] if record else None
+        self._states: list[np.ndarray] = []
         try:
             return super().run(rec, backend=backend, progress=progress, state=state)
         finally:
@@ -211,6 +214,7 @@ class EkfFilter(StepFilter):
                 self._start(x, acc, mag if mag_ok else None)
             if self.nis is not None:
                 self.nis.append(tuple(nis))
+                self._states.append(x.copy())
             return self._output(x), flags
         kf = self.kf
         kf.x = np.zeros((6, 1))
@@ -307,6 +311,7 @@ class EkfFilter(StepFilter):
         x[_P:_P + 36] = (0.5 * (p + p.T)).reshape(36)
         if self.nis is not None:
             self.nis.append(tuple(nis))
+            self._states.append(x.copy())
         return self._output(x), flags
 
     def _accept(self, y, hj, r_var, slot, nis) -> bool:
