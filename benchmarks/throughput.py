@@ -1,23 +1,32 @@
 """Throughput (samples/s) of every built-in filter and the peers, side by side, one core.
 
-    python benchmarks/throughput.py [--samples 1000000] [--reference-samples 20000]
+    python benchmarks/throughput.py [--samples 1000000] [--reference-samples 20000] [--clock cpu]
 
 Compiled (numba) paths run on ``--samples`` samples after a warm-up (compilation excluded), best
-of 3; readable reference paths, filters without a kernel (the filterpy EKF) and peers written in
-Python (ahrs) on ``--reference-samples``. C/C++ peers (VQF, imufusion) run on ``--samples`` like
-the compiled paths. The recording is synthetic (12 s still, then smooth rotations; accelerometer
-and magnetometer noisy around fixed vectors): it measures speed only.
+of 3; readable reference paths, filters without a kernel and peers written in Python (ahrs) on
+``--reference-samples``. C/C++ peers (VQF, imufusion) run on ``--samples`` like the compiled
+paths.
+
+Three figures for each compiled filter and C/C++ peer: ``run()`` on a built Recording (the
+kernel and the run's own passes), end to end (``fk.Recording(...)`` from the raw arrays, then
+``run()``: what a user times), and that end-to-end figure over VQF's ``updateBatch`` on the same
+arrays (6D or 9D as the case), timed in the same process. The recording is a BROAD trial tiled
+to ``--samples`` when the data is present (``--trial``), else synthetic (12 s still, then smooth
+rotations; noisy accelerometer and magnetometer around fixed vectors); the GNSS case is always
+synthetic. It measures speed only. ``--clock cpu`` times CPU instead of wall time (a machine
+shared with other work).
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 
 import fusionkit as fk
-from _common import machine
+from _common import data_dir, machine
 
 
 def recording(n: int, rate: float = 285.7, mag: bool = True, gnss: bool = False) -> fk.Recording:
@@ -35,13 +44,49 @@ def recording(n: int, rate: float = 285.7, mag: bool = True, gnss: bool = False)
     return fk.Recording(gyr=gyr, acc=acc, mag=m, rate=rate, gnss=g)
 
 
-def best_rate(f, rec, backend, repeat) -> float:
+CLOCK = time.perf_counter
+
+
+def best_time(fn, repeat) -> float:
     best = np.inf
     for _ in range(repeat):
-        t0 = time.perf_counter()
-        f.run(rec, backend=backend, progress=False)
-        best = min(best, time.perf_counter() - t0)
-    return len(rec) / best
+        t0 = CLOCK()
+        fn()
+        best = min(best, CLOCK() - t0)
+    return best
+
+
+def best_rate(f, rec, backend, repeat) -> float:
+    return len(rec) / best_time(lambda: f.run(rec, backend=backend, progress=False), repeat)
+
+
+def broad_arrays(path, n: int):
+    """A BROAD trial's gyr, acc, mag tiled to ``n`` samples (C-contiguous float64) and its rate."""
+    import h5py
+
+    with h5py.File(path, "r") as h:
+        g, a, m, rate = h["imu_gyr"][:], h["imu_acc"][:], h["imu_mag"][:], float(h.attrs["sampling_rate"])
+    reps = -(-n // len(g))
+    tile = lambda x: np.ascontiguousarray(np.tile(x, (reps, 1))[:n], dtype=np.float64)  # noqa: E731
+    return tile(g), tile(a), tile(m), rate
+
+
+def end_to_end(f, rec, repeat) -> float:
+    """samples/s of ``Recording(...)`` from ``rec``'s arrays plus ``run()``."""
+    def go():
+        f.run(fk.Recording(gyr=rec.gyr, acc=rec.acc, mag=rec.mag, rate=rec.rate, t=rec.t, gnss=rec.gnss),
+              progress=False)
+    return len(rec) / best_time(go, repeat)
+
+
+def vqf_batch(rec, repeat) -> float:
+    """samples/s of VQF's updateBatch on ``rec``'s arrays (9D with mag, else 6D); nan without VQF."""
+    try:
+        import vqf
+    except ImportError:
+        return float("nan")
+    rate = rec.rate if rec.rate is not None else 1.0 / rec.nominal_dt
+    return len(rec) / best_time(lambda: vqf.VQF(1.0 / rate).updateBatch(rec.gyr, rec.acc, rec.mag), repeat)
 
 
 def pipe(spec):
@@ -73,8 +118,8 @@ CASES = {
               "alignment": {"mode": "fixed", "duration": 3.0}}), False, "ours"),
     "recommended 9D": (lambda: fk.make("recommended"), True, "ours"),
     "recommended 6D": (lambda: fk.make("recommended"), False, "ours"),
-    "ekf 9D (filterpy)": (lambda: fk.make("ekf"), True, "ref-only"),
-    "ekf 6D (filterpy)": (lambda: fk.make("ekf"), False, "ref-only"),
+    "ekf 9D (compiled; reference: filterpy)": (lambda: fk.make("ekf"), True, "ours"),
+    "ekf 6D (compiled; reference: filterpy)": (lambda: fk.make("ekf"), False, "ours"),
     "vqf (peer, C++), 6D": (lambda: fk.make("vqf", mode="6D"), False, "peer-fast"),
     "vqf (peer, C++), 9D": (lambda: fk.make("vqf"), True, "peer-fast"),
     "imufusion (peer, C), 9D": (lambda: fk.make("imufusion"), True, "peer-fast"),
@@ -84,50 +129,63 @@ CASES = {
 
 
 def main() -> None:
+    global CLOCK
     ap = argparse.ArgumentParser()
     ap.add_argument("--samples", type=int, default=1_000_000)
     ap.add_argument("--reference-samples", type=int, default=20_000)
     ap.add_argument("--only", default="", help="comma-separated substrings of case names")
+    ap.add_argument("--trial", default=str(data_dir() / "broad" / "21_undisturbed_fast_combined.hdf5"),
+                    help="BROAD trial tiled into the recordings (synthetic data when it is absent)")
+    ap.add_argument("--clock", choices=("wall", "cpu"), default="wall")
     args = ap.parse_args()
+    CLOCK = time.process_time if args.clock == "cpu" else time.perf_counter
     recs = {(size, kind): recording(n, mag=kind is True, gnss=kind == "gnss")
             for size, n in (("big", args.samples), ("small", args.reference_samples)) for kind in (False, True, "gnss")}
-    print(f"machine: {machine()}")
-    print(f"| case | compiled samples/s ({args.samples:,} samples) | reference samples/s "
-          f"({args.reference_samples:,}) |")
-    print("|---|---:|---:|")
+    source = "synthetic"
+    if Path(args.trial).exists():
+        g, a, m, rate = broad_arrays(args.trial, args.samples)
+        recs[("big", False)] = fk.Recording(gyr=g, acc=a, rate=rate)
+        recs[("big", True)] = fk.Recording(gyr=g, acc=a, mag=m, rate=rate)
+        source = f"BROAD {Path(args.trial).stem} tiled"
+    vqf_rates = {nine: vqf_batch(recs[("big", nine)], 3) for nine in (False, True)}
+    print(f"machine: {machine()}; clock: {args.clock}; data: {source}")
+    print(f"VQF updateBatch on the same arrays: 6D {vqf_rates[False]:,.0f}, 9D {vqf_rates[True]:,.0f} samples/s")
+    print(f"| case | run() samples/s ({args.samples:,}) | Recording + run() samples/s | end to end / VQF updateBatch "
+          f"| reference samples/s ({args.reference_samples:,}) |")
+    print("|---|---:|---:|---:|---:|")
     for name, (build, nine, kind) in CASES.items():
         if args.only and not any(s in name for s in args.only.split(",")):
             continue
         big, small = recs[("big", nine)], recs[("small", nine)]
-        fast = ref = float("nan")
+        fast = ref = e2e = float("nan")
         try:
             if kind == "detector":
                 det = fk.make("motion", kind="detector")
                 det.run(small.slice(0, 100), backend="numba")
-                t0 = time.perf_counter()
-                det.run(big, backend="numba")
-                fast = len(big) / (time.perf_counter() - t0)
-                t0 = time.perf_counter()
-                det.run(small, backend="reference")
-                ref = len(small) / (time.perf_counter() - t0)
+                fast = len(big) / best_time(lambda: det.run(big, backend="numba"), 1)
+                ref = len(small) / best_time(lambda: det.run(small, backend="reference"), 1)
             else:
                 f = build()
                 if kind == "ours":
                     f.run(small.slice(0, 100), backend="numba")  # compile
                     fast = best_rate(f, big, "numba", 3)
+                    e2e = end_to_end(f, big, 3)
                     ref = best_rate(f, small, "reference", 1)
                 elif kind == "ref-only":
                     ref = best_rate(f, small, "reference", 1)
                 elif kind == "peer-fast":
                     f.run(small.slice(0, 100))
                     fast = best_rate(f, big, "auto", 3)
+                    e2e = end_to_end(f, big, 3)
                 else:
                     ref = best_rate(f, small, "auto", 1)
         except ImportError as exc:  # a peer that is not installed
-            print(f"| {name} | not installed ({exc.name}) | |")
+            print(f"| {name} | not installed ({exc.name}) | | | |")
             continue
         cell = lambda v: "-" if v != v else f"{v:,.0f}"  # noqa: E731
-        print(f"| {name} | {cell(fast)} | {cell(ref)} |", flush=True)
+        vs = vqf_rates.get(nine, float("nan"))
+        ratio = "-" if e2e != e2e or vs != vs else f"{e2e / vs:.2f}x"
+        print(f"| {name} | {cell(fast)} | {cell(e2e)} | {ratio} | {cell(ref)} |", flush=True)
 
 
 if __name__ == "__main__":

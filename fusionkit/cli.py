@@ -97,18 +97,31 @@ def cmd_describe(args) -> int:
 def cmd_run(args) -> int:
     f = _build_filter(args.filter, _parse_params(args.param))
     rec = _load_input(args.input)
+    warm = _warm_up(f, rec, args.backend)
     t0 = time.perf_counter()
     res = f.run(rec, backend=args.backend, progress=True if args.progress else None)
     elapsed = time.perf_counter() - t0
     res.to_csv(args.output, time=rec.time)
     print(f"{f.name}: {len(rec)} samples in {elapsed:.3f} s ({len(rec) / elapsed:,.0f} samples/s, "
-          f"backend {res.diagnostics['backend']}) -> {args.output}")
+          f"backend {res.diagnostics['backend']}; compile and warm-up {warm:.3f} s, not counted) -> {args.output}")
     if rec.truth is not None:
         from .benchmarking.metrics import rms_errors
 
         e = rms_errors(res, rec)
         print("RMS error vs truth: " + ", ".join(f"{k} {v:.3f} deg" for k, v in e.items()))
     return 0
+
+
+def _warm_up(f, rec, backend: str, samples: int = 64) -> float:
+    """Run ``f`` on the first ``samples`` of ``rec`` so that numba compiles (or loads from its
+    cache) before the timed run; returns the seconds it took. The run's own errors are left to
+    the real run to report."""
+    t0 = time.perf_counter()
+    try:
+        f.run(rec.slice(0, min(samples, len(rec))), backend=backend, progress=False)
+    except FusionkitError:
+        pass
+    return time.perf_counter() - t0
 
 
 def _values(raw: str) -> list:

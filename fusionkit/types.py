@@ -12,7 +12,7 @@ import numpy as np
 
 from .conventions import DEFAULT_FRAME, change_frame, check_frame, quat_to_euler, to_scipy
 from .errors import InputError
-from .validation import as_vectors, check_positive, check_time
+from .validation import as_vectors, check_positive, check_time, check_units
 
 
 class Flag(enum.IntFlag):
@@ -140,8 +140,12 @@ class Recording:
             raise InputError(f"gyr_unit must be one of {list(_GYR_UNITS)}, got {self.gyr_unit!r}")
         if self.acc_unit not in _ACC_UNITS:
             raise InputError(f"acc_unit must be one of {list(_ACC_UNITS)}, got {self.acc_unit!r}")
-        self.gyr = self.gyr * _GYR_UNITS[self.gyr_unit]
-        self.acc = self.acc * _ACC_UNITS[self.acc_unit]
+        # converted only when the unit asks for it: C-contiguous float64 input in the library's
+        # units is kept, not copied (the Recording shares its memory)
+        if _GYR_UNITS[self.gyr_unit] != 1.0:
+            self.gyr = self.gyr * _GYR_UNITS[self.gyr_unit]
+        if _ACC_UNITS[self.acc_unit] != 1.0:
+            self.acc = self.acc * _ACC_UNITS[self.acc_unit]
         self.gyr_unit, self.acc_unit = "rad/s", "m/s^2"
         self._check_units()
         if (self.rate is None) == (self.t is None):
@@ -154,7 +158,7 @@ class Recording:
             self.truth = as_vectors("truth", self.truth, n, width=4)
             check_frame(self.truth_frame)
         if self.movement is not None:
-            self.movement = np.asarray(self.movement).astype(bool).reshape(-1)
+            self.movement = np.asarray(self.movement, dtype=bool).reshape(-1)
             if self.movement.shape[0] != n:
                 raise InputError(f"movement has {self.movement.shape[0]} samples but gyr has {n}")
         if self.gnss is not None:
@@ -175,19 +179,8 @@ class Recording:
                              pos=None if g.pos is None else g.pos[inside])
 
     def _check_units(self) -> None:
-        norm = np.linalg.norm(self.acc, axis=1)
-        norm = norm[np.isfinite(norm) & (norm > 0)]
-        if norm.size and 0.3 < np.median(norm) < 3.0:
-            raise InputError(
-                f"acc looks like it is in g (median norm {np.median(norm):.3g}); fusionkit expects "
-                "m/s^2: pass acc_unit='g' to convert"
-            )
-        w = np.abs(self.gyr[np.isfinite(self.gyr).all(axis=1)])
-        if w.size and np.median(w) > 2.0 * np.pi:
-            raise InputError(
-                f"gyr looks like it is in deg/s (median |component| {np.median(w):.3g} > 2 pi rad/s); "
-                "fusionkit expects rad/s: pass gyr_unit='deg/s' to convert"
-            )
+        """Refuse data obviously in g or deg/s (:func:`fusionkit.validation.check_units`: one pass)."""
+        check_units(self.gyr, self.acc)
 
     def __len__(self) -> int:
         return self.gyr.shape[0]

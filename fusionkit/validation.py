@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from ._numba import HAVE_NUMBA, njit
 from .errors import InputError
 
 NAN_POLICIES = ("raise", "skip")
@@ -102,3 +105,119 @@ def check_positive(name: str, value: float) -> float:
     if not np.isfinite(v) or v <= 0:
         raise InputError(f"{name} must be a finite number > 0, got {value!r}")
     return v
+
+
+# ---- the unit checks of a recording, in one pass -----------------------------------------------
+#
+# A Recording refuses an accelerometer that reads in g (median |a| in (0.3, 3)) and a gyroscope
+# that reads in deg/s (median |component| above 2 pi). np.median partitions a copy of the data:
+# on 1M samples these checks cost more than running a filter. The median's position against a
+# threshold T needs no sorting: with lo = #(v < T), eq = #(v == T), the largest value below T and
+# the smallest above it, the one or two middle order statistics are known exactly wherever they
+# decide the comparison (:func:`median_vs`). :func:`unit_scan` gathers those counts for every
+# threshold in one compiled pass over the arrays; small recordings take numpy's median (no
+# compilation or cache load for them), which gives the same decisions (tests).
+
+#: (accelerometer-in-g window on median |a|, gyroscope-in-deg/s bound on median |component|)
+ACC_G_WINDOW = (0.3, 3.0)
+GYR_DEG_BOUND = 2.0 * np.pi
+#: below this many samples the checks run on numpy (the compiled scan's cache load costs more)
+SCAN_MIN_SAMPLES = 50_000
+
+
+def median_vs(n: int, lo: int, eq: int, max_lt: float, min_gt: float, thr: float) -> int:
+    """Sign of ``median(v) - thr`` (-1, 0, 1) for ``n`` values of which ``lo`` are below ``thr``,
+    ``eq`` equal to it, ``max_lt`` the largest below and ``min_gt`` the smallest above: the same
+    comparison as with ``np.median(v)`` (the mean of the two middle values for even ``n``). In
+    sorted order the values are ``lo`` below, ``eq`` at and the rest above ``thr``; a middle value
+    not adjacent to ``thr`` is replaced by ``max_lt`` / ``min_gt``, which is on the same side, and
+    one adjacent to it is exactly that value."""
+    def at(i):
+        return max_lt if i < lo else (thr if i < lo + eq else min_gt)
+
+    k = n // 2
+    m = at(k) if n % 2 else (at(k - 1) + at(k)) / 2
+    return int(m > thr) - int(m < thr)
+
+
+@njit
+def unit_scan(gyr, acc, thr):
+    """One pass over ``gyr`` and ``acc`` for :func:`check_units`: row ``i`` of the result holds
+    ``(n, lo, eq, max_lt, min_gt)`` of :func:`median_vs` for threshold ``thr[i]``: ``thr[0]``,
+    ``thr[1]`` on the norms of the accelerometer rows (finite and nonzero), ``thr[2]`` on the
+    absolute components of the gyroscope rows that are finite."""
+    out = np.zeros((3, 5))
+    t0, t1 = thr[0], thr[1]
+    n = lo0 = eq0 = lo1 = eq1 = 0
+    mx0 = mx1 = -np.inf
+    mn0 = mn1 = np.inf
+    for k in range(acc.shape[0]):  # scalars, not the output array: no store per sample
+        v = math.sqrt(acc[k, 0] * acc[k, 0] + acc[k, 1] * acc[k, 1] + acc[k, 2] * acc[k, 2])
+        if math.isfinite(v) and v > 0.0:
+            n += 1
+            lo0, eq0, mx0, mn0 = _count(v, t0, lo0, eq0, mx0, mn0)
+            lo1, eq1, mx1, mn1 = _count(v, t1, lo1, eq1, mx1, mn1)
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3], out[0, 4] = n, lo0, eq0, mx0, mn0
+    out[1, 0], out[1, 1], out[1, 2], out[1, 3], out[1, 4] = n, lo1, eq1, mx1, mn1
+    t2 = thr[2]
+    n = lo0 = eq0 = 0
+    mx0, mn0 = -np.inf, np.inf
+    for k in range(gyr.shape[0]):
+        g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
+        if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2):
+            n += 3
+            lo0, eq0, mx0, mn0 = _count(abs(g0), t2, lo0, eq0, mx0, mn0)
+            lo0, eq0, mx0, mn0 = _count(abs(g1), t2, lo0, eq0, mx0, mn0)
+            lo0, eq0, mx0, mn0 = _count(abs(g2), t2, lo0, eq0, mx0, mn0)
+    out[2, 0], out[2, 1], out[2, 2], out[2, 3], out[2, 4] = n, lo0, eq0, mx0, mn0
+    return out
+
+
+@njit(inline="always")
+def _count(v, t, lo, eq, mx, mn):
+    """``v`` counted against ``t``: below (and the largest so far), at, or above (the smallest)."""
+    if v < t:
+        return lo + 1, eq, max(mx, v), mn
+    if v == t:
+        return lo, eq + 1, mx, mn
+    return lo, eq, mx, min(mn, v)
+
+
+def _unit_medians(gyr: np.ndarray, acc: np.ndarray):
+    """``(sign(median|a| - 0.3), sign(median|a| - 3), sign(median|w| - 2 pi))``, None where there
+    is no usable sample."""
+    thr = np.array([*ACC_G_WINDOW, GYR_DEG_BOUND])
+    if HAVE_NUMBA and gyr.shape[0] >= SCAN_MIN_SAMPLES:
+        st = unit_scan(gyr, acc, thr)
+        return tuple(None if st[i, 0] == 0 else median_vs(int(st[i, 0]), int(st[i, 1]), int(st[i, 2]), st[i, 3],
+                                                          st[i, 4], thr[i]) for i in range(3))
+    norm, w = _acc_norms(acc), _gyr_abs(gyr)
+    sign = lambda v, t: None if v is None else int(v > t) - int(v < t)  # noqa: E731
+    m_acc = float(np.median(norm)) if norm.size else None
+    m_gyr = float(np.median(w)) if w.size else None
+    return sign(m_acc, thr[0]), sign(m_acc, thr[1]), sign(m_gyr, thr[2])
+
+
+def _acc_norms(acc):
+    norm = np.linalg.norm(acc, axis=1)
+    return norm[np.isfinite(norm) & (norm > 0)]
+
+
+def _gyr_abs(gyr):
+    return np.abs(gyr[np.isfinite(gyr).all(axis=1)])
+
+
+def check_units(gyr: np.ndarray, acc: np.ndarray) -> None:
+    """Refuse an accelerometer in g and a gyroscope in deg/s (see above), naming the argument
+    that converts them; the medians are computed for the message only when one is refused."""
+    acc_lo, acc_hi, gyr_hi = _unit_medians(gyr, acc)
+    if acc_lo is not None and acc_lo > 0 and acc_hi < 0:
+        raise InputError(
+            f"acc looks like it is in g (median norm {np.median(_acc_norms(acc)):.3g}); fusionkit expects "
+            "m/s^2: pass acc_unit='g' to convert"
+        )
+    if gyr_hi is not None and gyr_hi > 0:
+        raise InputError(
+            f"gyr looks like it is in deg/s (median |component| {np.median(_gyr_abs(gyr)):.3g} > 2 pi rad/s); "
+            "fusionkit expects rad/s: pass gyr_unit='deg/s' to convert"
+        )

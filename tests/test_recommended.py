@@ -45,7 +45,8 @@ def rec():
 
 
 def test_reference_equals_numba_every_option(rec):
-    bad = dataclasses.replace(rec, gyr=rec.gyr.copy(), acc=rec.acc.copy(), mag=rec.mag.copy())
+    short = motion(n=1)  # rest, every motion, rest again: each branch, a third of the reference's time
+    bad = dataclasses.replace(short, gyr=short.gyr.copy(), acc=short.acc.copy(), mag=short.mag.copy())
     bad.gyr[500] = np.nan
     bad.acc[600:603] = 0.0
     bad.mag[700] = np.nan

@@ -47,8 +47,12 @@ magnetometer, zero without one). Bad input: a non-finite gyroscope sample holds 
 (GYR_INVALID); a non-finite or all-zero accelerometer or magnetometer sample skips its update
 (ACC_INVALID / MAG_INVALID); readings at the configured range are flagged SATURATED.
 ``Result.diagnostics`` has the final bias and covariance; :meth:`EkfFilter.run` with
-``record=True`` adds each sample's NIS for consistency checks. Reference path only (filterpy is
-pure Python/numpy): about 18 k samples/s.
+``record=True`` adds each sample's NIS for consistency checks.
+
+Two paths: the readable reference on filterpy's ``ExtendedKalmanFilter`` (``self.kf``; what
+:meth:`EkfFilter.update`, ``record=True`` and ``backend="reference"`` run), and a compiled loop,
+:func:`_ekf_loop`, that spells out filterpy's predict and update products on fixed-size arrays
+(``run()``'s default; the tests hold it to the filterpy path to 1e-9 on every sample).
 """
 
 from __future__ import annotations
@@ -58,10 +62,14 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from .._kernels import qmul_into, quat_to_dcm, rodrigues_into, rotvec_quat
+from .._kernels import alignment_quat as _k_alignment_quat
+from .._kernels import qmul_into, quat_to_dcm, rodrigues_into, rotvec_quat, validity_flags
+from .._numba import njit
 from ..config import FilterConfig, param
-from ..detectors.magnetic import MAG_DISTURBED, MAG_SIZE, MagneticConfig, MagneticDetector, field_norm_dip
-from ..errors import PluginError
+from ..conventions import change_frame
+from ..detectors.magnetic import (MAG_DISTURBED, MAG_SIZE, MagneticConfig, MagneticDetector, field_norm_dip,
+                                  magnetic_step)
+from ..errors import ConfigError, PluginError
 from ..navigation.alignment import alignment_quat
 from ..rotations import quat_to_matrix, wrap_angle as _wrap
 from ..types import Flag, sample_validity
@@ -74,6 +82,7 @@ __all__ = ["EkfFilter", "EkfConfig"]
 _Q, _B, _P, _START, _DYN, _MAG = 0, 4, 7, 43, 44, 45
 _SIZE = _MAG + MAG_SIZE
 _UP = np.array([0.0, 0.0, 1.0])
+_kwrap = njit(_wrap)
 
 
 class EkfConfig(FilterConfig):
@@ -137,12 +146,35 @@ class EkfFilter(StepFilter):
         out = {"bias": x[_B:_B + 3].copy(), "P": x[_P:_P + 36].reshape(6, 6).copy()}
         if self.nis is not None:
             out["nis"] = np.array(self.nis)
+            out["states"] = np.array(self._states).reshape(-1, _SIZE)
         return out
+
+    def _kernel(self):
+        return _ekf_loop
+
+    def params(self) -> np.ndarray:
+        """The compiled loop's parameter vector."""
+        c = self.config
+        return np.array([
+            c.gyr_noise, c.bias_walk, c.acc_noise, c.acc_dynamic, float(c.dynamic == "deviation"), c.dynamic_tau,
+            c.mag_noise, float(c.heading_jacobian == "full"), float(c.mag_rejection),
+            c.gate if c.gate is not None else math.inf, c.gravity, c.initial_tilt_std, c.initial_heading_std,
+            c.initial_bias_std, c.gyr_range if c.gyr_range is not None else math.inf,
+            c.acc_range if c.acc_range is not None else math.inf, *self.magnetic.params(),
+            *change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "NUE", "ENU"),
+        ])
 
     def run(self, rec, *, backend: str = "auto", progress: bool | None = None, state=None, record: bool = False):
         """As :meth:`StepFilter.run`; ``record=True`` adds ``diagnostics["nis"]``, an (N, 2) array
-        of each sample's accelerometer and heading NIS (NaN where that update did not run)."""
+        of each sample's accelerometer and heading NIS (NaN where that update did not run), and
+        ``diagnostics["states"]``, the state array after each sample (quaternion, bias, P: for
+        NEES): the filterpy path records them, so it runs then."""
+        if record:
+            if backend == "numba":
+                raise ConfigError("ekf: record=True runs the filterpy path; use backend='auto' or 'reference'")
+            backend = "reference"
         self.nis = [] if record else None
+        self._states: list[np.ndarray] = []
         try:
             return super().run(rec, backend=backend, progress=progress, state=state)
         finally:
@@ -182,6 +214,7 @@ class EkfFilter(StepFilter):
                 self._start(x, acc, mag if mag_ok else None)
             if self.nis is not None:
                 self.nis.append(tuple(nis))
+                self._states.append(x.copy())
             return self._output(x), flags
         kf = self.kf
         kf.x = np.zeros((6, 1))
@@ -278,6 +311,7 @@ class EkfFilter(StepFilter):
         x[_P:_P + 36] = (0.5 * (p + p.T)).reshape(36)
         if self.nis is not None:
             self.nis.append(tuple(nis))
+            self._states.append(x.copy())
         return self._output(x), flags
 
     def _accept(self, y, hj, r_var, slot, nis) -> bool:
@@ -294,3 +328,210 @@ class EkfFilter(StepFilter):
         out, f, q = np.empty(4), self.qf, x[_Q:_Q + 4]
         qmul_into(f[0], f[1], f[2], f[3], q[0], q[1], q[2], q[3], out)
         return out
+
+
+# ---- the compiled loop: EkfFilter._step's arithmetic, filterpy's predict and update spelt out ----
+#
+# filterpy's ExtendedKalmanFilter computes predict as P = F P F^T + Q and update as
+# S = H P H^T + R, K = P H^T S^-1, x = K y, P = (I - K H) P (I - K H)^T + K R K^T (x is zero before
+# each update: the error state). The loop below does exactly these products on fixed-size arrays;
+# the tests hold it to the filterpy path to 1e-9 on every sample.
+
+@njit
+def _mm(a, b, out, n, m, l, b_t):
+    """``out[:n, :l] = a[:n, :m] @ b[:m, :l]`` (``b_t``: ``@ b[:l, :m].T``)."""
+    for i in range(n):
+        for j in range(l):
+            s = 0.0
+            for k in range(m):
+                s += a[i, k] * (b[j, k] if b_t else b[k, j])
+            out[i, j] = s
+
+
+@njit
+def _nis(P, hj, rows, y, r_var, pht, s):
+    """``y^T (H P H^T + r_var I)^-1 y`` of ``rows`` measurement rows (EkfFilter._accept)."""
+    _mm(P, hj, pht, 6, 6, rows, True)
+    _mm(hj, pht, s, rows, 6, rows, False)
+    for i in range(rows):
+        s[i, i] += r_var
+    sol = np.linalg.solve(s[:rows, :rows].copy(), y[:rows].copy())
+    v = 0.0
+    for i in range(rows):
+        v += y[i] * sol[i]
+    return v
+
+
+@njit
+def _ekf_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
+    gyr_noise, bias_walk, acc_noise, acc_dynamic, deviation, dyn_tau = p[0], p[1], p[2], p[3], p[4] != 0.0, p[5]
+    mag_noise, full_jac, mag_rej, gate, grav = p[6], p[7] != 0.0, p[8] != 0.0, p[9], p[10]
+    tilt_std, heading_std, bias_std, gyr_range, acc_range = p[11], p[12], p[13], p[14], p[15]
+    m_init, m_nth, m_dth, m_new_t, m_new_rate, m_ref_tau = p[16], p[17], p[18], p[19], p[20], p[21]
+    q_nue = p[22:26]
+    q = x[_Q:_Q + 4]
+    ms = x[_MAG:_MAG + MAG_SIZE]
+    P = np.empty((6, 6))
+    F = np.empty((6, 6))
+    T = np.empty((6, 6))
+    H = np.zeros((4, 6))
+    K = np.empty((6, 4))
+    pht = np.empty((6, 4))
+    S = np.empty((4, 4))
+    y = np.empty(4)
+    rr = np.empty(4)
+    hj1 = np.zeros((3, 6))  # the accelerometer's rows, [v x] 0
+    hm = np.zeros((1, 6))  # the heading's row
+    r9 = np.empty(9)
+    t4 = np.empty(4)
+    u4 = np.empty(4)
+    for k in range(gyr.shape[0]):
+        h = dt[k]
+        g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
+        a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
+        m0, m1, m2 = mag[k, 0], mag[k, 1], mag[k, 2]
+        gyr_ok, acc_ok, mag_ok, flags = validity_flags(g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, gyr_range,
+                                                        acc_range)
+        if x[_START] == 0.0:
+            if acc_ok:  # EkfFilter._start
+                _k_alignment_quat(a0, a1, a2, m0, m1, m2, mag_ok, q_nue, q)
+                x[_B] = x[_B + 1] = x[_B + 2] = 0.0
+                for i in range(36):
+                    x[_P + i] = 0.0
+                d = (tilt_std ** 2, tilt_std ** 2, heading_std ** 2)
+                quat_to_dcm(q, r9)
+                for i in range(3):  # r^T diag(d) r
+                    for j in range(3):
+                        x[_P + 6 * i + j] = (r9[i] * d[0] * r9[j] + r9[3 + i] * d[1] * r9[3 + j]
+                                             + r9[6 + i] * d[2] * r9[6 + j])
+                    x[_P + 7 * (3 + i)] = bias_std ** 2
+                x[_START] = 1.0
+            qmul_into(qf[0], qf[1], qf[2], qf[3], q[0], q[1], q[2], q[3], u4)
+            out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = u4[0], u4[1], u4[2], u4[3]
+            out_f[k] = flags
+            continue
+        for i in range(6):
+            for j in range(6):
+                P[i, j] = x[_P + 6 * i + j]
+        # 1. propagation: P = F P F^T + Q
+        if gyr_ok:
+            r0, r1, r2 = (g0 - x[_B]) * h, (g1 - x[_B + 1]) * h, (g2 - x[_B + 2]) * h
+            rodrigues_into(-r0, -r1, -r2, r9)
+            for i in range(6):
+                for j in range(6):
+                    F[i, j] = 1.0 if i == j else 0.0
+            for i in range(3):
+                for j in range(3):
+                    F[i, j] = r9[3 * i + j]
+                F[i, 3 + i] = -h
+            _mm(F, P, T, 6, 6, 6, False)
+            _mm(T, F, P, 6, 6, 6, True)
+            for i in range(3):
+                P[i, i] += gyr_noise ** 2 * h
+                P[3 + i, 3 + i] += bias_walk ** 2 * h
+            rotvec_quat(r0, r1, r2, t4)  # EkfFilter._turn
+            qmul_into(q[0], q[1], q[2], q[3], t4[0], t4[1], t4[2], t4[3], u4)
+            n = math.sqrt(u4[0] * u4[0] + u4[1] * u4[1] + u4[2] * u4[2] + u4[3] * u4[3])
+            for i in range(4):
+                q[i] = u4[i] / n
+        # 2. and 3. the measurements, stacked
+        quat_to_dcm(q, r9)
+        rows = 0
+        heading_row = False
+        na = v0 = v1 = v2 = psi = 0.0
+        if acc_ok:
+            na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+            v0, v1, v2 = r9[6], r9[7], r9[8]
+            if deviation:
+                dyn = math.sqrt((a0 - grav * v0) ** 2 + (a1 - grav * v1) ** 2 + (a2 - grav * v2) ** 2)
+            else:
+                dyn = abs(na - grav)
+            if dyn_tau > 0:
+                x[_DYN] += (1.0 - math.exp(-h / dyn_tau)) * (dyn * dyn - x[_DYN])
+                dyn = math.sqrt(x[_DYN])
+            sigma = (acc_noise + acc_dynamic * dyn) / (grav * math.sqrt(h))
+            hj1[0, 1], hj1[0, 2], hj1[1, 0], hj1[1, 2], hj1[2, 0], hj1[2, 1] = -v2, v1, v2, -v0, -v1, v0
+            y[0], y[1], y[2] = a0 / na - v0, a1 / na - v1, a2 / na - v2
+            if gate == math.inf or _nis(P, hj1, 3, y, sigma ** 2, pht, S) <= gate:
+                for i in range(3):
+                    for j in range(6):
+                        H[i, j] = hj1[i, j]
+                    rr[i] = sigma ** 2
+                rows = 3
+            else:
+                flags |= 512  # ACC_REJECTED
+        if mag_ok:
+            e0 = r9[0] * m0 + r9[1] * m1 + r9[2] * m2
+            e1 = r9[3] * m0 + r9[4] * m1 + r9[5] * m2
+            e2 = r9[6] * m0 + r9[7] * m1 + r9[8] * m2
+            norm = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+            dip = math.asin(max(-1.0, min(1.0, e2 / norm)))
+            rate = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2) if gyr_ok else 0.0
+            code = magnetic_step(ms, norm, dip, rate, h, m_init, m_nth, m_dth, m_new_t, m_new_rate, m_ref_tau)
+            if code == MAG_DISTURBED and mag_rej:
+                flags |= 256
+                mag_ok = False
+            elif e0 * e0 + e1 * e1 < 1e-12 * norm * norm:
+                mag_ok = False
+        if mag_ok:
+            psi = math.atan2(-e0, e1)
+            if full_jac:
+                hh = e0 * e0 + e1 * e1
+                d0, d1 = -e1 / hh, e0 / hh
+                c0 = d0 * r9[0] + d1 * r9[3]  # dpsi @ r
+                c1 = d0 * r9[1] + d1 * r9[4]
+                c2 = d0 * r9[2] + d1 * r9[5]
+                # -(c @ [m x]), [m x] = [[0, -m2, m1], [m2, 0, -m0], [-m1, m0, 0]]
+                hm[0, 0], hm[0, 1], hm[0, 2] = -(c1 * m2 - c2 * m1), -(-c0 * m2 + c2 * m0), -(c0 * m1 - c1 * m0)
+            else:
+                hm[0, 0], hm[0, 1], hm[0, 2] = r9[6], r9[7], r9[8]
+            r_mag = mag_noise ** 2 / h
+            y[0] = _kwrap(-psi)
+            if gate == math.inf or _nis(P, hm, 1, y, r_mag, pht, S) <= gate:
+                for j in range(6):
+                    H[rows, j] = hm[0, j]
+                rr[rows] = r_mag
+                rows += 1
+                heading_row = True
+            else:
+                flags |= 256
+        if acc_ok and rows >= 3:  # the residuals (y was overwritten by the gate tests)
+            y[0], y[1], y[2] = a0 / na - v0, a1 / na - v1, a2 / na - v2
+        if heading_row:
+            y[rows - 1] = _kwrap(0.0 - psi)
+        if rows > 0:  # filterpy's update, x = 0 before it
+            _mm(P, H, pht, 6, 6, rows, True)
+            _mm(H, pht, S, rows, 6, rows, False)
+            for i in range(rows):
+                S[i, i] += rr[i]
+            si = np.linalg.inv(S[:rows, :rows].copy())
+            _mm(pht, si, K, 6, rows, rows, False)
+            dx = np.zeros(6)
+            for i in range(6):
+                for j in range(rows):
+                    dx[i] += K[i, j] * y[j]
+            _mm(K, H, T, 6, rows, 6, False)
+            for i in range(6):
+                for j in range(6):
+                    F[i, j] = (1.0 if i == j else 0.0) - T[i, j]  # I - K H
+            _mm(F, P, T, 6, 6, 6, False)
+            _mm(T, F, P, 6, 6, 6, True)
+            for i in range(6):  # + K R K^T
+                for j in range(6):
+                    s = 0.0
+                    for l in range(rows):
+                        s += K[i, l] * rr[l] * K[j, l]
+                    P[i, j] += s
+            rotvec_quat(dx[0], dx[1], dx[2], t4)
+            qmul_into(q[0], q[1], q[2], q[3], t4[0], t4[1], t4[2], t4[3], u4)
+            n = math.sqrt(u4[0] * u4[0] + u4[1] * u4[1] + u4[2] * u4[2] + u4[3] * u4[3])
+            for i in range(4):
+                q[i] = u4[i] / n
+            for i in range(3):
+                x[_B + i] += dx[3 + i]
+        for i in range(6):
+            for j in range(6):
+                x[_P + 6 * i + j] = 0.5 * (P[i, j] + P[j, i])
+        qmul_into(qf[0], qf[1], qf[2], qf[3], q[0], q[1], q[2], q[3], u4)
+        out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = u4[0], u4[1], u4[2], u4[3]
+        out_f[k] = flags

@@ -26,6 +26,7 @@ VQF, which cannot skip, gets the last valid sample repeated instead).
 
 from __future__ import annotations
 
+import copy
 import importlib
 from typing import Any, ClassVar, Literal
 
@@ -81,17 +82,25 @@ class PeerFilter(Filter):
             return "missing"
 
     # -- to implement ----------------------------------------------------------------------
-    def _batch(self, gyr, acc, mag, rate) -> np.ndarray:
-        """Quaternions (peer frame) for finite arrays; default: a loop of the streaming step."""
-        obj = self._new(rate, mag is not None)
+    def _batch(self, obj, gyr, acc, mag, rate) -> np.ndarray:
+        """Quaternions (peer frame) for finite arrays, continuing the peer object ``obj``; default:
+        a loop of the streaming step."""
         return np.array([self._step(obj, gyr[k], acc[k], None if mag is None else mag[k], 1.0 / rate)
-                         for k in range(gyr.shape[0])])
+                         for k in range(gyr.shape[0])]).reshape(-1, 4)
 
     def _new(self, rate: float, use_mag: bool):
         raise NotImplementedError
 
     def _step(self, obj, g, a, m, dt) -> np.ndarray:
         raise NotImplementedError
+
+    def _save(self, obj):
+        """A snapshot of the peer object that a later run continues from (default: a deep copy)."""
+        return copy.deepcopy(obj)
+
+    def _load(self, saved, rate: float, use_mag: bool):
+        """A peer object continuing from :meth:`_save`'s snapshot (default: a deep copy of it)."""
+        return copy.deepcopy(saved)
 
     # -- public ----------------------------------------------------------------------------
     def dimension(self, rec) -> str:
@@ -102,7 +111,25 @@ class PeerFilter(Filter):
             raise InputError(f"{self.name}: mode '9D' needs mag in the recording")
         return has_mag and self.config.mode != "6D"
 
-    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None) -> Result:
+    def _resume(self, state, rate: float, use_mag: bool) -> tuple[Any, np.ndarray]:
+        """The peer object and held quaternion to continue from (``state``: ``Result.diagnostics
+        ["state"]`` of an earlier run), or fresh ones."""
+        if state is None:
+            return self._new(rate, use_mag), np.array([1.0, 0.0, 0.0, 0.0])
+        if not self.streaming:
+            raise InputError(f"{self.name} is an offline filter (it uses future samples): a split run cannot "
+                             "continue it, so run() takes no state=")
+        if not isinstance(state, dict) or set(state) != {"filter", "rate", "use_mag", "peer", "q"} \
+                or state["filter"] != self.name:
+            raise InputError(f"state must be Result.diagnostics['state'] of an earlier {self.name} run")
+        if state["use_mag"] != use_mag or abs(state["rate"] - rate) > 1e-6 * rate:  # (a clock's median interval)
+            raise InputError(f"state was made at {state['rate']:.6g} Hz, {'9D' if state['use_mag'] else '6D'}; "
+                             f"this run is at {rate:.6g} Hz, {'9D' if use_mag else '6D'}")
+        return self._load(state["peer"], state["rate"], use_mag), np.array(state["q"], dtype=float)
+
+    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None, state=None) -> Result:
+        """Run the peer over ``rec``; from ``state`` (``Result.diagnostics["state"]`` of an earlier
+        run: the peer's own state) to continue a split recording, the same numbers as one run."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         if backend not in ("auto", "reference"):
@@ -115,6 +142,9 @@ class PeerFilter(Filter):
         check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": mag}, self.config.nan_policy)
         n = len(rec)
         rate = rec.rate if rec.rate is not None else 1.0 / rec.nominal_dt
+        obj, last = self._resume(state, rate, use_mag) if self.streaming or state is not None else (None, None)
+        if state is not None:
+            rate = state["rate"]  # the first run's, to the last bit: the peer's coefficients stay the same
         flags = np.zeros(n, dtype=np.uint32)
         flags[~finite_rows(rec.gyr)] |= np.uint32(Flag.GYR_INVALID)
         flags[~finite_rows(rec.acc)] |= np.uint32(Flag.ACC_INVALID)
@@ -122,25 +152,26 @@ class PeerFilter(Filter):
             flags[~finite_rows(mag)] |= np.uint32(Flag.MAG_INVALID)
         ok = flags == 0
         if ok.all():
-            q = self._batch(rec.gyr, rec.acc, mag, rate)
+            q = self._batch(obj, rec.gyr, rec.acc, mag, rate)
         elif not self.streaming:  # a batch filter cannot skip: hold the last valid input instead
             if not ok.any():
                 raise InputError(f"{self.name}: no sample with all sensors finite")
             idx = np.maximum.accumulate(np.where(ok, np.arange(n), -1))
             idx[idx < 0] = int(np.argmax(ok))
-            q = self._batch(rec.gyr[idx], rec.acc[idx], None if mag is None else mag[idx], rate)
+            q = self._batch(obj, rec.gyr[idx], rec.acc[idx], None if mag is None else mag[idx], rate)
         else:  # hold the orientation over the samples the peer must not see
-            obj = self._new(rate, use_mag)
             q = np.empty((n, 4))
-            last = np.array([1.0, 0.0, 0.0, 0.0])
             for k in range(n):
                 if ok[k]:
                     last = self._step(obj, rec.gyr[k], rec.acc[k], None if mag is None else mag[k], 1.0 / rate)
                 q[k] = last
-        q = change_frame(np.asarray(q, dtype=float), self.peer_frame, self.config.frame)
+        q = np.asarray(q, dtype=float)
         diag = {"backend": f"peer:{self.package} {self.version()}", "filter": self.name,
                 "config": self.config.model_dump(), "mode": "9D" if use_mag else "6D"}
-        return Result(q, flags, self.config.frame, diag)
+        if self.streaming:
+            diag["state"] = {"filter": self.name, "rate": rate, "use_mag": use_mag, "peer": self._save(obj),
+                             "q": q[-1].copy()}
+        return Result(change_frame(q, self.peer_frame, self.config.frame), flags, self.config.frame, diag)
 
     def reset(self) -> None:
         self._stream = None
@@ -200,12 +231,20 @@ class VqfFilter(PeerFilter):
     def _make(self, rate):
         return self.peer().VQF(1.0 / rate, **_vqf_params(self.config))
 
-    def _batch(self, gyr, acc, mag, rate):
-        out = self._make(rate).updateBatch(_c(gyr), _c(acc), None if mag is None else _c(mag))
+    def _batch(self, obj, gyr, acc, mag, rate):
+        out = obj.updateBatch(_c(gyr), _c(acc), None if mag is None else _c(mag))
         return out["quat9D" if mag is not None else "quat6D"]
 
     def _new(self, rate, use_mag):
         return self._make(rate)
+
+    def _save(self, obj):
+        return copy.deepcopy(obj.state)  # VQF's whole state, a dict of lists and numbers
+
+    def _load(self, saved, rate, use_mag):
+        obj = self._make(rate)
+        obj.state = copy.deepcopy(saved)
+        return obj
 
     def _step(self, obj, g, a, m, dt):
         obj.update(_c(g), _c(a), None if m is None else _c(m))
@@ -217,7 +256,7 @@ class VqfOffline(VqfFilter):
     streaming: ClassVar[bool] = False
     summary: ClassVar[str] = "peer: VQF offline (acausal, uses future samples)"
 
-    def _batch(self, gyr, acc, mag, rate):
+    def _batch(self, obj, gyr, acc, mag, rate):
         out = self.peer().offlineVQF(_c(gyr), _c(acc), None if mag is None else _c(mag), 1.0 / rate,
                                      _vqf_params(self.config))
         return out["quat9D" if mag is not None else "quat6D"]
@@ -280,7 +319,20 @@ class ImufusionFilter(PeerFilter):
             bs = imf.BiasSettings()
             bs.sample_rate = rate
             bias.set_settings(bs)
-        return {"ahrs": ahrs, "bias": bias}
+        return {"ahrs": ahrs, "bias": bias, "generation": 0}
+
+    def _save(self, obj):
+        # imufusion's objects cannot be copied (nor is their whole state exposed): the state holds
+        # the live object, and a generation count lets it be continued once only
+        obj["generation"] += 1
+        return {"obj": obj, "generation": obj["generation"]}
+
+    def _load(self, saved, rate, use_mag):
+        obj = saved["obj"]
+        if obj["generation"] != saved["generation"]:
+            raise InputError(f"{self.name}: this state was already continued; imufusion's objects cannot be "
+                             "copied, so each state continues one run only (use the latest run's state)")
+        return obj
 
     def _step(self, obj, g, a, m, dt):
         gd = np.degrees(_c(g))
