@@ -87,8 +87,8 @@ _SIZE = 283
 
 # parameter vector layout
 (_GN, _AN, _GQ, _AQ, _VH, _VV, _PH, _PV, _GATE, _GTO, _CI, _MINV, _SLIP, _BG0, _BA0, _TILT0, _MAGH, _LAT, _H0,
- _EARTH, _DECL, _LEV, _MAXAGE, _HMAG, _V0, _P0) = range(26)
-_NPAR = _P0 + 3  # the lever arm is 3 wide
+ _EARTH, _DECL, _MAXAGE, _HMAG, _V0, _P0, _LEV) = range(26)
+_NPAR = _LEV + 3  # the lever arm is 3 wide, last
 
 
 class InsGnssConfig(FilterConfig):
@@ -448,9 +448,9 @@ class InsGnssFilter(Filter):
                 hm[:, 0:3] = -skew(cl)
                 r = np.array([p[_PH], p[_PH], p[_PV]]) ** 2
                 blk, last = 6, _RP
-            y = y - hm @ dx
+            yg = y - hm @ dx  # the innovation after this epoch's earlier rows
             s = hm @ pm @ hm.T + np.diag(r)
-            nis = float(y @ np.linalg.solve(s, y))
+            nis = float(yg @ np.linalg.solve(s, yg))
             if nis <= p[_GATE]:
                 for i in range(3):
                     hp = hm[i] @ pm
@@ -462,9 +462,9 @@ class InsGnssFilter(Filter):
             elif t - x[last] > p[_GTO]:  # rejected for too long: the filter is wrong, reset
                 sl = slice(blk, blk + 3)
                 if kind == 0:
-                    x[_V:_V + 3] += y
+                    x[_V:_V + 3] += yg
                 else:
-                    x[_P:_P + 3] += y
+                    x[_P:_P + 3] += yg
                 dx[sl] = 0.0
                 pm[sl, :] = 0.0
                 pm[:, sl] = 0.0
@@ -740,6 +740,7 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
     pm = x[_COV:_COV + 225].reshape((15, 15))
     dx[:] = 0.0
     y = np.empty(3)
+    yg = np.empty(3)
     r = np.empty(3)
     s = np.empty((3, 3))
     for kind in range(2):
@@ -765,11 +766,11 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
             _k_skew_into(hm, 0, 0, cl[0], cl[1], cl[2], -1.0)
             r[0], r[1], r[2] = p[_PH] ** 2, p[_PH] ** 2, p[_PV] ** 2
             blk, last = 6, _RP
-        for i in range(3):
+        for i in range(3):  # the innovation after this epoch's earlier rows
             acc = 0.0
             for j in range(15):
                 acc += hm[i, j] * dx[j]
-            y[i] -= acc
+            yg[i] = y[i] - acc
         for i in range(3):  # S = H P H^T + R
             for j in range(15):
                 acc = 0.0
@@ -796,7 +797,7 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
         nis = 0.0
         for i in range(3):
             for j in range(3):
-                nis += y[i] * r9[3 * i + j] * y[j]
+                nis += yg[i] * r9[3 * i + j] * yg[j]
         nis /= det
         if nis <= p[_GATE]:
             for i in range(3):
@@ -820,9 +821,9 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
         elif t - x[last] > p[_GTO]:
             for i in range(3):
                 if kind == 0:
-                    x[_V + i] += y[i]
+                    x[_V + i] += yg[i]
                 else:
-                    x[_P + i] += y[i]
+                    x[_P + i] += yg[i]
                 dx[blk + i] = 0.0
                 for j in range(15):
                     pm[blk + i, j] = 0.0

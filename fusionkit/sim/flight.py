@@ -163,7 +163,7 @@ def simulate_flight(duration: float = 200.0, *, rest: float = 20.0, rate: float 
     mag = rot.inv().apply(np.asarray(mag_field, float)) + mag_noise * rng.standard_normal((n, 3))
     step = max(1, int(round(rate / gnss_rate)))
     idx = np.arange(0, n, step)
-    tg = t[idx]
+    tg = idx / rate
     valid = np.ones(idx.size, bool)
     for a, b in outages:
         valid &= ~((tg >= a) & (tg < b))
