@@ -83,7 +83,9 @@ _PHASE, _TLAST, _TIME, _KSTART, _K = 259, 260, 261, 262, 263  # 0 aligning, 1 he
 _CAL, _GAL = 264, 273  # alignment attitude FRD -> NED (9), mean gyro at rest, FRD (3)
 _RV, _RP, _TGOOD, _RESTART = 276, 277, 278, 279  # last accepted velocity / position, last usable epoch
 _W = 280  # the last bias-corrected rate (3), for the lever arm
-_SIZE = 283
+# the earth model at the last covariance step: gravity, map scale north / east, w_ie (3), w_en (3); the stds
+_GRAV, _S0, _S1, _WIE, _WEN, _SD = 283, 284, 285, 286, 289, 292
+_SIZE = 307
 
 # parameter vector layout
 (_GN, _AN, _GQ, _AQ, _VH, _VV, _PH, _PV, _GATE, _GTO, _CI, _MINV, _SLIP, _BG0, _BA0, _TILT0, _MAGH, _LAT, _H0,
@@ -312,17 +314,13 @@ class InsGnssFilter(Filter):
                     x[_RESTART] = 1.0
             return self._output(x), flags | Flag.ALIGNING
         # 1. strapdown
-        lat, h, rm, rn = self._geo(x, p)
         v = x[_V:_V + 3].copy()
-        w_ie = p[_EARTH] * EARTH_RATE * np.array([math.cos(lat), 0.0, -math.sin(lat)])
-        w_en = np.array([v[1] / (rn + h), -v[0] / (rm + h), -v[1] * math.tan(lat) / (rn + h)])
+        w_ie, w_en = x[_WIE:_WIE + 3], x[_WEN:_WEN + 3]  # the earth model of the last covariance step
         th = w * dt
         dv = c @ (f + 0.5 * np.cross(th, f)) * dt
         c_new = rodrigues(-(w_ie + w_en) * dt) @ c @ rodrigues(th)
-        v_new = v + dv + (np.array([0.0, 0.0, normal_gravity(lat, h)]) - np.cross(2.0 * w_ie + w_en, v)) * dt
-        rm0, rn0 = radii(p[_LAT])
-        scale = np.array([(rm0 + p[_H0]) / (rm + h), (rn0 + p[_H0]) * math.cos(p[_LAT]) / ((rn + h) * math.cos(lat)), 1.0])
-        x[_P:_P + 3] += scale * 0.5 * (v + v_new) * dt
+        v_new = v + dv + (np.array([0.0, 0.0, x[_GRAV]]) - np.cross(2.0 * w_ie + w_en, v)) * dt
+        x[_P:_P + 3] += np.array([x[_S0], x[_S1], 1.0]) * (0.5 * (v + v_new) * dt)
         x[_V:_V + 3] = v_new
         x[_C:_C + 9] = c_new.reshape(9)
         x[_SC:_SC + 9] += c_new.reshape(9) * dt
@@ -344,6 +342,21 @@ class InsGnssFilter(Filter):
         h = p[_H0] - x[_P + 2]
         rm, rn = radii(lat)
         return lat, h, rm, rn
+
+    def _refresh(self, x, p) -> None:
+        """The earth model at the current position and velocity (gravity, the map scale of the
+        local coordinates, earth and transport rates), and the stds from ``P``; updated at every
+        covariance step (they change by parts per million over it)."""
+        lat, h, rm, rn = self._geo(x, p)
+        rm0, rn0 = radii(p[_LAT])
+        v = x[_V:_V + 3]
+        e = p[_EARTH] * EARTH_RATE
+        x[_GRAV] = normal_gravity(lat, h)
+        x[_S0] = (rm0 + p[_H0]) / (rm + h)
+        x[_S1] = (rn0 + p[_H0]) * math.cos(p[_LAT]) / ((rn + h) * math.cos(lat))
+        x[_WIE:_WIE + 3] = e * math.cos(lat), 0.0, -e * math.sin(lat)
+        x[_WEN:_WEN + 3] = v[1] / (rn + h), -v[0] / (rm + h), -v[1] * math.tan(lat) / (rn + h)
+        x[_SD:_SD + 15] = np.sqrt(np.maximum(np.diag(x[_COV:_COV + 225].reshape(15, 15)), 0.0))
 
     def _aligned(self, x, c_align, al, k_start, p) -> None:
         """The alignment ended: keep its attitude (FRD -> NED, with the declination when the
@@ -385,16 +398,14 @@ class InsGnssFilter(Filter):
         x[_TLAST] = x[_TGOOD] = -np.inf
         x[_RV] = x[_RP] = t
         x[_PHASE] = 2.0
+        self._refresh(x, p)
 
     def _propagate(self, x, p) -> None:
         """``P <- F P F^T + Q`` over the accumulated interval."""
         tt = x[_T]
         if tt <= 0.0:
             return
-        lat, h, rm, rn = self._geo(x, p)
-        v = x[_V:_V + 3]
-        w_ie = p[_EARTH] * EARTH_RATE * np.array([math.cos(lat), 0.0, -math.sin(lat)])
-        w_en = np.array([v[1] / (rn + h), -v[0] / (rm + h), -v[1] * math.tan(lat) / (rn + h)])
+        w_ie, w_en = x[_WIE:_WIE + 3], x[_WEN:_WEN + 3]
         sc = x[_SC:_SC + 9].reshape(3, 3)
         sdv = skew(x[_DV:_DV + 3])
         f = np.eye(15)
@@ -419,6 +430,7 @@ class InsGnssFilter(Filter):
             pm[12 + i, 12 + i] += p[_AQ] ** 2 * tt
         x[_COV:_COV + 225] = (0.5 * (pm + pm.T)).reshape(225)
         x[_SC:_T + 1] = 0.0
+        self._refresh(x, p)
 
     def _update(self, x, p, gn, t) -> int:
         """The GNSS velocity and position updates of one epoch; returns flags."""
@@ -479,6 +491,7 @@ class InsGnssFilter(Filter):
         x[_BG:_BG + 3] += dx[9:12]
         x[_BA:_BA + 3] += dx[12:15]
         x[_COV:_COV + 225] = (0.5 * (pm + pm.T)).reshape(225)
+        self._refresh(x, p)
         return flags
 
     def _output(self, x) -> np.ndarray:
@@ -487,9 +500,7 @@ class InsGnssFilter(Filter):
     def _extras(self, x) -> np.ndarray:
         """The per-sample outputs (27): velocity, position, biases (output axes) and their stds."""
         f, mt = self.F, self.M.T
-        d = np.sqrt(np.maximum(np.diag(x[_COV:_COV + 225].reshape(15, 15)), 0.0))
-        if x[_PHASE] != 2.0:
-            d[:] = np.nan
+        d = x[_SD:_SD + 15] if x[_PHASE] == 2.0 else np.full(15, np.nan)
         af, am = np.abs(f), np.abs(mt)
         return np.concatenate([f @ x[_V:_V + 3], f @ x[_P:_P + 3], mt @ x[_BG:_BG + 3], mt @ x[_BA:_BA + 3],
                                af @ d[0:3], af @ d[3:6], af @ d[6:9], am @ d[9:12], am @ d[12:15]])
@@ -607,19 +618,26 @@ def _k_geo(x, p):
 
 
 @njit
-def _k_rates(x, p, lat, h, rm, rn, wie, wen):
-    e = p[_EARTH] * EARTH_RATE
-    wie[0], wie[1], wie[2] = e * math.cos(lat), 0.0, -e * math.sin(lat)
-    v0, v1 = x[_V], x[_V + 1]
-    wen[0], wen[1], wen[2] = v1 / (rn + h), -v0 / (rm + h), -v1 * math.tan(lat) / (rn + h)
-
-
-@njit
 def _k_skew_into(a, r0, c0, v0, v1, v2, s):
     """``a[r0:r0+3, c0:c0+3] = s [v x]``."""
     a[r0, c0], a[r0, c0 + 1], a[r0, c0 + 2] = 0.0, -s * v2, s * v1
     a[r0 + 1, c0], a[r0 + 1, c0 + 1], a[r0 + 1, c0 + 2] = s * v2, 0.0, -s * v0
     a[r0 + 2, c0], a[r0 + 2, c0 + 1], a[r0 + 2, c0 + 2] = -s * v1, s * v0, 0.0
+
+
+@njit
+def _k_refresh(x, p):
+    lat, h, rm, rn = _k_geo(x, p)
+    rm0, rn0 = radii(p[_LAT])
+    e = p[_EARTH] * EARTH_RATE
+    x[_GRAV] = normal_gravity(lat, h)
+    x[_S0] = (rm0 + p[_H0]) / (rm + h)
+    x[_S1] = (rn0 + p[_H0]) * math.cos(p[_LAT]) / ((rn + h) * math.cos(lat))
+    x[_WIE], x[_WIE + 1], x[_WIE + 2] = e * math.cos(lat), 0.0, -e * math.sin(lat)
+    v0, v1 = x[_V], x[_V + 1]
+    x[_WEN], x[_WEN + 1], x[_WEN + 2] = v1 / (rn + h), -v0 / (rm + h), -v1 * math.tan(lat) / (rn + h)
+    for i in range(15):
+        x[_SD + i] = math.sqrt(max(x[_COV + 16 * i], 0.0))
 
 
 @njit
@@ -665,17 +683,16 @@ def _k_start(x, c0, heading_var, p, t):
     x[_RV] = t
     x[_RP] = t
     x[_PHASE] = 2.0
+    _k_refresh(x, p)
 
 
 @njit
-def _k_propagate(x, p, fm, tmp):
+def _k_propagate(x, p, fm, tmp, fmt):
     tt = x[_T]
     if tt <= 0.0:
         return
-    lat, h, rm, rn = _k_geo(x, p)
-    wie = np.empty(3)
-    wen = np.empty(3)
-    _k_rates(x, p, lat, h, rm, rn, wie, wen)
+    wie = x[_WIE:_WIE + 3]
+    wen = x[_WEN:_WEN + 3]
     fm[:, :] = 0.0
     for i in range(15):
         fm[i, i] = 1.0
@@ -693,18 +710,11 @@ def _k_propagate(x, p, fm, tmp):
             fm[3 + i, 12 + j] = -s
             fm[6 + i, 12 + j] = -0.5 * tt * s
     pm = x[_COV:_COV + 225].reshape((15, 15))
-    for i in range(15):  # tmp = F P
+    np.dot(fm, pm, tmp)  # F P
+    for i in range(15):
         for j in range(15):
-            acc = 0.0
-            for k in range(15):
-                acc += fm[i, k] * pm[k, j]
-            tmp[i, j] = acc
-    for i in range(15):  # P = tmp F^T
-        for j in range(15):
-            acc = 0.0
-            for k in range(15):
-                acc += tmp[i, k] * fm[j, k]
-            pm[i, j] = acc
+            fmt[i, j] = fm[j, i]
+    np.dot(tmp, fmt, pm)  # (F P) F^T
     qa = p[_AN] ** 2
     for i in range(3):
         pm[i, i] += p[_GN] ** 2 * tt
@@ -721,6 +731,7 @@ def _k_propagate(x, p, fm, tmp):
             pm[j, i] = a
     for i in range(_SC, _T + 1):
         x[i] = 0.0
+    _k_refresh(x, p)
 
 
 @njit
@@ -743,6 +754,8 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
     yg = np.empty(3)
     r = np.empty(3)
     s = np.empty((3, 3))
+    nz = np.empty((3, 15), np.int64)
+    nnz = np.zeros(3, np.int64)
     for kind in range(2):
         o = 2 + 3 * kind
         if not (math.isfinite(gn[o]) and math.isfinite(gn[o + 1]) and math.isfinite(gn[o + 2])):
@@ -766,22 +779,28 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
             _k_skew_into(hm, 0, 0, cl[0], cl[1], cl[2], -1.0)
             r[0], r[1], r[2] = p[_PH] ** 2, p[_PH] ** 2, p[_PV] ** 2
             blk, last = 6, _RP
+        for i in range(3):  # the non-zero columns of H's rows (H is sparse: 1 to 7 of 15)
+            nnz[i] = 0
+            for j in range(15):
+                if hm[i, j] != 0.0:
+                    nz[i, nnz[i]] = j
+                    nnz[i] += 1
         for i in range(3):  # the innovation after this epoch's earlier rows
             acc = 0.0
-            for j in range(15):
-                acc += hm[i, j] * dx[j]
+            for jj in range(nnz[i]):
+                acc += hm[i, nz[i, jj]] * dx[nz[i, jj]]
             yg[i] = y[i] - acc
         for i in range(3):  # S = H P H^T + R
             for j in range(15):
                 acc = 0.0
-                for k in range(15):
-                    acc += hm[i, k] * pm[k, j]
+                for kk in range(nnz[i]):
+                    acc += hm[i, nz[i, kk]] * pm[nz[i, kk], j]
                 hp[i, j] = acc
         for i in range(3):
             for j in range(3):
                 acc = 0.0
-                for k in range(15):
-                    acc += hp[i, k] * hm[j, k]
+                for kk in range(nnz[j]):
+                    acc += hp[i, nz[j, kk]] * hm[j, nz[j, kk]]
                 s[i, j] = acc + (r[i] if i == j else 0.0)
         det = (s[0, 0] * (s[1, 1] * s[2, 2] - s[1, 2] * s[2, 1]) - s[0, 1] * (s[1, 0] * s[2, 2] - s[1, 2] * s[2, 0])
                + s[0, 2] * (s[1, 0] * s[2, 1] - s[1, 1] * s[2, 0]))
@@ -805,18 +824,20 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
                 si = r[i]
                 for j in range(15):
                     acc = 0.0
-                    for k in range(15):
-                        acc += hm[i, k] * pm[k, j]
+                    for kk in range(nnz[i]):
+                        acc += hm[i, nz[i, kk]] * pm[nz[i, kk], j]
                     hp[0, j] = acc
-                    si += acc * hm[i, j]
-                    hdx += hm[i, j] * dx[j]
+                for kk in range(nnz[i]):
+                    si += hp[0, nz[i, kk]] * hm[i, nz[i, kk]]
+                    hdx += hm[i, nz[i, kk]] * dx[nz[i, kk]]
                 innov = y[i] - hdx
                 for j in range(15):
-                    dx[j] += hp[0, j] / si * innov
+                    hp[1, j] = hp[0, j] / si  # the gain
+                    dx[j] += hp[1, j] * innov
                 for j in range(15):
-                    kj = hp[0, j] / si
+                    kj = hp[1, j]
                     for k in range(15):
-                        pm[j, k] -= kj * (hp[0, k] / si) * si
+                        pm[j, k] -= kj * hp[1, k] * si
             x[last] = t
         elif t - x[last] > p[_GTO]:
             for i in range(3):
@@ -849,6 +870,7 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
             a = 0.5 * (pm[i, j] + pm[j, i])
             pm[i, j] = a
             pm[j, i] = a
+    _k_refresh(x, p)
     return flags
 
 
@@ -876,10 +898,10 @@ def _k_extras(x, m, fo, e):
             e[6 + i] += m[j, i] * x[_BG + j]
             e[9 + i] += m[j, i] * x[_BA + j]
             for blk in range(3):
-                d = math.nan if nan else math.sqrt(max(x[_COV + 16 * (3 * blk + j)], 0.0))
+                d = math.nan if nan else x[_SD + 3 * blk + j]
                 e[12 + 3 * blk + i] += abs(fo[i, j]) * d
             for blk in range(3, 5):
-                d = math.nan if nan else math.sqrt(max(x[_COV + 16 * (3 * blk + j)], 0.0))
+                d = math.nan if nan else x[_SD + 3 * blk + j]
                 e[12 + 3 * blk + i] += abs(m[j, i]) * d
 
 
@@ -894,6 +916,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
     c0 = np.empty(9)
     fm = np.empty((15, 15))
     tmp = np.empty((15, 15))
+    fmt = np.empty((15, 15))
     hm = np.empty((3, 15))
     hp = np.empty((3, 15))
     dxv = np.empty(15)
@@ -901,7 +924,6 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
     wen = np.empty(3)
     w = np.empty(3)
     f = np.empty(3)
-    rm0, rn0 = radii(p[_LAT])
     n = gyr.shape[0]
     k0 = x[_K]
     k = 0
@@ -1002,8 +1024,9 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                             x[_RESTART] = 1.0
                     flags |= 1
                 else:
-                    lat, hh, rm, rn = _k_geo(x, p)
-                    _k_rates(x, p, lat, hh, rm, rn, wie, wen)
+                    for i in range(3):
+                        wie[i] = x[_WIE + i]
+                        wen[i] = x[_WEN + i]
                     th0, th1, th2 = w[0] * h, w[1] * h, w[2] * h
                     fc0 = f[0] + 0.5 * (th1 * f[2] - th2 * f[1])
                     fc1 = f[1] + 0.5 * (th2 * f[0] - th0 * f[2])
@@ -1017,14 +1040,12 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                     matmul3_into(t9, r2, u9)
                     v0, v1, v2 = x[_V], x[_V + 1], x[_V + 2]
                     cx0, cx1, cx2 = 2.0 * wie[0] + wen[0], 2.0 * wie[1] + wen[1], 2.0 * wie[2] + wen[2]
-                    grav = normal_gravity(lat, hh)
+                    grav = x[_GRAV]
                     n0 = v0 + dv0 + (0.0 - (cx1 * v2 - cx2 * v1)) * h
                     n1 = v1 + dv1 + (0.0 - (cx2 * v0 - cx0 * v2)) * h
                     n2 = v2 + dv2 + (grav - (cx0 * v1 - cx1 * v0)) * h
-                    s0 = (rm0 + p[_H0]) / (rm + hh)
-                    s1 = (rn0 + p[_H0]) * math.cos(p[_LAT]) / ((rn + hh) * math.cos(lat))
-                    x[_P] += s0 * (0.5 * (v0 + n0) * h)
-                    x[_P + 1] += s1 * (0.5 * (v1 + n1) * h)
+                    x[_P] += x[_S0] * (0.5 * (v0 + n0) * h)
+                    x[_P + 1] += x[_S1] * (0.5 * (v1 + n1) * h)
                     x[_P + 2] += 1.0 * (0.5 * (v2 + n2) * h)
                     x[_V], x[_V + 1], x[_V + 2] = n0, n1, n2
                     for i in range(9):
@@ -1039,7 +1060,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                     age = tk - gn[k, 1]
                     new = gn[k, 0] != 0.0 and gn[k, 1] > x[_TLAST] and 0.0 <= age <= p[_MAXAGE] and fin
                     if new or x[_T] >= p[_CI]:
-                        _k_propagate(x, p, fm, tmp)
+                        _k_propagate(x, p, fm, tmp, fmt)
                     if new:
                         flags |= _k_update(x, p, gn[k], tk, hm, dxv, hp, r1)
             _k_output(x, m, fo, t9, u9, q)
