@@ -50,12 +50,13 @@ def flight():
 
 @pytest.mark.parametrize("heading", ["course", "magnetometer"])
 def test_reference_equals_numba(heading):
-    rec = simulate_flight(28.0, rest=11.0, seed=1, outages=[(22.0, 24.0)])
+    rec = simulate_flight(30.0, rest=11.0, seed=2, speed=8.0, accel=3.0, turn_rate=0.4, outages=[(26.0, 27.0)])
     pos = rec.gnss.pos.copy()
     pos[200, 0] += 1000.0  # a 1 km jump (gated)
     pos[205] = np.nan  # an epoch without position
     rec = _replace_gnss(rec, Gnss(t=rec.gnss.t, vel=rec.gnss.vel, valid=rec.gnss.valid, frame="NED", pos=pos))
-    kw = {"heading": heading, "lever_arm": (0.3, -0.2, 0.5) if heading == "magnetometer" else (0.0, 0.0, 0.0)}
+    kw = {"heading": heading, "lever_arm": (0.3, -0.2, 0.5) if heading == "magnetometer" else (0.0, 0.0, 0.0),
+          "relevel": 0.7}  # early: the re-run from the re-levelled start is part of the comparison
     a = _run(rec, "numba", **kw)
     b = _run(rec, "reference", **kw)
     assert a.diagnostics["backend"] == "numba" and b.diagnostics["backend"] == "reference"
@@ -63,6 +64,7 @@ def test_reference_equals_numba(heading):
     assert np.abs(a.quat - b.quat).max() < 1e-9
     assert (a.flags == b.flags).all()
     assert (a.flags & Flag.GNSS_REJECTED).any()  # the jump
+    assert a.diagnostics["relevel_tilt"] is not None
     for k in KEYS:
         np.testing.assert_allclose(a.diagnostics[k], b.diagnostics[k], rtol=0, atol=1e-9, err_msg=k)
 

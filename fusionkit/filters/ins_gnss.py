@@ -66,7 +66,7 @@ from ..errors import InputError
 from ..navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, NGYR, PHASE, Aligner, align_step
 from ..navigation.earth import EARTH_RATE, normal_gravity, radii
 from ..protocols import Filter, Sample
-from ..rotations import matrix_to_quat, quat_to_matrix, rodrigues, skew
+from ..rotations import matrix_to_quat, quat_mul, quat_to_matrix, rodrigues, skew
 from ..types import Flag, Recording, Result
 from ..validation import as_vector, check_finite_all, check_positive
 from .gst import BODY_AXES
@@ -85,12 +85,14 @@ _RV, _RP, _TGOOD, _RESTART = 276, 277, 278, 279  # last accepted velocity / posi
 _W = 280  # the last bias-corrected rate (3), for the lever arm
 # the earth model at the last covariance step: gravity, map scale north / east, w_ie (3), w_en (3); the stds
 _GRAV, _S0, _S1, _WIE, _WEN, _SD = 283, 284, 285, 286, 289, 292
-_SIZE = 307
+_C0, _HVAR, _LEVEL, _PHI0 = 307, 316, 317, 318  # start attitude (9), its heading variance, re-levelled, tilt fix (3)
+_SIZE = 321
 
 # parameter vector layout
 (_GN, _AN, _GQ, _AQ, _VH, _VV, _PH, _PV, _GATE, _GTO, _CI, _MINV, _SLIP, _BG0, _BA0, _TILT0, _MAGH, _LAT, _H0,
  _EARTH, _DECL, _MAXAGE, _HMAG, _V0, _P0, _LEV) = range(26)
-_NPAR = _LEV + 3  # the lever arm is 3 wide, last
+_RELEVEL = _LEV + 3  # the lever arm is 3 wide
+_NPAR = _RELEVEL + 1
 
 
 class InsGnssConfig(FilterConfig):
@@ -148,6 +150,10 @@ class InsGnssConfig(FilterConfig):
         None, unit="deg", description="latitude of the local frame's origin; None: the recording's origin_lla; "
         "without either the earth rate is left out and gravity is taken at 45 deg")
     altitude: float | None = param(None, unit="m", description="height of the origin; None: origin_lla, else 0")
+    relevel: float | None = param(
+        0.1, unit="-", description="once the horizontal accelerometer bias std is below this fraction of its initial "
+        "value, level the alignment attitude with the bias estimate and run again from the alignment's end (run() also "
+        "re-levels the alignment span's output); None: never (strictly causal output)", gt=0, lt=1)
     gnss_max_age: float = param(0.5, unit="s", description="an epoch older than this is a gap (GNSS_GAP)", gt=0)
     alignment: Literal["motion", "fixed"] = param("motion", unit="-", description="source 000 alignment mode")
     alignment_duration: float = param(10.0, unit="s", description="mandatory alignment time", gt=0)
@@ -261,6 +267,7 @@ class InsGnssFilter(Filter):
         p[_MAXAGE] = c.gnss_max_age
         p[_HMAG] = float(self._use_mag(rec))
         p[_V0], p[_P0] = c.initial_velocity_std, c.initial_position_std
+        p[_RELEVEL] = c.relevel * c.initial_acc_bias_std if c.relevel is not None else -1.0
         return p
 
     def new_state(self, dt: float, rec: Recording | None = None) -> dict[str, Any]:
@@ -333,7 +340,20 @@ class InsGnssFilter(Filter):
             self._propagate(x, p)
         if new:
             flags |= self._update(x, p, gn, t)
+            if x[_LEVEL] == 0.0 and max(x[_SD + 12], x[_SD + 13]) < p[_RELEVEL]:
+                self._relevel(x, p, t)
         return self._output(x), flags
+
+    def _relevel(self, x, p, t) -> None:
+        """The alignment's tilt error is ``phi = J C0 b_a / g`` (module docs): with the
+        accelerometer bias now known, start again from the re-levelled attitude and that bias."""
+        c0 = x[_C0:_C0 + 9].reshape(3, 3)
+        a = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]) @ c0 / normal_gravity(p[_LAT], p[_H0])
+        phi = a @ x[_BA:_BA + 3]
+        x[_LEVEL] = 1.0
+        x[_PHI0:_PHI0 + 3] = phi
+        self._start(x, rodrigues(phi) @ c0, x[_HVAR], p, t, x[_BA:_BA + 3].copy())
+        x[_RESTART] = 1.0
 
     def _geo(self, x, p):
         """Latitude, height and the radii of curvature at the current position."""
@@ -373,15 +393,18 @@ class InsGnssFilter(Filter):
             x[_BG:_BG + 3] = x[_GAL:_GAL + 3]
             x[_PHASE] = 1.0
 
-    def _start(self, x, c0, heading_var, p, t) -> None:
-        """Start navigating from attitude ``c0`` (FRD -> NED) at rest (see the module docs)."""
+    def _start(self, x, c0, heading_var, p, t, ba0=None) -> None:
+        """Start navigating from attitude ``c0`` (FRD -> NED) at rest (see the module docs),
+        with the accelerometer bias ``ba0`` (default 0)."""
         x[_C:_C + 9] = c0.reshape(9)
+        x[_C0:_C0 + 9] = c0.reshape(9)
+        x[_HVAR] = heading_var
         x[_V:_V + 3] = 0.0
         x[_P:_P + 3] = 0.0
         lat, h = p[_LAT], p[_H0]
         w_ie = p[_EARTH] * EARTH_RATE * np.array([math.cos(lat), 0.0, -math.sin(lat)])
         x[_BG:_BG + 3] = x[_GAL:_GAL + 3] - c0.T @ w_ie
-        x[_BA:_BA + 3] = 0.0
+        x[_BA:_BA + 3] = 0.0 if ba0 is None else ba0
         g = normal_gravity(lat, h)
         a = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]) @ c0 / g
         pm = np.zeros((15, 15))
@@ -542,11 +565,16 @@ class InsGnssFilter(Filter):
                     continue
                 k += 1
         x = st["x"]
+        if x[_LEVEL] == 1.0 and self.config.relevel is not None:  # the alignment span, re-levelled as well
+            end = min(n, max(0, int(x[_KSTART] - k0)))
+            fix = matrix_to_quat(self.F @ rodrigues(x[_PHI0:_PHI0 + 3]) @ self.F.T)
+            q[:end] = quat_mul(fix, q[:end])
         names = ("velocity", "position", "gyr_bias", "acc_bias", "attitude_std", "velocity_std", "position_std",
                  "gyr_bias_std", "acc_bias_std")
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "state": st,
                 "P": x[_COV:_COV + 225].reshape(15, 15).copy(),
                 "alignment_end_index": None if st["align"][17] < 0 else int(st["align"][17]),
+                "relevel_tilt": x[_PHI0:_PHI0 + 3].copy() if x[_LEVEL] == 1.0 else None,
                 **{nm: ext[:, 3 * i:3 * i + 3] for i, nm in enumerate(names)}}
         return Result(q, flags, self.config.frame, diag)
 
@@ -556,8 +584,9 @@ class InsGnssFilter(Filter):
     def update(self, gyr, acc, mag=None, dt: float | None = None, gnss=None, t: float | None = None) -> np.ndarray:
         """One sample of a stream. ``gnss``: an epoch that arrived with this sample, ``(t_epoch,
         vN, vE, vD, pN, pE, pD)`` NED (NaN for what it lacks), on the clock of ``t`` (default: the
-        previous ``t`` + ``dt``, starting at 0). The samples since the alignment are buffered
-        until the heading is known (course heading), then the filter goes over them again."""
+        previous ``t`` + ``dt``, starting at 0). The samples are buffered until the heading is
+        known (course heading) and the alignment re-levelled (``relevel``); at each, the filter
+        goes over them again (the outputs already returned stay as they were)."""
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
         dt = check_positive("dt", dt)
@@ -583,17 +612,19 @@ class InsGnssFilter(Filter):
         if gnss is not None:
             gn[0] = 1.0
             gn[1:] = np.asarray(gnss, float).reshape(7)
-        if x[_PHASE] != 2.0:
+        keep = x[_PHASE] != 2.0 or (x[_LEVEL] == 0.0 and st["p"][_RELEVEL] > 0.0)
+        if keep:
             st["buffer"].append((g, a, m, dt, t, gn))
         q, f = self._step(st, g, a, m, dt, t, gn)
-        if x[_RESTART]:
+        while x[_RESTART]:  # go over the buffered samples again from the new start
             x[_RESTART] = 0.0
             start = len(st["buffer"]) - int(x[_K] - x[_KSTART])
             x[_K] = x[_KSTART]
             for row in st["buffer"][start:]:
                 q, f = self._step(st, *row)
-            st["buffer"] = []
-        if x[_PHASE] == 2.0:
+                if x[_RESTART]:
+                    break
+        if x[_PHASE] == 2.0 and (x[_LEVEL] == 1.0 or st["p"][_RELEVEL] <= 0.0):
             st["buffer"] = []
         self.last_flags = int(f)
         return q
@@ -641,9 +672,11 @@ def _k_refresh(x, p):
 
 
 @njit
-def _k_start(x, c0, heading_var, p, t):
+def _k_start(x, c0, heading_var, p, t, ba0):
     for i in range(9):
         x[_C + i] = c0[i]
+        x[_C0 + i] = c0[i]
+    x[_HVAR] = heading_var
     lat, h = p[_LAT], p[_H0]
     e = p[_EARTH] * EARTH_RATE
     wie = (e * math.cos(lat), 0.0, -e * math.sin(lat))
@@ -651,7 +684,7 @@ def _k_start(x, c0, heading_var, p, t):
         x[_V + i] = 0.0
         x[_P + i] = 0.0
         x[_BG + i] = x[_GAL + i] - (c0[i] * wie[0] + c0[3 + i] * wie[1] + c0[6 + i] * wie[2])
-        x[_BA + i] = 0.0
+        x[_BA + i] = ba0[i]
     g = normal_gravity(lat, h)
     a = np.zeros((3, 3))
     for j in range(3):  # rows N, E of J C0 / g: phi_N = (C b)_E / g, phi_E = -(C b)_N / g
@@ -684,6 +717,24 @@ def _k_start(x, c0, heading_var, p, t):
     x[_RP] = t
     x[_PHASE] = 2.0
     _k_refresh(x, p)
+
+
+@njit
+def _k_relevel(x, p, t, c0, r9):
+    g = normal_gravity(p[_LAT], p[_H0])
+    phi0, phi1, phi2 = 0.0, 0.0, 0.0
+    for j in range(3):  # (J C0 / g) b_a
+        phi0 += x[_C0 + 3 + j] / g * x[_BA + j]
+        phi1 += -x[_C0 + j] / g * x[_BA + j]
+    x[_LEVEL] = 1.0
+    x[_PHI0], x[_PHI0 + 1], x[_PHI0 + 2] = phi0, phi1, phi2
+    rodrigues_into(phi0, phi1, phi2, r9)
+    for i in range(3):
+        for j in range(3):
+            c0[3 * i + j] = r9[3 * i] * x[_C0 + j] + r9[3 * i + 1] * x[_C0 + 3 + j] + r9[3 * i + 2] * x[_C0 + 6 + j]
+    ba = x[_BA:_BA + 3].copy()
+    _k_start(x, c0, x[_HVAR], p, t, ba)
+    x[_RESTART] = 1.0
 
 
 @njit
@@ -924,6 +975,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
     wen = np.empty(3)
     w = np.empty(3)
     f = np.empty(3)
+    zero3 = np.zeros(3)
     n = gyr.shape[0]
     k0 = x[_K]
     k = 0
@@ -971,7 +1023,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                                    if al[NGYR] > 0 else 0.0)
                 x[_KSTART] = kk + (1.0 if status == ALIGNED_NOW else 0.0)
                 if p[_HMAG] != 0.0:
-                    _k_start(x, u9, p[_MAGH] ** 2, p, x[_TIME])
+                    _k_start(x, u9, p[_MAGH] ** 2, p, x[_TIME], zero3)
                 else:
                     for i in range(9):
                         x[_C + i] = u9[i]
@@ -1020,7 +1072,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                                 c0[j] = ca * x[_CAL + j] - sa * x[_CAL + 3 + j]
                                 c0[3 + j] = sa * x[_CAL + j] + ca * x[_CAL + 3 + j]
                                 c0[6 + j] = x[_CAL + 6 + j]
-                            _k_start(x, c0, (p[_VH] / speed) ** 2 + p[_SLIP] ** 2, p, tk)
+                            _k_start(x, c0, (p[_VH] / speed) ** 2 + p[_SLIP] ** 2, p, tk, zero3)
                             x[_RESTART] = 1.0
                     flags |= 1
                 else:
@@ -1063,6 +1115,8 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                         _k_propagate(x, p, fm, tmp, fmt)
                     if new:
                         flags |= _k_update(x, p, gn[k], tk, hm, dxv, hp, r1)
+                        if x[_LEVEL] == 0.0 and max(x[_SD + 12], x[_SD + 13]) < p[_RELEVEL]:
+                            _k_relevel(x, p, tk, c0, r1)
             _k_output(x, m, fo, t9, u9, q)
         out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
         out_f[k] = flags
