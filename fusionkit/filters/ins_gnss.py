@@ -299,8 +299,9 @@ class InsGnssFilter(Filter):
                 al, gyr, acc, mag if mag_ok else None, gyr_ok, acc_ok, mag_ok, bool(flags & Flag.MOTION))
             if status in (ALIGNED_NOW, ALIGNED_BEFORE):
                 self._aligned(x, quat_to_matrix(q) @ self.M.T, al, k + (1.0 if status == ALIGNED_NOW else 0.0), p)
-            if status in (ALIGNING, ALIGNED_NOW):
-                return matrix_to_quat(self.F @ quat_to_matrix(q)), flags | Flag.ALIGNING
+            if status in (ALIGNING, ALIGNED_NOW):  # (with the declination when the magnetometer gives the heading)
+                decl = _rz(p[_DECL] if p[_HMAG] else 0.0)
+                return matrix_to_quat(self.F @ decl @ quat_to_matrix(q)), flags | Flag.ALIGNING
         c = x[_C:_C + 9].reshape(3, 3)
         if gn[0] != 0.0 and np.isfinite(gn[2:8]).any() and gn[1] <= t:
             x[_TGOOD] = max(x[_TGOOD], gn[1])
@@ -1031,7 +1032,10 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                         x[_BG + i] = x[_GAL + i]
                     x[_PHASE] = 1.0
             if status == ALIGNING or status == ALIGNED_NOW:
-                quat_to_dcm(q, t9)
+                quat_to_dcm(q, u9)
+                ca, sa = math.cos(p[_DECL] if p[_HMAG] != 0.0 else 0.0), math.sin(p[_DECL] if p[_HMAG] != 0.0 else 0.0)
+                for j in range(3):
+                    t9[j], t9[3 + j], t9[6 + j] = ca * u9[j] - sa * u9[3 + j], sa * u9[j] + ca * u9[3 + j], u9[6 + j]
                 for i in range(3):
                     for j in range(3):
                         u9[3 * i + j] = fo[i, 0] * t9[j] + fo[i, 1] * t9[3 + j] + fo[i, 2] * t9[6 + j]
