@@ -566,10 +566,10 @@ class InsGnssFilter(Filter):
                     continue
                 k += 1
         x = st["x"]
-        if x[_LEVEL] == 1.0 and self.config.relevel is not None:  # the alignment span, re-levelled as well
+        if x[_PHASE] == 2.0:  # the alignment span turned like its end: the course heading and the re-levelling
             end = min(n, max(0, int(x[_KSTART] - k0)))
-            fix = matrix_to_quat(self.F @ rodrigues(x[_PHI0:_PHI0 + 3]) @ self.F.T)
-            q[:end] = quat_mul(fix, q[:end])
+            turn = x[_C0:_C0 + 9].reshape(3, 3) @ x[_CAL:_CAL + 9].reshape(3, 3).T
+            q[:end] = quat_mul(matrix_to_quat(self.F @ turn @ self.F.T), q[:end])
         names = ("velocity", "position", "gyr_bias", "acc_bias", "attitude_std", "velocity_std", "position_std",
                  "gyr_bias_std", "acc_bias_std")
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "state": st,
