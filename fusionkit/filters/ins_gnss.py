@@ -515,7 +515,7 @@ class InsGnssFilter(Filter):
         x[_BG:_BG + 3] += dx[9:12]
         x[_BA:_BA + 3] += dx[12:15]
         x[_COV:_COV + 225] = (0.5 * (pm + pm.T)).reshape(225)
-        self._refresh(x, p)
+        x[_SD:_SD + 15] = np.sqrt(np.maximum(np.diag(x[_COV:_COV + 225].reshape(15, 15)), 0.0))
         return flags
 
     def _output(self, x) -> np.ndarray:
@@ -745,16 +745,12 @@ def _k_propagate(x, p, fm, tmp, fmt):
         return
     wie = x[_WIE:_WIE + 3]
     wen = x[_WEN:_WEN + 3]
-    fm[:, :] = 0.0
-    for i in range(15):
-        fm[i, i] = 1.0
+    fm[:, :] = 0.0  # E = F - I: non-zero in rows 0..8 only
     _k_skew_into(fm, 0, 0, wie[0] + wen[0], wie[1] + wen[1], wie[2] + wen[2], -tt)
     _k_skew_into(fm, 3, 0, x[_DV], x[_DV + 1], x[_DV + 2], -1.0)
     _k_skew_into(fm, 3, 3, 2.0 * wie[0] + wen[0], 2.0 * wie[1] + wen[1], 2.0 * wie[2] + wen[2], -tt)
     _k_skew_into(fm, 6, 0, x[_DV], x[_DV + 1], x[_DV + 2], -0.5 * tt)
     for i in range(3):
-        fm[i, i] += 1.0
-        fm[3 + i, 3 + i] += 1.0
         fm[6 + i, 3 + i] = tt
         for j in range(3):
             s = x[_SC + 3 * i + j]
@@ -762,11 +758,24 @@ def _k_propagate(x, p, fm, tmp, fmt):
             fm[3 + i, 12 + j] = -s
             fm[6 + i, 12 + j] = -0.5 * tt * s
     pm = x[_COV:_COV + 225].reshape((15, 15))
-    np.dot(fm, pm, tmp)  # F P
-    for i in range(15):
+    for i in range(15):  # F P = P + E P
         for j in range(15):
-            fmt[i, j] = fm[j, i]
-    np.dot(tmp, fmt, pm)  # (F P) F^T
+            tmp[i, j] = pm[i, j]
+    for i in range(9):
+        for k in range(15):
+            e = fm[i, k]
+            if e != 0.0:
+                for j in range(15):
+                    tmp[i, j] += e * pm[k, j]
+    for i in range(15):  # (F P) F^T = F P + (F P) E^T
+        for j in range(15):
+            pm[i, j] = tmp[i, j]
+    for j in range(9):
+        for k in range(15):
+            e = fm[j, k]
+            if e != 0.0:
+                for i in range(15):
+                    pm[i, j] += tmp[i, k] * e
     qa = p[_AN] ** 2
     for i in range(3):
         pm[i, i] += p[_GN] ** 2 * tt
@@ -886,10 +895,11 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
                 for j in range(15):
                     hp[1, j] = hp[0, j] / si  # the gain
                     dx[j] += hp[1, j] * innov
-                for j in range(15):
+                for j in range(15):  # symmetric: the upper triangle, mirrored (the same products)
                     kj = hp[1, j]
-                    for k in range(15):
+                    for k in range(j, 15):
                         pm[j, k] -= kj * hp[1, k] * si
+                        pm[k, j] = pm[j, k]
             x[last] = t
         elif t - x[last] > p[_GTO]:
             for i in range(3):
@@ -922,7 +932,8 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
             a = 0.5 * (pm[i, j] + pm[j, i])
             pm[i, j] = a
             pm[j, i] = a
-    _k_refresh(x, p)
+    for i in range(15):
+        x[_SD + i] = math.sqrt(max(x[_COV + 16 * i], 0.0))
     return flags
 
 
