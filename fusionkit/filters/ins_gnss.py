@@ -177,11 +177,17 @@ def gnss_epoch_rows(rec: Recording) -> np.ndarray:
     bad = ~np.asarray(g.valid, bool)
     vel[bad] = np.nan
     pos[bad] = np.nan
-    t = rec.time
-    k = np.searchsorted(t, g.t, side="left")
-    for j in np.argsort(g.t, kind="stable"):  # by time: the latest epoch before a sample wins
-        if k[j] < n:
-            out[k[j]] = (1.0, g.t[j], *vel[j], *pos[j])
+    order = np.argsort(g.t, kind="stable")
+    k = np.searchsorted(rec.time, g.t[order], side="left")
+    inside = k < n
+    order, k = order[inside], k[inside]
+    _, first = np.unique(k[::-1], return_index=True)  # by time: the latest epoch before a sample wins
+    last = k.size - 1 - first
+    j, k = order[last], k[last]
+    out[k, 0] = 1.0
+    out[k, 1] = g.t[j]
+    out[k, 2:5] = vel[j]
+    out[k, 5:8] = pos[j]
     return out
 
 
