@@ -221,6 +221,9 @@ class InsGnssFilter(Filter):
     name: ClassVar[str] = "ins-gnss"
     Config = InsGnssConfig
     requires_gnss: ClassVar[bool] = True
+    #: ``update()`` exists (GNSS epochs as ``(t, v, p)``), but ``run()`` rewrites the spans it goes over
+    #: again (course heading, re-levelling) where a stream cannot: the two differ there by design
+    streaming: ClassVar[bool] = False
     source: ClassVar[str] = "baseline (loosely coupled INS/GNSS EKF); strapdown step of source 004, alignment of 000"
     summary: ClassVar[str] = "15-state error-state EKF: strapdown propagation, GNSS velocity and position updates"
 
@@ -536,8 +539,9 @@ class InsGnssFilter(Filter):
                                af @ d[0:3], af @ d[3:6], af @ d[6:9], am @ d[9:12], am @ d[12:15]])
 
     # -- public ----------------------------------------------------------------------------------
-    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
-            state: dict | None = None) -> Result:
+    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None) -> Result:
+        """Process ``rec`` from its start (a run cannot go on from an earlier one's state: its
+        re-runs go back to the end of the alignment; stream with :meth:`update` instead)."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         if rec.gnss is None:
@@ -546,8 +550,7 @@ class InsGnssFilter(Filter):
         used = resolve_backend(backend, True)
         n = len(rec)
         gn = gnss_epoch_rows(rec)
-        st = state if state is not None else self.new_state(rec.nominal_dt, rec)
-        st = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in st.items()}
+        st = self.new_state(rec.nominal_dt, rec)
         mag = rec.mag if (st["use_mag"] and rec.mag is not None) else np.zeros((n, 3))
         dt, t = rec.dt, rec.time
         q = np.empty((n, 4))
