@@ -33,6 +33,7 @@ class Flag(enum.IntFlag):
     MAG_DISTURBED = 1 << 8  #: a magnetic disturbance detector rejects the magnetometer
     ACC_REJECTED = 1 << 9  #: accelerometer correction rejected (dynamic acceleration)
     GNSS_GAP = 1 << 10  #: no usable GNSS on this sample
+    GNSS_REJECTED = 1 << 11  #: a GNSS measurement on this sample failed the innovation gate and was not used
 
 
 def flag_names(value: int) -> list[str]:

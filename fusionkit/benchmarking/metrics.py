@@ -19,7 +19,7 @@ from ..conventions import change_frame
 from ..errors import InputError
 from ..rotations import quat_conj, quat_mul
 
-__all__ = ["broad_errors", "rms_errors", "trial_metrics", "gnss_masks"]
+__all__ = ["broad_errors", "rms_errors", "trial_metrics", "gnss_masks", "navigation_errors"]
 
 
 def broad_errors(q_est, q_ref) -> dict[str, np.ndarray]:
@@ -67,12 +67,34 @@ def gnss_masks(rec) -> tuple[np.ndarray, np.ndarray]:
     return ok, ~ok
 
 
+def navigation_errors(result, rec, ok, gap) -> dict[str, float]:
+    """Velocity and position errors of a result that outputs them (``diagnostics["velocity"]``,
+    ``["position"]`` in its frame, as ``ins-gnss`` does) against a reference that has them
+    (``meta["ref_vel_ned"]``, ``["ref_pos_ned"]``, the GNSS scenarios and ``fusionkit.sim.flight``):
+    RMS of the error's norm while GNSS is usable (``velocity``, m/s; ``position``, m) and the
+    position error at the end of the last gap (``position_gap_end``, m). Empty otherwise."""
+    from ..conventions import frame_matrix
+
+    out: dict[str, float] = {}
+    m = frame_matrix("NED", result.frame)
+    for key, ref in (("velocity", "ref_vel_ned"), ("position", "ref_pos_ned")):
+        est, truth = result.diagnostics.get(key), rec.meta.get(ref)
+        if est is None or truth is None or np.shape(est) != np.shape(truth):
+            continue
+        err = np.linalg.norm(np.asarray(est) - np.asarray(truth) @ m.T, axis=1)
+        out[key] = _rms(err[ok])
+        if key == "position" and gap.any():
+            out["position_gap_end"] = float(err[np.flatnonzero(gap)[-1]])
+    return out
+
+
 def trial_metrics(result, rec, dimension: str) -> dict[str, float]:
     """The metrics of a run, by the kind of recording.
 
     BROAD-like (``movement`` mask): total, heading, inclination RMSE over the movement samples;
     ``score`` is total for a 9D run and inclination for a 6D one. GNSS flights: tilt
-    (inclination) and heading RMS overall, with GNSS and in gaps. Other recordings with a
+    (inclination) and heading RMS overall, with GNSS and in gaps, and for filters that output
+    them the velocity and position errors (:func:`navigation_errors`). Other recordings with a
     reference: RMS over all samples where the reference is finite. No reference: ``{}``.
     """
     if rec.truth is None:
@@ -90,5 +112,6 @@ def trial_metrics(result, rec, dimension: str) -> dict[str, float]:
             for name, mask in (("gnss", ok), ("gap", gap)):
                 out[f"tilt_{name}"] = _rms(errs["inclination"][mask])
                 out[f"heading_{name}"] = _rms(errs["heading"][mask])
+            out.update(navigation_errors(result, rec, ok, gap))
     out["score"] = out["total"] if dimension == "9D" else out["inclination"]
     return out

@@ -422,6 +422,7 @@ class BenchResult:
         rows.append(["samples/s"] + [f"{summ[f]['samples_per_s']:,.0f}" if summ[f]["trials"] else "n/a"
                                      for f in self.filters])
         rows.append(["judged as"] + [summ[f]["dimension"] for f in self.filters])
+        rows += self._navigation_rows(trials)
         if format == "csv":
             return "\n".join(",".join(c.replace(",", "") if i else c for i, c in enumerate(r)) for r in [head] + rows)
         cached = sum(bool(r.get("cached")) for r in self.records)
@@ -446,6 +447,21 @@ class BenchResult:
             if r["error"]:
                 lines.append(f"error: {r['filter']} on {r['trial']}: {r['error']}")
         return "\n".join(lines)
+
+    def _navigation_rows(self, trials) -> list[list[str]]:
+        """GNSS trials: tilt and heading with GNSS, velocity (m/s) and position (m) errors
+        (filters that output them, e.g. ins-gnss), one row each per trial."""
+        rows = []
+        for t in trials:
+            recs = {r["filter"]: r for r in self.records if r["trial"] == t and not r["error"]}
+            if not any("tilt_gnss" in r["metrics"] for r in recs.values()):
+                continue
+            for key, fmt in (("tilt_gnss", "{:.3f}"), ("heading_gnss", "{:.3f}"), ("velocity", "{:.3f}"),
+                             ("position", "{:.2f}"), ("position_gap_end", "{:.2f}")):
+                vals = [recs[f]["metrics"].get(key) if f in recs else None for f in self.filters]
+                if any(v is not None for v in vals):
+                    rows.append([f"{t} {key}"] + ["-" if v is None else fmt.format(v) for v in vals])
+        return rows
 
     def group_table(self, metric: str = "score", format: str = "markdown") -> str:
         """Mean metric per filter (columns) and group (rows)."""
