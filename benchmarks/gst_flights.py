@@ -24,7 +24,7 @@ for name in ("heli_cruise", "car_drive"):
     rec = fk.load(f'{args.data}/{name}/{name}.h5')
     for flt in ("gst", "gst-gnss", ("gst", {"reject": False}), ("gst-gnss", {"heading_init": "blend"}), "vqf", "poisson"):
         nm, kw = (flt, {}) if isinstance(flt, str) else flt
-        f = fk.make(nm, **({"body": "FRD"} if nm.startswith("gst") else {}), **kw)
+        f = fk.make(nm, **kw)  # the loader sets the recording's body axes (FRD)
         f.run(rec.slice(0, 200))
         t0 = time.perf_counter(); r = f.run(rec); sps = len(rec)/(time.perf_counter()-t0)
         m = trial_metrics(r, rec, f.dimension(rec))

@@ -27,15 +27,14 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from .._numba import njit
-from ..config import PluginConfig, param
-from ..conventions import east_vector, north_vector, up_vector
+from ..config import BodyAxes, PluginConfig, param
+from ..conventions import body_axis, east_vector, north_vector, resolve_body, up_vector
 from ..protocols import Correction, Corrector, CorrectorKernel
 from ..rotations import quat_to_matrix
 from ..types import Flag
 
 __all__ = ["GstCorrector", "GstGnssCorrector", "gst_correct", "gst_gnss_correct"]
 
-_FORWARD = {"RFU": [0.0, 1.0, 0.0], "FRD": [1.0, 0.0, 0.0], "FLU": [1.0, 0.0, 0.0]}
 # state: up (3), north (3), east (3), lp auto (3), lp gnss (3), |f| at rest, seconds rejected,
 # V_prev, t_prev, a_long, V, heading initialised
 _UP, _N, _E, _LPA, _LPG, _GN, _REJT, _VPREV, _TPREV, _ALONG, _V, _HINIT = 0, 3, 6, 9, 12, 15, 16, 17, 18, 19, 20, 21
@@ -231,7 +230,8 @@ class GstGnssCorrectorConfig(GstCorrectorConfig):
     heading_init: Literal["track", "blend"] = param("track", unit="-", description="jump to the first track angle or blend")
     min_speed: float = param(5.0, unit="m/s", description="no track angle below this ground speed", ge=0)
     gnss_max_age: float = param(0.5, unit="s", description="a GNSS epoch older than this is a gap", gt=0)
-    body: Literal["RFU", "FRD", "FLU"] = param("RFU", unit="-", description="sensor axes (which one is forward)")
+    body: BodyAxes = param(None, unit="-", description="sensor axes (which one is forward); None: the pipeline's "
+                           "or the recording's, else the document's RFU")
 
 
 class GstGnssCorrector(GstCorrector):
@@ -264,7 +264,7 @@ class GstGnssCorrector(GstCorrector):
                 return Correction(np.zeros(3), Flag.ACC_REJECTED | Flag.GNSS_GAP)
             return Correction(self._rate(r, state, d_auto, c.tau), Flag.GNSS_GAP)
         up, north, east = state[_UP:_UP + 3], state[_N:_N + 3], state[_E:_E + 3]
-        fwd = r @ np.asarray(_FORWARD[c.body])
+        fwd = r @ self._forward()
         fwd = fwd - (fwd @ up) * up
         fwd /= np.linalg.norm(fwd)
         right = np.cross(fwd, up)
@@ -283,8 +283,16 @@ class GstGnssCorrector(GstCorrector):
             rate = rate - r.T @ (turn * up)  # clockwise (heading up) is negative about "up"
         return Correction(rate)
 
+    def _forward(self) -> np.ndarray:
+        """The forward axis in the sensor's axes (RFU, the document's, when not known)."""
+        return body_axis(self.config.body or "RFU", "F")
+
+    def for_body(self, body):
+        b = resolve_body(body, self.config.body, f"corrector {self.name!r}")
+        return self if b == self.config.body else type(self)(self.config.model_copy(update={"body": b}))
+
     def kernel(self, estimator) -> CorrectorKernel | None:
         c = self.config
         p = self._params() + [c.tau_gnss, c.lp_gnss, c.heading_T, float(c.heading_init == "track"), c.min_speed,
-                              c.gnss_max_age] + _FORWARD[c.body]
+                              c.gnss_max_age] + self._forward().tolist()
         return CorrectorKernel(gst_gnss_correct, np.array(p), mode="rate", gnss=True)

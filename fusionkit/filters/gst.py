@@ -1,8 +1,9 @@
 """Source 001: the azimuth-free horizontal accompanying trihedron (GST) with accelerometer and
 GNSS correction. Filters ``gst`` (autonomous) and ``gst-gnss`` (combined).
 
-Frames. Body axes of the document: x right, y forward, z up (``body="RFU"``); sensors in other
-axes are mapped by ``body`` ("FRD", "FLU"). The platform trihedron x2 y2 z2 has z up and an
+Frames. Body axes of the document: x right, y forward, z up (``"RFU"``); sensors in other axes
+(``Recording.body`` or the ``body=`` argument: "FRD", "FLU", ...) are mapped into them, and the
+output is body(sensor axes) -> earth. Without either, the sensors are taken as RFU. The platform trihedron x2 y2 z2 has z up and an
 arbitrary, azimuth-free heading.
 
 Per sample (after source 000's alignment has levelled the platform and estimated the gyro bias):
@@ -43,8 +44,8 @@ import numpy as np
 
 from .._kernels import dcm_to_quat, qmul_into, qnormalize, quat_to_dcm
 from .._numba import njit, resolve_backend
-from ..config import AlignmentConfig, FilterConfig, param
-from ..conventions import frame_matrix
+from ..config import AlignmentConfig, BodyAxes, FilterConfig, param
+from ..conventions import body_matrix, frame_matrix
 from ..detectors.gnss_gap import NO_GNSS, gnss_sample_rows
 from ..detectors.motion import MotionConfig, MotionDetector, _motion_step
 from ..errors import InputError
@@ -58,12 +59,9 @@ from ..validation import check_finite_all
 
 __all__ = ["GstFilter", "GstGnssFilter", "BODY_AXES", "MODES"]
 
-#: sensor axes -> the document's body axes (x right, y forward, z up): v_rfu = M v_sensor
-BODY_AXES = {
-    "RFU": np.eye(3),
-    "FRD": np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]),
-    "FLU": np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
-}
+#: sensor axes -> the document's body axes (x right, y forward, z up): v_rfu = M v_sensor (any
+#: other convention: :func:`fusionkit.conventions.body_matrix`)
+BODY_AXES = {b: body_matrix(b, "RFU") for b in ("RFU", "FRD", "FLU")}
 #: per-sample mode codes in ``diagnostics["mode"]``
 MODES = ("aligning", "autonomous", "gnss", "rejected")
 
@@ -74,8 +72,9 @@ _SIZE = 25
 
 
 class GstConfig(FilterConfig):
-    body: Literal["RFU", "FRD", "FLU"] = param(
-        "RFU", unit="-", description="sensor axes: RFU is the document's (x right, y forward, z up)"
+    body: BodyAxes = param(
+        None, unit="-", description="sensor axes ('FRD', 'FLU', ...); None: the recording's (Recording.body), else "
+        "RFU, the document's (x right, y forward, z up)"
     )
     combined: bool = param(False, unit="-", description="use GNSS when usable (gst-gnss), else autonomous only")
     tau_gnss: float = param(20.0, unit="s", description="levelling loop time constant with GNSS (K = 1/(g tau))", gt=0)
@@ -119,7 +118,7 @@ class GstFilter(Filter):
             motion = motion.model_copy(update={"arm_after": c.alignment_duration})
         self.detector = MotionDetector(motion)
         self.alignment = AlignmentConfig(mode=c.alignment, duration=c.alignment_duration)
-        self.M = BODY_AXES[c.body]
+        self.M = self.axes(c.body)  # for update(), which has no recording
         self.F = frame_matrix("ENU", c.frame)  # output frame, folded into the output rotation
         self._p = self.params()
         self._aligners: dict[float, Aligner] = {}
@@ -130,6 +129,11 @@ class GstFilter(Filter):
         return "6D"  # no magnetometer: heading comes from gyros and, in gst-gnss, the GNSS track
 
     # -- parameters ------------------------------------------------------------------------
+    @staticmethod
+    def axes(body: str | None) -> np.ndarray:
+        """``M`` with ``v_rfu = M v_sensor`` for sensors in ``body`` axes (None: RFU)."""
+        return body_matrix(body or "RFU", "RFU")
+
     def aligner(self, dt: float) -> Aligner:
         if dt not in self._aligners:
             self._aligners[dt] = Aligner(self.alignment, "ENU", dt)
@@ -152,8 +156,9 @@ class GstFilter(Filter):
                 "align": self.aligner(dt).new_state()}
 
     # -- the readable reference --------------------------------------------------------------
-    def _step(self, st, gyr, acc, gnss, dt) -> tuple[np.ndarray, int, int]:
-        """One sample; ``gnss`` = (vn, ve, valid, age, new, t_epoch). Returns (q body->ENU, flags, mode)."""
+    def _step(self, st, gyr, acc, gnss, dt, m) -> tuple[np.ndarray, int, int]:
+        """One sample; ``gnss`` = (vn, ve, valid, age, new, t_epoch), ``m`` the sensor -> RFU
+        matrix (:meth:`axes`). Returns (q body->frame, flags, mode)."""
         c, x, al = self.config, st["x"], st["align"]
         gyr_ok, acc_ok = bool(np.isfinite(gyr).all()), bool(np.isfinite(acc).all() and np.any(acc != 0))
         flags = (0 if gyr_ok else Flag.GYR_INVALID) | (0 if acc_ok else Flag.ACC_INVALID)
@@ -163,13 +168,13 @@ class GstFilter(Filter):
         # source 000's alignment: level and gyro bias while still
         status, q = self.aligner(st["dt"]).step(al, gyr, acc, None, gyr_ok, acc_ok, False, bool(flags & Flag.MOTION))
         if status in (ALIGNED_NOW, ALIGNED_BEFORE):
-            self._start(x, q, al)
+            self._start(x, q, al, m)
         if status in (ALIGNING, ALIGNED_NOW):
             return matrix_to_quat(self.F @ quat_to_matrix(q)), flags | Flag.ALIGNING, 0
         if not (gyr_ok and acc_ok):  # hold the state over a bad sample
-            return self._output(x), flags, 0
-        w = self.M @ (gyr - al[BIAS:BIAS + 3])
-        f = self.M @ acc
+            return self._output(x, m), flags, 0
+        w = m @ (gyr - al[BIAS:BIAS + 3])
+        f = m @ acc
         p = self._p
         # 1. platform Poisson equation, exact over the sample
         cm = rodrigues(-x[_WP:_WP + 3] * dt) @ x[_C:_C + 9].reshape(3, 3) @ rodrigues(w * dt)
@@ -235,24 +240,24 @@ class GstFilter(Filter):
                 x[_HSTAR] += _wrap(track - x[_HSTAR]) * dt / p[8]
             x[_HINIT] = 1.0
         x[_HSTAR] = _wrap(x[_HSTAR])
-        return self._output(x), flags, mode
+        return self._output(x, m), flags, mode
 
-    def _start(self, x, q_enu_sensor, al) -> None:
+    def _start(self, x, q_enu_sensor, al, m) -> None:
         """Level the platform from the alignment attitude; keep |f| at rest as the local gravity."""
-        cm = quat_to_matrix(q_enu_sensor) @ self.M.T
+        cm = quat_to_matrix(q_enu_sensor) @ m.T
         x[_C:_C + 9] = cm.reshape(9)
         x[_HPREV] = x[_HSTAR] = math.atan2(cm[0, 1], cm[1, 1])
         x[_GNORM] = np.linalg.norm(al[SACC:SACC + 3]) / max(al[NACC], 1.0)
         x[_WP:_WP + 3] = 0.0
 
-    def _output(self, x) -> np.ndarray:
+    def _output(self, x, m) -> np.ndarray:
         """Body(sensor)->frame: the platform turned by alpha = H* - H about the vertical (ENU),
         then into the output frame."""
         cm = x[_C:_C + 9].reshape(3, 3)
         a = x[_HSTAR] - x[_HPREV]
         ca, sa = math.cos(a), math.sin(a)
         rz = np.array([[ca, sa, 0.0], [-sa, ca, 0.0], [0.0, 0.0, 1.0]])  # Rz(-alpha)
-        return matrix_to_quat((self.F @ rz) @ cm @ self.M)
+        return matrix_to_quat((self.F @ rz) @ cm @ m)
 
 
     # -- public ----------------------------------------------------------------------------
@@ -269,6 +274,8 @@ class GstFilter(Filter):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         check_finite_all({"gyr": rec.gyr, "acc": rec.acc}, self.config.nan_policy)
         used = resolve_backend(backend, True)
+        body = self.body_axes(rec)
+        m = self.axes(body)
         n = len(rec)
         gn = self._gnss_arrays(rec)
         st = state if state is not None else self.new_state(rec.nominal_dt)
@@ -278,15 +285,15 @@ class GstFilter(Filter):
         flags = np.zeros(n, np.uint32)
         mode = np.zeros(n, np.uint8)
         if used == "numba":
-            _gst_loop(rec.gyr, rec.acc, dt, gn, matrix_to_quat(self.M), matrix_to_quat(self.F), self._p, st["x"], st["det"],
+            _gst_loop(rec.gyr, rec.acc, dt, gn, matrix_to_quat(m), matrix_to_quat(self.F), self._p, st["x"], st["det"],
                       self.detector.kernel().params, st["align"], self.aligner(st["dt"]).params(),
                       q, flags, mode)
         else:
             for k in range(n):
-                q[k], flags[k], mode[k] = self._step(st, rec.gyr[k], rec.acc[k], gn[k], dt[k])
+                q[k], flags[k], mode[k] = self._step(st, rec.gyr[k], rec.acc[k], gn[k], dt[k], m)
         al = st["align"]
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "mode": mode,
-                "mode_names": MODES, "bias": al[BIAS:BIAS + 3].copy(),
+                "mode_names": MODES, "bias": al[BIAS:BIAS + 3].copy(), "body": body or "RFU",
                 "alignment_end_index": None if al[17] < 0 else int(al[17]), "state": st}
         return Result(q, flags, self.config.frame, diag)
 
@@ -294,7 +301,8 @@ class GstFilter(Filter):
         self._stream = None
 
     def update(self, gyr, acc, mag=None, dt: float | None = None, gnss=None) -> np.ndarray:
-        """One sample; ``gnss`` = (vn, ve, valid, age, new, t_epoch) of the latest epoch, or None."""
+        """One sample; ``gnss`` = (vn, ve, valid, age, new, t_epoch) of the latest epoch, or None.
+        Without a recording, the sensors' axes are the config's ``body`` (None: RFU)."""
         from ..validation import as_vector, check_positive
 
         if dt is None:
@@ -306,7 +314,7 @@ class GstFilter(Filter):
         if self._stream is None:
             self._stream = self.new_state(dt)
         gn = NO_GNSS if gnss is None else np.asarray(gnss, float)
-        q, f, _ = self._step(self._stream, g, a, gn, dt)
+        q, f, _ = self._step(self._stream, g, a, gn, dt, self.M)
         self.last_flags = int(f)
         return q
 
