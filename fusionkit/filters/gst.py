@@ -18,7 +18,17 @@ Per sample (after source 000's alignment has levelled the platform and estimated
    sign", for a z-up platform), ``K = 1 / (g tau)`` for a loop time constant ``tau``:
    (a) GNSS-aided: ``d = LP(f_P,h - a_kin)``, with ``a_kin`` the along-track acceleration
    ``a = dV/dt`` on the forward axis and the centripetal ``V dH/dt`` on the right axis (eqs. 3,
-   4), V the GNSS ground speed and dH/dt the turn rate measured by the gyros;
+   4), V the GNSS ground speed and dH/dt the rate of the platform heading H (step 4) over the
+   sample (``turn_rate="gyro"``: the platform-vertical body rate instead, which differs from
+   dH/dt by (roll rate) sin(pitch) while a pitched vehicle rolls into a turn). ``tau`` of this
+   loop comes from the sensor model: the GNSS velocity noise leaves a tilt error of about
+   ``sigma_v / (g tau)``, a slow gyro rate error ``drift`` one of ``drift tau``; their sum is
+   least at ``tau = sqrt(sigma_v / (g drift))`` (``gnss_vel_noise``, ``gyro_drift``; or
+   ``tau_gnss``). Extension (``tau_acc_bias``): an accelerometer bias ``b`` tilts any
+   accelerometer-levelled platform by ``b_h / g``; it is body-fixed while a tilt is
+   platform-fixed, so when the vehicle turns it shows in ``d``: ``b <- b + C^T [d, 0] dt /
+   tau_acc_bias`` while GNSS is usable (a decade slower than the tilt loop, so that the two
+   separate), and ``f_B - b`` is used throughout. ``tau_acc_bias=None`` is the document's loop;
    (b) autonomous: ``d = LP(f_P,h)``, first-order "aperiodic" low-pass links.
    Combined (``gst-gnss``): (a) while GNSS is usable, (b) in GNSS gaps; one platform, so the
    switch has no jump; ``gnss_weight`` < 1 mixes (b) into (a) as the document's combination.
@@ -66,9 +76,9 @@ BODY_AXES = {b: body_matrix(b, "RFU") for b in ("RFU", "FRD", "FLU")}
 MODES = ("aligning", "autonomous", "gnss", "rejected")
 
 # state layout
-_C, _WP, _LPA, _LPG, _VPREV, _TPREV, _ALONG, _V, _HPREV, _HSTAR, _HINIT, _GNORM, _REJT = (
-    0, 9, 12, 14, 16, 17, 18, 19, 20, 21, 22, 23, 24)
-_SIZE = 25
+_C, _WP, _LPA, _LPG, _VPREV, _TPREV, _ALONG, _V, _HPREV, _HSTAR, _HINIT, _GNORM, _REJT, _BA = (
+    0, 9, 12, 14, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25)
+_SIZE = 28
 
 
 class GstConfig(FilterConfig):
@@ -77,7 +87,15 @@ class GstConfig(FilterConfig):
         "RFU, the document's (x right, y forward, z up)"
     )
     combined: bool = param(False, unit="-", description="use GNSS when usable (gst-gnss), else autonomous only")
-    tau_gnss: float = param(20.0, unit="s", description="levelling loop time constant with GNSS (K = 1/(g tau))", gt=0)
+    tau_gnss: float | None = param(
+        None, unit="s", description="levelling loop time constant with GNSS (K = 1/(g tau)); None: from the sensor "
+        "model, sqrt(gnss_vel_noise / (g gyro_drift)), the tau that minimises the tilt error the GNSS velocity noise "
+        "(~ sigma_v / (g tau)) and the gyro drift (~ drift tau) leave (fusionkit before: 20 s)", gt=0)
+    gnss_vel_noise: float = param(
+        0.05, unit="m/s", description="GNSS velocity noise per axis (a receiver's specification; sets tau_gnss)", gt=0)
+    gyro_drift: float = param(
+        4.8e-5, unit="rad/s", description="slow gyro rate error left after the alignment: bias instability (10 deg/h, "
+        "a low-cost MEMS gyro's specification; sets tau_gnss)", gt=0)
     tau_auto: float = param(50.0, unit="s", description="levelling loop time constant, autonomous", gt=0)
     lp_gnss: float = param(2.0, unit="s", description="low-pass time constant of the GNSS-aided residual", gt=0)
     lp_auto: float = param(2.0, unit="s", description="aperiodic-link time constant of the autonomous signal", gt=0)
@@ -91,6 +109,13 @@ class GstConfig(FilterConfig):
     reject_timeout: float = param(
         60.0, unit="s", description="after this long paused by the horizontal-force test alone, correct anyway "
         "(recovers a platform tilted beyond that test)", gt=0)
+    tau_acc_bias: float | None = param(
+        100.0, unit="s", description="extension: time constant of the accelerometer bias estimate from the GNSS-aided "
+        "residual (observable as the vehicle turns); None: the document's loop (no estimate)", gt=0)
+    turn_rate: Literal["heading", "gyro"] = param(
+        "heading", unit="-", description="dH/dt of the centripetal V dH/dt (eq. 3): 'heading' differentiates the "
+        "platform heading H of the forward axis (the document); 'gyro' takes the platform-vertical body rate, "
+        "which differs by (roll rate) sin(pitch) while rolling into or out of a turn at a pitch")
     heading_T: float = param(50.0, unit="s", description="track-angle blend time constant T (eq. 5)", gt=0)
     heading_init: Literal["track", "blend"] = param(
         "track", unit="-", description="'track': start H* at the first usable track angle; 'blend': eq. 5 from H"
@@ -143,10 +168,16 @@ class GstFilter(Filter):
         """The kernel's parameter vector (``K = 1/(g tau)`` with standard gravity)."""
         c = self.config
         return np.array([
-            1.0 / (g * c.tau_gnss), 1.0 / (g * c.tau_auto), c.lp_gnss, c.lp_auto, c.gnss_weight, float(c.reject),
+            1.0 / (g * self.tau_gnss(g)), 1.0 / (g * c.tau_auto), c.lp_gnss, c.lp_auto, c.gnss_weight, float(c.reject),
             c.reject_acc, c.reject_turn, c.heading_T, float(c.heading_init == "track"), c.min_speed,
             c.gnss_max_age, float(c.combined), c.reject_horizontal, c.reject_timeout,
+            0.0 if c.tau_acc_bias is None else 1.0 / c.tau_acc_bias, float(c.turn_rate == "heading"),
         ])
+
+    def tau_gnss(self, g: float = 9.80665) -> float:
+        """The GNSS loop's time constant: ``tau_gnss``, or from the sensor model."""
+        c = self.config
+        return c.tau_gnss if c.tau_gnss is not None else math.sqrt(c.gnss_vel_noise / (g * c.gyro_drift))
 
     def new_state(self, dt: float) -> dict[str, Any]:
         x = np.zeros(_SIZE)
@@ -174,7 +205,7 @@ class GstFilter(Filter):
         if not (gyr_ok and acc_ok):  # hold the state over a bad sample
             return self._output(x, m), flags, 0
         w = m @ (gyr - al[BIAS:BIAS + 3])
-        f = m @ acc
+        f = m @ acc - x[_BA:_BA + 3]
         p = self._p
         # 1. platform Poisson equation, exact over the sample
         cm = rodrigues(-x[_WP:_WP + 3] * dt) @ x[_C:_C + 9].reshape(3, 3) @ rodrigues(w * dt)
@@ -198,7 +229,10 @@ class GstFilter(Filter):
             x[_VPREV], x[_TPREV], x[_V] = v, t_ep, v
         elif not valid:
             x[_TPREV] = np.nan  # no derivative across a gap
-        a_lat = x[_V] * (-w_up)  # centripetal, towards the right for a right (clockwise) turn
+        # centripetal, towards the right for a right (clockwise) turn: V dH/dt (eq. 3), H the
+        # platform heading of the forward axis (or the platform-vertical body rate, "gyro")
+        turn = _wrap(math.atan2(fx, fy) - x[_HPREV]) / dt if p[16] != 0.0 else -w_up
+        a_lat = x[_V] * turn
         ax = x[_ALONG] * fx + a_lat * fy  # right axis = (fy, -fx)
         ay = x[_ALONG] * fy - a_lat * fx
         kg = 1.0 - math.exp(-dt / p[2])
@@ -228,6 +262,8 @@ class GstFilter(Filter):
         if c.combined and not gnss_ok:
             flags |= Flag.GNSS_GAP
         x[_WP], x[_WP + 1], x[_WP + 2] = -dy, dx, 0.0
+        if gnss_ok and p[15] > 0.0:  # 3d. the accelerometer bias: the residual seen in the body
+            x[_BA:_BA + 3] += (p[15] * dt) * (cm.T @ np.array([x[_LPG], x[_LPG + 1], 0.0]))
         # 4. heading: gyroscopic H, blended with the GNSS track angle (eq. 5)
         h = math.atan2(fx, fy)
         x[_HSTAR] += _wrap(h - x[_HPREV])
@@ -423,9 +459,9 @@ def _gst_loop(gyr, acc, dt, gn, qm, qf, p, x, ds, dp, al, ap, out_q, out_f, out_
             w0 = m[0] * b0 + m[1] * b1 + m[2] * b2
             w1 = m[3] * b0 + m[4] * b1 + m[5] * b2
             w2 = m[6] * b0 + m[7] * b1 + m[8] * b2
-            f0 = m[0] * a0 + m[1] * a1 + m[2] * a2
-            f1 = m[3] * a0 + m[4] * a1 + m[5] * a2
-            f2 = m[6] * a0 + m[7] * a1 + m[8] * a2
+            f0 = m[0] * a0 + m[1] * a1 + m[2] * a2 - x[_BA]
+            f1 = m[3] * a0 + m[4] * a1 + m[5] * a2 - x[_BA + 1]
+            f2 = m[6] * a0 + m[7] * a1 + m[8] * a2 - x[_BA + 2]
             # 1. platform Poisson equation: q_C <- exp(-w_P dt) (x) q_C (x) exp(w_B dt)
             _exp_quat(-x[_WP] * h, -x[_WP + 1] * h, -x[_WP + 2] * h, dq)
             qmul_into(dq[0], dq[1], dq[2], dq[3], qc[0], qc[1], qc[2], qc[3], tq)
@@ -463,7 +499,10 @@ def _gst_loop(gyr, acc, dt, gn, qm, qf, p, x, ds, dp, al, ap, out_q, out_f, out_
                 x[_VPREV], x[_TPREV], x[_V] = v, t_ep, v
             elif not valid:
                 x[_TPREV] = np.nan
-            a_lat = x[_V] * (-w_up)
+            if p[16] != 0.0:
+                a_lat = x[_V] * _kwrap(math.atan2(fx, fy) - x[_HPREV]) / h
+            else:
+                a_lat = x[_V] * (-w_up)
             ax = x[_ALONG] * fx + a_lat * fy
             ay = x[_ALONG] * fy - a_lat * fx
             if h != last_h:  # the low-pass coefficients, recomputed only when dt changes
@@ -499,6 +538,11 @@ def _gst_loop(gyr, acc, dt, gn, qm, qf, p, x, ds, dp, al, ap, out_q, out_f, out_
             if p[12] != 0.0 and not gnss_ok:
                 flags |= 1024
             x[_WP], x[_WP + 1], x[_WP + 2] = -dy, dx, 0.0
+            if gnss_ok and p[15] > 0.0:  # 3d. accelerometer bias: C^T [d, 0]
+                kb, l0, l1 = p[15] * h, x[_LPG], x[_LPG + 1]
+                x[_BA] += kb * (c00 * l0 + c10 * l1)
+                x[_BA + 1] += kb * (c01 * l0 + c11 * l1)
+                x[_BA + 2] += kb * (c02 * l0 + c12 * l1)
             # 4. heading
             hh = math.atan2(fx, fy)
             x[_HSTAR] += _kwrap(hh - x[_HPREV])
