@@ -56,6 +56,7 @@ from .._kernels import dcm_to_quat, qmul_into, qnormalize, quat_to_dcm
 from .._numba import njit, resolve_backend
 from ..config import AlignmentConfig, BodyAxes, FilterConfig, param
 from ..conventions import body_matrix, frame_matrix
+from ..correctors.gst import GnssLoopConfig
 from ..detectors.gnss_gap import NO_GNSS, gnss_sample_rows
 from ..detectors.motion import MotionConfig, MotionDetector, _motion_step
 from ..errors import InputError
@@ -81,21 +82,12 @@ _C, _WP, _LPA, _LPG, _VPREV, _TPREV, _ALONG, _V, _HPREV, _HSTAR, _HINIT, _GNORM,
 _SIZE = 28
 
 
-class GstConfig(FilterConfig):
+class GstConfig(FilterConfig, GnssLoopConfig):
     body: BodyAxes = param(
         None, unit="-", description="sensor axes ('FRD', 'FLU', ...); None: the recording's (Recording.body), else "
         "RFU, the document's (x right, y forward, z up)"
     )
     combined: bool = param(False, unit="-", description="use GNSS when usable (gst-gnss), else autonomous only")
-    tau_gnss: float | None = param(
-        None, unit="s", description="levelling loop time constant with GNSS (K = 1/(g tau)); None: from the sensor "
-        "model, sqrt(gnss_vel_noise / (g gyro_drift)), the tau that minimises the tilt error the GNSS velocity noise "
-        "(~ sigma_v / (g tau)) and the gyro drift (~ drift tau) leave (fusionkit before: 20 s)", gt=0)
-    gnss_vel_noise: float = param(
-        0.05, unit="m/s", description="GNSS velocity noise per axis (a receiver's specification; sets tau_gnss)", gt=0)
-    gyro_drift: float = param(
-        4.8e-5, unit="rad/s", description="slow gyro rate error left after the alignment: bias instability (10 deg/h, "
-        "a low-cost MEMS gyro's specification; sets tau_gnss)", gt=0)
     tau_auto: float = param(50.0, unit="s", description="levelling loop time constant, autonomous", gt=0)
     lp_gnss: float = param(2.0, unit="s", description="low-pass time constant of the GNSS-aided residual", gt=0)
     lp_auto: float = param(2.0, unit="s", description="aperiodic-link time constant of the autonomous signal", gt=0)
@@ -109,13 +101,6 @@ class GstConfig(FilterConfig):
     reject_timeout: float = param(
         60.0, unit="s", description="after this long paused by the horizontal-force test alone, correct anyway "
         "(recovers a platform tilted beyond that test)", gt=0)
-    tau_acc_bias: float | None = param(
-        100.0, unit="s", description="extension: time constant of the accelerometer bias estimate from the GNSS-aided "
-        "residual (observable as the vehicle turns); None: the document's loop (no estimate)", gt=0)
-    turn_rate: Literal["heading", "gyro"] = param(
-        "heading", unit="-", description="dH/dt of the centripetal V dH/dt (eq. 3): 'heading' differentiates the "
-        "platform heading H of the forward axis (the document); 'gyro' takes the platform-vertical body rate, "
-        "which differs by (roll rate) sin(pitch) while rolling into or out of a turn at a pitch")
     heading_T: float = param(50.0, unit="s", description="track-angle blend time constant T (eq. 5)", gt=0)
     heading_init: Literal["track", "blend"] = param(
         "track", unit="-", description="'track': start H* at the first usable track angle; 'blend': eq. 5 from H"
@@ -176,8 +161,7 @@ class GstFilter(Filter):
 
     def tau_gnss(self, g: float = 9.80665) -> float:
         """The GNSS loop's time constant: ``tau_gnss``, or from the sensor model."""
-        c = self.config
-        return c.tau_gnss if c.tau_gnss is not None else math.sqrt(c.gnss_vel_noise / (g * c.gyro_drift))
+        return self.config.gnss_time_constant(g)
 
     def new_state(self, dt: float) -> dict[str, Any]:
         x = np.zeros(_SIZE)
