@@ -299,6 +299,8 @@ def test_accelerometer_bias_is_estimated_as_the_vehicle_turns():
     b = est.diagnostics["state"]["x"][25:28]  # the estimate, in the document's RFU axes (this body is RFU)
     assert np.linalg.norm(b[:2] - [0.05, -0.03]) < 0.5 * np.hypot(0.05, 0.03)
     np.testing.assert_array_equal(doc.diagnostics["state"]["x"][25:28], 0.0)  # the document's loop: no estimate
+    pipe = corrector_pipeline("gst-gnss").run(rec)  # the corrector has the same estimate
+    assert rms(pipe) < 0.18 and rms(corrector_pipeline("gst-gnss", tau_acc_bias=None).run(rec)) > 0.25
 
 
 def test_gnss_time_constant_from_the_sensor_model():
