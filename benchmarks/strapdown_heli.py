@@ -29,7 +29,7 @@ def main() -> None:
     args = ap.parse_args()
     rec = fk.load(args.data)
     g = float(rec.meta["attrs"].get("gravity_at_origin_mps2", 9.80665))
-    est = fk.make("gst-gnss", body="FRD", frame="NED").run(rec).quat
+    est = fk.make("gst-gnss", frame="NED").run(rec).quat
     truth_ned = change_frame(rec.truth, rec.truth_frame, "NED")
     ref_pos = rec.meta["ref_pos_ned"]
     rate = 1.0 / rec.nominal_dt

@@ -12,16 +12,17 @@ import json
 import reprlib
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from .conventions import FRAMES
+from .conventions import FRAMES, check_body
 from .errors import ConfigError
 
 __all__ = [
     "PluginConfig",
     "FilterConfig",
+    "BodyAxes",
     "PluginSpec",
     "AlignmentConfig",
     "PipelineConfig",
@@ -44,6 +45,14 @@ class PluginConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
 
 
+def _body(value: str | None) -> str | None:
+    return None if value is None else check_body(value, error=ValueError)
+
+
+#: a config field holding a body axis convention (``"FLU"``, ``"FRD"``, ...) or None
+BodyAxes = Annotated[str | None, AfterValidator(_body)]
+
+
 class FilterConfig(PluginConfig):
     """Fields every filter has."""
 
@@ -61,6 +70,10 @@ class FilterConfig(PluginConfig):
     )
     acc_range: float | None = param(
         None, unit="m/s^2", description="accelerometer range; samples at or above it are flagged ACC_SATURATED", gt=0
+    )
+    body: BodyAxes = param(
+        None, unit="-", description="the sensors' body axes ('FLU', 'FRD', 'RFU', ...); None: the recording's "
+        "(Recording.body); one that contradicts the recording's is an error"
     )
 
 

@@ -32,6 +32,16 @@ Euler angles (:func:`quat_to_euler`, :func:`euler_to_quat`), always returned as
     axis 1)-> Mr, i.e. ``R = Ry(psi) Rz(theta) Rx(gamma)`` (intrinsic y-z'-x''). The document's
     matrix L (its eq. 1) maps earth to body, ``L = R^T``; see :func:`source000_matrix`.
 
+Body axes (:func:`check_body`, :func:`body_matrix`)
+    A sensor's axis convention names where its x, y, z axes point on the vehicle, one letter
+    each: ``F``/``B`` forward/back, ``L``/``R`` left/right, ``U``/``D`` up/down, one letter of
+    each pair, right-handed: ``"FLU"`` (ROS, ISO 8855), ``"FRD"`` (aerospace, PX4,
+    gnss-ins-sim), ``"RFU"`` (source 001's x right, y forward, z up), ... (24 in all).
+    ``Recording.body`` carries it (None: not known) and every filter takes the same ``body=``
+    argument (:func:`resolve_body`): a filter whose method assumes body axes (``gst``,
+    ``gst-gnss``: RFU) maps the sensors into them; the others never need a forward axis. Every
+    filter's output stays body -> earth for the *recording's* axes.
+
 Gravity
     ``GRAVITY`` = 9.780327 m/s^2, source 000's model (the equatorial normal gravity).
 """
@@ -63,6 +73,12 @@ __all__ = [
     "source000_euler",
     "to_scipy",
     "from_scipy",
+    "BODY_LETTERS",
+    "check_body",
+    "body_matrix",
+    "body_axis",
+    "change_body",
+    "resolve_body",
 ]
 
 Frame = Literal["ENU", "NED", "NWU", "NUE"]
@@ -194,3 +210,63 @@ def from_scipy(rotation) -> np.ndarray:
     q = rotation.as_quat()
     return np.asarray(q)[..., [3, 0, 1, 2]]
 
+
+
+# ---- body axis conventions -------------------------------------------------------------------
+
+#: each letter's direction in FLU coordinates (x forward, y left, z up)
+BODY_LETTERS = {
+    "F": (1.0, 0.0, 0.0), "B": (-1.0, 0.0, 0.0),
+    "L": (0.0, 1.0, 0.0), "R": (0.0, -1.0, 0.0),
+    "U": (0.0, 0.0, 1.0), "D": (0.0, 0.0, -1.0),
+}
+
+
+def _to_flu(body: str) -> np.ndarray:
+    """``A`` with ``v_flu = A @ v_body``: its columns are the body's axes in FLU."""
+    return np.array([BODY_LETTERS[c] for c in body]).T
+
+
+def check_body(body, name: str = "body", error: type[Exception] = ConfigError) -> str:
+    """``body`` as an upper-case axis convention (see the module doc), else raise ``error``
+    naming ``name``."""
+    if not isinstance(body, str) or len(body) != 3 or not set(body.upper()) <= set(BODY_LETTERS):
+        raise error(f"{name} must be a body axis convention of three letters from F/B, L/R, U/D such as 'FLU', "
+                    f"'FRD' or 'RFU', got {body!r}")
+    b = body.upper()
+    a = _to_flu(b)
+    if abs(np.linalg.det(a) - 1.0) > 1e-9:
+        pairs = {"F": "FB", "B": "FB", "L": "LR", "R": "LR", "U": "UD", "D": "UD"}
+        why = ("it names the same direction twice" if len({pairs[c] for c in b}) < 3
+               else "it is left-handed")
+        raise error(f"{name}={body!r} is not a right-handed set of body axes ({why}): e.g. 'FLU', 'FRD', 'RFU'")
+    return b
+
+
+def body_matrix(src: str, dst: str) -> np.ndarray:
+    """Matrix ``M`` with ``v_dst = M @ v_src`` for body-frame vectors (gyro, accelerometer,
+    magnetometer) measured in axes ``src`` and re-expressed in axes ``dst``."""
+    return _to_flu(check_body(dst)).T @ _to_flu(check_body(src))
+
+
+def body_axis(body: str, direction: str) -> np.ndarray:
+    """The unit vector of ``direction`` (one of F, B, L, R, U, D) in ``body`` axes."""
+    return body_matrix("FLU", body) @ np.array(BODY_LETTERS[direction.upper()])
+
+
+def change_body(quat, src: str, dst: str) -> np.ndarray:
+    """Re-express body(``src``)->earth quaternions as body(``dst``)->earth quaternions (the same
+    attitude of the same sensor, its axes named differently)."""
+    return quat_mul(np.asarray(quat, dtype=float), matrix_to_quat(body_matrix(dst, src)))
+
+
+def resolve_body(recording: str | None, argument: str | None, where: str) -> str | None:
+    """The body axes a run uses: the ``body=`` ``argument`` of ``where`` (a filter or plugin
+    name) and the ``recording``'s ``Recording.body``, either when only one is given; None when
+    neither is. Both given and different is a :class:`ConfigError` naming both."""
+    rec = None if recording is None else check_body(recording, "Recording.body")
+    arg = None if argument is None else check_body(argument, f"{where}: body")
+    if rec is not None and arg is not None and rec != arg:
+        raise ConfigError(f"{where}: body={arg!r} contradicts the recording's body axes {rec!r} (Recording.body); "
+                          "drop the argument or fix the recording")
+    return arg if arg is not None else rec

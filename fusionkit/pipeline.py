@@ -97,6 +97,7 @@ class Pipeline(Filter):
         self.spec = spec
         self.estimator = reg.make(spec.estimator.name, "estimator", spec.estimator.params)
         self.correctors = [reg.make(c.name, "corrector", c.params) for c in spec.correctors]
+        self._configured = self.correctors  # as built; each run sets them to its body axes (for_body)
         self.detectors = [reg.make(d.name, "detector", d.params) for d in spec.detectors]
         self.models = [reg.make(m.name, "model", m.params) for m in spec.models]
         #: "auto": update() runs the compiled step when every plugin has a kernel; "reference":
@@ -296,6 +297,7 @@ class Pipeline(Filter):
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         n = len(rec)
+        self._set_body(self.body_axes(rec))
         check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}, self.spec.nan_policy)
         has_mag = rec.mag is not None
         if self.spec.alignment.heading == "magnetometer" and not has_mag:
@@ -334,6 +336,14 @@ class Pipeline(Filter):
         if bar is not None:
             bar.close()
         return Result(out_q, out_f, self.spec.frame, self._diagnostics(st, out_f, out_c, used))
+
+    def _set_body(self, body: str | None) -> None:
+        """The correctors for sensors in ``body`` axes (a corrector with a forward axis gets
+        them; the others are unchanged)."""
+        cache = self.__dict__.setdefault("_by_body", {})
+        if body not in cache:
+            cache[body] = [c.for_body(body) for c in self._configured]
+        self.correctors = cache[body]
 
     def _diagnostics(self, st, flags, crit, backend) -> dict[str, Any]:
         al = st["align"]
@@ -382,6 +392,7 @@ class Pipeline(Filter):
                     raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
         if self._stream is None:
             self._stream = self.new_state(dt)
+        self._set_body(self.config.body)  # no recording: the config's body axes
         pk = self._stream_kernel()
         if pk is not None:
             step, S, P, O, q, _ = pk

@@ -21,6 +21,7 @@ from typing import Any, Callable, ClassVar, Literal, NamedTuple
 import numpy as np
 
 from .config import PluginConfig, build_config
+from .conventions import resolve_body
 from .types import Flag
 
 __all__ = [
@@ -206,6 +207,12 @@ class Corrector(Plugin, ABC):
         """The compiled counterpart for this estimator (its ``mode`` that of the corrector), or None."""
         return None
 
+    def for_body(self, body: str | None) -> "Corrector":
+        """This corrector for sensors in ``body`` axes (the run's, None: not known): itself, or
+        for one that needs a body axis (``gst-gnss``'s forward axis) a copy set to them. The
+        pipeline calls it at each run."""
+        return self
+
 
 class SensorModel(Plugin, ABC):
     """Corrects the raw samples before anything else reads them: a calibration (biases, scale
@@ -293,6 +300,12 @@ class Filter(Plugin, ABC):
 
     kind: ClassVar[str] = "filter"
     requires_gnss: ClassVar[bool] = False  #: cannot run without a GNSS stream (benchmarks mark it n/a)
+
+    def body_axes(self, rec) -> str | None:
+        """The body axes of a run on ``rec``: the config's ``body`` or the recording's
+        (:func:`~fusionkit.conventions.resolve_body`; a contradiction raises ConfigError naming
+        both), None when neither says. Every ``run`` calls it, so every filter takes ``body=``."""
+        return resolve_body(getattr(rec, "body", None), getattr(self.config, "body", None), f"filter {self.name!r}")
 
     def dimension(self, rec) -> str:
         """``"9D"`` when this filter uses the magnetometer of ``rec``, else ``"6D"`` (decides

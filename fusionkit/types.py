@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from .conventions import DEFAULT_FRAME, change_frame, check_frame, quat_to_euler, to_scipy
+from .conventions import DEFAULT_FRAME, change_frame, check_body, check_frame, quat_to_euler, to_scipy
 from .errors import InputError
 from .validation import as_vectors, check_positive, check_time, check_units
 
@@ -108,6 +108,10 @@ class Recording:
     truth : optional (N, 4) reference orientation, body -> ``truth_frame``, ``[w, x, y, z]``.
     movement : optional (N,) bool mask of the samples the metrics are computed on.
     name, meta : free description.
+    body : the sensors' body axis convention (``"FLU"``, ``"FRD"``, ``"RFU"``, ... see
+        :mod:`fusionkit.conventions`), or None when not known. Filters that need a forward axis
+        (``gst``, ``gst-gnss``) use it; an explicit ``body=`` that contradicts it is an error.
+        The GNSS velocity's earth frame is ``gnss.frame``.
 
     Values are converted to the library's units on construction; a unit mistake that is
     obvious from the data (an accelerometer reading in g, a gyroscope in deg/s) raises
@@ -128,6 +132,7 @@ class Recording:
     meta: dict[str, Any] = field(default_factory=dict)
     gyr_unit: str = "rad/s"
     acc_unit: str = "m/s^2"
+    body: str | None = None
 
     def __post_init__(self) -> None:
         self.gyr = as_vectors("gyr", self.gyr)
@@ -155,6 +160,8 @@ class Recording:
             self.rate = check_positive("rate", self.rate)
         else:
             self.t = check_time(self.t, n)
+        if self.body is not None:
+            self.body = check_body(self.body, "body", InputError)
         if self.truth is not None:
             self.truth = as_vectors("truth", self.truth, n, width=4)
             check_frame(self.truth_frame)
@@ -227,7 +234,7 @@ class Recording:
             rate=None if keep_clock else self.rate, t=self.time[s] if keep_clock else (None if self.t is None else self.t[s]),
             truth=None if self.truth is None else self.truth[s], truth_frame=self.truth_frame,
             movement=None if self.movement is None else self.movement[s], name=self.name,
-            meta=meta,
+            meta=meta, body=self.body,
         )
         if keep_clock:  # the epoch current at the first sample, and those up to the last one
             g, t = self.gnss, out.time

@@ -27,19 +27,20 @@ from typing import ClassVar, Literal
 import numpy as np
 
 from .._numba import njit
-from ..config import PluginConfig, param
-from ..conventions import east_vector, north_vector, up_vector
+from ..config import BodyAxes, PluginConfig, param
+from ..conventions import body_axis, east_vector, north_vector, resolve_body, up_vector
 from ..protocols import Correction, Corrector, CorrectorKernel
 from ..rotations import quat_to_matrix
 from ..types import Flag
 
 __all__ = ["GstCorrector", "GstGnssCorrector", "gst_correct", "gst_gnss_correct"]
 
-_FORWARD = {"RFU": [0.0, 1.0, 0.0], "FRD": [1.0, 0.0, 0.0], "FLU": [1.0, 0.0, 0.0]}
 # state: up (3), north (3), east (3), lp auto (3), lp gnss (3), |f| at rest, seconds rejected,
-# V_prev, t_prev, a_long, V, heading initialised
-_UP, _N, _E, _LPA, _LPG, _GN, _REJT, _VPREV, _TPREV, _ALONG, _V, _HINIT = 0, 3, 6, 9, 12, 15, 16, 17, 18, 19, 20, 21
-_SIZE = 22
+# V_prev, t_prev, a_long, V, heading initialised, the forward axis' heading expected at the next
+# sample, the accelerometer bias (3, body)
+_UP, _N, _E, _LPA, _LPG, _GN, _REJT, _VPREV, _TPREV, _ALONG, _V, _HINIT, _HPREV, _BA = (
+    0, 3, 6, 9, 12, 15, 16, 17, 18, 19, 20, 21, 22, 23)
+_SIZE = 26
 
 
 class GstCorrectorConfig(PluginConfig):
@@ -68,6 +69,7 @@ class GstCorrector(Corrector):
         s[_N:_N + 3] = north_vector(frame)
         s[_E:_E + 3] = east_vector(frame)
         s[_TPREV] = np.nan
+        s[_HPREV] = np.nan
         return s
 
     def _horizontal(self, r, state, sample):
@@ -180,9 +182,10 @@ def gst_gnss_correct(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, f
                      vn, ve, valid, age, new, t_epoch):
     """The kernel of :meth:`GstGnssCorrector.correct` (it takes the sample's GNSS row): ``p`` =
     (gst's 8 parameters, tau_gnss, lp_gnss, heading_T, heading_init == "track", min_speed,
-    gnss_max_age, the body's forward axis (3))."""
+    gnss_max_age, the body's forward axis (3), turn_rate == "heading", 1 / tau_acc_bias or 0)."""
     if not acc_ok:
         return 0
+    a0, a1, a2 = a0 - s[_BA], a1 - s[_BA + 1], a2 - s[_BA + 2]
     r00, r01, r02, r10, r11, r12, r20, r21, r22, u0, u1, u2, f0, f1, f2, w_up = _inputs(q, s, g0, g1, g2, a0, a1, a2)
     rejected = _autonomous(s, f0, f1, f2, u0, u1, u2, a0, a1, a2, w_up, dt, p)
     usable = valid != 0.0 and age <= p[13]
@@ -193,45 +196,81 @@ def gst_gnss_correct(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, f
         s[_VPREV], s[_TPREV], s[_V] = v, t_epoch, v
     elif valid == 0.0:
         s[_TPREV] = math.nan
-    if not usable:  # the autonomous loop
-        if rejected:
-            return _ACC_REJECTED | _GNSS_GAP
-        _level(r00, r01, r02, r10, r11, r12, r20, r21, r22, u0, u1, u2, s, _LPA, 1.0 / (p[2] * p[0]), rate)
-        return _GNSS_GAP
-    b0, b1, b2 = p[14], p[15], p[16]  # the forward axis, levelled
+    b0, b1, b2 = p[14], p[15], p[16]  # the forward axis, levelled, and its heading
     e0, e1, e2 = r00 * b0 + r01 * b1 + r02 * b2, r10 * b0 + r11 * b1 + r12 * b2, r20 * b0 + r21 * b1 + r22 * b2
     eu = e0 * u0 + e1 * u1 + e2 * u2
     e0, e1, e2 = e0 - eu * u0, e1 - eu * u1, e2 - eu * u2
     en = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
     e0, e1, e2 = e0 / en, e1 / en, e2 / en
+    heading = math.atan2(e0 * s[_E] + e1 * s[_E + 1] + e2 * s[_E + 2], e0 * s[_N] + e1 * s[_N + 1] + e2 * s[_N + 2])
+    turn_rate = -w_up
+    if p[17] != 0.0 and math.isfinite(s[_HPREV]) and math.isfinite(heading):
+        turn_rate = ((heading - s[_HPREV] + math.pi) % (2.0 * math.pi) - math.pi) / dt
+    s[_HPREV] = heading
+    if not usable:  # the autonomous loop
+        if rejected:
+            return _ACC_REJECTED | _GNSS_GAP
+        _level(r00, r01, r02, r10, r11, r12, r20, r21, r22, u0, u1, u2, s, _LPA, 1.0 / (p[2] * p[0]), rate)
+        return _GNSS_GAP
     h0, h1, h2 = e1 * u2 - e2 * u1, e2 * u0 - e0 * u2, e0 * u1 - e1 * u0  # right = fwd x up
-    along, lateral = s[_ALONG], s[_V] * (-w_up)
+    along, lateral = s[_ALONG], s[_V] * turn_rate
     fu = f0 * u0 + f1 * u1 + f2 * u2
     k = 1.0 - math.exp(-dt / p[9])
     s[_LPG] += k * (((f0 - fu * u0) - (along * e0 + lateral * h0)) - s[_LPG])
     s[_LPG + 1] += k * (((f1 - fu * u1) - (along * e1 + lateral * h1)) - s[_LPG + 1])
     s[_LPG + 2] += k * (((f2 - fu * u2) - (along * e2 + lateral * h2)) - s[_LPG + 2])
     _level(r00, r01, r02, r10, r11, r12, r20, r21, r22, u0, u1, u2, s, _LPG, 1.0 / (p[2] * p[8]), rate)
+    if p[18] > 0.0:  # the accelerometer bias: R^T d
+        kb, d0, d1, d2 = p[18] * dt, s[_LPG], s[_LPG + 1], s[_LPG + 2]
+        s[_BA] += kb * (r00 * d0 + r10 * d1 + r20 * d2)
+        s[_BA + 1] += kb * (r01 * d0 + r11 * d1 + r21 * d2)
+        s[_BA + 2] += kb * (r02 * d0 + r12 * d1 + r22 * d2)
     if s[_V] >= p[12]:  # eq. 5: pull the heading towards the track angle
-        heading = math.atan2(e0 * s[_E] + e1 * s[_E + 1] + e2 * s[_E + 2], e0 * s[_N] + e1 * s[_N + 1] + e2 * s[_N + 2])
         err = (math.atan2(ve, vn) - heading + math.pi) % (2.0 * math.pi) - math.pi
         if s[_HINIT] == 0.0 and p[11] != 0.0:
             turn = err / dt  # the whole offset in one sample
         else:
             turn = err / p[10]
         s[_HINIT] = 1.0
+        s[_HPREV] = heading + turn * dt  # the pull is no turn of the vehicle
         _turn(r00, r01, r02, r10, r11, r12, r20, r21, r22, turn * u0, turn * u1, turn * u2, rate)
     return 0
 
 
-class GstGnssCorrectorConfig(GstCorrectorConfig):
-    tau_gnss: float = param(20.0, unit="s", description="levelling loop time constant with GNSS", gt=0)
+class GnssLoopConfig(PluginConfig):
+    """The GNSS-aided loop's model (shared by the ``gst-gnss`` filter and corrector; see
+    docs/algorithms/gst.md)."""
+
+    tau_gnss: float | None = param(
+        None, unit="s", description="levelling loop time constant with GNSS (K = 1/(g tau)); None: from the sensor "
+        "model, sqrt(gnss_vel_noise / (g gyro_drift)), the tau that minimises the tilt error the GNSS velocity noise "
+        "(~ sigma_v / (g tau)) and the gyro drift (~ drift tau) leave (fusionkit before: 20 s)", gt=0)
+    gnss_vel_noise: float = param(
+        0.05, unit="m/s", description="GNSS velocity noise per axis (a receiver's specification; sets tau_gnss)", gt=0)
+    gyro_drift: float = param(
+        4.8e-5, unit="rad/s", description="slow gyro rate error left after the alignment: bias instability (10 deg/h, "
+        "a low-cost MEMS gyro's specification; sets tau_gnss)", gt=0)
+    tau_acc_bias: float | None = param(
+        100.0, unit="s", description="extension: time constant of the accelerometer bias estimate from the GNSS-aided "
+        "residual (observable as the vehicle turns); None: the document's loop (no estimate)", gt=0)
+    turn_rate: Literal["heading", "gyro"] = param(
+        "heading", unit="-", description="dH/dt of the centripetal V dH/dt (eq. 3): 'heading' differentiates the "
+        "heading H of the forward axis (the document); 'gyro' takes the vertical component of the body rate, "
+        "which differs by (roll rate) sin(pitch) while rolling into or out of a turn at a pitch")
+
+    def gnss_time_constant(self, g: float = 9.80665) -> float:
+        """``tau_gnss``, or the one the sensor model gives."""
+        return self.tau_gnss if self.tau_gnss is not None else math.sqrt(self.gnss_vel_noise / (g * self.gyro_drift))
+
+
+class GstGnssCorrectorConfig(GstCorrectorConfig, GnssLoopConfig):
     lp_gnss: float = param(2.0, unit="s", description="low-pass of the GNSS-aided residual", gt=0)
     heading_T: float = param(50.0, unit="s", description="track-angle blend time constant T (eq. 5)", gt=0)
     heading_init: Literal["track", "blend"] = param("track", unit="-", description="jump to the first track angle or blend")
     min_speed: float = param(5.0, unit="m/s", description="no track angle below this ground speed", ge=0)
     gnss_max_age: float = param(0.5, unit="s", description="a GNSS epoch older than this is a gap", gt=0)
-    body: Literal["RFU", "FRD", "FLU"] = param("RFU", unit="-", description="sensor axes (which one is forward)")
+    body: BodyAxes = param(None, unit="-", description="sensor axes (which one is forward); None: the pipeline's "
+                           "or the recording's, else the document's RFU")
 
 
 class GstGnssCorrector(GstCorrector):
@@ -247,6 +286,7 @@ class GstGnssCorrector(GstCorrector):
         c = self.config
         if sample.acc is None:
             return Correction(np.zeros(3))
+        sample = sample._replace(acc=sample.acc - state[_BA:_BA + 3])
         r = quat_to_matrix(estimator.quat(est_state))
         f_h, w_up = self._horizontal(r, state, sample)
         d_auto = self._autonomous(r, state, sample, f_h, w_up)
@@ -259,32 +299,48 @@ class GstGnssCorrector(GstCorrector):
             state[_VPREV], state[_TPREV], state[_V] = v, g[5], v
         elif g is not None and not g[2]:
             state[_TPREV] = np.nan
+        up, north, east = state[_UP:_UP + 3], state[_N:_N + 3], state[_E:_E + 3]
+        fwd = r @ self._forward()
+        fwd = fwd - (fwd @ up) * up
+        fwd /= np.linalg.norm(fwd)
+        heading = math.atan2(fwd @ east, fwd @ north)  # of the forward axis, clockwise from north
+        turn_rate = -w_up
+        if c.turn_rate == "heading" and np.isfinite(state[_HPREV]) and np.isfinite(heading):
+            turn_rate = ((heading - state[_HPREV] + math.pi) % (2.0 * math.pi) - math.pi) / sample.dt
+        state[_HPREV] = heading
         if not usable:
             if d_auto is None:
                 return Correction(np.zeros(3), Flag.ACC_REJECTED | Flag.GNSS_GAP)
             return Correction(self._rate(r, state, d_auto, c.tau), Flag.GNSS_GAP)
-        up, north, east = state[_UP:_UP + 3], state[_N:_N + 3], state[_E:_E + 3]
-        fwd = r @ np.asarray(_FORWARD[c.body])
-        fwd = fwd - (fwd @ up) * up
-        fwd /= np.linalg.norm(fwd)
         right = np.cross(fwd, up)
-        a_kin = state[_ALONG] * fwd + state[_V] * (-w_up) * right
+        a_kin = state[_ALONG] * fwd + state[_V] * turn_rate * right
         k = 1.0 - math.exp(-sample.dt / c.lp_gnss)
         state[_LPG:_LPG + 3] += k * ((f_h - a_kin) - state[_LPG:_LPG + 3])
-        rate = self._rate(r, state, state[_LPG:_LPG + 3], c.tau_gnss)
+        rate = self._rate(r, state, state[_LPG:_LPG + 3], c.gnss_time_constant())
+        if c.tau_acc_bias is not None:  # the accelerometer bias: the residual seen in the body
+            state[_BA:_BA + 3] += (sample.dt / c.tau_acc_bias) * (r.T @ state[_LPG:_LPG + 3])
         if state[_V] >= c.min_speed:  # eq. 5: pull the heading towards the track angle
-            heading = math.atan2(fwd @ east, fwd @ north)
             err = (math.atan2(g[1], g[0]) - heading + math.pi) % (2 * math.pi) - math.pi
             if state[_HINIT] == 0.0 and c.heading_init == "track":
                 turn = err / sample.dt  # the whole offset in one sample
             else:
                 turn = err / c.heading_T
             state[_HINIT] = 1.0
+            state[_HPREV] = heading + turn * sample.dt  # the pull is no turn of the vehicle
             rate = rate - r.T @ (turn * up)  # clockwise (heading up) is negative about "up"
         return Correction(rate)
 
+    def _forward(self) -> np.ndarray:
+        """The forward axis in the sensor's axes (RFU, the document's, when not known)."""
+        return body_axis(self.config.body or "RFU", "F")
+
+    def for_body(self, body):
+        b = resolve_body(body, self.config.body, f"corrector {self.name!r}")
+        return self if b == self.config.body else type(self)(self.config.model_copy(update={"body": b}))
+
     def kernel(self, estimator) -> CorrectorKernel | None:
         c = self.config
-        p = self._params() + [c.tau_gnss, c.lp_gnss, c.heading_T, float(c.heading_init == "track"), c.min_speed,
-                              c.gnss_max_age] + _FORWARD[c.body]
+        p = self._params() + [c.gnss_time_constant(), c.lp_gnss, c.heading_T, float(c.heading_init == "track"),
+                              c.min_speed, c.gnss_max_age] + self._forward().tolist() + [
+            float(c.turn_rate == "heading"), 0.0 if c.tau_acc_bias is None else 1.0 / c.tau_acc_bias]
         return CorrectorKernel(gst_gnss_correct, np.array(p), mode="rate", gnss=True)

@@ -1,8 +1,9 @@
 """Source 001: the azimuth-free horizontal accompanying trihedron (GST) with accelerometer and
 GNSS correction. Filters ``gst`` (autonomous) and ``gst-gnss`` (combined).
 
-Frames. Body axes of the document: x right, y forward, z up (``body="RFU"``); sensors in other
-axes are mapped by ``body`` ("FRD", "FLU"). The platform trihedron x2 y2 z2 has z up and an
+Frames. Body axes of the document: x right, y forward, z up (``"RFU"``); sensors in other axes
+(``Recording.body`` or the ``body=`` argument: "FRD", "FLU", ...) are mapped into them, and the
+output is body(sensor axes) -> earth. Without either, the sensors are taken as RFU. The platform trihedron x2 y2 z2 has z up and an
 arbitrary, azimuth-free heading.
 
 Per sample (after source 000's alignment has levelled the platform and estimated the gyro bias):
@@ -17,7 +18,17 @@ Per sample (after source 000's alignment has levelled the platform and estimated
    sign", for a z-up platform), ``K = 1 / (g tau)`` for a loop time constant ``tau``:
    (a) GNSS-aided: ``d = LP(f_P,h - a_kin)``, with ``a_kin`` the along-track acceleration
    ``a = dV/dt`` on the forward axis and the centripetal ``V dH/dt`` on the right axis (eqs. 3,
-   4), V the GNSS ground speed and dH/dt the turn rate measured by the gyros;
+   4), V the GNSS ground speed and dH/dt the rate of the platform heading H (step 4) over the
+   sample (``turn_rate="gyro"``: the platform-vertical body rate instead, which differs from
+   dH/dt by (roll rate) sin(pitch) while a pitched vehicle rolls into a turn). ``tau`` of this
+   loop comes from the sensor model: the GNSS velocity noise leaves a tilt error of about
+   ``sigma_v / (g tau)``, a slow gyro rate error ``drift`` one of ``drift tau``; their sum is
+   least at ``tau = sqrt(sigma_v / (g drift))`` (``gnss_vel_noise``, ``gyro_drift``; or
+   ``tau_gnss``). Extension (``tau_acc_bias``): an accelerometer bias ``b`` tilts any
+   accelerometer-levelled platform by ``b_h / g``; it is body-fixed while a tilt is
+   platform-fixed, so when the vehicle turns it shows in ``d``: ``b <- b + C^T [d, 0] dt /
+   tau_acc_bias`` while GNSS is usable (a decade slower than the tilt loop, so that the two
+   separate), and ``f_B - b`` is used throughout. ``tau_acc_bias=None`` is the document's loop;
    (b) autonomous: ``d = LP(f_P,h)``, first-order "aperiodic" low-pass links.
    Combined (``gst-gnss``): (a) while GNSS is usable, (b) in GNSS gaps; one platform, so the
    switch has no jump; ``gnss_weight`` < 1 mixes (b) into (a) as the document's combination.
@@ -43,8 +54,9 @@ import numpy as np
 
 from .._kernels import dcm_to_quat, qmul_into, qnormalize, quat_to_dcm
 from .._numba import njit, resolve_backend
-from ..config import AlignmentConfig, FilterConfig, param
-from ..conventions import frame_matrix
+from ..config import AlignmentConfig, BodyAxes, FilterConfig, param
+from ..conventions import body_matrix, frame_matrix
+from ..correctors.gst import GnssLoopConfig
 from ..detectors.gnss_gap import NO_GNSS, gnss_sample_rows
 from ..detectors.motion import MotionConfig, MotionDetector, _motion_step
 from ..errors import InputError
@@ -58,27 +70,24 @@ from ..validation import check_finite_all
 
 __all__ = ["GstFilter", "GstGnssFilter", "BODY_AXES", "MODES"]
 
-#: sensor axes -> the document's body axes (x right, y forward, z up): v_rfu = M v_sensor
-BODY_AXES = {
-    "RFU": np.eye(3),
-    "FRD": np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]),
-    "FLU": np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
-}
+#: sensor axes -> the document's body axes (x right, y forward, z up): v_rfu = M v_sensor (any
+#: other convention: :func:`fusionkit.conventions.body_matrix`)
+BODY_AXES = {b: body_matrix(b, "RFU") for b in ("RFU", "FRD", "FLU")}
 #: per-sample mode codes in ``diagnostics["mode"]``
 MODES = ("aligning", "autonomous", "gnss", "rejected")
 
 # state layout
-_C, _WP, _LPA, _LPG, _VPREV, _TPREV, _ALONG, _V, _HPREV, _HSTAR, _HINIT, _GNORM, _REJT = (
-    0, 9, 12, 14, 16, 17, 18, 19, 20, 21, 22, 23, 24)
-_SIZE = 25
+_C, _WP, _LPA, _LPG, _VPREV, _TPREV, _ALONG, _V, _HPREV, _HSTAR, _HINIT, _GNORM, _REJT, _BA = (
+    0, 9, 12, 14, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25)
+_SIZE = 28
 
 
-class GstConfig(FilterConfig):
-    body: Literal["RFU", "FRD", "FLU"] = param(
-        "RFU", unit="-", description="sensor axes: RFU is the document's (x right, y forward, z up)"
+class GstConfig(FilterConfig, GnssLoopConfig):
+    body: BodyAxes = param(
+        None, unit="-", description="sensor axes ('FRD', 'FLU', ...); None: the recording's (Recording.body), else "
+        "RFU, the document's (x right, y forward, z up)"
     )
     combined: bool = param(False, unit="-", description="use GNSS when usable (gst-gnss), else autonomous only")
-    tau_gnss: float = param(20.0, unit="s", description="levelling loop time constant with GNSS (K = 1/(g tau))", gt=0)
     tau_auto: float = param(50.0, unit="s", description="levelling loop time constant, autonomous", gt=0)
     lp_gnss: float = param(2.0, unit="s", description="low-pass time constant of the GNSS-aided residual", gt=0)
     lp_auto: float = param(2.0, unit="s", description="aperiodic-link time constant of the autonomous signal", gt=0)
@@ -119,7 +128,7 @@ class GstFilter(Filter):
             motion = motion.model_copy(update={"arm_after": c.alignment_duration})
         self.detector = MotionDetector(motion)
         self.alignment = AlignmentConfig(mode=c.alignment, duration=c.alignment_duration)
-        self.M = BODY_AXES[c.body]
+        self.M = self.axes(c.body)  # for update(), which has no recording
         self.F = frame_matrix("ENU", c.frame)  # output frame, folded into the output rotation
         self._p = self.params()
         self._aligners: dict[float, Aligner] = {}
@@ -130,6 +139,11 @@ class GstFilter(Filter):
         return "6D"  # no magnetometer: heading comes from gyros and, in gst-gnss, the GNSS track
 
     # -- parameters ------------------------------------------------------------------------
+    @staticmethod
+    def axes(body: str | None) -> np.ndarray:
+        """``M`` with ``v_rfu = M v_sensor`` for sensors in ``body`` axes (None: RFU)."""
+        return body_matrix(body or "RFU", "RFU")
+
     def aligner(self, dt: float) -> Aligner:
         if dt not in self._aligners:
             self._aligners[dt] = Aligner(self.alignment, "ENU", dt)
@@ -139,10 +153,15 @@ class GstFilter(Filter):
         """The kernel's parameter vector (``K = 1/(g tau)`` with standard gravity)."""
         c = self.config
         return np.array([
-            1.0 / (g * c.tau_gnss), 1.0 / (g * c.tau_auto), c.lp_gnss, c.lp_auto, c.gnss_weight, float(c.reject),
+            1.0 / (g * self.tau_gnss(g)), 1.0 / (g * c.tau_auto), c.lp_gnss, c.lp_auto, c.gnss_weight, float(c.reject),
             c.reject_acc, c.reject_turn, c.heading_T, float(c.heading_init == "track"), c.min_speed,
             c.gnss_max_age, float(c.combined), c.reject_horizontal, c.reject_timeout,
+            0.0 if c.tau_acc_bias is None else 1.0 / c.tau_acc_bias, float(c.turn_rate == "heading"),
         ])
+
+    def tau_gnss(self, g: float = 9.80665) -> float:
+        """The GNSS loop's time constant: ``tau_gnss``, or from the sensor model."""
+        return self.config.gnss_time_constant(g)
 
     def new_state(self, dt: float) -> dict[str, Any]:
         x = np.zeros(_SIZE)
@@ -152,8 +171,9 @@ class GstFilter(Filter):
                 "align": self.aligner(dt).new_state()}
 
     # -- the readable reference --------------------------------------------------------------
-    def _step(self, st, gyr, acc, gnss, dt) -> tuple[np.ndarray, int, int]:
-        """One sample; ``gnss`` = (vn, ve, valid, age, new, t_epoch). Returns (q body->ENU, flags, mode)."""
+    def _step(self, st, gyr, acc, gnss, dt, m) -> tuple[np.ndarray, int, int]:
+        """One sample; ``gnss`` = (vn, ve, valid, age, new, t_epoch), ``m`` the sensor -> RFU
+        matrix (:meth:`axes`). Returns (q body->frame, flags, mode)."""
         c, x, al = self.config, st["x"], st["align"]
         gyr_ok, acc_ok = bool(np.isfinite(gyr).all()), bool(np.isfinite(acc).all() and np.any(acc != 0))
         flags = (0 if gyr_ok else Flag.GYR_INVALID) | (0 if acc_ok else Flag.ACC_INVALID)
@@ -163,13 +183,13 @@ class GstFilter(Filter):
         # source 000's alignment: level and gyro bias while still
         status, q = self.aligner(st["dt"]).step(al, gyr, acc, None, gyr_ok, acc_ok, False, bool(flags & Flag.MOTION))
         if status in (ALIGNED_NOW, ALIGNED_BEFORE):
-            self._start(x, q, al)
+            self._start(x, q, al, m)
         if status in (ALIGNING, ALIGNED_NOW):
             return matrix_to_quat(self.F @ quat_to_matrix(q)), flags | Flag.ALIGNING, 0
         if not (gyr_ok and acc_ok):  # hold the state over a bad sample
-            return self._output(x), flags, 0
-        w = self.M @ (gyr - al[BIAS:BIAS + 3])
-        f = self.M @ acc
+            return self._output(x, m), flags, 0
+        w = m @ (gyr - al[BIAS:BIAS + 3])
+        f = m @ acc - x[_BA:_BA + 3]
         p = self._p
         # 1. platform Poisson equation, exact over the sample
         cm = rodrigues(-x[_WP:_WP + 3] * dt) @ x[_C:_C + 9].reshape(3, 3) @ rodrigues(w * dt)
@@ -193,7 +213,10 @@ class GstFilter(Filter):
             x[_VPREV], x[_TPREV], x[_V] = v, t_ep, v
         elif not valid:
             x[_TPREV] = np.nan  # no derivative across a gap
-        a_lat = x[_V] * (-w_up)  # centripetal, towards the right for a right (clockwise) turn
+        # centripetal, towards the right for a right (clockwise) turn: V dH/dt (eq. 3), H the
+        # platform heading of the forward axis (or the platform-vertical body rate, "gyro")
+        turn = _wrap(math.atan2(fx, fy) - x[_HPREV]) / dt if p[16] != 0.0 else -w_up
+        a_lat = x[_V] * turn
         ax = x[_ALONG] * fx + a_lat * fy  # right axis = (fy, -fx)
         ay = x[_ALONG] * fy - a_lat * fx
         kg = 1.0 - math.exp(-dt / p[2])
@@ -223,6 +246,8 @@ class GstFilter(Filter):
         if c.combined and not gnss_ok:
             flags |= Flag.GNSS_GAP
         x[_WP], x[_WP + 1], x[_WP + 2] = -dy, dx, 0.0
+        if gnss_ok and p[15] > 0.0:  # 3d. the accelerometer bias: the residual seen in the body
+            x[_BA:_BA + 3] += (p[15] * dt) * (cm.T @ np.array([x[_LPG], x[_LPG + 1], 0.0]))
         # 4. heading: gyroscopic H, blended with the GNSS track angle (eq. 5)
         h = math.atan2(fx, fy)
         x[_HSTAR] += _wrap(h - x[_HPREV])
@@ -235,24 +260,24 @@ class GstFilter(Filter):
                 x[_HSTAR] += _wrap(track - x[_HSTAR]) * dt / p[8]
             x[_HINIT] = 1.0
         x[_HSTAR] = _wrap(x[_HSTAR])
-        return self._output(x), flags, mode
+        return self._output(x, m), flags, mode
 
-    def _start(self, x, q_enu_sensor, al) -> None:
+    def _start(self, x, q_enu_sensor, al, m) -> None:
         """Level the platform from the alignment attitude; keep |f| at rest as the local gravity."""
-        cm = quat_to_matrix(q_enu_sensor) @ self.M.T
+        cm = quat_to_matrix(q_enu_sensor) @ m.T
         x[_C:_C + 9] = cm.reshape(9)
         x[_HPREV] = x[_HSTAR] = math.atan2(cm[0, 1], cm[1, 1])
         x[_GNORM] = np.linalg.norm(al[SACC:SACC + 3]) / max(al[NACC], 1.0)
         x[_WP:_WP + 3] = 0.0
 
-    def _output(self, x) -> np.ndarray:
+    def _output(self, x, m) -> np.ndarray:
         """Body(sensor)->frame: the platform turned by alpha = H* - H about the vertical (ENU),
         then into the output frame."""
         cm = x[_C:_C + 9].reshape(3, 3)
         a = x[_HSTAR] - x[_HPREV]
         ca, sa = math.cos(a), math.sin(a)
         rz = np.array([[ca, sa, 0.0], [-sa, ca, 0.0], [0.0, 0.0, 1.0]])  # Rz(-alpha)
-        return matrix_to_quat((self.F @ rz) @ cm @ self.M)
+        return matrix_to_quat((self.F @ rz) @ cm @ m)
 
 
     # -- public ----------------------------------------------------------------------------
@@ -269,6 +294,8 @@ class GstFilter(Filter):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         check_finite_all({"gyr": rec.gyr, "acc": rec.acc}, self.config.nan_policy)
         used = resolve_backend(backend, True)
+        body = self.body_axes(rec)
+        m = self.axes(body)
         n = len(rec)
         gn = self._gnss_arrays(rec)
         st = state if state is not None else self.new_state(rec.nominal_dt)
@@ -278,15 +305,15 @@ class GstFilter(Filter):
         flags = np.zeros(n, np.uint32)
         mode = np.zeros(n, np.uint8)
         if used == "numba":
-            _gst_loop(rec.gyr, rec.acc, dt, gn, matrix_to_quat(self.M), matrix_to_quat(self.F), self._p, st["x"], st["det"],
+            _gst_loop(rec.gyr, rec.acc, dt, gn, matrix_to_quat(m), matrix_to_quat(self.F), self._p, st["x"], st["det"],
                       self.detector.kernel().params, st["align"], self.aligner(st["dt"]).params(),
                       q, flags, mode)
         else:
             for k in range(n):
-                q[k], flags[k], mode[k] = self._step(st, rec.gyr[k], rec.acc[k], gn[k], dt[k])
+                q[k], flags[k], mode[k] = self._step(st, rec.gyr[k], rec.acc[k], gn[k], dt[k], m)
         al = st["align"]
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "mode": mode,
-                "mode_names": MODES, "bias": al[BIAS:BIAS + 3].copy(),
+                "mode_names": MODES, "bias": al[BIAS:BIAS + 3].copy(), "body": body or "RFU",
                 "alignment_end_index": None if al[17] < 0 else int(al[17]), "state": st}
         return Result(q, flags, self.config.frame, diag)
 
@@ -294,7 +321,8 @@ class GstFilter(Filter):
         self._stream = None
 
     def update(self, gyr, acc, mag=None, dt: float | None = None, gnss=None) -> np.ndarray:
-        """One sample; ``gnss`` = (vn, ve, valid, age, new, t_epoch) of the latest epoch, or None."""
+        """One sample; ``gnss`` = (vn, ve, valid, age, new, t_epoch) of the latest epoch, or None.
+        Without a recording, the sensors' axes are the config's ``body`` (None: RFU)."""
         from ..validation import as_vector, check_positive
 
         if dt is None:
@@ -306,7 +334,7 @@ class GstFilter(Filter):
         if self._stream is None:
             self._stream = self.new_state(dt)
         gn = NO_GNSS if gnss is None else np.asarray(gnss, float)
-        q, f, _ = self._step(self._stream, g, a, gn, dt)
+        q, f, _ = self._step(self._stream, g, a, gn, dt, self.M)
         self.last_flags = int(f)
         return q
 
@@ -415,9 +443,9 @@ def _gst_loop(gyr, acc, dt, gn, qm, qf, p, x, ds, dp, al, ap, out_q, out_f, out_
             w0 = m[0] * b0 + m[1] * b1 + m[2] * b2
             w1 = m[3] * b0 + m[4] * b1 + m[5] * b2
             w2 = m[6] * b0 + m[7] * b1 + m[8] * b2
-            f0 = m[0] * a0 + m[1] * a1 + m[2] * a2
-            f1 = m[3] * a0 + m[4] * a1 + m[5] * a2
-            f2 = m[6] * a0 + m[7] * a1 + m[8] * a2
+            f0 = m[0] * a0 + m[1] * a1 + m[2] * a2 - x[_BA]
+            f1 = m[3] * a0 + m[4] * a1 + m[5] * a2 - x[_BA + 1]
+            f2 = m[6] * a0 + m[7] * a1 + m[8] * a2 - x[_BA + 2]
             # 1. platform Poisson equation: q_C <- exp(-w_P dt) (x) q_C (x) exp(w_B dt)
             _exp_quat(-x[_WP] * h, -x[_WP + 1] * h, -x[_WP + 2] * h, dq)
             qmul_into(dq[0], dq[1], dq[2], dq[3], qc[0], qc[1], qc[2], qc[3], tq)
@@ -455,7 +483,10 @@ def _gst_loop(gyr, acc, dt, gn, qm, qf, p, x, ds, dp, al, ap, out_q, out_f, out_
                 x[_VPREV], x[_TPREV], x[_V] = v, t_ep, v
             elif not valid:
                 x[_TPREV] = np.nan
-            a_lat = x[_V] * (-w_up)
+            if p[16] != 0.0:
+                a_lat = x[_V] * _kwrap(math.atan2(fx, fy) - x[_HPREV]) / h
+            else:
+                a_lat = x[_V] * (-w_up)
             ax = x[_ALONG] * fx + a_lat * fy
             ay = x[_ALONG] * fy - a_lat * fx
             if h != last_h:  # the low-pass coefficients, recomputed only when dt changes
@@ -491,6 +522,11 @@ def _gst_loop(gyr, acc, dt, gn, qm, qf, p, x, ds, dp, al, ap, out_q, out_f, out_
             if p[12] != 0.0 and not gnss_ok:
                 flags |= 1024
             x[_WP], x[_WP + 1], x[_WP + 2] = -dy, dx, 0.0
+            if gnss_ok and p[15] > 0.0:  # 3d. accelerometer bias: C^T [d, 0]
+                kb, l0, l1 = p[15] * h, x[_LPG], x[_LPG + 1]
+                x[_BA] += kb * (c00 * l0 + c10 * l1)
+                x[_BA + 1] += kb * (c01 * l0 + c11 * l1)
+                x[_BA + 2] += kb * (c02 * l0 + c12 * l1)
             # 4. heading
             hh = math.atan2(fx, fy)
             x[_HSTAR] += _kwrap(hh - x[_HPREV])

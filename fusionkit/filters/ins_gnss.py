@@ -2,7 +2,8 @@
 
 Navigation frame: local-level NED about the GNSS stream's own origin (the coordinates its
 positions are given in), on a WGS-84 earth (``fusionkit.navigation.earth``). Body axes FRD
-inside; sensors in other axes are mapped by ``body`` (the values of ``gst``).
+inside; sensors in other axes are mapped from the recording's axes (``Recording.body``, or
+``body=``; FRD when neither says).
 
 Nominal state: attitude ``C`` (body FRD -> NED), velocity ``v`` (NED, m/s), position ``p``
 (local NED, m), gyro bias ``b_g`` (rad/s) and accelerometer bias ``b_a`` (m/s^2), body axes.
@@ -60,7 +61,7 @@ import numpy as np
 from .._kernels import dcm_to_quat, matmul3_into, quat_to_dcm, rodrigues_into
 from .._numba import njit, resolve_backend
 from ..config import AlignmentConfig, FilterConfig, param
-from ..conventions import frame_matrix
+from ..conventions import body_matrix, frame_matrix
 from ..detectors.motion import MotionConfig, MotionDetector, _motion_step
 from ..errors import InputError
 from ..navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, NGYR, PHASE, Aligner, align_step
@@ -69,12 +70,10 @@ from ..protocols import Filter, Sample
 from ..rotations import matrix_to_quat, quat_mul, quat_to_matrix, rodrigues, skew
 from ..types import Flag, Recording, Result
 from ..validation import as_vector, check_finite_all, check_positive
-from .gst import BODY_AXES
 
 __all__ = ["InsGnssFilter", "InsGnssConfig", "gnss_epoch_rows"]
 
 #: RFU -> FRD (the same matrix both ways)
-_RFU_FRD = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
 # state layout: nominal state, covariance, accumulators, bookkeeping
 _C, _V, _P, _BG, _BA, _COV = 0, 9, 12, 15, 18, 21
@@ -96,8 +95,6 @@ _NPAR = _RELEVEL + 1
 
 
 class InsGnssConfig(FilterConfig):
-    body: Literal["FRD", "RFU", "FLU"] = param(
-        "FRD", unit="-", description="sensor axes (x forward, y right, z down is the navigation convention)")
     gyr_noise: float = param(
         2.2e-4, unit="rad/s/sqrt(Hz)", description="gyro white noise density (angle random walk; 0.75 deg/sqrt(h), "
         "a low-cost MEMS IMU)", gt=0)
@@ -235,7 +232,7 @@ class InsGnssFilter(Filter):
             motion = motion.model_copy(update={"arm_after": c.alignment_duration})
         self.detector = MotionDetector(motion)
         self._aligners: dict[tuple, Aligner] = {}
-        self.M = _RFU_FRD @ BODY_AXES[c.body]  # sensor -> FRD
+        self.M = body_matrix(c.body or "FRD", "FRD")  # sensor -> FRD (update(): the config's axes)
         self.F = frame_matrix("NED", c.frame)  # NED -> output frame
         self._stream: dict | None = None
         self._rec_meta: Recording | None = None
@@ -547,6 +544,8 @@ class InsGnssFilter(Filter):
         if rec.gnss is None:
             raise InputError(f"{self.name} needs a GNSS stream (Recording(gnss=...))")
         check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}, self.config.nan_policy)
+        # the recording's body axes (or body=; a contradiction raises); not known: FRD
+        self.M = body_matrix(self.body_axes(rec) or "FRD", "FRD")
         used = resolve_backend(backend, True)
         n = len(rec)
         gn = gnss_epoch_rows(rec)

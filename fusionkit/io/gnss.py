@@ -1,6 +1,6 @@
 """Read the simulated IMU + GNSS scenarios (gnss-ins-sim HDF5, see ../shared/data/gnss/README.md).
 
-The recording keeps the file's frames: body FRD, ``truth`` = ``ref_quat`` body->NED
+The recording keeps the file's frames: body FRD (``Recording.body``), ``truth`` = ``ref_quat`` body->NED
 (``truth_frame="NED"``), GNSS velocity in NED. Attributes and the reference velocity/position
 are kept in ``meta``. (Not as ``ref_pos``, the reference position that
 :func:`fusionkit.benchmarking.timing.sensor_lags` differentiates: the file's position times like
@@ -54,7 +54,7 @@ def load_gnss_scenario(path) -> Recording:
         )
         t = f["imu_time"][:]
         meta = {
-            "path": str(p), "dataset": "gnss-ins-sim", "body_frame": "FRD",
+            "path": str(p), "dataset": "gnss-ins-sim",
             "ref_vel_ned": f["ref_vel_ned"][:] if "ref_vel_ned" in f else None,
             "ref_pos_ned": f["ref_pos_ned"][:] if "ref_pos_ned" in f else None,
             "gnss_outages_s": json.loads(outages) if isinstance(outages, str) else outages,
@@ -63,5 +63,5 @@ def load_gnss_scenario(path) -> Recording:
         return Recording(
             gyr=f["imu_gyr"][:], acc=f["imu_acc"][:], mag=f["imu_mag"][:] if "imu_mag" in f else None,
             t=t, gnss=gnss, truth=f["ref_quat"][:] if "ref_quat" in f else None, truth_frame="NED",
-            name=p.stem, meta=meta,
+            name=p.stem, meta=meta, body="FRD",
         )

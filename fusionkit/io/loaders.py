@@ -12,7 +12,8 @@ column             meaning
 ``qw,qx,qy,qz``    reference orientation body->ENU (optional)
 =================  ==========================================================
 
-A comment line ``# rate=285.7`` gives the rate when there is no ``t`` column.
+A comment line ``# rate=285.7`` gives the rate when there is no ``t`` column, ``# body=FRD``
+the sensors' body axes (``Recording.body``; without it they are not known).
 """
 
 from __future__ import annotations
@@ -70,25 +71,28 @@ def load_broad(path) -> Recording:
             rate=rate, truth=f["opt_quat"][:] if "opt_quat" in f else None, truth_frame="ENU",
             movement=f["movement"][:] if "movement" in f else None, name=p.stem,
             meta={"path": str(p), "dataset": "BROAD", **({"ref_pos": f["opt_pos"][:]} if "opt_pos" in f else {})},
+            body=None,  # the README names no vehicle axes (a hand-held IMU): not known
         )
 
 
 @file_errors("CSV")
-def load_csv(path, rate: float | None = None) -> Recording:
-    """A CSV file in the layout of the module doc."""
+def load_csv(path, rate: float | None = None, body: str | None = None) -> Recording:
+    """A CSV file in the layout of the module doc; ``rate`` and ``body`` override the comments."""
     p = Path(path)
-    header, comment_rate, skip = None, None, 0
+    header, comment_rate, comment_body, skip = None, None, None, 0
     with open(p, encoding="utf-8-sig") as fh:  # a byte-order mark is not part of the first name
         for line in fh:
             skip += 1
             s = line.strip()
             if s.startswith("#"):
-                body = s.lstrip("#").strip()
-                if body.startswith("rate="):
+                text = s.lstrip("#").strip()
+                if text.startswith("rate="):
                     try:
-                        comment_rate = float(body.split("=", 1)[1])
+                        comment_rate = float(text.split("=", 1)[1])
                     except ValueError:
                         raise InputError(f"{p.name}: line {skip}: {s!r} is not a rate in Hz") from None
+                elif text.startswith("body="):
+                    comment_body = text.split("=", 1)[1].strip()
                 continue
             header = [c.strip() for c in s.split(",")]
             break
@@ -124,7 +128,7 @@ def load_csv(path, rate: float | None = None) -> Recording:
         mag=pick(_VEC["mag"]) if all(c in col for c in _VEC["mag"]) else None,
         t=None if rate is not None else t, rate=rate,
         truth=pick(["qw", "qx", "qy", "qz"]) if all(c in col for c in ("qw", "qx", "qy", "qz")) else None,
-        name=p.stem, meta={"path": str(p)},
+        name=p.stem, meta={"path": str(p)}, body=body if body is not None else comment_body,
     )
 
 
@@ -158,4 +162,5 @@ def write_csv(rec: Recording, path) -> None:
 
         cols.append(change_frame(rec.truth, rec.truth_frame, "ENU"))
         names += ["qw", "qx", "qy", "qz"]
-    np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt="%.10g")
+    header = ("" if rec.body is None else f"# body={rec.body}\n") + ",".join(names)
+    np.savetxt(path, np.hstack(cols), delimiter=",", header=header, comments="", fmt="%.10g")

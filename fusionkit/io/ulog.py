@@ -1,6 +1,6 @@
 """Read PX4 ULog flight logs with pyulog (``pip install "fusionkit[ulog]"``).
 
-IMU from ``sensor_combined`` (gyro rad/s, accelerometer m/s^2, body FRD; the accelerometer is
+IMU from ``sensor_combined`` (gyro rad/s, accelerometer m/s^2, body FRD, ``Recording.body``; the accelerometer is
 specific force), the magnetometer from ``vehicle_magnetometer`` (gauss, held to the IMU times),
 GPS velocity from ``vehicle_gps_position`` as a NED :class:`~fusionkit.types.Gnss` stream (valid
 where ``vel_ned_valid`` and a 3D fix), and as ``truth`` (body->NED) the simulator's ``vehicle_attitude_groundtruth`` where the log has
@@ -83,5 +83,5 @@ def load_ulog(path) -> Recording:
             kind = label
             break
     return Recording(gyr=gyr, acc=acc, mag=mag, t=t - t[0], gnss=gnss, truth=truth, truth_frame="NED", name=p.stem,
-                     meta={"path": str(p), "dataset": "ulog", "body_frame": "FRD", "truth_kind": kind,
+                     body="FRD", meta={"path": str(p), "dataset": "ulog", "truth_kind": kind,
                            "t0_s": float(t[0])})

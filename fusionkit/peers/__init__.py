@@ -137,6 +137,7 @@ class PeerFilter(Filter):
 
             raise ConfigError(f"{self.name} runs the peer's own code: backend must be 'auto' or 'reference'")
         self.peer()
+        self.body_axes(rec)  # checked: a peer needs no forward axis, its output is in the recording's axes
         use_mag = self._use_mag(rec.mag is not None)
         mag = rec.mag if use_mag else None
         check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": mag}, self.config.nan_policy)
