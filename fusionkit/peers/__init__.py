@@ -43,6 +43,9 @@ __all__ = ["PeerFilter", "VqfFilter", "VqfOffline", "VqfBasic", "ImufusionFilter
            "AhrsEkf"]
 
 
+_VERSIONS: dict[str, str] = {}
+
+
 class PeerConfig(FilterConfig):
     mode: Literal["auto", "6D", "9D"] = param(
         "auto", unit="-", description="'auto': 9D when the recording has mag, else 6D; '6D' ignores mag"
@@ -73,13 +76,16 @@ class PeerFilter(Filter):
 
     @classmethod
     def version(cls) -> str:
-        """The installed version of the peer package ("missing" when it is not installed)."""
+        """The installed version of the peer package ("missing" when it is not installed); read
+        once per package (the metadata lookup costs ~20 ms, paid on every run before)."""
         from importlib import metadata
 
-        try:
-            return metadata.version(cls.package)
-        except metadata.PackageNotFoundError:
-            return "missing"
+        if cls.package not in _VERSIONS:
+            try:
+                _VERSIONS[cls.package] = metadata.version(cls.package)
+            except metadata.PackageNotFoundError:
+                return "missing"
+        return _VERSIONS[cls.package]
 
     # -- to implement ----------------------------------------------------------------------
     def _batch(self, obj, gyr, acc, mag, rate) -> np.ndarray:
@@ -172,7 +178,9 @@ class PeerFilter(Filter):
         if self.streaming:
             diag["state"] = {"filter": self.name, "rate": rate, "use_mag": use_mag, "peer": self._save(obj),
                              "q": q[-1].copy()}
-        return Result(change_frame(q, self.peer_frame, self.config.frame), flags, self.config.frame, diag)
+        if self.peer_frame != self.config.frame:  # (the same frame: no product with the identity, a pass less)
+            q = change_frame(q, self.peer_frame, self.config.frame)
+        return Result(q, flags, self.config.frame, diag)
 
     def reset(self) -> None:
         self._stream = None
