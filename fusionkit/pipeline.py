@@ -56,7 +56,8 @@ from .navigation.alignment import (
 )
 from .protocols import DetectionResult, Detector, Filter, Sample
 from .registry import Registry, default_registry
-from .types import Flag, Recording, Result, sample_validity
+from .types import (Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, sample_validity,
+                    stream_gap)
 from .validation import as_vector, check_finite_all, check_positive
 
 __all__ = ["Pipeline", "run_detector"]
@@ -255,7 +256,7 @@ class Pipeline(Filter):
         used = resolve_backend(backend, kernels is not None)
         st = self._check_state(copy.deepcopy(state)) if state is not None else self.new_state(rec.nominal_dt)
         mag = rec.mag if has_mag else np.zeros((n, 3))
-        dt = rec.dt
+        gyr, dt, gaps = hold_gaps(rec.gyr, rec.dt, rec.nominal_dt, self.spec.max_gap)
         # the GNSS rows: the reference's samples carry them; compiled, only kernels that take them
         want = used != "numba" or any(k.gnss for k in kernels[1] + kernels[2])
         gn = gnss_sample_rows(rec) if rec.gnss is not None and want else None
@@ -266,17 +267,19 @@ class Pipeline(Filter):
         for start in range(0, n, _CHUNK):
             stop = min(n, start + _CHUNK)
             if used == "numba":
-                self._run_compiled(st, rec.gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop, gn)
+                self._run_compiled(st, gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop, gn)
             else:
                 for k in range(start, stop):
-                    q, f, c = self._step(st, rec.gyr[k], rec.acc[k], mag[k], dt[k], has_mag,
+                    q, f, c = self._step(st, gyr[k], rec.acc[k], mag[k], dt[k], has_mag,
                                          None if gn is None else gn[k])
                     out_q[k], out_f[k], out_c[k] = q, f, c
             if bar is not None:
                 bar.update(stop - start)
         if bar is not None:
             bar.close()
-        return Result(out_q, out_f, self.spec.frame, self._diagnostics(st, out_f, out_c, used))
+        diag = self._diagnostics(st, out_f, out_c, used)
+        mark_gaps(out_f, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.spec.max_gap))
+        return Result(out_q, out_f, self.spec.frame, diag)
 
     def _diagnostics(self, st, flags, crit, backend) -> dict[str, Any]:
         al = st["align"]
@@ -307,11 +310,13 @@ class Pipeline(Filter):
             for nm, v in (("gyr", g), ("acc", a), ("mag", m)):
                 if not np.isfinite(v).all():
                     raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
+        self.check_stream_units(g, a)
         if self._stream is None:
             self._stream = self.new_state(dt)
+        g, dt, gap = stream_gap(g, dt, self._stream["dt"], self.spec.max_gap)
         gn = None if gnss is None else np.asarray(gnss, dtype=float)
         q, f, _ = self._step(self._stream, g, a, m, dt, has_mag, gn)
-        self.last_flags = int(f)
+        self.last_flags = gap_flags(f, gap)
         return q
 
 

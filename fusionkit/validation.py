@@ -9,8 +9,15 @@ from .errors import InputError
 NAN_POLICIES = ("raise", "skip")
 
 
+def _no_bool(name: str, x) -> None:
+    if getattr(x, "dtype", None) == np.bool_ or (isinstance(x, (list, tuple)) and np.asarray(x).dtype == np.bool_):
+        raise InputError(f"{name} is a boolean array: sensor samples must be numbers (a mask passed by mistake?)")
+
+
 def as_vectors(name: str, x, n: int | None = None, width: int = 3) -> np.ndarray:
-    """``x`` as a C-contiguous float64 ``(N, width)`` array, or :class:`InputError`."""
+    """``x`` as a C-contiguous float64 ``(N, width)`` array, or :class:`InputError` (also for a
+    boolean array: True/False would become 1/0 rad/s)."""
+    _no_bool(name, x)
     try:
         arr = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -26,6 +33,7 @@ def as_vectors(name: str, x, n: int | None = None, width: int = 3) -> np.ndarray
 
 def as_vector(name: str, x, width: int = 3) -> np.ndarray:
     """One sample as a float64 ``(width,)`` array, or :class:`InputError`."""
+    _no_bool(name, x)
     try:
         arr = np.asarray(x, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError) as exc:
@@ -92,3 +100,97 @@ def check_positive(name: str, value: float) -> float:
     if not np.isfinite(v) or v <= 0:
         raise InputError(f"{name} must be a finite number > 0, got {value!r}")
     return v
+
+
+DEG = np.pi / 180.0
+
+
+def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None, dt: np.ndarray | None = None) -> None:
+    """:class:`InputError` naming the fix when the data betray a unit mistake: an accelerometer in
+    g (median norm near 1), a gyroscope in deg/s (median axis above one turn per second, or, with
+    ``dt``, a gyro whose turning the accelerometer and magnetometer contradict: see
+    :func:`turning_scale`). Medians are taken on about 3000 evenly spread samples."""
+    step = max(1, gyr.shape[0] // 3000)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = np.linalg.norm(acc[::step], axis=1)
+    norm = norm[np.isfinite(norm) & (norm > 0)]
+    if norm.size and 0.3 < np.median(norm) < 3.0:
+        raise InputError(
+            f"acc looks like it is in g (median norm {np.median(norm):.3g}); fusionkit expects "
+            "m/s^2: pass acc_unit='g' to convert"
+        )
+    g = gyr[::step]
+    w = np.abs(g[np.isfinite(g).all(axis=1)])
+    if w.size and np.median(w) > 2.0 * np.pi:
+        raise InputError(
+            f"gyr looks like it is in deg/s (median |component| {np.median(w):.3g} > 2 pi rad/s); "
+            "fusionkit expects rad/s: pass gyr_unit='deg/s' to convert"
+        )
+    if dt is None or gyr.shape[0] < 4:
+        return
+    turns = window_turns(gyr, dt)
+    for name, vec in (("mag", mag), ("acc", acc)):
+        if vec is None:
+            continue
+        scale = turning_scale(turns, vec, quasi_static=name == "acc")
+        if scale is None or scale > np.sqrt(DEG):
+            continue
+        # the specific force may not follow gravity (a multicopter's thrust stays on its z axis):
+        # from it alone, a deg/s gyro must also turn faster than a turn per second as given
+        if name == "acc" and w.size and np.percentile(np.linalg.norm(w, axis=1), 99) < 2 * np.pi:
+            continue
+        raise InputError(
+            f"gyr looks like it is in deg/s: the {name} turns as the gyro scaled by pi/180 predicts, not as given "
+            f"(fitted scale {scale:.3g}, deg/s would be {DEG:.3g}); fusionkit expects rad/s: pass gyr_unit='deg/s' "
+            "to convert")
+
+
+def window_turns(gyr: np.ndarray, dt: np.ndarray, window: float = 0.05):
+    """The gyro's rotation vectors over consecutive windows of about ``window`` s:
+    ``(i0, i1, th, duration)``, ``th[j]`` the integral of ``w dt`` over ``(t[i0[j]], t[i1[j]]]``
+    (NaN over a non-finite sample)."""
+    n = gyr.shape[0]
+    h = float(np.median(dt[:: max(1, n // 1000)]))
+    lag = max(1, int(round(window / h)))
+    i0 = np.arange(0, max(0, n - lag), lag)
+    i1 = i0 + lag
+    with np.errstate(over="ignore", invalid="ignore"):
+        th = np.add.reduceat(gyr * dt[:, None], i0 + 1, axis=0) if i0.size else np.zeros((0, 3))
+    if i0.size and i1[-1] < n - 1:  # reduceat's last window runs to the end: cut it to lag samples
+        th = th[:-1] if i0.size > 1 else th[:0]
+        i0, i1 = i0[:th.shape[0]], i1[:th.shape[0]]
+    return i0, i1, th, lag * h
+
+
+def turning_scale(turns, vec: np.ndarray, min_rate: float = 0.1, quasi_static: bool = False) -> float | None:
+    """The scale ``c`` with which the gyroscope explains the turning of a vector fixed in the
+    earth frame (the magnetic field; gravity, seen by the accelerometer when ``quasi_static``
+    keeps windows whose ends have a norm within 10 % of the median): over the windows of
+    :func:`window_turns`, ``u1 - u0 ~ -c th x u0`` in least squares. A gyro in rad/s gives about
+    1, one in deg/s read as rad/s about pi/180. Only windows where the gyro, as given, says the
+    vector turns faster than ``min_rate`` rad/s (beyond any gyro bias) count; None when the two
+    hypotheses (1 and pi/180) are not told apart by a factor 4 in squared error, or fewer than 10
+    windows count."""
+    i0, i1, th, duration = turns
+    if i0.size < 10:
+        return None
+    with np.errstate(over="ignore", invalid="ignore"):
+        v0, v1 = vec[i0], vec[i1]
+        n0, n1 = np.linalg.norm(v0, axis=1), np.linalg.norm(v1, axis=1)
+        ok = np.isfinite(th).all(axis=1) & np.isfinite(n0) & np.isfinite(n1) & (n0 > 0) & (n1 > 0)
+        if quasi_static and ok.any():
+            m = np.median(n0[ok])
+            ok &= (np.abs(n0 - m) < 0.1 * m) & (np.abs(n1 - m) < 0.1 * m)
+        u0 = v0[ok] / n0[ok, None]
+        du = v1[ok] / n1[ok, None] - u0
+        p = -np.cross(th[ok], u0)
+        use = np.linalg.norm(p, axis=1) > min_rate * duration
+        if use.sum() < 10:
+            return None
+        p, du = p[use], du[use]
+        e_rad = np.sum((du - p) ** 2)
+        e_deg = np.sum((du - DEG * p) ** 2)
+        c = float(np.sum(du * p) / np.sum(p * p))
+    if not (np.isfinite(c) and (e_deg < 0.25 * e_rad or e_rad < 0.25 * e_deg)):
+        return None
+    return c

@@ -23,7 +23,7 @@ from .._numba import resolve_backend
 from ..conventions import change_frame
 from ..errors import InputError
 from ..protocols import Filter
-from ..types import Recording, Result
+from ..types import Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, stream_gap
 from ..validation import as_vector, check_finite_all, check_positive
 
 __all__ = ["StepFilter"]
@@ -68,6 +68,11 @@ class StepFilter(Filter):
         """Extra entries of ``Result.diagnostics`` from the final state."""
         return {}
 
+    def _on_gap(self, x: np.ndarray) -> None:
+        """Called before a sample that follows a timestamp gap (Flag.GAP; the gap's gyro step is
+        held, see :func:`fusionkit.types.hold_gaps`): a filter that can re-level quickly restarts
+        what the gap made stale. Default: nothing (the state is held)."""
+
     # -- shared ----------------------------------------------------------------------------
     def dimension(self, rec) -> str:
         return "9D" if getattr(self.config, "use_mag", True) and rec.mag is not None else "6D"
@@ -90,21 +95,30 @@ class StepFilter(Filter):
         x = self._checked_state(state).copy() if state is not None else self.new_state()
         has_mag = self._uses_mag(rec)
         mag = rec.mag if has_mag else np.zeros((n, 3))
-        dt = rec.dt
+        gyr, dt, gaps = hold_gaps(rec.gyr, rec.dt, rec.nominal_dt, self.config.max_gap)
         q = np.empty((n, 4))
         flags = np.zeros(n, np.uint32)
         if used == "numba":
-            loop(rec.gyr, rec.acc, mag, dt, has_mag, x, self.params(), self.qf, q, flags)
+            params = self.params()
+            bounds = [0, *np.flatnonzero(gaps).tolist(), n]  # one compiled run per stretch between gaps
+            for s, e in zip(bounds[:-1], bounds[1:]):
+                if gaps[s]:
+                    self._on_gap(x)
+                if e > s:
+                    loop(gyr[s:e], rec.acc[s:e], mag[s:e], dt[s:e], has_mag, x, params, self.qf, q[s:e], flags[s:e])
         else:
             bar = _progress(n, progress, self.name)
             for k in range(n):
-                q[k], flags[k] = self._step(x, rec.gyr[k], rec.acc[k], mag[k] if has_mag else None, dt[k])
+                if gaps[k]:
+                    self._on_gap(x)
+                q[k], flags[k] = self._step(x, gyr[k], rec.acc[k], mag[k] if has_mag else None, dt[k])
                 if bar is not None and k % 10_000 == 9_999:
                     bar.update(10_000)
             if bar is not None:
                 bar.close()
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "state": x,
                 **self._diagnostics(x)}
+        mark_gaps(flags, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.config.max_gap))
         return Result(q, flags, self.config.frame, diag)
 
     def _checked_state(self, x) -> np.ndarray:
@@ -126,6 +140,7 @@ class StepFilter(Filter):
 
     def reset(self) -> None:
         self._stream = None
+        self._nominal_dt = None
 
     def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
         """One sample of a stream; the same numbers as :meth:`run` (reference backend)."""
@@ -138,8 +153,14 @@ class StepFilter(Filter):
             for nm, v in (("gyr", g), ("acc", a), ("mag", m)):
                 if v is not None and not np.isfinite(v).all():
                     raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
+        self.check_stream_units(g, a)
         if self._stream is None:
             self._stream = self.new_state()
+        nominal = self.__dict__.setdefault("_nominal_dt", None) or dt  # the stream's first interval
+        self._nominal_dt = nominal
+        g, dt, gap = stream_gap(g, dt, nominal, self.config.max_gap)
+        if gap:
+            self._on_gap(self._stream)
         q, f = self._step(self._stream, g, a, m, dt)
-        self.last_flags = int(f)
+        self.last_flags = gap_flags(f, gap)
         return q
