@@ -191,3 +191,12 @@ def validity_flags(g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, gyr_range, acc_r
         if not mag_ok:
             flags |= 16  # MAG_INVALID
     return gyr_ok, acc_ok, mag_ok, flags
+
+
+@njit
+def validity_all(gyr, acc, mag, has_mag, gyr_range, acc_range, ok, flags):
+    """:func:`validity_flags` of every sample: ``ok[k] = (gyr_ok, acc_ok, mag_ok)``, ``flags[k]``."""
+    for k in range(gyr.shape[0]):
+        g, a, m, f = validity_flags(gyr[k, 0], gyr[k, 1], gyr[k, 2], acc[k, 0], acc[k, 1], acc[k, 2],
+                                    mag[k, 0], mag[k, 1], mag[k, 2], has_mag, gyr_range, acc_range)
+        ok[k, 0], ok[k, 1], ok[k, 2], flags[k] = g, a, m, f

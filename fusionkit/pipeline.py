@@ -2,9 +2,11 @@
 
 Per sample, in this fixed order:
 
-1. **validity**: a non-finite gyr sample is flagged GYR_INVALID (state held), a non-finite or
-   all-zero acc / mag sample ACC_INVALID / MAG_INVALID (their use skipped); axes at or above
-   ``gyr_range`` / ``acc_range`` are flagged SATURATED (and still used).
+1. **validity** (:func:`fusionkit.types.sample_validity`): an invalid gyr sample is flagged
+   GYR_INVALID (state held; every plugin sees it as NaN), an invalid acc / mag sample
+   ACC_INVALID / MAG_INVALID (their use skipped); axes at or above ``gyr_range`` /
+   ``acc_range`` are flagged SATURATED (a saturated gyro is still integrated, a saturated acc is
+   not used). Across a timestamp gap (GAP) the state is held (:func:`fusionkit.types.hold_gaps`).
 2. **detectors** (each on samples with valid gyr and acc): a nonzero criteria mask sets the
    detector's flag.
 3. **alignment** while it runs (source 000): the sample is added to the means and the output is
@@ -53,12 +55,13 @@ from .navigation.alignment import (
     SEEN,
     Aligner,
     align_step,
+    report_disturbed,
 )
 from .protocols import DetectionResult, Detector, Filter, Sample
 from .registry import Registry, default_registry
 from .types import (Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, sample_validity,
                     stream_gap)
-from .validation import as_vector, check_finite_all, check_positive
+from .validation import as_vector, check_finite_all, check_positive, check_sample_finite
 
 __all__ = ["Pipeline", "run_detector"]
 
@@ -158,6 +161,8 @@ class Pipeline(Filter):
         cfg, al = self.spec, st["align"]
         gyr_ok, acc_ok, mag_ok, flags = sample_validity(gyr, acc, mag if has_mag else None, cfg.gyr_range,
                                                         cfg.acc_range)
+        if not gyr_ok:  # every plugin sees an invalid gyro sample as non-finite (not as a huge rate)
+            gyr = np.full(3, np.nan)
         sample = Sample(gyr, acc if acc_ok else None, mag if mag_ok else None, dt, gnss)
 
         # 2. detectors
@@ -278,6 +283,7 @@ class Pipeline(Filter):
         if bar is not None:
             bar.close()
         diag = self._diagnostics(st, out_f, out_c, used)
+        report_disturbed(st["align"], st["dt"], self.spec.alignment.duration)
         mark_gaps(out_f, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.spec.max_gap))
         return Result(out_q, out_f, self.spec.frame, diag)
 
@@ -306,10 +312,7 @@ class Pipeline(Filter):
         a = as_vector("acc", acc)
         has_mag = mag is not None
         m = as_vector("mag", mag) if has_mag else np.zeros(3)
-        if self.spec.nan_policy == "raise":
-            for nm, v in (("gyr", g), ("acc", a), ("mag", m)):
-                if not np.isfinite(v).all():
-                    raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
+        check_sample_finite(self.spec.nan_policy, gyr=g, acc=a, mag=m)
         self.check_stream_units(g, a)
         if self._stream is None:
             self._stream = self.new_state(dt)
@@ -498,6 +501,10 @@ def _build_loop(est_propagate, est_to_quat, est_from_quat, det_step, cor_single,
                 n0, n1, n2, n3, n4, n5 = gn[r, 0], gn[r, 1], gn[r, 2], gn[r, 3], gn[r, 4], gn[r, 5]
             gyr_ok, acc_ok, mag_ok, flags = validity_flags(g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, pp[0],
                                                             pp[1])
+            if not gyr_ok:  # as the reference: an invalid sample is non-finite for every plugin
+                g0 = g1 = g2 = math.nan
+            if not mag_ok:
+                m0 = m1 = m2 = math.nan
             crit = 0
             if gyr_ok and acc_ok:
                 crit, dflags = det_step(ds, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt[k], dp, n0, n1, n2, n3, n4, n5)

@@ -151,6 +151,10 @@ class GapWarning(UserWarning):
     """A recording has timestamp gaps (:data:`Flag.GAP`)."""
 
 
+class AlignmentWarning(UserWarning):
+    """Motion inside a mandatory alignment ended it early."""
+
+
 @dataclass
 class Gnss:
     """A GNSS stream at its own rate: time (s, IMU clock), velocity (m/s) in ``frame``, validity.

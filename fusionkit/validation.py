@@ -79,6 +79,16 @@ def check_finite_all(arrays: dict, policy: str) -> None:
         check_finite(name, x, "raise")
 
 
+def check_sample_finite(policy: str, **vectors) -> None:
+    """``update()``'s :func:`check_finite`: with ``policy="raise"`` a non-finite vector (None: not
+    given) raises naming it."""
+    if policy != "raise":
+        return
+    for name, v in vectors.items():
+        if v is not None and not np.isfinite(v).all():
+            raise InputError(f"{name} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
+
+
 def check_time(t, n: int, name: str = "t", other: str = "gyr") -> np.ndarray:
     """Timestamps as float64 ``(n,)``, finite and strictly increasing."""
     t = np.asarray(t, dtype=np.float64).reshape(-1)
@@ -156,9 +166,11 @@ def window_turns(gyr: np.ndarray, dt: np.ndarray, window: float = 0.05):
     i1 = i0 + lag
     with np.errstate(over="ignore", invalid="ignore"):
         th = np.add.reduceat(gyr * dt[:, None], i0 + 1, axis=0) if i0.size else np.zeros((0, 3))
+        span = np.add.reduceat(dt, i0 + 1) if i0.size else np.zeros(0)
     if i0.size and i1[-1] < n - 1:  # reduceat's last window runs to the end: cut it to lag samples
-        th = th[:-1] if i0.size > 1 else th[:0]
+        th, span = (th[:-1], span[:-1]) if i0.size > 1 else (th[:0], span[:0])
         i0, i1 = i0[:th.shape[0]], i1[:th.shape[0]]
+    th[np.abs(span - lag * h) > 0.5 * lag * h] = np.nan  # a window over a timestamp gap is left out
     return i0, i1, th, lag * h
 
 

@@ -24,7 +24,7 @@ from ..conventions import change_frame
 from ..errors import InputError
 from ..protocols import Filter
 from ..types import Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, stream_gap
-from ..validation import as_vector, check_finite_all, check_positive
+from ..validation import as_vector, check_finite_all, check_positive, check_sample_finite
 
 __all__ = ["StepFilter"]
 
@@ -68,10 +68,11 @@ class StepFilter(Filter):
         """Extra entries of ``Result.diagnostics`` from the final state."""
         return {}
 
-    def _on_gap(self, x: np.ndarray) -> None:
+    def _relevel(self, x: np.ndarray) -> None:
         """Called before a sample that follows a timestamp gap (Flag.GAP; the gap's gyro step is
-        held, see :func:`fusionkit.types.hold_gaps`): a filter that can re-level quickly restarts
-        what the gap made stale. Default: nothing (the state is held)."""
+        held, see :func:`fusionkit.types.hold_gaps`) and before the first unsaturated gyro sample
+        after saturated ones (the attitude is off by what the range clipped): a filter that can
+        re-level quickly restarts what became stale. Default: nothing (the state is held)."""
 
     # -- shared ----------------------------------------------------------------------------
     def dimension(self, rec) -> str:
@@ -96,21 +97,22 @@ class StepFilter(Filter):
         has_mag = self._uses_mag(rec)
         mag = rec.mag if has_mag else np.zeros((n, 3))
         gyr, dt, gaps = hold_gaps(rec.gyr, rec.dt, rec.nominal_dt, self.config.max_gap)
+        restart = gaps | _after_saturation(rec.gyr, self.config.gyr_range)
         q = np.empty((n, 4))
         flags = np.zeros(n, np.uint32)
         if used == "numba":
             params = self.params()
-            bounds = [0, *np.flatnonzero(gaps).tolist(), n]  # one compiled run per stretch between gaps
+            bounds = [0, *np.flatnonzero(restart).tolist(), n]  # one compiled run per stretch between restarts
             for s, e in zip(bounds[:-1], bounds[1:]):
-                if gaps[s]:
-                    self._on_gap(x)
+                if restart[s]:
+                    self._relevel(x)
                 if e > s:
                     loop(gyr[s:e], rec.acc[s:e], mag[s:e], dt[s:e], has_mag, x, params, self.qf, q[s:e], flags[s:e])
         else:
             bar = _progress(n, progress, self.name)
             for k in range(n):
-                if gaps[k]:
-                    self._on_gap(x)
+                if restart[k]:
+                    self._relevel(x)
                 q[k], flags[k] = self._step(x, gyr[k], rec.acc[k], mag[k] if has_mag else None, dt[k])
                 if bar is not None and k % 10_000 == 9_999:
                     bar.update(10_000)
@@ -149,18 +151,28 @@ class StepFilter(Filter):
         dt = check_positive("dt", dt)
         g, a = as_vector("gyr", gyr), as_vector("acc", acc)
         m = None if mag is None or not getattr(self.config, "use_mag", True) else as_vector("mag", mag)
-        if self.config.nan_policy == "raise":
-            for nm, v in (("gyr", g), ("acc", a), ("mag", m)):
-                if v is not None and not np.isfinite(v).all():
-                    raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
+        check_sample_finite(self.config.nan_policy, gyr=g, acc=a, mag=m)
         self.check_stream_units(g, a)
         if self._stream is None:
             self._stream = self.new_state()
         nominal = self.__dict__.setdefault("_nominal_dt", None) or dt  # the stream's first interval
         self._nominal_dt = nominal
         g, dt, gap = stream_gap(g, dt, nominal, self.config.max_gap)
-        if gap:
-            self._on_gap(self._stream)
+        saturated = self.config.gyr_range is not None and bool(np.max(np.abs(g)) >= self.config.gyr_range)
+        if gap or (self.__dict__.get("_saturated", False) and not saturated):
+            self._relevel(self._stream)
+        self._saturated = saturated
         q, f = self._step(self._stream, g, a, m, dt)
         self.last_flags = gap_flags(f, gap)
         return q
+
+
+def _after_saturation(gyr: np.ndarray, gyr_range: float | None) -> np.ndarray:
+    """Mask of the first gyro samples below ``gyr_range`` after one at or above it."""
+    if gyr_range is None:
+        return np.zeros(gyr.shape[0], bool)
+    with np.errstate(invalid="ignore"):
+        sat = np.abs(gyr).max(axis=1) >= gyr_range
+    out = np.zeros_like(sat)
+    out[1:] = sat[:-1] & ~sat[1:]
+    return out

@@ -158,13 +158,20 @@ class EkfFilter(StepFilter):
         c = self.config
         x[_Q:_Q + 4] = alignment_quat(acc, mag, frame="ENU")
         x[_B:_B + 3] = 0.0
-        x[_P:_P + 36] = np.diag([c.initial_tilt_std ** 2] * 2 + [c.initial_heading_std ** 2]
-                                + [c.initial_bias_std ** 2] * 3).reshape(36)
-        # the tilt/heading stds are given about the earth axes; P is in the body frame
-        r = quat_to_matrix(x[_Q:_Q + 4])
-        p = x[_P:_P + 36].reshape(6, 6)
-        p[:3, :3] = r.T @ p[:3, :3] @ r
+        x[_P:_P + 36] = np.diag([0.0] * 3 + [c.initial_bias_std ** 2] * 3).reshape(36)
+        self._relevel(x)
         x[_START] = 1.0
+
+    def _relevel(self, x) -> None:
+        """The attitude covariance of the start (after a timestamp gap or a saturated gyro, too:
+        the attitude error is as unknown as at the start, and the next measurements re-level at
+        the start's speed). The tilt/heading stds are given about the earth axes; P is in the
+        body frame."""
+        c = self.config
+        p = x[_P:_P + 36].reshape(6, 6)
+        r = quat_to_matrix(x[_Q:_Q + 4])
+        p[:3, :] = p[:, :3] = 0.0
+        p[:3, :3] = r.T @ np.diag([c.initial_tilt_std ** 2] * 2 + [c.initial_heading_std ** 2]) @ r
 
     def _turn(self, q, r0, r1, r2) -> None:
         """``q <- normalise(q (x) exp(r))`` in place (scalar kernels: this runs per sample)."""

@@ -46,10 +46,10 @@ from .._numba import njit, resolve_backend
 from ..config import AlignmentConfig, FilterConfig, param
 from ..conventions import frame_matrix
 from ..detectors.gnss_gap import NO_GNSS, gnss_sample_rows
-from ..detectors.motion import MotionConfig, MotionDetector, _motion_step
+from ..detectors.motion import MotionConfig, MotionDetector, _motion_step, armed_for_alignment
 from ..errors import InputError
 from ..navigation.alignment import (
-    ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, NACC, PHASE, SACC, Aligner, align_step,
+    ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, DISTURBED, NACC, PHASE, SACC, Aligner, align_step, report_disturbed,
 )
 from ..protocols import Filter, Sample
 from ..rotations import matrix_to_quat, orthonormalize, quat_to_matrix, rodrigues
@@ -102,6 +102,10 @@ class GstConfig(FilterConfig):
     alignment: Literal["motion", "fixed"] = param("motion", unit="-", description="source 000 alignment mode")
     alignment_duration: float = param(10.0, unit="s", description="mandatory alignment time", gt=0)
     motion: MotionConfig = param(MotionConfig(), unit="-", description="motion detector ending the alignment")
+    early_motion: bool = param(
+        True, unit="-", description="extension: the motion detector is armed after 2 s of statistics, so that motion "
+        "inside the mandatory alignment ends it there (never averaged in) with a warning; False: armed when the "
+        "mandatory alignment ends (source 000, which assumes the IMU still)")
 
 
 class GstFilter(Filter):
@@ -115,10 +119,7 @@ class GstFilter(Filter):
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
         c = self.config
-        motion = c.motion
-        if "arm_after" not in motion.model_fields_set:
-            motion = motion.model_copy(update={"arm_after": c.alignment_duration})
-        self.detector = MotionDetector(motion)
+        self.detector = MotionDetector(armed_for_alignment(c.motion, c.alignment_duration, c.early_motion))
         self.alignment = AlignmentConfig(mode=c.alignment, duration=c.alignment_duration)
         self.M = BODY_AXES[c.body]
         self.F = frame_matrix("ENU", c.frame)  # output frame, folded into the output rotation
@@ -301,6 +302,8 @@ class GstFilter(Filter):
                 "mode_names": MODES, "bias": al[BIAS:BIAS + 3].copy(),
                 "alignment_end_index": None if al[17] < 0 else int(al[17]), "state": st}
         mark_gaps(flags, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.config.max_gap))
+        diag["alignment_disturbed"] = bool(al[DISTURBED])
+        report_disturbed(al, st["dt"], self.config.alignment_duration)
         return Result(q, flags, self.config.frame, diag)
 
     def reset(self) -> None:
