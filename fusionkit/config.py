@@ -64,8 +64,8 @@ class FilterConfig(PluginConfig):
         "not used for corrections (None: samples beyond 16 g are glitches, ACC_INVALID)", gt=0
     )
     max_gap: float | None = param(
-        0.1, unit="s", description="a sample interval longer than this and than 5 nominal intervals is a timestamp gap: "
-        "flagged GAP, the state held across it instead of integrating one gyro sample over it (None: integrate every "
+        0.1, unit="s", description="a sample interval longer than this and than 5 nominal intervals is a timestamp "
+        "gap: flagged GAP, the state held across it instead of integrating one gyro sample over it (None: integrate every "
         "interval as one step)", gt=0
     )
 

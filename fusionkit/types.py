@@ -26,7 +26,7 @@ class Flag(enum.IntFlag):
     ALIGNING = 1 << 0  #: initial alignment still running: output is the alignment attitude
     MOTION = 1 << 1  #: the motion detector fires on this sample
     GYR_INVALID = 1 << 2  #: gyroscope sample not finite: state held, not propagated
-    ACC_INVALID = 1 << 3  #: accelerometer sample not finite, zero or implausible (see ACC_LIMIT): its correction skipped
+    ACC_INVALID = 1 << 3  #: accelerometer sample not finite, zero or beyond ACC_LIMIT: its correction skipped
     MAG_INVALID = 1 << 4  #: magnetometer sample not finite, zero or too small/large to square: its correction skipped
     GYR_SATURATED = 1 << 5  #: a gyroscope axis at or above the configured range (still integrated)
     ACC_SATURATED = 1 << 6  #: an accelerometer axis at or above the configured range: its correction skipped

@@ -41,7 +41,8 @@ from ..errors import InputError, PluginError
 from ..protocols import Filter
 from .._kernels import validity_all
 from ..rotations import quat_from_rotvec, quat_mul, quat_normalize
-from ..types import Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, sample_validity, stream_gap
+from ..types import (HUGE, TINY, Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps,
+                     sample_validity, stream_gap)
 from ..validation import as_vector, check_finite_all, check_positive, check_sample_finite
 
 __all__ = ["PeerFilter", "VqfFilter", "VqfOffline", "VqfBasic", "ImufusionFilter", "AhrsMadgwick", "AhrsMahony",
@@ -61,6 +62,9 @@ class PeerFilter(Filter):
     peer_frame: ClassVar[str] = "ENU"
     streaming: ClassVar[bool] = True
     Config = PeerConfig
+    #: the magnetometer magnitudes (largest axis, any unit) the peer's arithmetic squares without
+    #: over- or underflow; outside, a sample is MAG_INVALID for it (float32 peers: narrower)
+    mag_limits: ClassVar[tuple[float, float]] = (TINY, HUGE)
 
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
@@ -128,6 +132,8 @@ class PeerFilter(Filter):
         validity_all(gyr, rec.acc, mag if mag is not None else np.zeros((n, 3)), mag is not None,
                      c.gyr_range if c.gyr_range is not None else np.inf,
                      c.acc_range if c.acc_range is not None else np.inf, valid, flags)
+        if mag is not None:
+            self._peer_mag(mag, valid, flags)
         ok = valid[:, 0] & valid[:, 1] & (valid[:, 2] | (mag is None))
         if ok.all():
             q = self._batch(gyr, rec.acc, mag, rate)
@@ -152,6 +158,17 @@ class PeerFilter(Filter):
         mark_gaps(flags, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.config.max_gap))
         return Result(q, flags, self.config.frame, diag)
 
+    def _peer_mag(self, mag, valid, flags) -> None:
+        """Magnetometer samples outside :attr:`mag_limits` become invalid for this peer."""
+        lo, hi = self.mag_limits
+        if (lo, hi) == (TINY, HUGE):
+            return
+        with np.errstate(invalid="ignore"):
+            m = np.abs(mag).max(axis=1)
+        out = valid[:, 2] & ~((m >= lo) & (m <= hi))
+        valid[out, 2] = False
+        flags[out] |= np.uint32(Flag.MAG_INVALID)
+
     def reset(self) -> None:
         self._stream = None
 
@@ -171,6 +188,10 @@ class PeerFilter(Filter):
             self._stream = {"obj": self._new(1.0 / dt, use_mag), "q": np.array([1.0, 0.0, 0.0, 0.0]), "dt": dt}
         g, dt, gap = stream_gap(g, dt, self._stream["dt"], c.max_gap)
         gyr_ok, acc_ok, mag_ok, flags = sample_validity(g, a, m, c.gyr_range, c.acc_range)
+        if mag_ok:
+            valid, f = np.array([[True, True, True]]), np.zeros(1, np.uint32)
+            self._peer_mag(m[None], valid, f)
+            mag_ok, flags = bool(valid[0, 2]), flags | int(f[0])
         if gyr_ok:
             self._stream["q"] = self._step(self._stream["obj"], g, a if acc_ok else None, m if mag_ok else None, dt)
         self.last_flags = gap_flags(flags, gap)
@@ -272,6 +293,7 @@ class ImufusionFilter(PeerFilter):
     name: ClassVar[str] = "imufusion"
     package: ClassVar[str] = "imufusion"
     Config = ImufusionConfig
+    mag_limits: ClassVar[tuple[float, float]] = (1e-15, 1e15)  # Fusion computes in float32
     source: ClassVar[str] = "peer: imufusion (x-io Technologies Fusion)"
     summary: ClassVar[str] = "peer: Fusion AHRS (imufusion), recommended settings"
 
