@@ -110,6 +110,8 @@ class ChannelDcmFilter(StepFilter):
                 d[:, 2], d[:, 1] = d3, d2 / np.linalg.norm(d2)
                 d[:, 0] = np.cross(d[:, 1], d[:, 2])
                 x[_START] = 1.0
+            elif gyr_ok:  # no accelerometer yet: the gyro still turns the output (from identity)
+                d[:] = rodrigues(-gyr * dt) @ d
             return self._output(d), flags
         # extension: bias from the initial rest (half a sample of margin: the sample count must not
         # hinge on the last bit of a sum of dt's)
@@ -219,6 +221,8 @@ def _dcm_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
                 d[1], d[4], d[7] = v0, v1, v2
                 d[0], d[3], d[6] = v1 * u2 - v2 * u1, v2 * u0 - v0 * u2, v0 * u1 - v1 * u0
                 x[_START] = 1.0
+            elif gyr_ok:  # no accelerometer yet: the gyro still turns the output (from identity)
+                _rotate(d, -g0 * h, -g1 * h, -g2 * h, rm, tmp)
         elif initial_rest > 0.0 and gyr_ok and x[_TB] + 0.5 * h < initial_rest and \
                 math.sqrt(g0 * g0 + g1 * g1 + g2 * g2) > rest_rate:
             x[_TB] = initial_rest  # moving: the rest is over (and this sample is navigated)

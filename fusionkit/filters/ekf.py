@@ -187,6 +187,8 @@ class EkfFilter(StepFilter):
         if not x[_START]:
             if acc_ok:
                 self._start(x, acc, mag if mag_ok else None)
+            elif gyr_ok:  # no accelerometer yet: the gyro still turns the output (from identity)
+                self._turn(x[_Q:_Q + 4], gyr[0] * dt, gyr[1] * dt, gyr[2] * dt)
             if self.nis is not None:
                 self.nis.append(tuple(nis))
             return self._output(x), flags

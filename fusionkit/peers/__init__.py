@@ -364,12 +364,13 @@ class AhrsMadgwick(PeerFilter):
         return obj["f"].Q[0]
 
     def _gyro_only(self, obj, g, dt):
-        """The sample without its accelerometer: the gyro integrated (nothing before the first
-        accelerometer sample starts the peer)."""
-        if obj["q"] is None:
-            return np.array([1.0, 0.0, 0.0, 0.0])
-        obj["q"] = quat_normalize(quat_mul(np.asarray(obj["q"], dtype=float), quat_from_rotvec(_c(g) * dt)))
-        return obj["q"]
+        """The sample without its accelerometer: the gyro integrated (before the first
+        accelerometer sample starts the peer, from identity)."""
+        key = "q" if obj["q"] is not None else "pre"
+        q = obj.get(key)
+        q = np.array([1.0, 0.0, 0.0, 0.0]) if q is None else np.asarray(q, dtype=float)
+        obj[key] = quat_normalize(quat_mul(q, quat_from_rotvec(_c(g) * dt)))
+        return obj[key]
 
     def _step(self, obj, g, a, m, dt):
         if a is None:
