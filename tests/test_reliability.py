@@ -286,3 +286,13 @@ def test_extreme_samples_are_invalid_not_nan(moving, name):
         assert res.flags[1400] & Flag.GYR_INVALID and res.flags[1600] & Flag.ACC_INVALID
         if name not in ("gst", "poisson"):  # 6D filters: no magnetometer flag
             assert res.flags[1500] & Flag.MAG_INVALID
+
+
+def test_cli_rejects_an_infinite_parameter(tmp_path, capsys):
+    """Before: ``output_lead=inf`` ran, gave an all-NaN result, printed "total nan deg" and exited 0."""
+    from fusionkit.cli import main
+
+    code = main(["run", "recommended", "sim:slow-rotation", "-o", str(tmp_path / "o.csv"), "--param", "output_lead=inf"])
+    assert code != 0
+    assert "output_lead: Input should be a finite number" in capsys.readouterr().err
+    assert not (tmp_path / "o.csv").exists()
