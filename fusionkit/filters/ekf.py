@@ -43,9 +43,12 @@ innovation squared (NIS); a measurement above it is not used (flags ACC_REJECTED
 MAG_DISTURBED).
 
 The start attitude is the first valid sample's (tilt from the accelerometer, heading from the
-magnetometer, zero without one). Bad input: a non-finite gyroscope sample holds the state
-(GYR_INVALID); a non-finite or all-zero accelerometer or magnetometer sample skips its update
-(ACC_INVALID / MAG_INVALID); readings at the configured range are flagged SATURATED.
+magnetometer, zero without one); before it the gyro turns the output from identity. Bad input
+(docs/reliability.md): an invalid gyroscope sample holds the state (GYR_INVALID); an invalid
+accelerometer or magnetometer sample (non-finite, zero, a glitch beyond 16 g, a reading at
+``acc_range``) skips its update (ACC_INVALID / ACC_SATURATED / MAG_INVALID); gyro readings at
+``gyr_range`` are flagged GYR_SATURATED. After a timestamp gap (GAP, the state held across it)
+or a saturated gyro the attitude covariance is reset to the start's (:meth:`EkfFilter._relevel`).
 ``Result.diagnostics`` has the final bias and covariance; :meth:`EkfFilter.run` with
 ``record=True`` adds each sample's NIS for consistency checks. Reference path only (filterpy is
 pure Python/numpy): about 18 k samples/s.
