@@ -70,11 +70,11 @@ def sample_validity(gyr, acc, mag, gyr_range, acc_range) -> tuple[bool, bool, bo
     range) -> SATURATED: a saturated gyro is still integrated (the best rate there is), a
     saturated accelerometer never reaches a correction. ``mag`` None: no magnetometer, no flag.
     :func:`fusionkit._kernels.validity_flags` is the numba twin."""
-    g, a = np.abs(gyr), np.abs(acc)
-    gmax, amax = float(np.max(g)), float(np.max(a))  # NaN if any entry is NaN
-    gyr_ok = bool(np.isfinite(g).all()) and gmax <= GYR_LIMIT
+    g, a = gyr.tolist(), acc.tolist()  # plain floats: this runs per sample
+    gmax, amax = _largest(g), _largest(a)  # NaN if an entry is not finite
+    gyr_ok = gmax <= GYR_LIMIT
     acc_lim = acc_range if acc_range is not None else ACC_LIMIT
-    acc_ok = bool(np.isfinite(a).all()) and TINY <= amax
+    acc_ok = TINY <= amax < math.inf
     flags = 0
     if not gyr_ok:
         flags |= Flag.GYR_INVALID
@@ -87,12 +87,18 @@ def sample_validity(gyr, acc, mag, gyr_range, acc_range) -> tuple[bool, bool, bo
         flags |= Flag.ACC_INVALID
     mag_ok = False
     if mag is not None:
-        m = np.abs(mag)
-        mmax = float(np.max(m))
-        mag_ok = bool(np.isfinite(m).all()) and TINY <= mmax <= HUGE
+        mmax = _largest(mag.tolist())
+        mag_ok = TINY <= mmax <= HUGE
         if not mag_ok:
             flags |= Flag.MAG_INVALID
     return gyr_ok, acc_ok, mag_ok, flags
+
+
+def _largest(v) -> float:
+    """The largest ``|v_i|``; NaN when an entry is not finite."""
+    if not (math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2])):
+        return math.nan
+    return max(abs(v[0]), abs(v[1]), abs(v[2]))
 
 
 def gap_threshold(nominal_dt: float, max_gap: float | None) -> float:

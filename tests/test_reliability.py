@@ -296,3 +296,18 @@ def test_cli_rejects_an_infinite_parameter(tmp_path, capsys):
     assert code != 0
     assert "output_lead: Input should be a finite number" in capsys.readouterr().err
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_validity_reference_and_kernel_agree():
+    """sample_validity and its numba twin judge every combination of extremes alike."""
+    from fusionkit._kernels import validity_flags
+    from fusionkit.types import sample_validity
+
+    values = [0.0, 1e-160, 1e-150, 1.0, 9.8, 200.0, 1e4, 1e5, 1e150, 1e151, np.inf, -np.inf, np.nan, -3.0]
+    rng = np.random.default_rng(0)
+    for _ in range(2000):
+        g, a, m = rng.choice(values, 3), rng.choice(values, 3), rng.choice(values, 3)
+        for gr, ar in ((None, None), (5.0, 100.0)):
+            ref = sample_validity(g, a, m, gr, ar)
+            fast = validity_flags(*g, *a, *m, True, gr or np.inf, ar or np.inf)
+            assert tuple(map(int, ref)) == tuple(map(int, fast)), (g, a, m, gr, ar)
