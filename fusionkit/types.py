@@ -114,6 +114,7 @@ def hold_gaps(gyr: np.ndarray, dt: np.ndarray, nominal_dt: float, max_gap: float
     sees the gap as one step); the sample's other sensors are used as usual. Without gaps the
     arrays are returned as they are. :func:`mark_gaps` turns the flags back."""
     gaps = dt > gap_threshold(nominal_dt, max_gap)
+    gaps[:1] = False  # dt[0] is a copy of dt[1], not an interval before the first sample
     if not gaps.any():
         return gyr, dt, gaps
     gyr = gyr.copy()
