@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 from ._numba import njit
+from .types import ACC_LIMIT as _ACC_LIMIT, GYR_LIMIT as _GYR_LIMIT, HUGE as _HUGE, TINY as _TINY
 
 
 @njit
@@ -167,20 +168,35 @@ def matmul3_into(a, b, out):
 def validity_flags(g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, gyr_range, acc_range):
     """:func:`fusionkit.types.sample_validity` with scalars (a range of ``inf``: none):
     ``(gyr_ok, acc_ok, mag_ok, flags)``."""
-    gyr_ok = math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)
-    acc_ok = (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(a2)
-              and (a0 != 0.0 or a1 != 0.0 or a2 != 0.0))
-    mag_ok = has_mag and (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(m2)
-                          and (m0 != 0.0 or m1 != 0.0 or m2 != 0.0))
+    gmax = max(abs(g0), max(abs(g1), abs(g2)))
+    amax = max(abs(a0), max(abs(a1), abs(a2)))
+    gyr_ok = math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and gmax <= _GYR_LIMIT
+    acc_ok = math.isfinite(a0) and math.isfinite(a1) and math.isfinite(a2) and amax >= _TINY
     flags = 0
     if not gyr_ok:
         flags |= 4  # GYR_INVALID
-    elif max(abs(g0), max(abs(g1), abs(g2))) >= gyr_range:
+    elif gmax >= gyr_range:
         flags |= 32  # GYR_SATURATED
-    if not acc_ok:
+    ranged = acc_range != math.inf
+    if acc_ok and amax >= (acc_range if ranged else _ACC_LIMIT):
+        acc_ok = False
+        flags |= 64 if ranged else 8  # ACC_SATURATED, or ACC_INVALID (beyond ACC_LIMIT)
+    elif not acc_ok:
         flags |= 8  # ACC_INVALID
-    elif max(abs(a0), max(abs(a1), abs(a2))) >= acc_range:
-        flags |= 64  # ACC_SATURATED
-    if has_mag and not mag_ok:
-        flags |= 16  # MAG_INVALID
+    mag_ok = False
+    if has_mag:
+        mmax = max(abs(m0), max(abs(m1), abs(m2)))
+        mag_ok = (math.isfinite(m0) and math.isfinite(m1) and math.isfinite(m2) and mmax >= _TINY
+                  and mmax <= _HUGE)
+        if not mag_ok:
+            flags |= 16  # MAG_INVALID
     return gyr_ok, acc_ok, mag_ok, flags
+
+
+@njit
+def validity_all(gyr, acc, mag, has_mag, gyr_range, acc_range, ok, flags):
+    """:func:`validity_flags` of every sample: ``ok[k] = (gyr_ok, acc_ok, mag_ok)``, ``flags[k]``."""
+    for k in range(gyr.shape[0]):
+        g, a, m, f = validity_flags(gyr[k, 0], gyr[k, 1], gyr[k, 2], acc[k, 0], acc[k, 1], acc[k, 2],
+                                    mag[k, 0], mag[k, 1], mag[k, 2], has_mag, gyr_range, acc_range)
+        ok[k, 0], ok[k, 1], ok[k, 2], flags[k] = g, a, m, f

@@ -40,9 +40,10 @@ def param(default: Any, *, unit: str, description: str, **constraints: Any) -> A
 
 
 class PluginConfig(BaseModel):
-    """Base of every plugin configuration: frozen, unknown keys rejected."""
+    """Base of every plugin configuration: frozen, unknown keys rejected, every number finite
+    (``inf`` and NaN pass range checks such as ``gt=0`` and would reach the arithmetic)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True, allow_inf_nan=False)
 
 
 def _body(value: str | None) -> str | None:
@@ -69,7 +70,13 @@ class FilterConfig(PluginConfig):
         None, unit="rad/s", description="gyroscope range; samples at or above it are flagged GYR_SATURATED", gt=0
     )
     acc_range: float | None = param(
-        None, unit="m/s^2", description="accelerometer range; samples at or above it are flagged ACC_SATURATED", gt=0
+        None, unit="m/s^2", description="accelerometer range; samples at or above it are flagged ACC_SATURATED and "
+        "not used for corrections (None: samples beyond 16 g are glitches, ACC_INVALID)", gt=0
+    )
+    max_gap: float | None = param(
+        0.1, unit="s", description="a sample interval longer than this and than 5 nominal intervals is a timestamp "
+        "gap: flagged GAP, the state held across it instead of integrating one gyro sample over it (None: integrate every "
+        "interval as one step)", gt=0
     )
     body: BodyAxes = param(
         None, unit="-", description="the sensors' body axes ('FLU', 'FRD', 'RFU', ...); None: the recording's "

@@ -2,9 +2,11 @@
 
 Per sample, in this fixed order:
 
-1. **validity**: a non-finite gyr sample is flagged GYR_INVALID (state held), a non-finite or
-   all-zero acc / mag sample ACC_INVALID / MAG_INVALID (their use skipped); axes at or above
-   ``gyr_range`` / ``acc_range`` are flagged SATURATED (and still used).
+1. **validity** (:func:`fusionkit.types.sample_validity`): an invalid gyr sample is flagged
+   GYR_INVALID (state held; every plugin sees it as NaN), an invalid acc / mag sample
+   ACC_INVALID / MAG_INVALID (their use skipped); axes at or above ``gyr_range`` /
+   ``acc_range`` are flagged SATURATED (a saturated gyro is still integrated, a saturated acc is
+   not used). Across a timestamp gap (GAP) the state is held (:func:`fusionkit.types.hold_gaps`).
    **sensor models** (``models``, in order; :class:`~fusionkit.protocols.SensorModel`) then
    correct the sample (calibration, time offsets), reading the previous output orientation;
    validity is judged again on what they return.
@@ -59,11 +61,13 @@ from .navigation.alignment import (
     END,
     SEEN,
     Aligner,
+    report_disturbed,
 )
 from .protocols import Filter, Sample
 from .registry import Registry, default_registry
-from .types import Flag, Recording, Result, sample_validity
-from .validation import as_vector, check_finite_all, check_positive, floats3
+from .types import (Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, sample_validity,
+                    stream_gap)
+from .validation import as_vector, check_finite_all, check_positive, check_sample_finite, floats3
 
 __all__ = ["Pipeline", "run_detector"]
 
@@ -196,6 +200,8 @@ class Pipeline(Filter):
             gyr_ok, acc_ok, mag_ok, flags = sample_validity(gyr, acc, mag if has_mag else None, cfg.gyr_range,
                                                             cfg.acc_range)
             flags |= mflags
+        if not gyr_ok:  # every plugin sees an invalid gyro sample as non-finite (not as a huge rate)
+            gyr = np.full(3, np.nan)
         sample = Sample(gyr, acc if acc_ok else None, mag if mag_ok else None, dt, gnss)
 
         # 2. detectors
@@ -313,7 +319,7 @@ class Pipeline(Filter):
         used = resolve_backend(backend, kernels is not None)
         st = self._check_state(copy.deepcopy(state)) if state is not None else self.new_state(rec.nominal_dt)
         mag = rec.mag if has_mag else np.zeros((n, 3))
-        dt = rec.dt
+        gyr, dt, gaps = hold_gaps(rec.gyr, rec.dt, rec.nominal_dt, self.spec.max_gap)
         # the GNSS rows: the reference's samples carry them; compiled, only kernels that take them
         want = used != "numba" or any(k.gnss for k in kernels[2] + kernels[3])
         gn = gnss_sample_rows(rec) if rec.gnss is not None and want else None
@@ -324,18 +330,20 @@ class Pipeline(Filter):
         for start in range(0, n, _CHUNK):
             stop = min(n, start + _CHUNK)
             if used == "numba":
-                self._run_compiled(st, kernels, rec.gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop,
-                                   gn)
+                self._run_compiled(st, kernels, gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop, gn)
             else:
                 for k in range(start, stop):
-                    q, f, c = self._step(st, rec.gyr[k], rec.acc[k], mag[k], dt[k], has_mag,
+                    q, f, c = self._step(st, gyr[k], rec.acc[k], mag[k], dt[k], has_mag,
                                          None if gn is None else gn[k])
                     out_q[k], out_f[k], out_c[k] = q, f, c
             if bar is not None:
                 bar.update(stop - start)
         if bar is not None:
             bar.close()
-        return Result(out_q, out_f, self.spec.frame, self._diagnostics(st, out_f, out_c, used))
+        diag = self._diagnostics(st, out_f, out_c, used)
+        report_disturbed(st["align"], st["dt"], self.spec.alignment.duration)
+        mark_gaps(out_f, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.spec.max_gap))
+        return Result(out_q, out_f, self.spec.frame, diag)
 
     def _set_body(self, body: str | None) -> None:
         """The correctors for sensors in ``body`` axes (a corrector with a forward axis gets
@@ -365,8 +373,11 @@ class Pipeline(Filter):
         the composition's compiled one-sample step when every plugin has a kernel (see
         ``update_backend``), else the reference. ``last_flags`` holds the sample's flags."""
         pk = self._packed if self._stream is not None else None
-        if pk and gnss is None and type(dt) is float and 0.0 < dt < math.inf:
-            # the fast path of the compiled stream: plain float64 vectors, all finite
+        if (pk and gnss is None and type(dt) is float
+                and 0.0 < dt <= gap_threshold(self._stream["dt"], self.spec.max_gap)
+                and len(self.__dict__.get("_unit_samples", ())) >= self.UNIT_CHECK_SAMPLES):
+            # the fast path of the compiled stream (the units checked, no gap): plain float64
+            # vectors, all finite
             g, a = floats3(gyr), floats3(acc)
             m = _ZEROS if mag is None else floats3(mag)
             if g is not None and a is not None and m is not None and math.isfinite(sum(g) + sum(a) + sum(m)):
@@ -386,12 +397,11 @@ class Pipeline(Filter):
         a = as_vector("acc", acc)
         has_mag = mag is not None
         m = as_vector("mag", mag) if has_mag else np.zeros(3)
-        if self.spec.nan_policy == "raise":
-            for nm, v in (("gyr", g), ("acc", a), ("mag", m)):
-                if not np.isfinite(v).all():
-                    raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
+        check_sample_finite(self.spec.nan_policy, gyr=g, acc=a, mag=m)
+        self.check_stream_units(g, a)
         if self._stream is None:
             self._stream = self.new_state(dt)
+        g, dt, gap = stream_gap(g, dt, self._stream["dt"], self.spec.max_gap)
         self._set_body(self.config.body)  # no recording: the config's body axes
         pk = self._stream_kernel()
         if pk is not None:
@@ -399,11 +409,11 @@ class Pipeline(Filter):
             n = _NO_GNSS if gnss is None else as_vector("gnss", gnss, width=6).tolist()
             g, a, m = g.tolist(), a.tolist(), m.tolist()
             f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q, *n)
-            self.last_flags = int(f)
+            self.last_flags = gap_flags(f, gap)
             return q.copy()
         gn = None if gnss is None else np.asarray(gnss, dtype=float)
         q, f, _ = self._step(self._stream, g, a, m, dt, has_mag, gn)
-        self.last_flags = int(f)
+        self.last_flags = gap_flags(f, gap)
         return q
 
     def _stream_kernel(self):

@@ -323,3 +323,19 @@ class Filter(Plugin, ABC):
     @abstractmethod
     def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
         """Process one sample, return the orientation quaternion after it."""
+
+    #: how many first samples of a stream :meth:`check_stream_units` keeps
+    UNIT_CHECK_SAMPLES: ClassVar[int] = 50
+
+    def check_stream_units(self, gyr: np.ndarray, acc: np.ndarray) -> None:
+        """``update()``'s unit check: the magnitude tests ``Recording`` makes (acc in g, gyro in
+        deg/s), on the stream's first samples so far (from the first one on), raising the same
+        :class:`~fusionkit.errors.InputError` naming the fix."""
+        from .validation import check_units
+
+        buf = self.__dict__.setdefault("_unit_samples", [])
+        if len(buf) >= self.UNIT_CHECK_SAMPLES:
+            return
+        buf.append(np.concatenate([gyr, acc]))
+        arr = np.array(buf)
+        check_units(arr[:, :3], arr[:, 3:])

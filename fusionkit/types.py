@@ -4,6 +4,7 @@ and the per-sample :class:`Flag` bitmask."""
 from __future__ import annotations
 
 import enum
+import math
 import warnings
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,15 +26,16 @@ class Flag(enum.IntFlag):
     ALIGNING = 1 << 0  #: initial alignment still running: output is the alignment attitude
     MOTION = 1 << 1  #: the motion detector fires on this sample
     GYR_INVALID = 1 << 2  #: gyroscope sample not finite: state held, not propagated
-    ACC_INVALID = 1 << 3  #: accelerometer sample not finite or zero: its correction skipped
-    MAG_INVALID = 1 << 4  #: magnetometer sample not finite or zero: its correction skipped
-    GYR_SATURATED = 1 << 5  #: a gyroscope axis at or above the configured range
-    ACC_SATURATED = 1 << 6  #: an accelerometer axis at or above the configured range
+    ACC_INVALID = 1 << 3  #: accelerometer sample not finite, zero or beyond ACC_LIMIT: its correction skipped
+    MAG_INVALID = 1 << 4  #: magnetometer sample not finite, zero or too small/large to square: its correction skipped
+    GYR_SATURATED = 1 << 5  #: a gyroscope axis at or above the configured range (still integrated)
+    ACC_SATURATED = 1 << 6  #: an accelerometer axis at or above the configured range: its correction skipped
     REST = 1 << 7  #: a rest detector says the sensor is still
     MAG_DISTURBED = 1 << 8  #: a magnetic disturbance detector rejects the magnetometer
     ACC_REJECTED = 1 << 9  #: accelerometer correction rejected (dynamic acceleration)
     GNSS_GAP = 1 << 10  #: no usable GNSS on this sample
-    GNSS_REJECTED = 1 << 11  #: a GNSS measurement on this sample failed the innovation gate and was not used
+    GAP = 1 << 11  #: the interval before this sample is a timestamp gap: the state is held across it, not integrated
+    GNSS_REJECTED = 1 << 12  #: a GNSS measurement on this sample failed the innovation gate and was not used
 
 
 def flag_names(value: int) -> list[str]:
@@ -45,26 +47,120 @@ _GYR_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
 _ACC_UNITS = {"m/s^2": 1.0, "g": 9.80665}
 
 
+#: A gyroscope axis beyond this (rad/s, about 1600 turns per second: no gyroscope measures that
+#: much) is not a measurement; the sample is GYR_INVALID (and its rate cannot overflow a product).
+GYR_LIMIT = 1.0e4
+#: Without ``acc_range``, an accelerometer axis beyond 16 g (the largest range of consumer MEMS
+#: accelerometers, which cannot report more) is a glitch: ACC_INVALID.
+ACC_LIMIT = 16.0 * 9.80665
+#: Vectors whose largest entry is outside ``[TINY, HUGE]`` cannot be squared and normalised in
+#: float64 (underflow to 0, overflow to inf): an accelerometer or magnetometer sample that small
+#: or (magnetometer, any unit) that large is invalid.
+TINY, HUGE = 1e-150, 1e150
+#: An interval longer than this many nominal intervals (and than the filter's ``max_gap`` s) is a
+#: timestamp gap (Flag.GAP).
+GAP_INTERVALS = 5.0
+
+
 def sample_validity(gyr, acc, mag, gyr_range, acc_range) -> tuple[bool, bool, bool, int]:
     """``(gyr_ok, acc_ok, mag_ok, flags)`` of one sample, as every reference path judges it:
-    non-finite gyr -> GYR_INVALID; non-finite or all-zero acc / mag (free fall, dropout) ->
-    ACC_INVALID / MAG_INVALID; an axis at or above ``gyr_range`` / ``acc_range`` (None: no
-    range) -> SATURATED (still used). ``mag`` None: no magnetometer, no flag."""
-    gyr_ok = bool(np.isfinite(gyr).all())
-    acc_ok = bool(np.isfinite(acc).all() and np.any(acc != 0.0))
-    mag_ok = mag is not None and bool(np.isfinite(mag).all() and np.any(mag != 0.0))
+    a gyr axis not finite or beyond :data:`GYR_LIMIT` -> GYR_INVALID (state held); acc / mag not
+    finite, (all) zero or too small to normalise (free fall, dropout), acc beyond
+    :data:`ACC_LIMIT` without ``acc_range`` (a glitch), mag beyond :data:`HUGE` -> ACC_INVALID /
+    MAG_INVALID (correction skipped); an axis at or above ``gyr_range`` / ``acc_range`` (None: no
+    range) -> SATURATED: a saturated gyro is still integrated (the best rate there is), a
+    saturated accelerometer never reaches a correction. ``mag`` None: no magnetometer, no flag.
+    :func:`fusionkit._kernels.validity_flags` is the numba twin."""
+    g, a = gyr.tolist(), acc.tolist()  # plain floats: this runs per sample
+    gmax, amax = _largest(g), _largest(a)  # NaN if an entry is not finite
+    gyr_ok = gmax <= GYR_LIMIT
+    acc_lim = acc_range if acc_range is not None else ACC_LIMIT
+    acc_ok = TINY <= amax < math.inf
     flags = 0
     if not gyr_ok:
         flags |= Flag.GYR_INVALID
-    elif gyr_range is not None and np.max(np.abs(gyr)) >= gyr_range:
+    elif gyr_range is not None and gmax >= gyr_range:
         flags |= Flag.GYR_SATURATED
-    if not acc_ok:
+    if acc_ok and amax >= acc_lim:
+        acc_ok = False
+        flags |= Flag.ACC_SATURATED if acc_range is not None else Flag.ACC_INVALID
+    elif not acc_ok:
         flags |= Flag.ACC_INVALID
-    elif acc_range is not None and np.max(np.abs(acc)) >= acc_range:
-        flags |= Flag.ACC_SATURATED
-    if mag is not None and not mag_ok:
-        flags |= Flag.MAG_INVALID
+    mag_ok = False
+    if mag is not None:
+        mmax = _largest(mag.tolist())
+        mag_ok = TINY <= mmax <= HUGE
+        if not mag_ok:
+            flags |= Flag.MAG_INVALID
     return gyr_ok, acc_ok, mag_ok, flags
+
+
+def _largest(v) -> float:
+    """The largest ``|v_i|``; NaN when an entry is not finite."""
+    if not (math.isfinite(v[0]) and math.isfinite(v[1]) and math.isfinite(v[2])):
+        return math.nan
+    return max(abs(v[0]), abs(v[1]), abs(v[2]))
+
+
+def gap_threshold(nominal_dt: float, max_gap: float | None) -> float:
+    """The longest interval integrated as one step: ``max(max_gap, GAP_INTERVALS * nominal_dt)``
+    (``inf`` with ``max_gap`` None: no gap handling)."""
+    return math.inf if max_gap is None else max(float(max_gap), GAP_INTERVALS * float(nominal_dt))
+
+
+def hold_gaps(gyr: np.ndarray, dt: np.ndarray, nominal_dt: float, max_gap: float | None):
+    """``(gyr, dt, gaps)`` for a run: at a timestamp gap (an interval above :func:`gap_threshold`)
+    the gyro sample is replaced by NaN (the state is held across the gap, not integrated with a
+    rate known only at its end) and its interval by the nominal one (so that no time constant
+    sees the gap as one step); the sample's other sensors are used as usual. Without gaps the
+    arrays are returned as they are. :func:`mark_gaps` turns the flags back."""
+    gaps = dt > gap_threshold(nominal_dt, max_gap)
+    gaps[:1] = False  # dt[0] is a copy of dt[1], not an interval before the first sample
+    if not gaps.any():
+        return gyr, dt, gaps
+    gyr = gyr.copy()
+    dt = dt.copy()
+    gyr[gaps] = np.nan
+    dt[gaps] = nominal_dt
+    return gyr, dt, gaps
+
+
+def mark_gaps(flags: np.ndarray, gaps: np.ndarray, gyr: np.ndarray, diagnostics: dict, threshold: float) -> None:
+    """Flags of the gap samples (from :func:`hold_gaps`): GAP instead of the GYR_INVALID the held
+    gyro caused (kept when the original sample was invalid too); ``diagnostics["gaps"]`` counts
+    them and a warning says so."""
+    diagnostics["gaps"] = int(gaps.sum())
+    if not gaps.any():
+        return
+    idx = np.flatnonzero(gaps)
+    g = np.abs(gyr[idx])
+    still_bad = ~(np.isfinite(g).all(axis=1) & (g.max(axis=1) <= GYR_LIMIT))
+    f = flags[idx] & np.uint32(~int(Flag.GYR_INVALID) & 0xFFFFFFFF)
+    flags[idx] = f | np.uint32(Flag.GAP) | np.where(still_bad, np.uint32(Flag.GYR_INVALID), np.uint32(0))
+    warnings.warn(f"{idx.size} timestamp gap(s) longer than {threshold:.3g} s (first before sample {idx[0]}): "
+                  "the state is held across each, not integrated (flag GAP)", GapWarning, stacklevel=3)
+
+
+def stream_gap(gyr: np.ndarray, dt: float, nominal_dt: float, max_gap: float | None):
+    """:func:`hold_gaps` for one ``update()`` sample: ``(gyr, dt, gap)``; with ``gap`` the
+    sample's flags take :func:`gap_flags`."""
+    if dt > gap_threshold(nominal_dt, max_gap):
+        return np.full(3, np.nan), nominal_dt, True
+    return gyr, dt, False
+
+
+def gap_flags(flags: int, gap: bool) -> int:
+    """A streamed sample's flags: GAP instead of the GYR_INVALID of the held gyro (see
+    :func:`stream_gap`)."""
+    return int(flags) if not gap else (int(flags) & ~int(Flag.GYR_INVALID)) | int(Flag.GAP)
+
+
+class GapWarning(UserWarning):
+    """A recording has timestamp gaps (:data:`Flag.GAP`)."""
+
+
+class AlignmentWarning(UserWarning):
+    """Motion inside a mandatory alignment ended it early."""
 
 
 @dataclass
@@ -154,7 +250,6 @@ class Recording:
         if _ACC_UNITS[self.acc_unit] != 1.0:
             self.acc = self.acc * _ACC_UNITS[self.acc_unit]
         self.gyr_unit, self.acc_unit = "rad/s", "m/s^2"
-        self._check_units()
         if (self.rate is None) == (self.t is None):
             raise InputError("give exactly one of rate= (Hz) or t= (timestamps in s)")
         if self.rate is not None:
@@ -163,6 +258,7 @@ class Recording:
             self.t = check_time(self.t, n)
         if self.body is not None:
             self.body = check_body(self.body, "body", InputError)
+        self._check_units()
         if self.truth is not None:
             self.truth = as_vectors("truth", self.truth, n, width=4)
             check_frame(self.truth_frame)
@@ -188,8 +284,9 @@ class Recording:
                              pos=None if g.pos is None else g.pos[inside])
 
     def _check_units(self) -> None:
-        """Refuse data obviously in g or deg/s (:func:`fusionkit.validation.check_units`: one pass)."""
-        check_units(self.gyr, self.acc)
+        """Refuse data in g or deg/s (:func:`fusionkit.validation.check_units`: the medians in one
+        pass, and whether the gyroscope explains the magnetometer's and accelerometer's turning)."""
+        check_units(self.gyr, self.acc, self.mag, self.dt)
 
     def __len__(self) -> int:
         return self.gyr.shape[0]

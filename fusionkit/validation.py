@@ -12,8 +12,15 @@ from .errors import InputError
 NAN_POLICIES = ("raise", "skip")
 
 
+def _no_bool(name: str, x) -> None:
+    if getattr(x, "dtype", None) == np.bool_ or (isinstance(x, (list, tuple)) and np.asarray(x).dtype == np.bool_):
+        raise InputError(f"{name} is a boolean array: sensor samples must be numbers (a mask passed by mistake?)")
+
+
 def as_vectors(name: str, x, n: int | None = None, width: int = 3) -> np.ndarray:
-    """``x`` as a C-contiguous float64 ``(N, width)`` array, or :class:`InputError`."""
+    """``x`` as a C-contiguous float64 ``(N, width)`` array, or :class:`InputError` (also for a
+    boolean array: True/False would become 1/0 rad/s)."""
+    _no_bool(name, x)
     try:
         arr = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -29,6 +36,7 @@ def as_vectors(name: str, x, n: int | None = None, width: int = 3) -> np.ndarray
 
 def as_vector(name: str, x, width: int = 3) -> np.ndarray:
     """One sample as a float64 ``(width,)`` array, or :class:`InputError`."""
+    _no_bool(name, x)
     try:
         arr = np.asarray(x, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError) as exc:
@@ -82,6 +90,16 @@ def check_finite_all(arrays: dict, policy: str) -> None:
     if policy == "raise" and bad:
         _, name, x = min(bad, key=lambda b: b[0])
         check_finite(name, x, "raise")
+
+
+def check_sample_finite(policy: str, **vectors) -> None:
+    """``update()``'s :func:`check_finite`: with ``policy="raise"`` a non-finite vector (None: not
+    given) raises naming it."""
+    if policy != "raise":
+        return
+    for name, v in vectors.items():
+        if v is not None and not np.isfinite(v).all():
+            raise InputError(f"{name} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
 
 
 def check_time(t, n: int, name: str = "t", other: str = "gyr") -> np.ndarray:
@@ -207,9 +225,12 @@ def _gyr_abs(gyr):
     return np.abs(gyr[np.isfinite(gyr).all(axis=1)])
 
 
-def check_units(gyr: np.ndarray, acc: np.ndarray) -> None:
+def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,
+                dt: np.ndarray | None = None) -> None:
     """Refuse an accelerometer in g and a gyroscope in deg/s (see above), naming the argument
-    that converts them; the medians are computed for the message only when one is refused."""
+    that converts them; the medians are computed for the message only when one is refused. With
+    ``dt``, also a gyroscope whose turning the magnetometer and accelerometer contradict
+    (:func:`check_turning`: a deg/s gyro on a recording that never turns a turn per second)."""
     acc_lo, acc_hi, gyr_hi = _unit_medians(gyr, acc)
     if acc_lo is not None and acc_lo > 0 and acc_hi < 0:
         raise InputError(
@@ -221,3 +242,90 @@ def check_units(gyr: np.ndarray, acc: np.ndarray) -> None:
             f"gyr looks like it is in deg/s (median |component| {np.median(_gyr_abs(gyr)):.3g} > 2 pi rad/s); "
             "fusionkit expects rad/s: pass gyr_unit='deg/s' to convert"
         )
+    if dt is not None:
+        check_turning(gyr, acc, mag, dt)
+
+DEG = np.pi / 180.0
+
+
+def check_turning(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, dt: np.ndarray) -> None:
+    """:class:`InputError` when the magnetometer (or, nearly still, the accelerometer) turns as the
+    gyroscope scaled by pi/180 predicts, not as given: a gyro in deg/s that never exceeds the
+    magnitude bound of :func:`check_units` (:func:`turning_scale`)."""
+    if gyr.shape[0] < 4:
+        return
+    turns = window_turns(gyr, dt)
+    for name, vec in (("mag", mag), ("acc", acc)):
+        if vec is None:
+            continue
+        scale = turning_scale(turns, vec, quasi_static=name == "acc")
+        if scale is None or scale > np.sqrt(DEG):
+            continue
+        # the specific force may not follow gravity (a multicopter's thrust stays on its z axis):
+        # from it alone, a deg/s gyro must also turn faster than a turn per second as given
+        if name == "acc" and _fast_turn_rare(gyr):
+            continue
+        raise InputError(
+            f"gyr looks like it is in deg/s: the {name} turns as the gyro scaled by pi/180 predicts, not as given "
+            f"(fitted scale {scale:.3g}, deg/s would be {DEG:.3g}); fusionkit expects rad/s: pass gyr_unit='deg/s' "
+            "to convert")
+
+
+def _fast_turn_rare(gyr: np.ndarray) -> bool:
+    """The gyro as given turns faster than a turn per second on fewer than 1% of its samples."""
+    g = gyr[:: max(1, gyr.shape[0] // 3000)]
+    w = np.linalg.norm(g[np.isfinite(g).all(axis=1)], axis=1)
+    return bool(w.size) and float(np.percentile(w, 99)) < 2 * np.pi
+
+
+def window_turns(gyr: np.ndarray, dt: np.ndarray, window: float = 0.05):
+    """The gyro's rotation vectors over consecutive windows of about ``window`` s:
+    ``(i0, i1, th, duration)``, ``th[j]`` the integral of ``w dt`` over ``(t[i0[j]], t[i1[j]]]``
+    (NaN over a non-finite sample)."""
+    n = gyr.shape[0]
+    h = float(np.median(dt[:: max(1, n // 1000)]))
+    lag = max(1, int(round(window / h)))
+    i0 = np.arange(0, max(0, n - lag), lag)
+    i1 = i0 + lag
+    with np.errstate(over="ignore", invalid="ignore"):
+        th = np.add.reduceat(gyr * dt[:, None], i0 + 1, axis=0) if i0.size else np.zeros((0, 3))
+        span = np.add.reduceat(dt, i0 + 1) if i0.size else np.zeros(0)
+    if i0.size and i1[-1] < n - 1:  # reduceat's last window runs to the end: cut it to lag samples
+        th, span = (th[:-1], span[:-1]) if i0.size > 1 else (th[:0], span[:0])
+        i0, i1 = i0[:th.shape[0]], i1[:th.shape[0]]
+    th[np.abs(span - lag * h) > 0.5 * lag * h] = np.nan  # a window over a timestamp gap is left out
+    return i0, i1, th, lag * h
+
+
+def turning_scale(turns, vec: np.ndarray, min_rate: float = 0.1, quasi_static: bool = False) -> float | None:
+    """The scale ``c`` with which the gyroscope explains the turning of a vector fixed in the
+    earth frame (the magnetic field; gravity, seen by the accelerometer when ``quasi_static``
+    keeps windows whose ends have a norm within 10 % of the median): over the windows of
+    :func:`window_turns`, ``u1 - u0 ~ -c th x u0`` in least squares. A gyro in rad/s gives about
+    1, one in deg/s read as rad/s about pi/180. Only windows where the gyro, as given, says the
+    vector turns faster than ``min_rate`` rad/s (beyond any gyro bias) count; None when the two
+    hypotheses (1 and pi/180) are not told apart by a factor 4 in squared error, or fewer than 10
+    windows count."""
+    i0, i1, th, duration = turns
+    if i0.size < 10:
+        return None
+    with np.errstate(over="ignore", invalid="ignore"):
+        v0, v1 = vec[i0], vec[i1]
+        n0, n1 = np.linalg.norm(v0, axis=1), np.linalg.norm(v1, axis=1)
+        ok = np.isfinite(th).all(axis=1) & np.isfinite(n0) & np.isfinite(n1) & (n0 > 0) & (n1 > 0)
+        if quasi_static and ok.any():
+            m = np.median(n0[ok])
+            ok &= (np.abs(n0 - m) < 0.1 * m) & (np.abs(n1 - m) < 0.1 * m)
+        u0 = v0[ok] / n0[ok, None]
+        du = v1[ok] / n1[ok, None] - u0
+        p = -np.cross(th[ok], u0)
+        use = np.linalg.norm(p, axis=1) > min_rate * duration
+        if use.sum() < 10:
+            return None
+        p, du = p[use], du[use]
+        e_rad = np.sum((du - p) ** 2)
+        e_deg = np.sum((du - DEG * p) ** 2)
+        c = float(np.sum(du * p) / np.sum(p * p))
+    if not (np.isfinite(c) and (e_deg < 0.25 * e_rad or e_rad < 0.25 * e_deg)):
+        return None
+    return c

@@ -74,6 +74,18 @@ _LATCH, _POS, _FILL, _WDT, _DT, _FDT, _SEEN, _NW, _RING = 13, 14, 15, 16, 19, 20
 _SLOT = 7  # per ring slot: w dt (3), dt (1), f dt (3)
 
 
+def armed_for_alignment(motion: MotionConfig, duration: float, early: bool) -> MotionConfig:
+    """The detector that ends an alignment of mandatory ``duration`` s: armed after
+    :data:`~fusionkit.navigation.alignment.STATISTICS_TIME` (``early``: motion inside the
+    mandatory time is seen, and ends the alignment there, reported) or when the mandatory time
+    ends (source 000), unless ``arm_after`` was set explicitly."""
+    from ..navigation.alignment import STATISTICS_TIME
+
+    if "arm_after" in motion.model_fields_set:
+        return motion
+    return motion.model_copy(update={"arm_after": min(STATISTICS_TIME, duration) if early else duration})
+
+
 class MotionDetector(Detector):
     """Source 000's five-criterion motion detector."""
 

@@ -24,8 +24,8 @@ from .._numba import HAVE_NUMBA, resolve_backend
 from ..conventions import change_frame
 from ..errors import InputError
 from ..protocols import Filter
-from ..types import Recording, Result
-from ..validation import as_vector, check_finite_all, check_positive, floats3
+from ..types import Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, stream_gap
+from ..validation import as_vector, check_finite_all, check_positive, check_sample_finite, floats3
 
 __all__ = ["StepFilter"]
 
@@ -73,6 +73,12 @@ class StepFilter(Filter):
         """Extra entries of ``Result.diagnostics`` from the final state."""
         return {}
 
+    def _relevel(self, x: np.ndarray) -> None:
+        """Called before a sample that follows a timestamp gap (Flag.GAP; the gap's gyro step is
+        held, see :func:`fusionkit.types.hold_gaps`) and before the first unsaturated gyro sample
+        after saturated ones (the attitude is off by what the range clipped): a filter that can
+        re-level quickly restarts what became stale. Default: nothing (the state is held)."""
+
     # -- shared ----------------------------------------------------------------------------
     def dimension(self, rec) -> str:
         return "9D" if getattr(self.config, "use_mag", True) and rec.mag is not None else "6D"
@@ -96,21 +102,31 @@ class StepFilter(Filter):
         x = self._checked_state(state).copy() if state is not None else self.new_state()
         has_mag = self._uses_mag(rec)
         mag = rec.mag if has_mag else np.zeros((n, 3))
-        dt = rec.dt
+        gyr, dt, gaps = hold_gaps(rec.gyr, rec.dt, rec.nominal_dt, self.config.max_gap)
+        restart = gaps | _after_saturation(rec.gyr, self.config.gyr_range)
         q = np.empty((n, 4))
         flags = np.zeros(n, np.uint32)
         if used == "numba":
-            loop(rec.gyr, rec.acc, mag, dt, has_mag, x, self.params(), self.qf, q, flags)
+            params = self.params()
+            bounds = [0, *np.flatnonzero(restart).tolist(), n]  # one compiled run per stretch between restarts
+            for s, e in zip(bounds[:-1], bounds[1:]):
+                if restart[s]:
+                    self._relevel(x)
+                if e > s:
+                    loop(gyr[s:e], rec.acc[s:e], mag[s:e], dt[s:e], has_mag, x, params, self.qf, q[s:e], flags[s:e])
         else:
             bar = _progress(n, progress, self.name)
             for k in range(n):
-                q[k], flags[k] = self._step(x, rec.gyr[k], rec.acc[k], mag[k] if has_mag else None, dt[k])
+                if restart[k]:
+                    self._relevel(x)
+                q[k], flags[k] = self._step(x, gyr[k], rec.acc[k], mag[k] if has_mag else None, dt[k])
                 if bar is not None and k % 10_000 == 9_999:
                     bar.update(10_000)
             if bar is not None:
                 bar.close()
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "state": x,
                 **self._diagnostics(x)}
+        mark_gaps(flags, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.config.max_gap))
         return Result(q, flags, self.config.frame, diag)
 
     def _checked_state(self, x) -> np.ndarray:
@@ -133,13 +149,17 @@ class StepFilter(Filter):
     def reset(self) -> None:
         self._stream = None
         self._buffers = None
+        self._nominal_dt = None
 
     def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
         """One sample of a stream; the same numbers as :meth:`run`. It runs the compiled loop on
         the one sample when the filter has one (``update_backend``), else the reference step."""
         b = self._buffers if self._stream is not None else None
-        if b and type(dt) is float and 0.0 < dt < math.inf:
-            # the fast path: plain float64 vectors, all finite, written into the loop's arrays
+        if (b and type(dt) is float and 0.0 < dt <= gap_threshold(self._nominal_dt, self.config.max_gap)
+                and not self._saturated and self.config.gyr_range is None
+                and len(self.__dict__.get("_unit_samples", ())) >= self.UNIT_CHECK_SAMPLES):
+            # the fast path (the units checked, no gap, no saturated gyro): plain float64 vectors,
+            # all finite, written into the loop's arrays
             g, a = floats3(gyr), floats3(acc)
             use_mag = mag is not None and getattr(self.config, "use_mag", True)
             m = floats3(mag) if use_mag else (0.0, 0.0, 0.0)
@@ -161,12 +181,17 @@ class StepFilter(Filter):
         dt = check_positive("dt", dt)
         g, a = as_vector("gyr", gyr), as_vector("acc", acc)
         m = None if mag is None or not getattr(self.config, "use_mag", True) else as_vector("mag", mag)
-        if self.config.nan_policy == "raise":
-            for nm, v in (("gyr", g), ("acc", a), ("mag", m)):
-                if v is not None and not np.isfinite(v).all():
-                    raise InputError(f"{nm} is not finite ({v.tolist()}); pass nan_policy='skip' to hold and flag")
+        check_sample_finite(self.config.nan_policy, gyr=g, acc=a, mag=m)
+        self.check_stream_units(g, a)
         if self._stream is None:
             self._stream = self.new_state()
+        nominal = self.__dict__.setdefault("_nominal_dt", None) or dt  # the stream's first interval
+        self._nominal_dt = nominal
+        g, dt, gap = stream_gap(g, dt, nominal, self.config.max_gap)
+        saturated = self.config.gyr_range is not None and bool(np.max(np.abs(g)) >= self.config.gyr_range)
+        if gap or (self.__dict__.get("_saturated", False) and not saturated):
+            self._relevel(self._stream)
+        self._saturated = saturated
         if self._buffers is None:
             loop = self._kernel() if self.update_backend != "reference" and HAVE_NUMBA else None
             Z = np.zeros(10)  # the sample's gyr, acc, mag and dt, as the loop's (1, 3) and (1,) arrays
@@ -174,7 +199,20 @@ class StepFilter(Filter):
                 loop, self.params(), Z, Z[0:3].reshape(1, 3), Z[3:6].reshape(1, 3), Z[6:9].reshape(1, 3), Z[9:10],
                 np.zeros((1, 4)), np.zeros(1, np.uint32))
         if self._buffers and self.update_backend != "reference":
-            return self._update_compiled(self._buffers, g, a, (0.0, 0.0, 0.0) if m is None else m, dt, m is not None)
+            q = self._update_compiled(self._buffers, g, a, (0.0, 0.0, 0.0) if m is None else m, dt, m is not None)
+            self.last_flags = gap_flags(self.last_flags, gap)
+            return q
         q, f = self._step(self._stream, g, a, m, dt)
-        self.last_flags = int(f)
+        self.last_flags = gap_flags(f, gap)
         return q
+
+
+def _after_saturation(gyr: np.ndarray, gyr_range: float | None) -> np.ndarray:
+    """Mask of the first gyro samples below ``gyr_range`` after one at or above it."""
+    if gyr_range is None:
+        return np.zeros(gyr.shape[0], bool)
+    with np.errstate(invalid="ignore"):
+        sat = np.abs(gyr).max(axis=1) >= gyr_range
+    out = np.zeros_like(sat)
+    out[1:] = sat[:-1] & ~sat[1:]
+    return out

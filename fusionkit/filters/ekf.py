@@ -43,9 +43,12 @@ innovation squared (NIS); a measurement above it is not used (flags ACC_REJECTED
 MAG_DISTURBED).
 
 The start attitude is the first valid sample's (tilt from the accelerometer, heading from the
-magnetometer, zero without one). Bad input: a non-finite gyroscope sample holds the state
-(GYR_INVALID); a non-finite or all-zero accelerometer or magnetometer sample skips its update
-(ACC_INVALID / MAG_INVALID); readings at the configured range are flagged SATURATED.
+magnetometer, zero without one); before it the gyro turns the output from identity. Bad input
+(docs/reliability.md): an invalid gyroscope sample holds the state (GYR_INVALID); an invalid
+accelerometer or magnetometer sample (non-finite, zero, a glitch beyond 16 g, a reading at
+``acc_range``) skips its update (ACC_INVALID / ACC_SATURATED / MAG_INVALID); gyro readings at
+``gyr_range`` are flagged GYR_SATURATED. After a timestamp gap (GAP, the state held across it)
+or a saturated gyro the attitude covariance is reset to the start's (:meth:`EkfFilter._relevel`).
 ``Result.diagnostics`` has the final bias and covariance; :meth:`EkfFilter.run` with
 ``record=True`` adds each sample's NIS for consistency checks.
 
@@ -190,13 +193,20 @@ class EkfFilter(StepFilter):
         c = self.config
         x[_Q:_Q + 4] = alignment_quat(acc, mag, frame="ENU")
         x[_B:_B + 3] = 0.0
-        x[_P:_P + 36] = np.diag([c.initial_tilt_std ** 2] * 2 + [c.initial_heading_std ** 2]
-                                + [c.initial_bias_std ** 2] * 3).reshape(36)
-        # the tilt/heading stds are given about the earth axes; P is in the body frame
-        r = quat_to_matrix(x[_Q:_Q + 4])
-        p = x[_P:_P + 36].reshape(6, 6)
-        p[:3, :3] = r.T @ p[:3, :3] @ r
+        x[_P:_P + 36] = np.diag([0.0] * 3 + [c.initial_bias_std ** 2] * 3).reshape(36)
+        self._relevel(x)
         x[_START] = 1.0
+
+    def _relevel(self, x) -> None:
+        """The attitude covariance of the start (after a timestamp gap or a saturated gyro, too:
+        the attitude error is as unknown as at the start, and the next measurements re-level at
+        the start's speed). The tilt/heading stds are given about the earth axes; P is in the
+        body frame."""
+        c = self.config
+        p = x[_P:_P + 36].reshape(6, 6)
+        r = quat_to_matrix(x[_Q:_Q + 4])
+        p[:3, :] = p[:, :3] = 0.0
+        p[:3, :3] = r.T @ np.diag([c.initial_tilt_std ** 2] * 2 + [c.initial_heading_std ** 2]) @ r
 
     def _turn(self, q, r0, r1, r2) -> None:
         """``q <- normalise(q (x) exp(r))`` in place (scalar kernels: this runs per sample)."""
@@ -212,6 +222,8 @@ class EkfFilter(StepFilter):
         if not x[_START]:
             if acc_ok:
                 self._start(x, acc, mag if mag_ok else None)
+            elif gyr_ok:  # no accelerometer yet: the gyro still turns the output (from identity)
+                self._turn(x[_Q:_Q + 4], gyr[0] * dt, gyr[1] * dt, gyr[2] * dt)
             if self.nis is not None:
                 self.nis.append(tuple(nis))
                 self._states.append(x.copy())

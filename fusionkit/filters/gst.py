@@ -52,20 +52,21 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from .._kernels import dcm_to_quat, qmul_into, qnormalize, quat_to_dcm
+from .._kernels import dcm_to_quat, qmul_into, qnormalize, quat_to_dcm, validity_flags
 from .._numba import njit, resolve_backend
 from ..config import AlignmentConfig, BodyAxes, FilterConfig, param
 from ..conventions import body_matrix, frame_matrix
 from ..correctors.gst import GnssLoopConfig
 from ..detectors.gnss_gap import NO_GNSS, gnss_sample_rows
-from ..detectors.motion import MotionConfig, MotionDetector, _motion_step
+from ..detectors.motion import MotionConfig, MotionDetector, _motion_step, armed_for_alignment
 from ..errors import InputError
 from ..navigation.alignment import (
-    ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, NACC, PHASE, SACC, Aligner, align_step,
+    ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, DISTURBED, NACC, PHASE, SACC, Aligner, align_step, report_disturbed,
 )
 from ..protocols import Filter, Sample
 from ..rotations import matrix_to_quat, orthonormalize, quat_to_matrix, rodrigues
-from ..types import Flag, Recording, Result
+from ..types import (Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, sample_validity,
+                    stream_gap)
 from ..validation import check_finite_all
 
 __all__ = ["GstFilter", "GstGnssFilter", "BODY_AXES", "MODES"]
@@ -109,6 +110,10 @@ class GstConfig(FilterConfig, GnssLoopConfig):
     gnss_max_age: float = param(0.5, unit="s", description="a GNSS epoch older than this is a gap", gt=0)
     alignment: Literal["motion", "fixed"] = param("motion", unit="-", description="source 000 alignment mode")
     alignment_duration: float = param(10.0, unit="s", description="mandatory alignment time", gt=0)
+    early_motion: bool = param(
+        True, unit="-", description="extension: the motion detector is armed after 2 s of statistics, so that motion "
+        "inside the mandatory alignment ends it there (never averaged in) with a warning; False: armed when the "
+        "mandatory alignment ends (source 000, which assumes the IMU still)")
     motion: MotionConfig = param(MotionConfig(), unit="-", description="motion detector ending the alignment")
 
 
@@ -123,10 +128,7 @@ class GstFilter(Filter):
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
         c = self.config
-        motion = c.motion
-        if "arm_after" not in motion.model_fields_set:
-            motion = motion.model_copy(update={"arm_after": c.alignment_duration})
-        self.detector = MotionDetector(motion)
+        self.detector = MotionDetector(armed_for_alignment(c.motion, c.alignment_duration, c.early_motion))
         self.alignment = AlignmentConfig(mode=c.alignment, duration=c.alignment_duration)
         self.M = self.axes(c.body)  # for update(), which has no recording
         self.F = frame_matrix("ENU", c.frame)  # output frame, folded into the output rotation
@@ -157,6 +159,7 @@ class GstFilter(Filter):
             c.reject_acc, c.reject_turn, c.heading_T, float(c.heading_init == "track"), c.min_speed,
             c.gnss_max_age, float(c.combined), c.reject_horizontal, c.reject_timeout,
             0.0 if c.tau_acc_bias is None else 1.0 / c.tau_acc_bias, float(c.turn_rate == "heading"),
+            c.gyr_range if c.gyr_range is not None else math.inf, c.acc_range if c.acc_range is not None else math.inf,
         ])
 
     def tau_gnss(self, g: float = 9.80665) -> float:
@@ -175,8 +178,7 @@ class GstFilter(Filter):
         """One sample; ``gnss`` = (vn, ve, valid, age, new, t_epoch), ``m`` the sensor -> RFU
         matrix (:meth:`axes`). Returns (q body->frame, flags, mode)."""
         c, x, al = self.config, st["x"], st["align"]
-        gyr_ok, acc_ok = bool(np.isfinite(gyr).all()), bool(np.isfinite(acc).all() and np.any(acc != 0))
-        flags = (0 if gyr_ok else Flag.GYR_INVALID) | (0 if acc_ok else Flag.ACC_INVALID)
+        gyr_ok, acc_ok, _, flags = sample_validity(gyr, acc, None, c.gyr_range, c.acc_range)
         # the motion detector only ends the alignment: it does not run afterwards
         if al[PHASE] == 0.0 and gyr_ok and acc_ok and self.detector.step(st["det"], Sample(gyr, acc, None, dt)):
             flags |= Flag.MOTION
@@ -186,21 +188,44 @@ class GstFilter(Filter):
             self._start(x, q, al, m)
         if status in (ALIGNING, ALIGNED_NOW):
             return matrix_to_quat(self.F @ quat_to_matrix(q)), flags | Flag.ALIGNING, 0
-        if not (gyr_ok and acc_ok):  # hold the state over a bad sample
+        if not gyr_ok:  # hold the state over a bad gyro sample
             return self._output(x, m), flags, 0
         w = m @ (gyr - al[BIAS:BIAS + 3])
-        f = m @ acc - x[_BA:_BA + 3]
         p = self._p
         # 1. platform Poisson equation, exact over the sample
         cm = rodrigues(-x[_WP:_WP + 3] * dt) @ x[_C:_C + 9].reshape(3, 3) @ rodrigues(w * dt)
         cm = orthonormalize(cm)
         x[_C:_C + 9] = cm.reshape(9)
-        # 2. specific force on the platform, turn rate, heading axes
-        fp = cm @ f
-        w_up = (cm @ w)[2]
         fwd = cm[:, 1]
         hn = math.hypot(fwd[0], fwd[1])
         fx, fy = fwd[0] / hn, fwd[1] / hn  # horizontal forward direction on the platform
+        if acc_ok:
+            mode, gnss_ok, flags = self._level(x, cm, w, m @ acc - x[_BA:_BA + 3], gnss, fx, fy, dt, flags)
+        else:  # no specific force: the levelling pauses, the gyros go on
+            x[_WP:_WP + 3] = 0.0
+            mode, gnss_ok = 3, False
+        # 4. heading: gyroscopic H, blended with the GNSS track angle (eq. 5)
+        h = math.atan2(fx, fy)
+        x[_HSTAR] += _wrap(h - x[_HPREV])
+        x[_HPREV] = h
+        if gnss_ok and x[_V] >= p[10]:
+            track = math.atan2(gnss[1], gnss[0])
+            if x[_HINIT] == 0.0 and p[9] != 0.0:
+                x[_HSTAR] = track
+            else:
+                x[_HSTAR] += _wrap(track - x[_HSTAR]) * dt / p[8]
+            x[_HINIT] = 1.0
+        x[_HSTAR] = _wrap(x[_HSTAR])
+        return self._output(x, m), flags, mode
+
+    def _level(self, x, cm, w, f, gnss, fx, fy, dt, flags) -> tuple[int, bool, int]:
+        """Steps 2-3 on a sample with a valid specific force ``f`` (document axes, the estimated
+        accelerometer bias removed): the correction rate for the next sample; returns (mode, GNSS
+        usable, flags)."""
+        c, p = self.config, self._p
+        # 2. specific force on the platform, turn rate
+        fp = cm @ f
+        w_up = (cm @ w)[2]
         # 3a. GNSS: ground speed and along-track acceleration at each new epoch
         vn, ve, valid, age, new, t_ep = gnss
         gnss_ok = bool(c.combined and valid and age <= c.gnss_max_age)
@@ -248,19 +273,7 @@ class GstFilter(Filter):
         x[_WP], x[_WP + 1], x[_WP + 2] = -dy, dx, 0.0
         if gnss_ok and p[15] > 0.0:  # 3d. the accelerometer bias: the residual seen in the body
             x[_BA:_BA + 3] += (p[15] * dt) * (cm.T @ np.array([x[_LPG], x[_LPG + 1], 0.0]))
-        # 4. heading: gyroscopic H, blended with the GNSS track angle (eq. 5)
-        h = math.atan2(fx, fy)
-        x[_HSTAR] += _wrap(h - x[_HPREV])
-        x[_HPREV] = h
-        if gnss_ok and x[_V] >= p[10]:
-            track = math.atan2(ve, vn)
-            if x[_HINIT] == 0.0 and p[9] != 0.0:
-                x[_HSTAR] = track
-            else:
-                x[_HSTAR] += _wrap(track - x[_HSTAR]) * dt / p[8]
-            x[_HINIT] = 1.0
-        x[_HSTAR] = _wrap(x[_HSTAR])
-        return self._output(x, m), flags, mode
+        return mode, gnss_ok, flags
 
     def _start(self, x, q_enu_sensor, al, m) -> None:
         """Level the platform from the alignment attitude; keep |f| at rest as the local gravity."""
@@ -300,21 +313,24 @@ class GstFilter(Filter):
         gn = self._gnss_arrays(rec)
         st = state if state is not None else self.new_state(rec.nominal_dt)
         st = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in st.items()}
-        dt = rec.dt
+        gyr, dt, gaps = hold_gaps(rec.gyr, rec.dt, rec.nominal_dt, self.config.max_gap)
         q = np.empty((n, 4))
         flags = np.zeros(n, np.uint32)
         mode = np.zeros(n, np.uint8)
         if used == "numba":
-            _gst_loop(rec.gyr, rec.acc, dt, gn, matrix_to_quat(m), matrix_to_quat(self.F), self._p, st["x"], st["det"],
+            _gst_loop(gyr, rec.acc, dt, gn, matrix_to_quat(m), matrix_to_quat(self.F), self._p, st["x"], st["det"],
                       self.detector.kernel().params, st["align"], self.aligner(st["dt"]).params(),
                       q, flags, mode)
         else:
             for k in range(n):
-                q[k], flags[k], mode[k] = self._step(st, rec.gyr[k], rec.acc[k], gn[k], dt[k], m)
+                q[k], flags[k], mode[k] = self._step(st, gyr[k], rec.acc[k], gn[k], dt[k], m)
         al = st["align"]
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "mode": mode,
                 "mode_names": MODES, "bias": al[BIAS:BIAS + 3].copy(), "body": body or "RFU",
                 "alignment_end_index": None if al[17] < 0 else int(al[17]), "state": st}
+        mark_gaps(flags, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.config.max_gap))
+        diag["alignment_disturbed"] = bool(al[DISTURBED])
+        report_disturbed(al, st["dt"], self.config.alignment_duration)
         return Result(q, flags, self.config.frame, diag)
 
     def reset(self) -> None:
@@ -331,11 +347,13 @@ class GstFilter(Filter):
         g, a = as_vector("gyr", gyr), as_vector("acc", acc)
         if self.config.nan_policy == "raise" and not (np.isfinite(g).all() and np.isfinite(a).all()):
             raise InputError("non-finite gyr/acc sample; pass nan_policy='skip' to hold and flag")
+        self.check_stream_units(g, a)
         if self._stream is None:
             self._stream = self.new_state(dt)
+        g, dt, gap = stream_gap(g, dt, self._stream["dt"], self.config.max_gap)
         gn = NO_GNSS if gnss is None else np.asarray(gnss, float)
         q, f, _ = self._step(self._stream, g, a, gn, dt, self.M)
-        self.last_flags = int(f)
+        self.last_flags = gap_flags(f, gap)
         return q
 
 
@@ -408,14 +426,7 @@ def _gst_loop(gyr, acc, dt, gn, qm, qf, p, x, ds, dp, al, ap, out_q, out_f, out_
     for k in range(gyr.shape[0]):
         g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
         a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
-        gyr_ok = math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)
-        acc_ok = (math.isfinite(a0) and math.isfinite(a1) and math.isfinite(a2)
-                  and (a0 != 0.0 or a1 != 0.0 or a2 != 0.0))
-        flags = 0
-        if not gyr_ok:
-            flags |= 4
-        if not acc_ok:
-            flags |= 8
+        gyr_ok, acc_ok, _, flags = validity_flags(g0, g1, g2, a0, a1, a2, 0.0, 0.0, 0.0, False, p[17], p[18])
         h = dt[k]
         if al[PHASE] == 0.0:
             if gyr_ok and acc_ok and _motion_step(ds, g0, g1, g2, a0, a1, a2, 0.0, 0.0, 0.0, h, dp) != 0:
@@ -438,7 +449,7 @@ def _gst_loop(gyr, acc, dt, gn, qm, qf, p, x, ds, dp, al, ap, out_q, out_f, out_
                 out_f[k] = flags | 1
                 out_m[k] = 0
                 continue
-        if gyr_ok and acc_ok:
+        if gyr_ok:
             b0, b1, b2 = g0 - al[BIAS], g1 - al[BIAS + 1], g2 - al[BIAS + 2]
             w0 = m[0] * b0 + m[1] * b1 + m[2] * b2
             w1 = m[3] * b0 + m[4] * b1 + m[5] * b2
@@ -462,71 +473,77 @@ def _gst_loop(gyr, acc, dt, gn, qm, qf, p, x, ds, dp, al, ap, out_q, out_f, out_
             c20 = 2 * (cx * cz - cw * cy)
             c21 = 2 * (cy * cz + cw * cx)
             c22 = 1 - 2 * (cx * cx + cy * cy)
-            # 2. platform specific force, turn rate, forward direction
-            fp0 = c00 * f0 + c01 * f1 + c02 * f2
-            fp1 = c10 * f0 + c11 * f1 + c12 * f2
-            w_up = c20 * w0 + c21 * w1 + c22 * w2
             hn = math.hypot(c01, c11)
             fx, fy = c01 / hn, c11 / hn
-            # 3a. GNSS
-            if p[12] != 0.0:  # the autonomous filter does not read GNSS (gn may be a dummy row)
-                vn, ve, valid, age, new, t_ep = gn[k, 0], gn[k, 1], gn[k, 2] != 0.0, gn[k, 3], gn[k, 4] != 0.0, gn[k, 5]
-            else:
-                vn, ve, valid, age, new, t_ep = 0.0, 0.0, False, np.inf, False, np.nan
-            gnss_ok = p[12] != 0.0 and valid and age <= p[11]
-            if p[12] == 0.0:
-                pass
-            elif new and valid:
-                v = math.hypot(vn, ve)
-                if math.isfinite(x[_TPREV]) and t_ep > x[_TPREV]:
-                    x[_ALONG] = (v - x[_VPREV]) / (t_ep - x[_TPREV])
-                x[_VPREV], x[_TPREV], x[_V] = v, t_ep, v
-            elif not valid:
-                x[_TPREV] = np.nan
-            if p[16] != 0.0:
-                a_lat = x[_V] * _kwrap(math.atan2(fx, fy) - x[_HPREV]) / h
-            else:
-                a_lat = x[_V] * (-w_up)
-            ax = x[_ALONG] * fx + a_lat * fy
-            ay = x[_ALONG] * fy - a_lat * fx
-            if h != last_h:  # the low-pass coefficients, recomputed only when dt changes
-                kg = 1.0 - math.exp(-h / p[2])
-                ka = 1.0 - math.exp(-h / p[3])
-                last_h = h
-            x[_LPG] += kg * ((fp0 - ax) - x[_LPG])
-            x[_LPG + 1] += kg * ((fp1 - ay) - x[_LPG + 1])
-            # 3b. autonomous
-            x[_LPA] += ka * (fp0 - x[_LPA])
-            x[_LPA + 1] += ka * (fp1 - x[_LPA + 1])
-            fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
-            horizontal = math.hypot(x[_LPA], x[_LPA + 1]) > p[13]
-            x[_REJT] = x[_REJT] + h if horizontal else 0.0
-            rejected = p[5] != 0.0 and (abs(fn - x[_GNORM]) > p[6] or abs(w_up) > p[7]
-                                        or (horizontal and x[_REJT] <= p[14]))
-            # 3c. correction
-            if gnss_ok:
-                wgt = p[4]
-                auto_k = 0.0 if rejected else (1.0 - wgt) * p[1]
-                dx = wgt * p[0] * x[_LPG] + auto_k * x[_LPA]
-                dy = wgt * p[0] * x[_LPG + 1] + auto_k * x[_LPA + 1]
-                mode = 2
-            elif rejected:
-                dx = 0.0
-                dy = 0.0
+            if acc_ok:
+                # 2. platform specific force, turn rate, forward direction
+                fp0 = c00 * f0 + c01 * f1 + c02 * f2
+                fp1 = c10 * f0 + c11 * f1 + c12 * f2
+                w_up = c20 * w0 + c21 * w1 + c22 * w2
+                # 3a. GNSS
+                if p[12] != 0.0:  # the autonomous filter does not read GNSS (gn may be a dummy row)
+                    vn, ve, valid, age, new, t_ep = gn[k, 0], gn[k, 1], gn[k, 2] != 0.0, gn[k, 3], gn[k, 4] != 0.0, gn[k, 5]
+                else:
+                    vn, ve, valid, age, new, t_ep = 0.0, 0.0, False, np.inf, False, np.nan
+                gnss_ok = p[12] != 0.0 and valid and age <= p[11]
+                if p[12] == 0.0:
+                    pass
+                elif new and valid:
+                    v = math.hypot(vn, ve)
+                    if math.isfinite(x[_TPREV]) and t_ep > x[_TPREV]:
+                        x[_ALONG] = (v - x[_VPREV]) / (t_ep - x[_TPREV])
+                    x[_VPREV], x[_TPREV], x[_V] = v, t_ep, v
+                elif not valid:
+                    x[_TPREV] = np.nan
+                if p[16] != 0.0:
+                    a_lat = x[_V] * _kwrap(math.atan2(fx, fy) - x[_HPREV]) / h
+                else:
+                    a_lat = x[_V] * (-w_up)
+                ax = x[_ALONG] * fx + a_lat * fy
+                ay = x[_ALONG] * fy - a_lat * fx
+                if h != last_h:  # the low-pass coefficients, recomputed only when dt changes
+                    kg = 1.0 - math.exp(-h / p[2])
+                    ka = 1.0 - math.exp(-h / p[3])
+                    last_h = h
+                x[_LPG] += kg * ((fp0 - ax) - x[_LPG])
+                x[_LPG + 1] += kg * ((fp1 - ay) - x[_LPG + 1])
+                # 3b. autonomous
+                x[_LPA] += ka * (fp0 - x[_LPA])
+                x[_LPA + 1] += ka * (fp1 - x[_LPA + 1])
+                fn = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+                horizontal = math.hypot(x[_LPA], x[_LPA + 1]) > p[13]
+                x[_REJT] = x[_REJT] + h if horizontal else 0.0
+                rejected = p[5] != 0.0 and (abs(fn - x[_GNORM]) > p[6] or abs(w_up) > p[7]
+                                            or (horizontal and x[_REJT] <= p[14]))
+                # 3c. correction
+                if gnss_ok:
+                    wgt = p[4]
+                    auto_k = 0.0 if rejected else (1.0 - wgt) * p[1]
+                    dx = wgt * p[0] * x[_LPG] + auto_k * x[_LPA]
+                    dy = wgt * p[0] * x[_LPG + 1] + auto_k * x[_LPA + 1]
+                    mode = 2
+                elif rejected:
+                    dx = 0.0
+                    dy = 0.0
+                    mode = 3
+                    flags |= 512
+                else:
+                    dx = p[1] * x[_LPA]
+                    dy = p[1] * x[_LPA + 1]
+                    mode = 1
+                if p[12] != 0.0 and not gnss_ok:
+                    flags |= 1024
+                x[_WP], x[_WP + 1], x[_WP + 2] = -dy, dx, 0.0
+                if gnss_ok and p[15] > 0.0:  # 3d. accelerometer bias: C^T [d, 0]
+                    kb, l0, l1 = p[15] * h, x[_LPG], x[_LPG + 1]
+                    x[_BA] += kb * (c00 * l0 + c10 * l1)
+                    x[_BA + 1] += kb * (c01 * l0 + c11 * l1)
+                    x[_BA + 2] += kb * (c02 * l0 + c12 * l1)
+            else:  # no specific force: the levelling pauses, the gyros go on
+                x[_WP], x[_WP + 1], x[_WP + 2] = 0.0, 0.0, 0.0
                 mode = 3
-                flags |= 512
-            else:
-                dx = p[1] * x[_LPA]
-                dy = p[1] * x[_LPA + 1]
-                mode = 1
-            if p[12] != 0.0 and not gnss_ok:
-                flags |= 1024
-            x[_WP], x[_WP + 1], x[_WP + 2] = -dy, dx, 0.0
-            if gnss_ok and p[15] > 0.0:  # 3d. accelerometer bias: C^T [d, 0]
-                kb, l0, l1 = p[15] * h, x[_LPG], x[_LPG + 1]
-                x[_BA] += kb * (c00 * l0 + c10 * l1)
-                x[_BA + 1] += kb * (c01 * l0 + c11 * l1)
-                x[_BA + 2] += kb * (c02 * l0 + c12 * l1)
+                gnss_ok = False
+                vn = ve = 0.0
             # 4. heading
             hh = math.atan2(fx, fy)
             x[_HSTAR] += _kwrap(hh - x[_HPREV])

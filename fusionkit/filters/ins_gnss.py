@@ -922,9 +922,9 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
             for i in range(3):
                 pm[blk + i, blk + i] = r[i]
             x[last] = t
-            flags |= 2048
+            flags |= 4096  # GNSS_REJECTED
         else:
-            flags |= 2048
+            flags |= 4096  # GNSS_REJECTED
     rodrigues_into(dx[0], dx[1], dx[2], r9)
     t9 = np.empty(9)
     matmul3_into(r9, c, t9)

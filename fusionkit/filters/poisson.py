@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import ClassVar, Literal
 
 from ..config import AlignmentConfig, FilterConfig, PipelineConfig, PluginSpec, param
-from ..detectors.motion import MotionConfig
+from ..detectors.motion import MotionConfig, armed_for_alignment
 from ..pipeline import Pipeline
 
 __all__ = ["PoissonFilter"]
@@ -35,6 +35,10 @@ class PoissonConfig(FilterConfig):
         "zero", unit="-", description="initial heading: 0 (source 000) or from the mean magnetometer"
     )
     motion: MotionConfig = param(MotionConfig(), unit="-", description="motion detector settings (source 000, section 5)")
+    early_motion: bool = param(
+        True, unit="-", description="extension: the motion detector is armed after 2 s of statistics, so that motion "
+        "inside the mandatory alignment ends it there (never averaged in) with a warning; False: armed when the "
+        "mandatory alignment ends (source 000, which assumes the IMU still)")
 
 
 class PoissonFilter(Pipeline):
@@ -50,10 +54,7 @@ class PoissonFilter(Pipeline):
         est_params = {"step": c.step} if c.estimator == "poisson-quat" else {}
         motion = None
         if c.alignment == "motion":
-            # the detector arms when the mandatory alignment ends, unless arm_after was set explicitly
-            motion = c.motion
-            if "arm_after" not in motion.model_fields_set:
-                motion = motion.model_copy(update={"arm_after": c.alignment_duration})
+            motion = armed_for_alignment(c.motion, c.alignment_duration, c.early_motion)
         return PipelineConfig(
             frame=c.frame,
             nan_policy=c.nan_policy,

@@ -66,9 +66,12 @@ Around it, each switchable (``tests/test_recommended.py`` shows each one doing i
   it is near the convention (``fusionkit lags``), and on simulated data a longer ``acc_delay``
   does not make up for a late gyro, it adds to its error. Why it helps on BROAD is not known.
 
-Bad input: a non-finite gyroscope sample holds the state (GYR_INVALID); a non-finite or all-zero
-accelerometer (free fall, dropout) or magnetometer sample skips its correction (ACC_INVALID /
-MAG_INVALID); axes at ``gyr_range`` / ``acc_range`` are flagged SATURATED. The state cannot
+Bad input (judged by :func:`fusionkit.types.sample_validity`, docs/reliability.md): an invalid
+gyroscope sample holds the state (GYR_INVALID); an invalid accelerometer (free fall, dropout, a
+glitch beyond 16 g, a reading at ``acc_range``) or magnetometer sample skips its correction
+(ACC_INVALID / ACC_SATURATED / MAG_INVALID). After a timestamp gap (GAP, the state held across
+it) and after a saturated gyro (GYR_SATURATED) the inclination restarts (:meth:`_relevel`):
+the gravity seen in I before has become stale; heading and bias are held. The state cannot
 become NaN (tested).
 
 Computed in ENU (z up, y north); the output is turned into ``frame``. The readable reference is
@@ -196,6 +199,13 @@ class RecommendedFilter(StepFilter):
 
     def _diagnostics(self, x) -> dict:
         return {"bias": x[_BIAS:_BIAS + 3].copy(), "mag_reference": (x[_MAG], x[_MAG + 1])}
+
+    def _relevel(self, x) -> None:
+        """After a timestamp gap or a saturated gyro the inclination restarts (the fast start's
+        running mean, or the low-pass from the next sample): the gravity seen in I before is
+        stale. Heading, bias and the detectors' states are held."""
+        x[_READY] = x[_NMEAN] = x[_TACC] = 0.0
+        x[_MEAN:_MEAN + 3] = 0.0
 
     def params(self) -> np.ndarray:
         """The kernel's parameter vector."""

@@ -22,7 +22,11 @@ from .._numba import njit
 from ..conventions import change_frame, source000_quat
 from ..rotations import quat_from_axis_angle, quat_mul, quat_rotate
 
-__all__ = ["alignment_angles", "alignment_quat", "Aligner", "align_step"]
+__all__ = ["alignment_angles", "alignment_quat", "Aligner", "align_step", "report_disturbed", "STATISTICS_TIME"]
+
+#: How long a motion detector gathers its statistics before it may end an alignment early (its
+#: thresholds are 10-20 sigma; 2 s, 200 samples at 100 Hz, estimate a sigma to about 5 %).
+STATISTICS_TIME = 2.0
 
 
 def alignment_angles(acc_mean) -> tuple[float, float]:
@@ -57,6 +61,19 @@ ALIGN_SIZE = 19
 MODES = {"none": 0.0, "fixed": 1.0, "motion": 2.0}
 #: what :meth:`Aligner.step` / :func:`align_step` say about a sample
 NAVIGATING, ALIGNING, ALIGNED_NOW, ALIGNED_BEFORE = 0, 1, 2, 3
+
+
+def report_disturbed(al, dt: float, duration: float) -> None:
+    """Warn when motion ended the alignment inside its mandatory ``duration`` (state ``al``,
+    nominal interval ``dt``): the attitude and bias come from the shorter rest before it."""
+    if al[DISTURBED]:
+        import warnings
+
+        from ..types import AlignmentWarning
+
+        warnings.warn(f"motion detected {al[END] * dt:.3g} s into the mandatory {duration:.3g} s alignment: the "
+                      "alignment ended there (the moving samples are not averaged in); attitude and gyro bias come "
+                      "from the shorter rest (diagnostics['alignment_disturbed'])", AlignmentWarning, stacklevel=3)
 
 
 class Aligner:
@@ -106,10 +123,10 @@ class Aligner:
             if al[SEEN] > 0:  # moving: the alignment ends before this sample
                 return ALIGNED_BEFORE, self._finish(al)
             gyr_ok = False  # moving from the first sample: its tilt (and heading), no bias
-        if mode == "motion" and al[SEEN] >= self.n_align and motion:
+        if mode == "motion" and motion and al[SEEN] > 0:  # never averaged in: the alignment ends before it
+            if al[SEEN] < self.n_align:  # inside the mandatory time: reported (report_disturbed)
+                al[DISTURBED] = 1.0
             return ALIGNED_BEFORE, self._finish(al)
-        if mode == "motion" and motion:
-            al[DISTURBED] = 1.0
         if self.config.attitude == "first":  # only the first valid accelerometer sample (and its field) counts
             first = acc_ok and al[NACC] == 0
             acc_ok, mag_ok = first, mag_ok and first
@@ -180,11 +197,11 @@ def align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_o
             _k_finish(al, ap, q)
             return ALIGNED_BEFORE
         gyr_ok = False
-    if mode == 2.0 and al[SEEN] >= ap[1] and motion:
+    if mode == 2.0 and motion and al[SEEN] > 0.0:
+        if al[SEEN] < ap[1]:
+            al[DISTURBED] = 1.0
         _k_finish(al, ap, q)
         return ALIGNED_BEFORE
-    if mode == 2.0 and motion:
-        al[DISTURBED] = 1.0
     if ap[13] != 0.0:  # attitude "first": only the first valid accelerometer sample (and its field) counts
         first = acc_ok and al[NACC] == 0.0
         acc_ok, mag_ok = first, mag_ok and first

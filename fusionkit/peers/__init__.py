@@ -19,9 +19,13 @@ name               peer                        conventions mapped
                                                negated; body->NED
 =================  ==========================  ==============================================
 
-A peer sees only finite samples: with ``nan_policy="skip"`` a sample with any non-finite sensor
-value is not passed to it, the previous orientation is held and the sample flagged (the offline
-VQF, which cannot skip, gets the last valid sample repeated instead).
+A peer sees only valid samples, judged as every fusionkit filter judges them
+(:func:`fusionkit.types.sample_validity`, with ``gyr_range`` / ``acc_range``): with
+``nan_policy="skip"`` a sample with an invalid gyroscope is not passed to it and the previous
+orientation is held; an invalid or saturated accelerometer, or an invalid magnetometer, is left
+out of that sample only (VQF's separate updates; imufusion's zero vector, which it ignores; a
+gyro-only step for the ahrs filters), so the integration goes on. Timestamp gaps are held
+(Flag.GAP). The offline VQF, which cannot skip, gets the last fully valid sample repeated instead.
 """
 
 from __future__ import annotations
@@ -36,8 +40,11 @@ from ..config import FilterConfig, param
 from ..conventions import change_frame
 from ..errors import InputError, PluginError
 from ..protocols import Filter
-from ..types import Flag, Recording, Result
-from ..validation import as_vector, check_finite_all, check_positive, finite_rows
+from .._kernels import validity_all
+from ..rotations import quat_from_rotvec, quat_mul, quat_normalize
+from ..types import (HUGE, TINY, Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps,
+                     sample_validity, stream_gap)
+from ..validation import as_vector, check_finite_all, check_positive, check_sample_finite
 
 __all__ = ["PeerFilter", "VqfFilter", "VqfOffline", "VqfBasic", "ImufusionFilter", "AhrsMadgwick", "AhrsMahony",
            "AhrsEkf"]
@@ -59,6 +66,9 @@ class PeerFilter(Filter):
     peer_frame: ClassVar[str] = "ENU"
     streaming: ClassVar[bool] = True
     Config = PeerConfig
+    #: the magnetometer magnitudes (largest axis, any unit) the peer's arithmetic squares without
+    #: over- or underflow; outside, a sample is MAG_INVALID for it (float32 peers: narrower)
+    mag_limits: ClassVar[tuple[float, float]] = (TINY, HUGE)
 
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
@@ -152,25 +162,30 @@ class PeerFilter(Filter):
         obj, last = self._resume(state, rate, use_mag) if self.streaming or state is not None else (None, None)
         if state is not None:
             rate = state["rate"]  # the first run's, to the last bit: the peer's coefficients stay the same
+        gyr, _, gaps = hold_gaps(rec.gyr, rec.dt, rec.nominal_dt, self.config.max_gap)
+        c = self.config
+        valid = np.zeros((n, 3), dtype=np.bool_)
         flags = np.zeros(n, dtype=np.uint32)
-        flags[~finite_rows(rec.gyr)] |= np.uint32(Flag.GYR_INVALID)
-        flags[~finite_rows(rec.acc)] |= np.uint32(Flag.ACC_INVALID)
+        validity_all(gyr, rec.acc, mag if mag is not None else np.zeros((n, 3)), mag is not None,
+                     c.gyr_range if c.gyr_range is not None else np.inf,
+                     c.acc_range if c.acc_range is not None else np.inf, valid, flags)
         if mag is not None:
-            flags[~finite_rows(mag)] |= np.uint32(Flag.MAG_INVALID)
-        ok = flags == 0
+            self._peer_mag(mag, valid, flags)
+        ok = valid[:, 0] & valid[:, 1] & (valid[:, 2] | (mag is None))
         if ok.all():
-            q = self._batch(obj, rec.gyr, rec.acc, mag, rate)
+            q = self._batch(obj, gyr, rec.acc, mag, rate)
         elif not self.streaming:  # a batch filter cannot skip: hold the last valid input instead
             if not ok.any():
-                raise InputError(f"{self.name}: no sample with all sensors finite")
+                raise InputError(f"{self.name}: no sample with all sensors valid")
             idx = np.maximum.accumulate(np.where(ok, np.arange(n), -1))
             idx[idx < 0] = int(np.argmax(ok))
-            q = self._batch(obj, rec.gyr[idx], rec.acc[idx], None if mag is None else mag[idx], rate)
-        else:  # hold the orientation over the samples the peer must not see
+            q = self._batch(obj, gyr[idx], rec.acc[idx], None if mag is None else mag[idx], rate)
+        else:  # hold the orientation over a bad gyro sample; leave out a bad aiding sensor only
             q = np.empty((n, 4))
             for k in range(n):
-                if ok[k]:
-                    last = self._step(obj, rec.gyr[k], rec.acc[k], None if mag is None else mag[k], 1.0 / rate)
+                if valid[k, 0]:
+                    last = self._step(obj, gyr[k], rec.acc[k] if valid[k, 1] else None,
+                                      mag[k] if mag is not None and valid[k, 2] else None, 1.0 / rate)
                 q[k] = last
         q = np.asarray(q, dtype=float)
         diag = {"backend": f"peer:{self.package} {self.version()}", "filter": self.name,
@@ -180,7 +195,19 @@ class PeerFilter(Filter):
                              "q": q[-1].copy()}
         if self.peer_frame != self.config.frame:  # (the same frame: no product with the identity, a pass less)
             q = change_frame(q, self.peer_frame, self.config.frame)
+        mark_gaps(flags, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.config.max_gap))
         return Result(q, flags, self.config.frame, diag)
+
+    def _peer_mag(self, mag, valid, flags) -> None:
+        """Magnetometer samples outside :attr:`mag_limits` become invalid for this peer."""
+        lo, hi = self.mag_limits
+        if (lo, hi) == (TINY, HUGE):
+            return
+        with np.errstate(invalid="ignore"):
+            m = np.abs(mag).max(axis=1)
+        out = valid[:, 2] & ~((m >= lo) & (m <= hi))
+        valid[out, 2] = False
+        flags[out] |= np.uint32(Flag.MAG_INVALID)
 
     def reset(self) -> None:
         self._stream = None
@@ -194,17 +221,20 @@ class PeerFilter(Filter):
         g, a = as_vector("gyr", gyr), as_vector("acc", acc)
         use_mag = self._use_mag(mag is not None)
         m = as_vector("mag", mag) if use_mag else None
-        bad = (0 if np.isfinite(g).all() else Flag.GYR_INVALID) | (0 if np.isfinite(a).all() else Flag.ACC_INVALID)
-        if m is not None and not np.isfinite(m).all():
-            bad |= Flag.MAG_INVALID
-        if bad and self.config.nan_policy == "raise":
-            raise InputError(f"non-finite sample ({', '.join(f.name for f in Flag if f & bad)}); "
-                             "pass nan_policy='skip' to hold and flag")
+        c = self.config
+        check_sample_finite(c.nan_policy, gyr=g, acc=a, mag=m)
+        self.check_stream_units(g, a)
         if self._stream is None:
-            self._stream = {"obj": self._new(1.0 / dt, use_mag), "q": np.array([1.0, 0.0, 0.0, 0.0])}
-        if not bad:
-            self._stream["q"] = self._step(self._stream["obj"], g, a, m, dt)
-        self.last_flags = int(bad)
+            self._stream = {"obj": self._new(1.0 / dt, use_mag), "q": np.array([1.0, 0.0, 0.0, 0.0]), "dt": dt}
+        g, dt, gap = stream_gap(g, dt, self._stream["dt"], c.max_gap)
+        gyr_ok, acc_ok, mag_ok, flags = sample_validity(g, a, m, c.gyr_range, c.acc_range)
+        if mag_ok:
+            valid, f = np.array([[True, True, True]]), np.zeros(1, np.uint32)
+            self._peer_mag(m[None], valid, f)
+            mag_ok, flags = bool(valid[0, 2]), flags | int(f[0])
+        if gyr_ok:
+            self._stream["q"] = self._step(self._stream["obj"], g, a if acc_ok else None, m if mag_ok else None, dt)
+        self.last_flags = gap_flags(flags, gap)
         return change_frame(np.asarray(self._stream["q"], dtype=float), self.peer_frame, self.config.frame)
 
 
@@ -241,23 +271,28 @@ class VqfFilter(PeerFilter):
         return self.peer().VQF(1.0 / rate, **_vqf_params(self.config))
 
     def _batch(self, obj, gyr, acc, mag, rate):
-        out = obj.updateBatch(_c(gyr), _c(acc), None if mag is None else _c(mag))
+        out = obj["vqf"].updateBatch(_c(gyr), _c(acc), None if mag is None else _c(mag))
         return out["quat9D" if mag is not None else "quat6D"]
 
     def _new(self, rate, use_mag):
-        return self._make(rate)
+        return {"vqf": self._make(rate), "mag": use_mag}
 
     def _save(self, obj):
-        return copy.deepcopy(obj.state)  # VQF's whole state, a dict of lists and numbers
+        return copy.deepcopy(obj["vqf"].state)  # VQF's whole state, a dict of lists and numbers
 
     def _load(self, saved, rate, use_mag):
-        obj = self._make(rate)
-        obj.state = copy.deepcopy(saved)
-        return obj
+        v = self._make(rate)
+        v.state = copy.deepcopy(saved)
+        return {"vqf": v, "mag": use_mag}
 
     def _step(self, obj, g, a, m, dt):
-        obj.update(_c(g), _c(a), None if m is None else _c(m))
-        return obj.getQuat9D() if m is not None else obj.getQuat6D()
+        v = obj["vqf"]
+        v.updateGyr(_c(g))  # VQF.update is these three: a missing sensor is left out
+        if a is not None:
+            v.updateAcc(_c(a))
+        if m is not None:
+            v.updateMag(_c(m))
+        return v.getQuat9D() if obj["mag"] else v.getQuat6D()
 
 
 class VqfOffline(VqfFilter):
@@ -306,6 +341,7 @@ class ImufusionFilter(PeerFilter):
     name: ClassVar[str] = "imufusion"
     package: ClassVar[str] = "imufusion"
     Config = ImufusionConfig
+    mag_limits: ClassVar[tuple[float, float]] = (1e-15, 1e15)  # Fusion computes in float32
     source: ClassVar[str] = "peer: imufusion (x-io Technologies Fusion)"
     summary: ClassVar[str] = "peer: Fusion AHRS (imufusion), recommended settings"
 
@@ -347,7 +383,7 @@ class ImufusionFilter(PeerFilter):
         gd = np.degrees(_c(g))
         if obj["bias"] is not None:
             gd = obj["bias"].update(gd)
-        ag = _c(a) / 9.80665
+        ag = _c(a) / 9.80665 if a is not None else np.zeros(3)  # Fusion ignores a zero accelerometer
         if m is None:
             obj["ahrs"].update_no_magnetometer(gd, ag)
         else:
@@ -377,7 +413,7 @@ class AhrsMadgwick(PeerFilter):
         return importlib.import_module("ahrs.filters").Madgwick
 
     def _new(self, rate, use_mag):
-        return {"f": None, "q": None, "rate": rate}
+        return {"f": None, "q": None, "rate": rate, "mag": use_mag}
 
     def _first(self, obj, g, a, m):
         """The peer's batch run on this one sample: its own initial quaternion, and the object
@@ -388,7 +424,18 @@ class AhrsMadgwick(PeerFilter):
         obj["f"] = self._cls()(**kw)
         return obj["f"].Q[0]
 
+    def _gyro_only(self, obj, g, dt):
+        """The sample without its accelerometer: the gyro integrated (before the first
+        accelerometer sample starts the peer, from identity)."""
+        key = "q" if obj["q"] is not None else "pre"
+        q = obj.get(key)
+        q = np.array([1.0, 0.0, 0.0, 0.0]) if q is None else np.asarray(q, dtype=float)
+        obj[key] = quat_normalize(quat_mul(q, quat_from_rotvec(_c(g) * dt)))
+        return obj[key]
+
     def _step(self, obj, g, a, m, dt):
+        if a is None:
+            return self._gyro_only(obj, g, dt)
         g, a = _c(g), _c(a)
         m = None if m is None else _c(m)
         if obj["q"] is None:
@@ -433,6 +480,8 @@ class AhrsEkf(AhrsMadgwick):
         return importlib.import_module("ahrs.filters").EKF
 
     def _step(self, obj, g, a, m, dt):
+        if a is None or (obj["mag"] and m is None):  # its measurement model is fixed at 9D once started with mag
+            return self._gyro_only(obj, g, dt)
         # ahrs' EKF in frame NED models the accelerometer as the gravity vector: negate specific force
         g, a = _c(g), -_c(a)
         m = None if m is None else _c(m)
