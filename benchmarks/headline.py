@@ -5,7 +5,7 @@ speed end to end and per kernel, each number with the command that made it.
     fusionkit bench --data ../shared/data/broad --jobs 1 --filters F1,F2,... --param use_mag=false \\
         --param mode=6D --format json -o broad-6d.json
     python benchmarks/throughput.py > throughput.md
-    python benchmarks/headline.py broad-9d.json broad-6d.json throughput.md
+    python benchmarks/headline.py broad-9d.json broad-6d.json throughput.md [--previous ekf=3.46,15728,3289818]
 
 Speed on a shared machine is noisy: each speed is also given as a ratio to VQF measured in the
 same run (the end-to-end ratio against VQF 9D in the 9D bench, the kernel ratio against VQF's
@@ -91,7 +91,14 @@ def main() -> None:
     ap.add_argument("nine", help="the 9D bench's JSON (default parameters)")
     ap.add_argument("six", help="the 6D bench's JSON (use_mag=false, mode=6D)")
     ap.add_argument("throughput", help="throughput.py's output")
+    ap.add_argument("--previous", action="append", default=[], metavar="NAME=TOTAL,SPEED,VQF_SPEED",
+                    help="a filter not re-measured: 9D total (deg) and end-to-end samples/s from an earlier run, "
+                         "with VQF's samples/s in that run (marked in the table)")
     args = ap.parse_args()
+    previous = {}
+    for item in args.previous:
+        name, vals = item.split("=", 1)
+        previous[name] = [float(v) for v in vals.split(",")]
     nine, six = by_name(load_records(args.nine)), by_name(load_records(args.six))
     kern = read_throughput(args.throughput)
     vqf_e2e = median_speed(nine.get("vqf", []))
@@ -101,6 +108,14 @@ def main() -> None:
     print("|---|---|---:|---:|---:|---:|---:|---:|")
     for name in ORDER + sorted(set(nine) - set(ORDER)):
         r9, r6 = nine.get(name, []), six.get(name, [])
+        if name in previous and not r9:
+            total, e2e, vqf_then = previous[name]
+            case = KERNELS.get(name, (None, None))[0]
+            k = kern.get(case, float("nan")) if case else float("nan")
+            print(f"| {name} | {library('peer:ahrs' if name.startswith('ahrs') else 'reference')} | not measured "
+                  f"| {fmt(total)} (earlier run) | {speed(e2e)} (earlier run) | {ratio(e2e / vqf_then)} "
+                  f"| {speed(k)} (Python) | {ratio(k / vqf_k)} |")
+            continue
         if not r9 and not r6:
             continue
         lib = library(next((r["backend"] for r in r9 + r6 if r["backend"]), None))
