@@ -108,7 +108,10 @@ def plot_error_over_time(filters, trial, path, max_points: int = 4000) -> Path:
         ax.set_ylabel("error [deg]")
         ax.set_title(f"{trial.name}: {title}", fontsize=10)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+        if ax.lines:
+            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+        else:  # e.g. only 6D or gyro-only filters: none has a total error
+            ax.text(0.5, 0.5, "no filter in this run has this error", transform=ax.transAxes, ha="center")
     axes[-1].set_xlabel("time [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
