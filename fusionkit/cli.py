@@ -47,7 +47,7 @@ def _build_filter(spec: str, params: dict):
     return make(spec, **params)
 
 
-def _load_input(spec: str):
+def _load_input(spec: str, rate: float | None = None):
     from . import load, sim
 
     if spec.startswith("sim:"):
@@ -58,7 +58,9 @@ def _load_input(spec: str):
         if name not in recs:
             raise FusionkitError(f"unknown simulated recording {name!r}; choose from {sorted(recs) + sorted(sim.SCENARIOS)}")
         return recs[name]
-    return load(spec)
+    if rate is not None and Path(spec).suffix.lower() != ".csv":
+        raise FusionkitError(f"--rate is for a CSV without a 't' column; {spec} carries its own clock")
+    return load(spec) if rate is None else load(spec, rate=rate)
 
 
 def cmd_list(args) -> int:
@@ -94,9 +96,22 @@ def cmd_describe(args) -> int:
     return 0
 
 
+def _check_output(path: str) -> None:
+    """Fail before any computing when ``path`` cannot be written (its folder is missing or
+    read-only): an hour's run must not end in a traceback."""
+    import os
+
+    parent = Path(path).expanduser().resolve().parent
+    if not parent.is_dir():
+        raise FusionkitError(f"cannot write {path}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise FusionkitError(f"cannot write {path}: folder {parent} is not writable")
+
+
 def cmd_run(args) -> int:
+    _check_output(args.output)
     f = _build_filter(args.filter, _parse_params(args.param))
-    rec = _load_input(args.input)
+    rec = _load_input(args.input, rate=args.rate)
     warm = _warm_up(f, rec, args.backend)
     t0 = time.perf_counter()
     res = f.run(rec, backend=args.backend, progress=True if args.progress else None)
@@ -104,11 +119,18 @@ def cmd_run(args) -> int:
     res.to_csv(args.output, time=rec.time)
     print(f"{f.name}: {len(rec)} samples in {elapsed:.3f} s ({len(rec) / elapsed:,.0f} samples/s, "
           f"backend {res.diagnostics['backend']}; compile and warm-up {warm:.3f} s, not counted) -> {args.output}")
+    print(f"columns: t (s), qw..qz (body -> {res.frame}), {_yaw_definition(res.frame)}, pitch_deg, roll_deg, "
+          "flags (bits: fusionkit.Flag)")
     if rec.truth is not None:
         from .benchmarking.metrics import rms_errors
+        from .benchmarking.report import aiding, not_applicable
 
+        kind = aiding(f, rec)
+        na = not_applicable(kind, gnss_heading=bool(getattr(f, "requires_gnss", False)))
         e = rms_errors(res, rec)
-        print("RMS error vs truth: " + ", ".join(f"{k} {v:.3f} deg" for k, v in e.items()))
+        over = "the movement samples" if rec.movement is not None else "all samples"
+        print(f"RMS error vs truth over {over} ({kind} filter; heading = the error's rotation about the vertical): "
+              + ", ".join(f"{k} n/a ({na[k]})" if k in na else f"{k} {v:.3f} deg" for k, v in e.items()))
     return 0
 
 
@@ -122,6 +144,15 @@ def _warm_up(f, rec, backend: str, samples: int = 64) -> float:
     except FusionkitError:
         pass
     return time.perf_counter() - t0
+
+
+def _yaw_definition(frame: str) -> str:
+    """What the CSV's yaw column means in ``frame`` (the name says the frame: ENU yaw is not a
+    compass heading)."""
+    return {"ENU": "yaw_enu_deg (body x from East, counter-clockwise: x to North = 90)",
+            "NED": "yaw_ned_deg (body x from North, clockwise: a compass heading)",
+            "NWU": "yaw_nwu_deg (body x from North, counter-clockwise)",
+            "NUE": "yaw_nue_deg (source 000's heading psi)"}.get(frame, f"yaw_{frame.lower()}_deg")
 
 
 def _values(raw: str) -> list:
@@ -152,15 +183,14 @@ def cmd_bench(args) -> int:
     filters = [f for f in args.filters.split(",") if f]
     trials = [t for t in args.trials.split(",") if t] if args.trials else None
     res = bench(filters, args.data, trials=trials, params=_flat_params(args.param), jobs=args.jobs,
-                cache=not args.no_cache, scheduler=args.scheduler, progress=None)
+                cache=not args.no_cache, scheduler=args.scheduler, progress=True)
     text = res.table(args.format)
     cached = sum(bool(r.get("cached")) for r in res.records)
     if cached:  # on stderr: the table (or JSON) on stdout stays as it was
         print(f"fusionkit: {cached} of {len(res.records)} results from the cache (same code, config and file); "
               f"--no-cache recomputes them", file=sys.stderr)
     if args.format in ("table", "markdown"):
-        text += "\n\nby group (mean; 9D filters: total RMSE, 6D: inclination RMSE, deg):\n" + res.group_table(
-            format="markdown")
+        text += "\n\nby group:\n\n" + res.group_table(format="markdown")
     if args.output:
         Path(args.output).write_text(text + "\n")
         print(f"wrote {args.output}")
@@ -187,7 +217,7 @@ def cmd_sweep(args) -> int:
         grid[k] = _values(raw)
     trials = [t for t in args.trials.split(",") if t] if args.trials else None
     res = sweep(args.filter, grid, args.data, metric=args.metric, trials=trials, jobs=args.jobs,
-                cache=not args.no_cache, base=_parse_params(args.param))
+                cache=not args.no_cache, base=_parse_params(args.param), progress=True)
     text = res.report()
     if args.output:
         Path(args.output).write_text(text + "\n")
@@ -210,31 +240,40 @@ def _recordings(specs: list[str]):
 
 
 def cmd_lags(args) -> int:
-    from .benchmarking.timing import sensor_lags
+    from .benchmarking.runner import Progress
 
     print("| recording | gyr lag (samples) | gyr lag (ms) | gyr residual (rad/s) | acc lag (samples) | acc lag (ms) "
           "| acc residual (m/s^2) | acc model | mag lag (samples) | mag lag (ms) | mag residual |\n"
-          "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|")
+          "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|", flush=True)
+    todo = list(_recordings(args.inputs))
+    progress = Progress(len(todo), "lags")  # on stderr: a bar on a terminal, else a line per recording
     failed = 0
-    for name, load in _recordings(args.inputs):
-        rec = load()
-        if rec.truth is None:
-            print(f"| {name} | no reference | | | | | | | | | |")
-            failed += 1
-            continue
-        try:
-            r = sensor_lags(rec, max_lag=args.max_lag, cutoff=args.cutoff)
-        except FusionkitError as exc:  # reported in its row; the other recordings go on
-            print(f"| {name} | error: {exc} | | | | | | | | | |")
-            failed += 1
-            continue
-        cells = ["-" if math.isnan(v) else f"{v:{fmt}}" for v, fmt in (  # NaN (no minimum in the range): "-"
-            (r.gyr, "+.2f"), (1e3 * r.gyr_seconds, "+.2f"), (r.gyr_rms, ".3f"), (r.acc, "+.2f"),
-            (1e3 * r.acc_seconds, "+.2f"), (r.acc_rms, ".3f"), (r.mag, "+.2f"), (1e3 * r.mag_seconds, "+.2f"),
-            (r.mag_rms, ".3f"))]
-        cells.insert(6, r.acc_model)
-        print(f"| {name} | " + " | ".join(cells) + " |")
+    for name, load in todo:
+        row, ok = _lag_row(name, load, args)
+        progress.update(name, "done" if ok else "failed")
+        print(row, flush=True)
+        failed += not ok
+    progress.close()
     return 1 if failed else 0
+
+
+def _lag_row(name: str, load, args) -> tuple[str, bool]:
+    """One recording's row of the lags table, and whether it could be timed."""
+    from .benchmarking.timing import sensor_lags
+
+    rec = load()
+    if rec.truth is None:
+        return f"| {name} | no reference | | | | | | | | | |", False
+    try:
+        r = sensor_lags(rec, max_lag=args.max_lag, cutoff=args.cutoff)
+    except FusionkitError as exc:  # reported in its row; the other recordings go on
+        return f"| {name} | error: {exc} | | | | | | | | | |", False
+    cells = ["-" if math.isnan(v) else f"{v:{fmt}}" for v, fmt in (  # NaN (no minimum in the range): "-"
+        (r.gyr, "+.2f"), (1e3 * r.gyr_seconds, "+.2f"), (r.gyr_rms, ".3f"), (r.acc, "+.2f"),
+        (1e3 * r.acc_seconds, "+.2f"), (r.acc_rms, ".3f"), (r.mag, "+.2f"), (1e3 * r.mag_seconds, "+.2f"),
+        (r.mag_rms, ".3f"))]
+    cells.insert(6, r.acc_model)
+    return f"| {name} | " + " | ".join(cells) + " |", True
 
 
 def cmd_demo(args) -> int:
@@ -243,11 +282,31 @@ def cmd_demo(args) -> int:
     return run_demo(plot=args.plot, filters=args.filters.split(",") if args.filters else None)
 
 
+def _sub(sub, name: str, help: str, example: str, units: str = ""):
+    """A subcommand whose help ends with an example and the units of what it prints."""
+    epilog = f"example:\n  {example}" + (f"\n\n{units}" if units else "")
+    return sub.add_parser(name, help=help, description=help, epilog=epilog,
+                          formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+_ERRORS = ("errors are RMS over the reference's movement samples, in deg: inclination = the error's tilt part "
+           "(every filter), total = the whole rotation (9D filters only), heading = the error's rotation about the "
+           "vertical; a 6D or gyro-only filter gets n/a for heading and total (it cannot know north)")
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="fusionkit", description="inertial attitude estimation, filters by name")
+    from . import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="fusionkit", description="inertial attitude estimation, filters by name",
+        epilog="example:\n  fusionkit demo\n  fusionkit run recommended sim:slow-rotation -o out.csv\n\n"
+               "units: rad/s, m/s^2, s, deg in tables; quaternions w, x, y, z body -> earth (ENU default)",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"fusionkit {__version__}")
     sub = parser.add_subparsers(dest="cmd", required=True)
-    sub.add_parser("list", help="list registered plugins").set_defaults(func=cmd_list)
-    d = sub.add_parser("describe", help="parameters and source of a plugin")
+    _sub(sub, "list", "list registered plugins", "fusionkit list").set_defaults(func=cmd_list)
+    d = _sub(sub, "describe", "parameters and source of a plugin", "fusionkit describe motion",
+             "each parameter is printed with its default and unit in [brackets]")
     d.add_argument("name")
     d.add_argument("--kind", default=None, help="filter, estimator, corrector, detector or model")
     fmt = d.add_mutually_exclusive_group()
@@ -255,15 +314,24 @@ def main(argv: list[str] | None = None) -> int:
                      "(a preset's composition; a monolithic filter's parameters)")
     fmt.add_argument("--json", action="store_true", help="the same as JSON (which, unlike TOML, has null)")
     d.set_defaults(func=cmd_describe)
-    r = sub.add_parser("run", help="run a filter (by name or a TOML/JSON pipeline config) on a recording")
+    r = _sub(sub, "run", "run a filter (by name or a TOML/JSON pipeline config) on a recording",
+             "fusionkit run poisson trial.hdf5 -o out.csv --param step=exact\n"
+             "  fusionkit run recommended imu.csv --rate 200 -o out.csv",
+             "prints samples/s (samples per second of the run) and, with a reference, "
+             + _ERRORS + ".\nThe CSV: t (s), qw..qz, yaw_<frame>_deg (ENU: body x from East counter-clockwise, "
+             "so x to North is 90), pitch_deg, roll_deg, flags")
     r.add_argument("filter", help="filter name or a .toml/.json config")
     r.add_argument("input", help="a .hdf5 (BROAD) or .csv recording, or sim:NAME for a built-in one")
-    r.add_argument("-o", "--output", required=True, help="output CSV")
+    r.add_argument("-o", "--output", required=True, help="output CSV (its folder must exist)")
+    r.add_argument("--rate", type=float, default=None, help="sampling rate in Hz, for a CSV without a 't' column")
     r.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="a filter parameter")
     r.add_argument("--backend", default="auto", choices=["auto", "numba", "reference"])
     r.add_argument("--progress", action="store_true", help="always show a progress bar")
     r.set_defaults(func=cmd_run)
-    b = sub.add_parser("bench", help="filters side by side on recordings, with the BROAD metrics")
+    b = _sub(sub, "bench", "filters side by side on recordings, with the BROAD metrics",
+             "fusionkit bench --data ../shared/data/broad --filters vqf,recommended --jobs 2 --plots plots/",
+             _ERRORS + "; samples/s: median over trials, one core, compile excluded. Progress goes to stderr "
+             "(a bar on a terminal, one line per run otherwise).")
     b.add_argument("--data", required=True, help="a folder (BROAD, GNSS scenarios, ULog, CSV) or a file")
     b.add_argument("--filters", required=True, help="comma-separated filter names")
     b.add_argument("--trials", default="", help="comma-separated trial names or prefixes (default: all)")
@@ -276,7 +344,9 @@ def main(argv: list[str] | None = None) -> int:
     b.add_argument("--plots", default=None, help="folder for PNG plots")
     b.add_argument("--no-cache", action="store_true", help="ignore and do not write the result cache")
     b.set_defaults(func=cmd_bench)
-    s = sub.add_parser("sweep", help="a parameter grid for one filter: TAGP and per-trial minimum")
+    s = _sub(sub, "sweep", "a parameter grid for one filter: TAGP and per-trial minimum",
+             "fusionkit sweep ahrs-madgwick --data ../shared/data/broad --grid gain=0.03,0.06,0.12 --jobs 2",
+             "errors in deg (the --metric's RMSE over the movement samples); progress on stderr as for bench")
     s.add_argument("filter")
     s.add_argument("--data", required=True)
     s.add_argument("--grid", action="append", required=True, metavar="NAME=V1,V2,...")
@@ -287,13 +357,18 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--no-cache", action="store_true")
     s.add_argument("-o", "--output", default=None)
     s.set_defaults(func=cmd_sweep)
-    lg = sub.add_parser("lags", help="how many samples the gyro, accelerometer and magnetometer run behind the "
-                        "reference orientation (fusionkit's convention: 0.5)")
+    lg = _sub(sub, "lags", "how many samples the gyro, accelerometer and magnetometer run behind the "
+              "reference orientation (fusionkit's convention: 0.5)", "fusionkit lags ../shared/data/broad sim:slow-rotation",
+              "lags in samples and ms (+: the sensor is late); residuals: gyro rad/s, accelerometer m/s^2, "
+              "magnetometer in the recording's unit")
     lg.add_argument("inputs", nargs="+", help="recording files, folders of trials, or sim:NAME")
     lg.add_argument("--max-lag", type=float, default=8.0, help="search range, samples")
     lg.add_argument("--cutoff", type=float, default=20.0, help="low-pass on both sides, Hz")
     lg.set_defaults(func=cmd_lags)
-    m = sub.add_parser("demo", help="every built-in filter side by side on simulated recordings")
+    m = _sub(sub, "demo", "every built-in filter side by side on simulated recordings", "fusionkit demo --plot demo.png",
+             "inclination and heading RMSE in deg over the moving samples (heading: the error's rotation about the "
+             "vertical, n/a for a gyro-only filter; for a 6D filter after removing the constant offset it cannot "
+             "know); samples/s: wall time of one run, compile excluded")
     m.add_argument("--plot", default="fusionkit-demo.png", help="PNG to write ('' for none)")
     m.add_argument("--filters", default="", help="comma-separated filter names (default: all)")
     m.set_defaults(func=cmd_demo)

@@ -110,7 +110,8 @@ class AlignmentConfig(PluginConfig):
     duration: float = param(10.0, unit="s", description="mandatory alignment time (source 000: 10 s)", gt=0)
     heading: Literal["zero", "magnetometer", "auto"] = param(
         "zero", unit="-",
-        description="initial heading: 0 (source 000), from the mean magnetometer, or 'auto' (magnetometer when given)",
+        description="initial heading: 'zero' = body x to north (source 000's heading 0; ENU yaw 90 deg), from the "
+        "mean magnetometer, or 'auto' (magnetometer when given)",
     )
     estimate_bias: bool = param(True, unit="-", description="subtract the mean gyro output of the window")
     attitude: Literal["mean", "first"] = param(

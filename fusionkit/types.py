@@ -291,6 +291,27 @@ class Recording:
     def __len__(self) -> int:
         return self.gyr.shape[0]
 
+    def __repr__(self) -> str:
+        """A one-line summary (samples, clock, sensors, frames, GNSS), never the arrays."""
+        n = len(self)
+        if self.t is not None:
+            clock = f"t {self.t[0]:.3f}..{self.t[-1]:.3f} s (~{1.0 / self.nominal_dt:.4g} Hz)"
+        else:
+            clock = f"rate {self.rate:.4g} Hz ({n / self.rate:.1f} s)"
+        sensors = "gyr, acc" + (", mag" if self.mag is not None else "")
+        parts = [f"{n} samples", clock, sensors]
+        body = getattr(self, "body", None)  # sensor axes, where the recording declares them
+        if body:
+            parts.append(f"body {body}")
+        if self.truth is not None:
+            parts.append(f"truth (body -> {self.truth_frame})")
+        if self.movement is not None:
+            parts.append(f"movement {int(self.movement.sum())}/{n}")
+        if self.gnss is not None:
+            parts.append(f"gnss {self.gnss.t.size} epochs ({int(self.gnss.valid.sum())} valid, {self.gnss.frame})")
+        name = f"{self.name!r}: " if self.name else ""
+        return f"Recording({name}{'; '.join(parts)})"
+
     @property
     def dt(self) -> np.ndarray:
         """(N,) sample intervals in s: ``dt[k] = t[k] - t[k-1]`` (``dt[0] = dt[1]``).
@@ -360,6 +381,13 @@ class Result:
     def __len__(self) -> int:
         return self.quat.shape[0]
 
+    def __repr__(self) -> str:
+        """A one-line summary (samples, frame, flagged samples, diagnostics' keys), never the arrays."""
+        flagged = int(np.count_nonzero(self.flags))
+        keys = ", ".join(sorted(self.diagnostics))
+        return (f"Result({len(self)} samples, body -> {self.frame}, {flagged} flagged; "
+                f"backend {self.diagnostics.get('backend', '?')}; diagnostics: {keys})")
+
     def euler(self, frame: str | None = None) -> np.ndarray:
         """(N, 3) heading, pitch, roll in rad, in ``frame``'s convention (default: the result's)."""
         frame = frame or self.frame
@@ -377,10 +405,12 @@ class Result:
         return flag_names(int(self.flags[i]))
 
     def to_csv(self, path, time: np.ndarray | None = None) -> None:
-        """Write ``t`` (if given), ``qw, qx, qy, qz``, heading/pitch/roll (deg) and ``flags``."""
+        """Write ``t`` (if given), ``qw, qx, qy, qz``, yaw/pitch/roll (deg) and ``flags``. The yaw
+        column is named for the frame (``yaw_enu_deg``: from East, counter-clockwise, so body x
+        to North is 90; ``yaw_ned_deg`` is a compass heading)."""
         eul = np.degrees(self.euler())
         cols = [self.quat, eul, self.flags[:, None].astype(float)]
-        names = ["qw", "qx", "qy", "qz", "heading_deg", "pitch_deg", "roll_deg", "flags"]
+        names = ["qw", "qx", "qy", "qz", f"yaw_{self.frame.lower()}_deg", "pitch_deg", "roll_deg", "flags"]
         if time is not None:
             cols.insert(0, np.asarray(time, dtype=float)[:, None])
             names.insert(0, "t")

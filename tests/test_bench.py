@@ -54,10 +54,10 @@ def test_bench_records_and_tables(data, tmp_path):
     text = res.table()
     assert "poisson[step=exact]" in text and "samples/s" in text
     md = res.table("markdown")
-    assert md.startswith("| trial | poisson |")
+    assert md.startswith("**inclination RMSE") and "| trial | poisson | poisson[step=exact] |" in md
     recs = json.loads(res.table("json"))
     assert {r["trial"] for r in recs} == {"noref", "trial0", "trial1"}
-    assert res.table("csv").splitlines()[0] == "trial,poisson,poisson[step=exact]"
+    assert res.table("csv").splitlines()[0] == "filter,trial,aiding,inclination,samples_per_s,error"
     assert set(res.by_group()["poisson"]) == {"csv"}
     with pytest.raises(ConfigError, match="format"):
         res.table("xml")
@@ -152,7 +152,7 @@ def test_cli_bench_and_sweep(data, tmp_path, capsys):
     out = tmp_path / "t.md"
     assert main(["bench", "--data", str(data), "--filters", "poisson", "--trials", "trial0,trial1", "--format",
                  "markdown", "-o", str(out), "--no-cache", "--plots", str(tmp_path / "plots")]) == 0
-    assert out.read_text().startswith("| trial | poisson |")
+    assert out.read_text().startswith("**inclination RMSE") and "| trial | poisson |" in out.read_text()
     assert (tmp_path / "plots" / "by_group.png").stat().st_size > 5000
     assert (tmp_path / "plots" / "throughput.png").exists()
     assert list((tmp_path / "plots").glob("error_*.png"))

@@ -44,6 +44,8 @@ def test_demo_runs_and_plots(tmp_path):
                          text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert "poisson" in out.stdout and "slow-rotation" in out.stdout
+    assert "gyro-only" in out.stdout and "heading: the error's rotation about the vertical" in out.stdout
+    assert "demo] " not in out.stderr and "poisson on slow-rotation: done" in out.stderr  # progress, a line per run
     assert png.stat().st_size > 10_000
 
 
@@ -70,3 +72,83 @@ def test_lags_table(tmp_path, capsys):
     write_csv(Recording(gyr=rec.gyr, acc=rec.acc, rate=rec.rate), path)
     assert main(["lags", str(path)]) == 1
     assert "no reference" in capsys.readouterr().out
+
+
+def test_version(capsys):
+    import fusionkit as fk
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.strip() == f"fusionkit {fk.__version__}"
+
+
+def test_run_checks_the_output_path_before_computing(tmp_path, capsys, monkeypatch):
+    import fusionkit.cli as cli
+
+    def no_compute(*a, **k):  # the check must come before the recording is even loaded
+        raise AssertionError("computed before checking the output path")
+
+    monkeypatch.setattr(cli, "_load_input", no_compute)
+    monkeypatch.setattr(cli, "_build_filter", no_compute)
+    assert main(["run", "poisson", "sim:slow-rotation", "-o", str(tmp_path / "nope" / "x.csv")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "does not exist" in err and "nope" in err
+
+
+def test_run_takes_a_rate_for_a_csv_without_time(tmp_path, capsys):
+    from fusionkit import Recording, sim
+    from fusionkit.io.loaders import write_csv
+
+    rec = sim.demo_recordings()[0].slice(0, 400)
+    path = tmp_path / "no_t.csv"
+    write_csv(Recording(gyr=rec.gyr, acc=rec.acc, rate=200.0), path)
+    rows = [ln.split(",", 1) for ln in path.read_text().splitlines() if not ln.startswith("#")]
+    assert rows[0][0] == "t"
+    path.write_text("\n".join(r[1] for r in rows) + "\n")  # no t column, no '# rate=' line
+    assert main(["run", "poisson", str(path), "-o", str(tmp_path / "o.csv")]) == 2
+    assert "rate" in capsys.readouterr().err
+    assert main(["run", "poisson", str(path), "--rate", "200", "-o", str(tmp_path / "o.csv")]) == 0
+    t = np.loadtxt(tmp_path / "o.csv", delimiter=",", skiprows=1)[:, 0]
+    assert t[1] - t[0] == pytest.approx(1 / 200)
+
+
+@pytest.mark.parametrize("cmd", ["list", "describe", "run", "bench", "sweep", "lags", "demo"])
+def test_every_help_has_an_example(cmd, capsys):
+    with pytest.raises(SystemExit):
+        main([cmd, "--help"])
+    text = capsys.readouterr().out
+    assert "example:\n  fusionkit " + cmd in text
+    if cmd in ("run", "bench", "sweep", "lags", "demo"):  # they print numbers: their units are named
+        assert "deg" in text or "ms" in text
+
+
+def test_run_gives_no_total_error_to_a_gyro_only_filter(tmp_path, capsys):
+    """poisson integrates the gyro from a heading of 0 (body x north): its heading and total
+    errors say nothing; the CSV's yaw column names its frame, so 90 (ENU: x to north) is no error."""
+    out = tmp_path / "o.csv"
+    assert main(["run", "poisson", "sim:slow-rotation", "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "total n/a (gyro-only" in text and "heading n/a" in text and "inclination 0." in text
+    assert "yaw_enu_deg (body x from East" in text
+    head = out.read_text().splitlines()[0].split(",")
+    assert "yaw_enu_deg" in head and "heading_deg" not in head
+    assert main(["run", "recommended", "sim:slow-rotation", "-o", str(out)]) == 0
+    assert "total 0." in capsys.readouterr().out  # a 9D filter has one
+
+
+def test_bench_and_sweep_print_progress_lines_without_a_terminal(tmp_path, capsys):
+    from fusionkit import Recording, sim
+    from fusionkit.io.loaders import write_csv
+
+    for i, rec in enumerate(sim.demo_recordings()[:2]):
+        r = rec.slice(0, 600)
+        write_csv(Recording(gyr=r.gyr, acc=r.acc, rate=200.0, truth=r.truth), tmp_path / f"trial{i}.csv")
+    assert main(["bench", "--data", str(tmp_path), "--filters", "poisson", "--no-cache"]) == 0
+    err = capsys.readouterr().err  # capsys: stderr is not a terminal
+    assert "[1/2] poisson on trial0: done in" in err and "[2/2]" in err
+    assert main(["sweep", "poisson", "--data", str(tmp_path), "--grid", "step=first-order,exact",
+                 "--metric", "inclination", "--no-cache"]) == 0
+    cap = capsys.readouterr()
+    assert "[4/4]" in cap.err and "mean over trials (deg)" in cap.out  # progress on stderr, units in the table
+    assert main(["lags", "sim:fast-rotation"]) == 0
+    assert "[1/1] sim:fast-rotation: done" in capsys.readouterr().err

@@ -38,6 +38,7 @@ from ..config import set_dotted
 from ..errors import ConfigError
 from .datasets import Trial, discover
 from .metrics import trial_metrics
+from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, aiding, metric_label, not_applicable
 
 __all__ = ["FilterSpec", "bench", "evaluate", "BenchResult"]
 
@@ -209,6 +210,11 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
         rec_out["samples_per_s"] = len(rec) / rec_out["seconds"]
         rec_out["backend"] = res.diagnostics.get("backend")
         rec_out["metrics"] = trial_metrics(res, rec, rec_out["dimension"])
+        rec_out["aiding"] = aiding(f, rec)
+        na = not_applicable(rec_out["aiding"], gnss_heading=bool(f.requires_gnss))
+        rec_out["not_applicable"] = {k: why for k, why in na.items() if k in rec_out["metrics"]}
+        for k in rec_out["not_applicable"]:  # a number it cannot have (e.g. a 96 deg "total") is not reported
+            rec_out["metrics"][k] = None
     except Exception as exc:  # a filter failing on one trial must not stop the bench
         rec_out["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0]
         rec_out["traceback"] = traceback.format_exc(limit=4)
@@ -280,13 +286,14 @@ def bench(filters: Iterable[Any], data: Any, *, trials: list[str] | None = None,
                     records[i] = {**json.loads(hit.read_text()), "cached": True}
                     continue
         todo.append(i)
-    bar = _bar(len(todo), progress)
+    bar = _bar(len(todo), progress, cached=len(tasks) - len(todo))
     for i, rec in _execute([tasks[i] for i in todo], todo, jobs, scheduler):
         records[i] = rec
         if cdir is not None and keys[i] and rec["error"] is None:
             (cdir / f"{keys[i]}.json").write_text(json.dumps(rec))
         if bar is not None:
-            bar.update(1)
+            bar.update(f"{rec['filter']} on {rec['trial']}",
+                       "error" if rec["error"] else "skipped" if rec.get("skipped") else "done")
     if bar is not None:
         bar.close()
     return BenchResult([r for r in records if r is not None])
@@ -338,14 +345,47 @@ def _execute(tasks, index, jobs, scheduler):
             yield futures[fut], fut.result()
 
 
-def _bar(n, progress):
-    if progress is False or n == 0 or (progress is None and not sys.stderr.isatty()):
+def _bar(n, progress, cached: int = 0, desc: str = "bench"):
+    """Progress on stderr: a tqdm bar on a terminal; with ``progress=True`` and no terminal (a
+    log, a pipe), one line per finished run; ``None``: the bar on a terminal, else nothing."""
+    if progress is False or n == 0:
         return None
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover
+    tty = sys.stderr.isatty()
+    if not tty and not progress:
         return None
-    return tqdm(total=n, desc="bench", unit="run")
+    return Progress(n, desc, cached=cached, bar=tty)
+
+
+class Progress:
+    """Progress of ``n`` steps on stderr: a tqdm bar (``bar=True``), or one line per step,
+    ``[3/16] poisson on 01_undisturbed_slow_rotation_A: done in 1.2 s`` (a log or a pipe)."""
+
+    def __init__(self, n: int, desc: str, cached: int = 0, bar: bool | None = None):
+        self.n, self.k, self.t, self.desc = n, 0, time.perf_counter(), desc
+        self.bar = None
+        if sys.stderr.isatty() if bar is None else bar:
+            try:
+                from tqdm import tqdm
+
+                self.bar = tqdm(total=n, desc=desc, unit="run", file=sys.stderr)
+            except ImportError:  # pragma: no cover
+                pass
+        if self.bar is None and cached:
+            print(f"{desc}: {cached} runs served from the cache, {n} to run", file=sys.stderr, flush=True)
+
+    def update(self, label: str, status: str = "done") -> None:
+        self.k += 1
+        if self.bar is not None:
+            self.bar.set_postfix_str(label, refresh=False)
+            self.bar.update(1)
+            return
+        now = time.perf_counter()
+        print(f"[{self.k}/{self.n}] {label}: {status} in {now - self.t:.1f} s", file=sys.stderr, flush=True)
+        self.t = now
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
 @dataclass
@@ -381,95 +421,129 @@ class BenchResult:
         return {f: {g: float(np.mean(v)) for g, v in gs.items()} for f, gs in out.items()}
 
     def summary(self, metric: str = "score") -> list[dict[str, Any]]:
-        """Per filter: mean metric over its trials, trials run, failures, median samples/s."""
+        """Per filter: mean metric over its trials, trials run, failures, median samples/s, and how
+        it was judged (``dimension``: 6D/9D; ``aiding``: 9D, 6D or gyro-only)."""
         rows = []
         for f in self.filters:
             rs = [r for r in self.records if r["filter"] == f]
             vals = [r["metrics"].get(metric) for r in rs if not r["error"] and r["metrics"].get(metric) is not None]
             sps = [r["samples_per_s"] for r in rs if r["samples_per_s"]]
             dims = sorted({r["dimension"] for r in rs if r["dimension"]})
-            rows.append({"filter": f, "dimension": "/".join(dims), "mean": float(np.mean(vals)) if vals else float("nan"),
+            aid = sorted({r.get("aiding") or r["dimension"] for r in rs if r["dimension"]})
+            rows.append({"filter": f, "dimension": "/".join(dims), "aiding": "/".join(aid),
+                         "mean": float(np.mean(vals)) if vals else float("nan"),
                          "trials": len(vals), "failed": sum(bool(r["error"]) for r in rs),
                          "samples_per_s": float(np.median(sps)) if sps else float("nan")})
         return rows
 
-    def table(self, format: str = "table", metric: str = "score") -> str:
-        """``table`` (aligned text), ``markdown``, ``csv`` or ``json`` (all records)."""
+    def metrics(self) -> list[str]:
+        """The metrics the records have, in the tables' order (``report.METRIC_LABELS`` first,
+        then any other by name; ``score``, ``tilt`` and ``heading`` are left to explicit requests, and
+        a metric no filter can have is left out)."""
+        seen = dict.fromkeys(k for r in self.records for k in list(r["metrics"] or {}) + list(r.get("not_applicable") or {}))
+        order = [m for m in METRIC_LABELS if m in seen] + [m for m in seen if m not in METRIC_LABELS]
+        return [m for m in order if m not in HIDDEN_BY_DEFAULT and len(self.not_applicable(m)) < len(self.filters)]
+
+    def _record(self, f: str, t: str) -> dict | None:
+        return next((r for r in self.records if r["filter"] == f and r["trial"] == t), None)
+
+    def not_applicable(self, metric: str) -> dict[str, str]:
+        """``{filter: reason}`` for the filters that cannot have ``metric`` on any of their trials."""
+        out = {}
+        for f in self.filters:
+            rs = [r for r in self.records if r["filter"] == f and r["metrics"]]  # run, with a reference
+            why = [(r.get("not_applicable") or {}).get(metric) for r in rs]
+            if rs and all(why):
+                out[f] = why[0]
+        return out
+
+    def _cell(self, r: dict | None, metric: str) -> str:
+        if r is None:
+            return ""
+        if r.get("skipped"):
+            return "n/a"
+        if r["error"]:
+            return "error"
+        if (r.get("not_applicable") or {}).get(metric):
+            return "n/a"
+        v = r["metrics"].get(metric)
+        return "-" if v is None else f"{v:.2f}" + ("*" if r.get("cached") else "")
+
+    def sections(self, metrics: list[str] | None = None) -> list[tuple[str, list[str], list[list[str]], str]]:
+        """``(title, header, rows, note)`` per metric (6D inclination and 9D total apart), then one
+        for speed. A filter that cannot have a metric is left out of its section; ``note`` says why."""
+        out = []
+        for m in self.metrics() if metrics is None else metrics:
+            na = self.not_applicable(m)
+            filters = [f for f in self.filters if f not in na]
+            if not filters:
+                continue
+            rows = [[t] + [self._cell(self._record(f, t), m) for f in filters] for t in self.trials]
+            summ = {s["filter"]: s for s in self.summary(m)}
+            rows.append(["mean over trials"] + [f"{summ[f]['mean']:.2f} ({summ[f]['trials']})" if summ[f]["trials"]
+                                                 else "n/a" for f in filters])
+            note = "; ".join(f"{f}: n/a ({why})" for f, why in na.items())
+            out.append((metric_label(m), ["trial"] + filters, rows, note))
+        summ = self.summary()
+        rows = [["samples/s"] + [f"{s['samples_per_s']:,.0f}" if np.isfinite(s["samples_per_s"]) else "n/a"
+                                 for s in summ],
+                ["aiding"] + [s["aiding"] or "-" for s in summ]]
+        out.append(("speed (samples/s, median over trials, one core, compile excluded) and aiding "
+                    "(9D: magnetometer, 6D: accelerometer only, gyro-only: no correction)",
+                    ["filter"] + self.filters, rows, ""))
+        return out
+
+    def table(self, format: str = "table", metric: str | None = None) -> str:
+        """``table`` (aligned text), ``markdown``, ``csv`` (one row per record) or ``json`` (all
+        records). One section per metric (``metric``: only that one), then speed; the mean row
+        says over how many trials."""
         if format == "json":
             return json.dumps(self.records, indent=1)
         if format not in ("table", "markdown", "csv"):
             raise ConfigError(f"format must be table, markdown, csv or json, got {format!r}")
-        trials = self.trials
-        head = ["trial"] + self.filters
-        rows = []
-        for t in trials:
-            row = [t]
-            for f in self.filters:
-                r = next((r for r in self.records if r["filter"] == f and r["trial"] == t), None)
-                if r is None:
-                    row.append("")
-                elif r.get("skipped"):
-                    row.append("n/a")
-                elif r["error"]:
-                    row.append("error")
-                else:
-                    v = r["metrics"].get(metric)
-                    mark = "*" if r.get("cached") and format != "csv" else ""
-                    row.append("-" if v is None else f"{v:.2f}{mark}")
-            rows.append(row)
-        summ = {s["filter"]: s for s in self.summary(metric)}
-        rows.append(["mean"] + [f"{summ[f]['mean']:.2f}" if summ[f]["trials"] else "n/a" for f in self.filters])
-        rows.append(["samples/s"] + [f"{summ[f]['samples_per_s']:,.0f}" if summ[f]["trials"] else "n/a"
-                                     for f in self.filters])
-        rows.append(["judged as"] + [summ[f]["dimension"] for f in self.filters])
-        rows += self._navigation_rows(trials)
+        metrics = self.metrics() if metric is None else [metric]
         if format == "csv":
-            return "\n".join(",".join(c.replace(",", "") if i else c for i, c in enumerate(r)) for r in [head] + rows)
-        cached = sum(bool(r.get("cached")) for r in self.records)
-        note = (f"*: from the cache ({cached} of {len(self.records)} results): computed earlier with the same code, "
-                f"config and file; --no-cache (cache=False) recomputes") if cached else ""
-        if format == "markdown":
-            lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-            lines += ["| " + " | ".join(r) + " |" for r in rows]
-            if note:
-                lines.append(f"\n{note}")
-            errors = [r for r in self.records if r["error"]]
-            for r in errors:
-                lines.append(f"\nerror: {r['filter']} on {r['trial']}: {r['error']}")
+            head = ["filter", "trial", "aiding"] + metrics + ["samples_per_s", "error"]
+            lines = [",".join(head)]
+            for r in self.records:
+                cells = [r["filter"], r["trial"], r.get("aiding") or r["dimension"] or ""]
+                cells += [c if c not in ("n/a", "-", "error", "") else "" for c in (self._cell(r, m) for m in metrics)]
+                cells += ["" if not r["samples_per_s"] else f"{r['samples_per_s']:.0f}", r["error"] or r.get("skipped") or ""]
+                lines.append(",".join(c.replace(",", ";") for c in cells))
             return "\n".join(lines)
+        blocks = [_render(title, head, rows, note, format) for title, head, rows, note in self.sections(metrics)]
+        errors = [f"error: {r['filter']} on {r['trial']}: {r['error']}" for r in self.records if r["error"]]
+        cached = sum(bool(r.get("cached")) for r in self.records)
+        if cached:
+            blocks.append(f"*: from the cache ({cached} of {len(self.records)} results): computed earlier with the same "
+                          "code, config and file; --no-cache (cache=False) recomputes")
+        return "\n\n".join(blocks + (["\n".join(errors)] if errors else []))
+
+    def group_table(self, metric: str | None = None, format: str = "markdown") -> str:
+        """Mean per filter (columns) and group (rows), one table per metric (or only ``metric``)."""
+        groups = list(dict.fromkeys(g for r in self.records for g in (r["groups"] or ["all"])))
+        blocks = []
+        for m in self.metrics() if metric is None else [metric]:
+            bg, na = self.by_group(m), self.not_applicable(m)
+            filters = [f for f in self.filters if f not in na]
+            rows = [[g] + [f"{bg.get(f, {}).get(g, float('nan')):.2f}" for f in filters] for g in groups]
+            if filters:
+                blocks.append(_render(metric_label(m) + ", mean per group", ["group"] + filters, rows,
+                                      "; ".join(f"{f}: n/a" for f in na), "markdown" if format == "markdown" else "csv"))
+        return "\n\n".join(blocks)
+
+
+def _render(title: str, head: list[str], rows: list[list[str]], note: str, format: str) -> str:
+    """One titled table: aligned text, markdown or csv."""
+    if format == "markdown":
+        lines = [f"**{title}**", "", "| " + " | ".join(head) + " |", "|" + "---|" + "---:|" * (len(head) - 1)]
+        lines += ["| " + " | ".join(r) + " |" for r in rows]
+    elif format == "csv":
+        lines = [f"# {title}"] + [",".join(c.replace(",", "") for c in r) for r in [head] + rows]
+    else:
         widths = [max(len(str(x)) for x in col) for col in zip(head, *rows)]
         fmt = "  ".join(f"{{:<{w}}}" if i == 0 else f"{{:>{w}}}" for i, w in enumerate(widths))
-        lines = [fmt.format(*head), "-" * (sum(widths) + 2 * len(widths))]
-        lines += [fmt.format(*r) for r in rows]
-        if note:
-            lines.append(note)
-        for r in self.records:
-            if r["error"]:
-                lines.append(f"error: {r['filter']} on {r['trial']}: {r['error']}")
-        return "\n".join(lines)
-
-    def _navigation_rows(self, trials) -> list[list[str]]:
-        """GNSS trials: tilt and heading with GNSS, velocity (m/s) and position (m) errors
-        (filters that output them, e.g. ins-gnss), one row each per trial."""
-        rows = []
-        for t in trials:
-            recs = {r["filter"]: r for r in self.records if r["trial"] == t and not r["error"]}
-            if not any("tilt_gnss" in r["metrics"] for r in recs.values()):
-                continue
-            for key, fmt in (("tilt_gnss", "{:.3f}"), ("heading_gnss", "{:.3f}"), ("velocity", "{:.3f}"),
-                             ("position", "{:.2f}"), ("position_gap_end", "{:.2f}")):
-                vals = [recs[f]["metrics"].get(key) if f in recs else None for f in self.filters]
-                if any(v is not None for v in vals):
-                    rows.append([f"{t} {key}"] + ["-" if v is None else fmt.format(v) for v in vals])
-        return rows
-
-    def group_table(self, metric: str = "score", format: str = "markdown") -> str:
-        """Mean metric per filter (columns) and group (rows)."""
-        bg = self.by_group(metric)
-        groups = list(dict.fromkeys(g for r in self.records for g in (r["groups"] or ["all"])))
-        head = ["group"] + self.filters
-        rows = [[g] + [f"{bg.get(f, {}).get(g, float('nan')):.2f}" for f in self.filters] for g in groups]
-        if format == "markdown":
-            return "\n".join(["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-                             + ["| " + " | ".join(r) + " |" for r in rows])
-        return "\n".join(",".join(r) for r in [head] + rows)
+        lines = [title, fmt.format(*head), "-" * (sum(widths) + 2 * len(widths))] + [fmt.format(*r) for r in rows]
+    if note:
+        lines.append(("" if format != "markdown" else "\n") + note)
+    return "\n".join(lines)

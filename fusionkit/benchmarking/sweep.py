@@ -15,6 +15,7 @@ import numpy as np
 
 from ..config import set_dotted
 from ..errors import ConfigError
+from .report import metric_label
 from .runner import BenchResult, FilterSpec, bench
 
 __all__ = ["sweep", "SweepResult"]
@@ -67,15 +68,16 @@ class SweepResult:
         return out
 
     def report(self) -> str:
-        lines = [f"sweep of {self.filter} over {self.grid} ({len(self.combos)} sets, metric {self.metric})", "",
-                 "| parameters | mean over trials |", "|---|---:|"]
+        lines = [f"sweep of {self.filter} over {self.grid} ({len(self.combos)} sets, metric {self.metric}: "
+                 f"{metric_label(self.metric)})", "",
+                 "| parameters | mean over trials (deg) |", "|---|---:|"]
         for c, v in sorted(self.mean_by_combo(), key=lambda cv: (np.isnan(cv[1]), cv[1])):
             lines.append(f"| {self._show(c)} | {v:.3f} |")
         p, v = self.tagp
         ptm = self.per_trial_minimum()
         lines += ["", f"TAGP (best common parameters): {self._show(p)} -> {v:.3f}",
                   f"per-trial minimum (mean of each trial's best): {np.mean([v for _, v in ptm.values()]):.3f}", "",
-                  "| trial | best parameters | error |", "|---|---|---:|"]
+                  "| trial | best parameters | error (deg) |", "|---|---|---:|"]
         lines += [f"| {t} | {self._show(c)} | {v:.3f} |" for t, (c, v) in ptm.items()]
         return "\n".join(lines)
 

@@ -32,7 +32,8 @@ class PoissonConfig(FilterConfig):
     )
     alignment_duration: float = param(10.0, unit="s", description="mandatory alignment time (source 000)", gt=0)
     heading: Literal["zero", "magnetometer"] = param(
-        "zero", unit="-", description="initial heading: 0 (source 000) or from the mean magnetometer"
+        "zero", unit="-", description="initial heading: 'zero' = body x to north (source 000's heading 0; ENU yaw 90 deg) "
+        "or from the mean magnetometer"
     )
     motion: MotionConfig = param(MotionConfig(), unit="-", description="motion detector settings (source 000, section 5)")
     early_motion: bool = param(

@@ -1,0 +1,55 @@
+"""What a printed error number means, and which numbers a filter can have.
+
+BROAD's metrics split the rotation error ``q_err = q_est (x) conj(q_ref)`` (earth frame) into a
+tilt part and a part about the vertical. A filter without a magnetometer (6D) cannot know its
+heading, and a gyro-only filter (an integrator with no accelerometer or magnetometer
+correction) keeps whatever heading its start had: their heading and total errors are artefacts
+of that start (about 90 deg on BROAD), so tables print ``n/a`` with the reason instead of a
+number. Tables keep 6D inclination and 9D total apart: they are different quantities.
+"""
+
+from __future__ import annotations
+
+__all__ = ["METRIC_LABELS", "HEADING_DEFINITION", "aiding", "not_applicable", "metric_label"]
+
+HEADING_DEFINITION = ("heading error: the error's rotation about the vertical (deg), whatever the "
+                      "frame's yaw convention")
+
+#: table section title of each metric, in the order tables print them (others follow by name)
+METRIC_LABELS = {
+    "inclination": "inclination RMSE (deg, the error's tilt part; every filter, 6D and 9D)",
+    "total": "total RMSE (deg, the whole rotation error; 9D filters only)",
+    "heading": "heading RMSE (deg, the error's rotation about the vertical; 9D filters only)",
+    "tilt_gnss": "tilt RMS with GNSS (deg)",
+    "tilt_gap": "tilt RMS in GNSS gaps (deg)",
+    "heading_gnss": "heading RMS with GNSS (deg, about the vertical)",
+    "heading_gap": "heading RMS in GNSS gaps (deg, about the vertical)",
+    "score": "score (deg; 9D: total RMSE, 6D: inclination RMSE)",
+}
+
+#: metrics a table leaves out by default: ``score`` mixes 6D and 9D, ``tilt`` repeats inclination,
+#: ``heading`` is in ``total`` (its BROAD definition)
+HIDDEN_BY_DEFAULT = ("score", "tilt", "heading")
+
+
+def metric_label(name: str) -> str:
+    return METRIC_LABELS.get(name, name)
+
+
+def aiding(f, rec) -> str:
+    """``"9D"`` (magnetometer used), ``"6D"`` (accelerometer only, or GNSS), or ``"gyro-only"``
+    (a pipeline without correctors: integration from the alignment, nothing corrects it)."""
+    if getattr(f, "correctors", None) == []:
+        return "gyro-only"
+    return f.dimension(rec)
+
+
+def not_applicable(kind: str, gnss_heading: bool = False) -> dict[str, str]:
+    """``{metric: reason}`` for the metrics a filter of ``kind`` (:func:`aiding`) cannot have.
+
+    ``gnss_heading``: the filter takes its heading from GNSS (its heading is then measured)."""
+    if kind == "9D" or gnss_heading:
+        return {}
+    why = ("gyro-only: no correction, heading stays the start's arbitrary one" if kind == "gyro-only"
+           else "6D: no magnetometer, heading unobservable")
+    return {"total": why, "heading": why}
