@@ -278,21 +278,23 @@ def _fast_turn_rare(gyr: np.ndarray) -> bool:
     return bool(w.size) and float(np.percentile(w, 99)) < 2 * np.pi
 
 
-def window_turns(gyr: np.ndarray, dt: np.ndarray, window: float = 0.05):
-    """The gyro's rotation vectors over consecutive windows of about ``window`` s:
-    ``(i0, i1, th, duration)``, ``th[j]`` the integral of ``w dt`` over ``(t[i0[j]], t[i1[j]]]``
-    (NaN over a non-finite sample)."""
+def window_turns(gyr: np.ndarray, dt: np.ndarray, window: float = 0.05, max_windows: int = 3000):
+    """The gyro's rotation vectors over windows of about ``window`` s: ``(i0, i1, th, duration)``,
+    ``th[j]`` the integral of ``w dt`` over ``(t[i0[j]], t[i1[j]]]`` (NaN over a non-finite
+    sample or a timestamp gap). Consecutive windows, or ``max_windows`` of them spread evenly over
+    a long recording: enough for the fit, and nothing the size of the recording is allocated."""
     n = gyr.shape[0]
     h = float(np.median(dt[:: max(1, n // 1000)]))
     lag = max(1, int(round(window / h)))
     i0 = np.arange(0, max(0, n - lag), lag)
+    if i0.size > max_windows:
+        i0 = i0[np.linspace(0, i0.size - 1, max_windows).astype(np.int64)]
     i1 = i0 + lag
+    idx = i0[:, None] + 1 + np.arange(lag)[None, :]  # the samples whose rates span each window
     with np.errstate(over="ignore", invalid="ignore"):
-        th = np.add.reduceat(gyr * dt[:, None], i0 + 1, axis=0) if i0.size else np.zeros((0, 3))
-        span = np.add.reduceat(dt, i0 + 1) if i0.size else np.zeros(0)
-    if i0.size and i1[-1] < n - 1:  # reduceat's last window runs to the end: cut it to lag samples
-        th, span = (th[:-1], span[:-1]) if i0.size > 1 else (th[:0], span[:0])
-        i0, i1 = i0[:th.shape[0]], i1[:th.shape[0]]
+        d = dt[idx]
+        th = np.einsum("wk,wkc->wc", d, gyr[idx]) if i0.size else np.zeros((0, 3))
+        span = d.sum(axis=1)
     th[np.abs(span - lag * h) > 0.5 * lag * h] = np.nan  # a window over a timestamp gap is left out
     return i0, i1, th, lag * h
 
