@@ -121,6 +121,7 @@ class Pipeline(Filter):
                                   f"sets that flag: add one (e.g. 'rest' for REST)")
         self._stream: dict[str, Any] | None = None
         self._packed: tuple | None = None  # the compiled stream: (step, S, P, O, q, has_mag)
+        self._fast_dt = 0.0  # update()'s fast path takes intervals up to this (0: not yet, see update)
         self.last_flags = 0
 
     def pipeline_config(self) -> PipelineConfig:
@@ -181,6 +182,7 @@ class Pipeline(Filter):
     def reset(self) -> None:
         self._stream = None
         self._packed = None
+        self._fast_dt = 0.0
 
     # -- the readable reference path -------------------------------------------------------
     def _step(self, st, gyr, acc, mag, dt, has_mag, gnss=None) -> tuple[np.ndarray, int, int]:
@@ -373,9 +375,7 @@ class Pipeline(Filter):
         the composition's compiled one-sample step when every plugin has a kernel (see
         ``update_backend``), else the reference. ``last_flags`` holds the sample's flags."""
         pk = self._packed if self._stream is not None else None
-        if (pk and gnss is None and type(dt) is float
-                and 0.0 < dt <= gap_threshold(self._stream["dt"], self.spec.max_gap)
-                and len(self.__dict__.get("_unit_samples", ())) >= self.UNIT_CHECK_SAMPLES):
+        if pk and gnss is None and type(dt) is float and 0.0 < dt <= self._fast_dt:
             # the fast path of the compiled stream (the units checked, no gap): plain float64
             # vectors, all finite
             g, a = floats3(gyr), floats3(acc)
@@ -410,6 +410,8 @@ class Pipeline(Filter):
             g, a, m = g.tolist(), a.tolist(), m.tolist()
             f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q, *n)
             self.last_flags = gap_flags(f, gap)
+            if len(self.__dict__.get("_unit_samples", ())) >= self.UNIT_CHECK_SAMPLES:  # the units are checked:
+                self._fast_dt = gap_threshold(self._stream["dt"], self.spec.max_gap)  # the fast path may run
             return q.copy()
         gn = None if gnss is None else np.asarray(gnss, dtype=float)
         q, f, _ = self._step(self._stream, g, a, m, dt, has_mag, gn)

@@ -45,6 +45,7 @@ class StepFilter(Filter):
         self.qf = change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "ENU", self.config.frame)
         self._stream: np.ndarray | None = None
         self._buffers: tuple | None = None  # the compiled stream's one-sample arrays (see update)
+        self._fast_dt = 0.0  # update()'s fast path takes intervals up to this (0: not yet, see update)
         #: "auto": update() runs the compiled loop on one sample when the filter has one;
         #: "reference": the readable step (the same numbers to 1e-9)
         self.update_backend = "auto"
@@ -150,14 +151,13 @@ class StepFilter(Filter):
         self._stream = None
         self._buffers = None
         self._nominal_dt = None
+        self._fast_dt = 0.0
 
     def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
         """One sample of a stream; the same numbers as :meth:`run`. It runs the compiled loop on
         the one sample when the filter has one (``update_backend``), else the reference step."""
         b = self._buffers if self._stream is not None else None
-        if (b and type(dt) is float and 0.0 < dt <= gap_threshold(self._nominal_dt, self.config.max_gap)
-                and not self._saturated and self.config.gyr_range is None
-                and len(self.__dict__.get("_unit_samples", ())) >= self.UNIT_CHECK_SAMPLES):
+        if b and type(dt) is float and 0.0 < dt <= self._fast_dt:
             # the fast path (the units checked, no gap, no saturated gyro): plain float64 vectors,
             # all finite, written into the loop's arrays
             g, a = floats3(gyr), floats3(acc)
@@ -201,6 +201,10 @@ class StepFilter(Filter):
         if self._buffers and self.update_backend != "reference":
             q = self._update_compiled(self._buffers, g, a, (0.0, 0.0, 0.0) if m is None else m, dt, m is not None)
             self.last_flags = gap_flags(self.last_flags, gap)
+            # the fast path may run once the units are checked, without a range to watch
+            done = len(self.__dict__.get("_unit_samples", ())) >= self.UNIT_CHECK_SAMPLES
+            ok = done and self.config.gyr_range is None
+            self._fast_dt = gap_threshold(nominal, self.config.max_gap) if ok else 0.0
             return q
         q, f = self._step(self._stream, g, a, m, dt)
         self.last_flags = gap_flags(f, gap)
