@@ -259,7 +259,9 @@ def check_turning(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, dt: 
         if vec is None:
             continue
         scale = turning_scale(turns, vec, quasi_static=name == "acc")
-        if scale is None or scale > np.sqrt(DEG):
+        # deg/s read as rad/s turns the vector at pi/180 of the gyro's word: a scale near 0 is a
+        # vector that does not turn at all (a still sensor with a large gyro bias), not a unit
+        if scale is None or not DEG / 4.0 < scale <= np.sqrt(DEG):
             continue
         # the specific force may not follow gravity (a multicopter's thrust stays on its z axis):
         # from it alone, a deg/s gyro must also turn faster than a turn per second as given
