@@ -121,7 +121,7 @@ def simulate_flight(duration: float = 200.0, *, rest: float = 20.0, rate: float 
         pitch = pitch + np.arctan2(w_cmd, np.maximum(v_h, 1.0))
         roll = roll + np.arctan(v_h * r_cmd / g0)
     s = slice(None, None, ovs)  # the sample grid
-    t, vel_s, pos_s = tf[s], vel[s], pos[s]
+    vel_s, pos_s = vel[s], pos[s]
     rot = Rotation.from_euler("ZYX", np.stack([yaw[s], pitch[s], roll[s]], axis=1))
     quat = np.roll(rot.as_quat(), 1, axis=1)  # (w, x, y, z) body (FRD) -> NED
     rel = (rot[:-1].inv() * rot[1:]).as_rotvec()  # body rotation over each interval
