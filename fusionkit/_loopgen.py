@@ -10,7 +10,7 @@ plugin's kernel by its module and name and calls them in the pipeline's fixed pe
 (:mod:`fusionkit.pipeline` documents it). The module is written to the cache directory
 (``$FUSIONKIT_CACHE_DIR``, else ``$XDG_CACHE_HOME/fusionkit`` or ``~/.cache/fusionkit``) under
 a name that hashes the source text, the numba and fusionkit versions, and the source of every
-module a kernel comes from, so numba's own on-disk cache (``cache=True``) serves the next
+package a kernel comes from, so numba's own on-disk cache (``cache=True``) serves the next
 process, and any change to a plugin's code makes a new file instead of a stale hit. Kernels that
 cannot be imported by name (closures, functions defined in ``__main__``) get the same source
 compiled in memory, without the disk cache.
@@ -261,15 +261,16 @@ def cache_dir() -> Path | None:
 
 
 def _fingerprint(module: str) -> str:
-    """A hash of a kernel's module source; for fusionkit's own kernels, of the whole package (a
-    kernel calls helpers from other modules, which numba inlines into the cached loop)."""
-    top = module.split(".")[0]
-    key = top if top == "fusionkit" else module
+    """A hash of the source of the package a kernel comes from (fusionkit's, or a plugin's): a
+    kernel calls helpers from other modules of its package, which numba compiles into the cached
+    loop, so an edit anywhere in the package must make a new cache entry. A module outside any
+    package is hashed alone."""
+    key = module.split(".")[0]
     if key not in _FINGERPRINTS:
         h = hashlib.sha256()
         m = sys.modules[key] if key in sys.modules else importlib.import_module(key)
         path = Path(getattr(m, "__file__", "") or "")
-        files = sorted(path.parent.rglob("*.py")) if key == "fusionkit" else [path]
+        files = sorted(path.parent.rglob("*.py")) if hasattr(m, "__path__") else [path]
         for f in files:
             try:
                 h.update(f.read_bytes())
