@@ -125,7 +125,7 @@ def test_a_third_party_plugin_named_like_a_builtin_is_reported_and_the_builtin_w
     from fusionkit.peers import VqfFilter
 
     assert reg.get("vqf") is VqfFilter and ("filter", "vqf", "fusionkit") in reg.info()
-    assert len(reg.duplicates) == 1 and "fusionkit.peers:VqfFilter" in reg.duplicates[0]
+    assert len(reg.duplicates) == 1 and "fusionkit.peers.vqf:VqfFilter" in reg.duplicates[0]
     assert reg.check_all() == {}
 
 
