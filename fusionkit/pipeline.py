@@ -374,7 +374,7 @@ class Pipeline(Filter):
         row, see :class:`~fusionkit.protocols.Sample`); the same numbers as :meth:`run`. It runs
         the composition's compiled one-sample step when every plugin has a kernel (see
         ``update_backend``), else the reference. ``last_flags`` holds the sample's flags."""
-        pk = self._packed if self._stream is not None else None
+        pk = self._packed if self._stream is not None and self.update_backend == "auto" else None
         if pk and gnss is None and type(dt) is float and 0.0 < dt <= self._fast_dt:
             # the fast path of the compiled stream (the units checked, no gap): plain float64
             # vectors, all finite

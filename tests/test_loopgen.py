@@ -133,3 +133,19 @@ def test_update_runs_compiled_and_state_round_trips(name, rec):
     g2.set_state(g.state)
     second = [g2.update(rec.gyr[k], rec.acc[k], rec.mag[k], dt=float(rec.dt[k])) for k in range(h, len(rec))]
     assert np.abs(np.array(first + second) - ref).max() < 1e-9
+
+
+@pytest.mark.parametrize("name", ["gradient-descent", "recommended"])
+def test_update_backend_switched_mid_stream_takes_the_reference_path(name, rec):
+    """After the compiled stream's fast path has run, update_backend='reference' is obeyed (the
+    reference step runs; the numbers continue the same stream)."""
+    f = fk.make(name)
+    ref = f.run(rec, backend="reference").quat
+    out = [f.update(rec.gyr[k], rec.acc[k], rec.mag[k], dt=float(rec.dt[k])) for k in range(300)]
+    f.update_backend = "reference"
+    calls = []
+    step = f._step
+    f._step = lambda *a: calls.append(1) or step(*a)
+    out += [f.update(rec.gyr[k], rec.acc[k], rec.mag[k], dt=float(rec.dt[k])) for k in range(300, len(rec))]
+    assert len(calls) == len(rec) - 300
+    assert np.abs(np.array(out) - ref).max() < 1e-9

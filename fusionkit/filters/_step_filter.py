@@ -156,7 +156,7 @@ class StepFilter(Filter):
     def update(self, gyr, acc, mag=None, dt: float | None = None) -> np.ndarray:
         """One sample of a stream; the same numbers as :meth:`run`. It runs the compiled loop on
         the one sample when the filter has one (``update_backend``), else the reference step."""
-        b = self._buffers if self._stream is not None else None
+        b = self._buffers if self._stream is not None and self.update_backend == "auto" else None
         if b and type(dt) is float and 0.0 < dt <= self._fast_dt:
             # the fast path (the units checked, no gap, no saturated gyro): plain float64 vectors,
             # all finite, written into the loop's arrays
