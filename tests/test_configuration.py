@@ -2,7 +2,10 @@
 ``fusionkit run CONFIG`` (docs/configuration.md)."""
 
 import json
-import tomllib
+try:
+    import tomllib
+except ImportError:  # Python 3.10
+    import tomli as tomllib
 
 import numpy as np
 import pytest
