@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from ._sources import fusionkit_hash, source_hash
 from .navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, PHASE, SEEN
 
 __all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack"]
@@ -239,7 +240,6 @@ def source(lay: Layout, cache: bool, imports: dict[int, tuple[str, str]] | None,
 # -- building and caching -------------------------------------------------------------------
 
 _BUILT: dict[Any, Any] = {}
-_FINGERPRINTS: dict[str, str] = {}
 
 
 def cache_dir() -> Path | None:
@@ -263,21 +263,9 @@ def cache_dir() -> Path | None:
 def _fingerprint(module: str) -> str:
     """A hash of the source of the package a kernel comes from (fusionkit's, or a plugin's): a
     kernel calls helpers from other modules of its package, which numba compiles into the cached
-    loop, so an edit anywhere in the package must make a new cache entry. A module outside any
-    package is hashed alone."""
-    key = module.split(".")[0]
-    if key not in _FINGERPRINTS:
-        h = hashlib.sha256()
-        m = sys.modules[key] if key in sys.modules else importlib.import_module(key)
-        path = Path(getattr(m, "__file__", "") or "")
-        files = sorted(path.parent.rglob("*.py")) if hasattr(m, "__path__") else [path]
-        for f in files:
-            try:
-                h.update(f.read_bytes())
-            except OSError:
-                h.update(str(f).encode())
-        _FINGERPRINTS[key] = h.hexdigest()
-    return _FINGERPRINTS[key]
+    loop, so an edit anywhere in the package must make a new cache entry (:mod:`fusionkit._sources`)."""
+    top = module.split(".")[0]
+    return fusionkit_hash() if top == "fusionkit" else (source_hash(top) or "")
 
 
 def get_compiled(lay: Layout):

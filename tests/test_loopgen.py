@@ -56,7 +56,7 @@ def test_a_changed_kernel_source_is_a_new_cache_entry(tmp_path, monkeypatch, rec
     monkeypatch.setattr(_loopgen, "_BUILT", {})
     fk.compose(CONFIG).run(rec, backend="numba")
     monkeypatch.setattr(_loopgen, "_BUILT", {})
-    monkeypatch.setitem(_loopgen._FINGERPRINTS, "fusionkit", "an edited fusionkit")
+    monkeypatch.setattr(_loopgen, "fusionkit_hash", lambda: "the hash of an edited fusionkit")
     fk.compose(CONFIG).run(rec, backend="numba")
     assert len(list((tmp_path / "loops").glob("loop_*.py"))) == 2
 

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from .._sources import fusionkit_hash, source_hash
 from ..config import set_dotted
 from ..errors import ConfigError
 from .datasets import Trial, discover
@@ -83,16 +84,10 @@ def _thaw(v):
     return v
 
 
-@functools.lru_cache(maxsize=1)
 def _code_fingerprint() -> str:
     """A hash of fusionkit's own source files: a code change invalidates cached results even
     when the version number did not change (development installs)."""
-    root = Path(__file__).resolve().parents[1]
-    h = hashlib.sha256()
-    for f in sorted(root.rglob("*.py")):
-        h.update(str(f.relative_to(root)).encode())
-        h.update(f.read_bytes())
-    return h.hexdigest()[:12]
+    return fusionkit_hash()[:12]
 
 
 @functools.lru_cache(maxsize=1)
@@ -100,16 +95,6 @@ def _distributions() -> dict[str, list[str]]:
     from importlib import metadata
 
     return metadata.packages_distributions()
-
-
-def _source_files(top: str) -> list[Path]:
-    """The ``.py`` files of the top-level module or package ``top`` (empty if it has none)."""
-    mod = sys.modules.get(top)
-    paths = list(getattr(mod, "__path__", []) or [])
-    if paths:
-        return sorted(f for d in paths for f in Path(d).rglob("*.py"))
-    file = getattr(mod, "__file__", None)
-    return [Path(file)] if file else []
 
 
 def _plugin_code(f) -> dict[str, str] | None:
@@ -131,16 +116,12 @@ def _plugin_code(f) -> dict[str, str] | None:
             todo.extend(x for x in (v if isinstance(v, (list, tuple)) else [v]) if isinstance(x, Plugin))
     out = {}
     for top in sorted(tops - {"fusionkit", "builtins"} - set(sys.stdlib_module_names)):
-        files = _source_files(top)
-        if not files:
+        digest = source_hash(top)
+        if digest is None:
             return None
-        h = hashlib.sha256()
-        for file in files:
-            h.update(str(file).encode())
-            h.update(file.read_bytes())
         dists = _distributions().get(top, [])
         version = ",".join(f"{d} {_version_of(d)}" for d in dists) or "(no distribution)"
-        out[top] = f"{version} {h.hexdigest()[:12]}"
+        out[top] = f"{version} {digest[:12]}"
     return out
 
 
