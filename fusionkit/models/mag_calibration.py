@@ -41,7 +41,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .._kernels import rotvec_quat
+from .._kernels import qmul_into, quat_to_dcm, rotvec_quat
 from .._numba import njit
 from ..config import PluginConfig, param
 from ..protocols import Sample, SensorModel, SensorModelKernel
@@ -157,17 +157,30 @@ class MagCalibrationModel(SensorModel):
             s[_CONF] = 1.0
 
 
-def _solve3(a, y):
-    """``a^-1 y`` by the adjugate (the kernel's arithmetic), or None for a singular ``a``."""
+def _inverse3(a, inv) -> bool:
+    """``inv = a^-1`` by the adjugate, False (``inv`` untouched) for a singular ``a``; the same
+    statements in the reference and, compiled, in the kernel."""
     det = (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
            + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
     if not abs(det) > 1e-12:
+        return False
+    inv[0, 0], inv[0, 1], inv[0, 2] = (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1], a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2],
+                                       a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1])
+    inv[1, 0], inv[1, 1], inv[1, 2] = (a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2], a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0],
+                                       a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2])
+    inv[2, 0], inv[2, 1], inv[2, 2] = (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0], a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1],
+                                       a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0])
+    for i in range(3):
+        for j in range(3):
+            inv[i, j] /= det
+    return True
+
+
+def _solve3(a, y):
+    """``a^-1 y`` (:func:`_inverse3`), or None for a singular ``a``."""
+    inv = np.empty((3, 3))
+    if not _inverse3(a, inv):
         return None
-    inv = np.array([
-        [a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1], a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2], a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1]],
-        [a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2], a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0], a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2]],
-        [a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0], a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1], a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]],
-    ]) / det
     return np.array([inv[i, 0] * y[0] + inv[i, 1] * y[1] + inv[i, 2] * y[2] for i in range(3)])
 
 
@@ -188,6 +201,7 @@ def _min_eig_sym3(a) -> float:
 
 
 _k_min_eig = njit(_min_eig_sym3)
+_k_inverse3 = njit(_inverse3)
 
 
 @njit
@@ -199,12 +213,7 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
     elif s[_ANCHOR] != 0.0:
         e = np.empty(4)
         rotvec_quat(v[0] * dt, v[1] * dt, v[2] * dt, e)
-        e0, e1, e2, e3 = e[0], e[1], e[2], e[3]
-        w, x, y, z = s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3]
-        s[_DQ] = w * e0 - x * e1 - y * e2 - z * e3
-        s[_DQ + 1] = w * e1 + x * e0 + y * e3 - z * e2
-        s[_DQ + 2] = w * e2 - x * e3 + y * e0 + z * e1
-        s[_DQ + 3] = w * e3 + x * e2 - y * e1 + z * e0
+        qmul_into(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], e[0], e[1], e[2], e[3], s[_DQ:_DQ + 4])
         s[_T] += dt
     if not mag_ok:
         if s[_T] > 2.0 * seg_time:
@@ -215,7 +224,7 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
         w, x, y, z = s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3]
         angle = 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
         if angle >= seg_angle or s[_T] >= seg_time:
-            _k_segment(s, w, x, y, z, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count)
+            _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count)
             s[_ANCHOR] = 0.0
     if gyr_ok and s[_ANCHOR] == 0.0:
         s[_MA], s[_MA + 1], s[_MA + 2] = m0, m1, m2
@@ -227,11 +236,13 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
 
 
 @njit
-def _k_segment(s, w, x, y, z, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count):
+def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count):
+    c9 = np.empty(9)
+    quat_to_dcm(s[_DQ:_DQ + 4], c9)
     ct = np.empty((3, 3))  # R(dq)^T, as quat_to_matrix(dq).T
-    ct[0, 0], ct[1, 0], ct[2, 0] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-    ct[0, 1], ct[1, 1], ct[2, 1] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-    ct[0, 2], ct[1, 2], ct[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    for i in range(3):
+        for j in range(3):
+            ct[i, j] = c9[3 * j + i]
     h = -ct
     for i in range(3):
         h[i, i] += 1.0
@@ -265,20 +276,9 @@ def _k_segment(s, w, x, y, z, m0, m1, m2, forget, max_std, min_seg, out_sigma, o
     s[_RR] = lam * s[_RR] + (r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
     s[_NE] = lam * s[_NE] + 1.0
     s[_N] = n + 1.0
-    det = (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
-           + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
-    if not abs(det) > 1e-12:
-        return
     inv = np.empty((3, 3))
-    inv[0, 0], inv[0, 1], inv[0, 2] = (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1], a[0, 2] * a[2, 1] - a[0, 1] * a[2, 2],
-                                       a[0, 1] * a[1, 2] - a[0, 2] * a[1, 1])
-    inv[1, 0], inv[1, 1], inv[1, 2] = (a[1, 2] * a[2, 0] - a[1, 0] * a[2, 2], a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0],
-                                       a[0, 2] * a[1, 0] - a[0, 0] * a[1, 2])
-    inv[2, 0], inv[2, 1], inv[2, 2] = (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0], a[0, 1] * a[2, 0] - a[0, 0] * a[2, 1],
-                                       a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0])
-    for i in range(3):
-        for j in range(3):
-            inv[i, j] /= det
+    if not _k_inverse3(a, inv):
+        return
     for i in range(3):
         s[_BEST + i] = inv[i, 0] * s[_Y] + inv[i, 1] * s[_Y + 1] + inv[i, 2] * s[_Y + 2]
     if s[_NE] > 1.0:
