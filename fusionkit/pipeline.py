@@ -67,7 +67,7 @@ from .protocols import Filter, Sample
 from .registry import Registry, default_registry
 from .types import (Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, sample_validity,
                     stream_gap)
-from .validation import as_vector, check_finite_all, check_positive, check_sample_finite, floats3
+from .validation import as_vector, check_finite_all, check_positive, check_sample_finite, finite_sample
 
 __all__ = ["Pipeline", "run_detector"]
 
@@ -378,9 +378,9 @@ class Pipeline(Filter):
         if pk and gnss is None and type(dt) is float and 0.0 < dt <= self._fast_dt:
             # the fast path of the compiled stream (the units checked, no gap): plain float64
             # vectors, all finite
-            g, a = floats3(gyr), floats3(acc)
-            m = _ZEROS if mag is None else floats3(mag)
-            if g is not None and a is not None and m is not None and math.isfinite(sum(g) + sum(a) + sum(m)):
+            sample = finite_sample(gyr, acc, mag)
+            if sample is not None:
+                g, a, m = sample
                 step, S, P, O, q, _ = pk
                 f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, mag is not None, S, P, O, q,
                             *_NO_GNSS)
@@ -436,7 +436,6 @@ class Pipeline(Filter):
         return self._packed or None
 
 
-_ZEROS = (0.0, 0.0, 0.0)
 _NO_GNSS = tuple(NO_GNSS.tolist())
 
 

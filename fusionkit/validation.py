@@ -46,14 +46,27 @@ def as_vector(name: str, x, width: int = 3) -> np.ndarray:
     return arr
 
 
-def floats3(v):
-    """A float64 vector of 3 as a list of floats, cheaply, or None for anything else (the streaming
-    fast paths then take the checked path, which names what is wrong)."""
+def _floats3(v):
+    """A float64 vector of 3 as a list of floats, cheaply, or None for anything else."""
     if type(v) is np.ndarray and v.shape == (3,) and v.dtype == np.float64:
         return v.tolist()
     if type(v) in (list, tuple) and len(v) == 3 and all(type(e) is float for e in v):
         return v
     return None
+
+
+_NO_MAG = (0.0, 0.0, 0.0)
+
+
+def finite_sample(gyr, acc, mag):
+    """``(gyr, acc, mag)`` as lists of floats when each is a float64 vector of 3 and all are finite
+    (``mag`` None: zeros), else None: the streaming fast paths take the sample as it is, and
+    anything else goes to the checked path, which names what is wrong."""
+    g, a = _floats3(gyr), _floats3(acc)
+    m = _NO_MAG if mag is None else _floats3(mag)
+    if g is None or a is None or m is None or not math.isfinite(sum(g) + sum(a) + sum(m)):
+        return None
+    return g, a, m
 
 
 def finite_rows(x: np.ndarray) -> np.ndarray:

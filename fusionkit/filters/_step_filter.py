@@ -15,7 +15,6 @@ over from an earlier run, streaming ``update`` (the same numbers as ``run``), ``
 
 from __future__ import annotations
 
-import math
 from typing import Any, Callable, ClassVar
 
 import numpy as np
@@ -25,7 +24,7 @@ from ..conventions import change_frame
 from ..errors import InputError
 from ..protocols import Filter
 from ..types import Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, stream_gap
-from ..validation import as_vector, check_finite_all, check_positive, check_sample_finite, floats3
+from ..validation import as_vector, check_finite_all, check_positive, check_sample_finite, finite_sample
 
 __all__ = ["StepFilter"]
 
@@ -160,11 +159,10 @@ class StepFilter(Filter):
         if b and type(dt) is float and 0.0 < dt <= self._fast_dt:
             # the fast path (the units checked, no gap, no saturated gyro): plain float64 vectors,
             # all finite, written into the loop's arrays
-            g, a = floats3(gyr), floats3(acc)
             use_mag = mag is not None and getattr(self.config, "use_mag", True)
-            m = floats3(mag) if use_mag else (0.0, 0.0, 0.0)
-            if g is not None and a is not None and m is not None and math.isfinite(sum(g) + sum(a) + sum(m)):
-                return self._update_compiled(b, g, a, m, dt, use_mag)
+            sample = finite_sample(gyr, acc, mag if use_mag else None)
+            if sample is not None:
+                return self._update_compiled(b, *sample, dt, use_mag)
         return self._update_checked(gyr, acc, mag, dt)
 
     def _update_compiled(self, b, g, a, m, dt, has_mag) -> np.ndarray:
