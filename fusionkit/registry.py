@@ -231,10 +231,20 @@ class Registry:
         """The plugin class registered as ``name`` (a filter first, unless ``kind`` is given)."""
         return self._load(self._find(name, kind))
 
-    def make(self, name: str, /, kind: str | None = None, config: Any = None, **params: Any) -> Plugin:
+    def make(self, name: str, /, kind: str | None = None, config: Any = None, *, offline: bool = False,
+             **params: Any) -> Plugin:
         """Instantiate the plugin ``name`` with validated parameters (a parameter called ``name``
-        is a parameter, refused by the config as unknown, not a second plugin name)."""
-        return self.get(name, kind)(config, **params)
+        is a parameter, refused by the config as unknown, not a second plugin name). ``offline``:
+        the filter run forward and backward in time (:class:`fusionkit.offline.OfflineFilter`);
+        a PluginError for a plugin that is not a filter or a filter that does not support it."""
+        plugin = self.get(name, kind)(config, **params)
+        if not offline:
+            return plugin
+        from .offline import OfflineFilter
+
+        if plugin.kind != "filter":
+            raise PluginError(f"offline=True is for filters; {name!r} is a {plugin.kind}")
+        return OfflineFilter(plugin)
 
     def describe(self, name: str, kind: str | None = None) -> PluginInfo:
         entry = self._find(name, kind)
@@ -277,10 +287,13 @@ def available(kind: str | None = None):
     return _DEFAULT.available() if kind is None else _DEFAULT.names(kind)
 
 
-def make(name: str, /, kind: str | None = None, config: Any = None, **params: Any) -> Plugin:
+def make(name: str, /, kind: str | None = None, config: Any = None, *, offline: bool = False,
+         **params: Any) -> Plugin:
     """Build a plugin by name: ``make("poisson", frame="NED")``. A filter name is resolved first;
-    pass ``kind="detector"`` (etc.) for the other kinds. Parameters are validated."""
-    return _DEFAULT.make(name, kind, config, **params)
+    pass ``kind="detector"`` (etc.) for the other kinds. Parameters are validated.
+    ``offline=True``: the filter run forward and backward in time, for recordings processed after
+    the fact (:mod:`fusionkit.offline`; filters that support it, e.g. ``recommended``)."""
+    return _DEFAULT.make(name, kind, config, offline=offline, **params)
 
 
 def get(name: str, kind: str | None = None) -> type[Plugin]:

@@ -1,0 +1,82 @@
+"""The offline mode on the BROAD trials: ``recommended`` online, ``recommended`` offline and
+``vqf-offline``, in one run (9D total RMSE and 6D inclination RMSE, deg, per trial and mean),
+the mean without the trial the offline mode helps most (leave-one-out), and end-to-end
+throughput (samples/s, compilation excluded).
+
+    python benchmarks/offline_accuracy.py [--data DIR] [--trials 01,06] [--param key=value ...]
+
+``--param`` sets a parameter of the recommended filter in both of its runs (an ablation).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+import fusionkit as fk
+from _common import data_dir, machine
+from fusionkit.benchmarking.metrics import rms_errors
+
+
+def _value(text: str):
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--data", default=str(data_dir() / "broad"))
+    ap.add_argument("--trials", default="", help="comma-separated trial prefixes (default: all)")
+    ap.add_argument("--param", action="append", default=[], help="key=value for recommended (JSON value)")
+    ap.add_argument("--modes", default="9D,6D")
+    args = ap.parse_args()
+    files = sorted(Path(args.data).glob("*.hdf5"))
+    if args.trials:
+        keep = tuple(args.trials.split(","))
+        files = [f for f in files if f.name.startswith(keep)]
+    if not files:
+        raise SystemExit(f"no BROAD trials in {args.data}")
+    params = dict(p.split("=", 1) for p in args.param)
+    params = {k: _value(v) for k, v in params.items()}
+    recs = [fk.load(f) for f in files]
+    print(f"machine: {machine()}; recommended params: {params or 'defaults'}")
+    for mode in args.modes.split(","):
+        six = mode == "6D"
+        kw = dict(params, use_mag=False) if six else params
+        runs = {"recommended": fk.make("recommended", **kw),
+                "recommended offline": fk.make("recommended", offline=True, **kw),
+                "vqf-offline": fk.make("vqf-offline", mode="6D" if six else "auto")}
+        key = "inclination" if six else "total"
+        err = {n: [] for n in runs}
+        secs = {n: 0.0 for n in runs}
+        for f in runs.values():
+            f.run(recs[0].slice(0, 500))  # compile
+        for rec in recs:
+            for n, f in runs.items():
+                t0 = time.perf_counter()
+                res = f.run(rec)
+                secs[n] += time.perf_counter() - t0
+                err[n].append(rms_errors(res, rec)[key])
+        names = list(runs)
+        print(f"\n{mode}: {key} RMSE [deg]\n| trial | " + " | ".join(names) + " |")
+        print("|---|" + "---:|" * len(names))
+        for i, rec in enumerate(recs):
+            print(f"| {rec.name} | " + " | ".join(f"{err[n][i]:.2f}" for n in names) + " |")
+        print("| **mean** | " + " | ".join(f"**{np.mean(err[n]):.3f}**" for n in names) + " |")
+        gain = np.array(err["recommended"]) - np.array(err["recommended offline"])
+        best = int(np.argmax(gain))
+        rest = [i for i in range(len(recs)) if i != best]
+        print(f"| mean without {recs[best].name} (offline's largest gain, {gain[best]:.2f}) | "
+              + " | ".join(f"{np.mean([err[n][i] for i in rest]):.3f}" for n in names) + " |")
+        total = sum(len(r) for r in recs)
+        print("| samples/s (end to end) | " + " | ".join(f"{total / secs[n]:,.0f}" for n in names) + " |")
+
+
+if __name__ == "__main__":
+    main()
