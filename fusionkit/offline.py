@@ -27,12 +27,15 @@ processed after the fact, every sample's orientation can use the samples after i
    Without a magnetometer (6D) the heading of either pass is arbitrary: the heading is the
    forward pass's, only the inclination is fused.
 
-What the fusion does, physically: the two passes' errors from linear accelerations and
-magnetometer noise come from the past and from the future respectively, so they are partly
-independent and average down; a constant delay of the gyroscope against the time base (which
-lags the forward output) leads the backward one by as much, and cancels to first order; and the
-start of a recording, where the forward pass has not converged, is taken from the backward pass
-(and the end from the forward one).
+What the fusion does, physically: the two passes' errors from linear accelerations, from
+magnetometer noise and from a gyro bias not yet learned come from the past and from the future
+respectively, so they are partly independent and average down (a bias error drifts the two
+passes in opposite directions and cancels to first order); the start of a recording, where the
+forward pass has not converged, is taken from the backward pass (and the end from the forward
+one); a pass that rejected the magnetometer for long gives way to the one that saw it last. What
+it does not do: a gyroscope late against the time base lags *both* passes alike (each integrates
+the same delayed rate, anchored where the recording is still), so that delay stays (the
+filter's ``output_lead`` is the answer to it, offline too).
 
 Flags: REST where either pass detects rest (the future confirms a rest the past could not yet
 see), MAG_DISTURBED only where both passes reject the magnetometer (VQF's offline rule), the
@@ -239,8 +242,10 @@ class OfflineFilter(Filter):
 
     def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
             state: np.ndarray | None = None) -> Result:
-        """Forward pass (from ``state`` when given: an earlier run's ``diagnostics["state"]``, taken
-        as converged), backward pass, fusion. ``diagnostics["state"]`` is the forward pass's final
+        """Forward pass (from ``state`` when given: an earlier run's ``diagnostics["state"]``),
+        backward pass, fusion. How far a given state had converged is not known from it (an earlier
+        run that started in motion hands on a poor bias), so the forward pass's information
+        counts from this run's first sample either way. ``diagnostics["state"]`` is the forward pass's final
         state (an online run can continue from it); ``diagnostics["backward_weight"]`` holds the
         per-sample weights of the backward pass (``inclination``, ``heading``)."""
         if not isinstance(rec, Recording):
@@ -256,7 +261,7 @@ class OfflineFilter(Filter):
         dt = rec.dt
         c = self.config
         has_mag = self.dimension(rec) == "9D"
-        start = 1.0 if state is not None else 0.0
+        start = 0.0
         # information of each pass in its own time order; the backward one's sample j is input
         # sample N-1-j and its output is the orientation at sample N-2-j
         i_f = self._info(fwd.flags, dt, c.tau_acc, _ACC_UNUSED, start, used)
