@@ -57,7 +57,7 @@ from .config import FilterConfig
 from .conventions import change_frame
 from .errors import InputError, PluginError
 from .protocols import Filter
-from .rotations import quat_conj, quat_mul
+from .rotations import quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec
 from .types import Flag, Recording, Result
 
 __all__ = ["OfflineFilter", "reverse_recording", "reversed_config", "information", "fuse_reference",
@@ -252,6 +252,9 @@ class OfflineFilter(Filter):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         inner = self.inner
         used = resolve_backend(backend, True)
+        lead = float(getattr(inner.config, "output_lead", 0.0) or 0.0)
+        if lead > 0.0:  # the passes without it; the fused trajectory is read ahead instead (_read_ahead)
+            inner = type(inner)(inner.config.model_copy(update={"output_lead": 0.0}))
         fwd = inner.run(rec, backend=backend, progress=progress, state=state)
         n = len(rec)
         if n < 2:
@@ -288,9 +291,11 @@ class OfflineFilter(Filter):
             q = fuse_reference(qf, qb, w_i, w_h)
         if frame != "ENU":
             q = change_frame(q, "ENU", frame)
+        if lead > 0.0:
+            q = _read_ahead(q, rec.time, lead)
         flags = _fused_flags(fwd.flags, bwd.flags[::-1])
         diag = dict(fwd.diagnostics)
-        diag.update({"filter": self.name, "backend": used, "offline": True,
+        diag.update({"filter": self.name, "backend": used, "offline": True, "config": self.config.model_dump(),
                      "backward_weight": {"inclination": w_i, "heading": w_h},
                      "backward_diagnostics": {k: v for k, v in bwd.diagnostics.items() if k != "config"}})
         return Result(q, flags, frame, diag)
@@ -316,6 +321,18 @@ class OfflineFilter(Filter):
 
     def set_state(self, state) -> None:
         raise PluginError(f"{self.name} is an offline filter: it has no streaming state; pass state= to run()")
+
+
+def _read_ahead(q: np.ndarray, t: np.ndarray, lead: float) -> np.ndarray:
+    """The trajectory ``q`` (samples at ``t``) at ``t + lead``: interpolated on the geodesic between
+    the samples around it (extrapolated by the last step's rotation past the end). A filter's
+    ``output_lead`` extrapolates with the gyro rate because online the future is not known;
+    offline it is, and the backward pass must not extrapolate (its ahead is the past)."""
+    n = q.shape[0]
+    i = np.clip(np.searchsorted(t, t + lead, side="right") - 1, 0, n - 2)
+    frac = ((t + lead - t[i]) / (t[i + 1] - t[i]))[:, None]
+    step = quat_to_rotvec(quat_mul(quat_conj(q[i]), q[i + 1]))
+    return quat_mul(q[i], quat_from_rotvec(step * frac))
 
 
 def _weights(i_f: np.ndarray, i_b: np.ndarray) -> np.ndarray:
