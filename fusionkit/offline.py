@@ -47,6 +47,7 @@ arithmetic (tests hold them to 1e-9).
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Any, ClassVar
 
@@ -111,16 +112,21 @@ def reverse_recording(rec: Recording) -> Recording:
     GNSS are not carried over."""
     if not isinstance(rec, Recording):
         raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
-    mag = None if rec.mag is None else np.ascontiguousarray(rec.mag[::-1])
-    kw: dict[str, Any] = {"rate": rec.rate} if rec.rate is not None else {}
+    # a shallow copy, not a new Recording: the same samples passed its checks already
+    out = copy.copy(rec)
+    out.gyr = np.negative(rec.gyr[::-1])
+    out.acc = np.ascontiguousarray(rec.acc[::-1])
+    out.mag = None if rec.mag is None else np.ascontiguousarray(rec.mag[::-1])
     if rec.t is not None:
         t = rec.t
         tr = np.empty_like(t)
         tr[:-1] = -t[-2::-1]
         tr[-1] = -(t[0] - rec.dt[0])
-        kw["t"] = tr
-    return Recording(gyr=-np.ascontiguousarray(rec.gyr[::-1]), acc=np.ascontiguousarray(rec.acc[::-1]), mag=mag,
-                     name=f"{rec.name} (reversed)" if rec.name else "reversed", body=rec.body, **kw)
+        out.t = tr
+    out.truth = out.movement = out.gnss = None
+    out.meta = {}
+    out.name = f"{rec.name} (reversed)" if rec.name else "reversed"
+    return out
 
 
 def information(flags: np.ndarray, dt: np.ndarray, tau: float, unused: int, start: float = 0.0) -> np.ndarray:
@@ -171,10 +177,13 @@ def _power(q, w):
 @njit
 def _information_kernel(flags, dt, tau, unused, start, out):
     info = start
+    last_dt, a = -1.0, 0.0
     for k in range(flags.shape[0]):
         if flags[k] & 2048:  # GAP
             info = 0.0
-        a = math.exp(-dt[k] / tau)
+        if dt[k] != last_dt:  # once per distinct interval
+            a = math.exp(-dt[k] / tau)
+            last_dt = dt[k]
         info = info * a + ((1.0 - a) if (flags[k] & unused) == 0 else 0.0)
         out[k] = info
 
