@@ -5,7 +5,9 @@ throughput (samples/s, compilation excluded).
 
     python benchmarks/offline_accuracy.py [--data DIR] [--trials 01,06] [--param key=value ...]
 
-``--param`` sets a parameter of the recommended filter in both of its runs (an ablation).
+``--param`` sets a parameter of the recommended filter in both of its runs (an ablation);
+``--equal-weights`` adds a column with the two passes fused half and half (the information
+weights switched off: the ablation of the one design choice the mode adds).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 import fusionkit as fk
 from _common import data_dir, machine
 from fusionkit.benchmarking.metrics import rms_errors
+from fusionkit.offline import OfflineFilter
 
 
 def _value(text: str):
@@ -29,12 +32,27 @@ def _value(text: str):
         return text
 
 
+class _EqualWeights(OfflineFilter):
+    """The offline mode with both passes weighted 1/2 on every sample."""
+
+    def run(self, rec, **kw):
+        import fusionkit.offline as off
+
+        saved = off._weights
+        off._weights = lambda a, b: np.full(a.shape, 0.5)
+        try:
+            return super().run(rec, **kw)
+        finally:
+            off._weights = saved
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", default=str(data_dir() / "broad"))
     ap.add_argument("--trials", default="", help="comma-separated trial prefixes (default: all)")
     ap.add_argument("--param", action="append", default=[], help="key=value for recommended (JSON value)")
     ap.add_argument("--modes", default="9D,6D")
+    ap.add_argument("--equal-weights", action="store_true")
     args = ap.parse_args()
     files = sorted(Path(args.data).glob("*.hdf5"))
     if args.trials:
@@ -52,6 +70,8 @@ def main() -> None:
         runs = {"recommended": fk.make("recommended", **kw),
                 "recommended offline": fk.make("recommended", offline=True, **kw),
                 "vqf-offline": fk.make("vqf-offline", mode="6D" if six else "auto")}
+        if args.equal_weights:
+            runs["offline, equal weights"] = _EqualWeights(fk.make("recommended", **kw))
         key = "inclination" if six else "total"
         err = {n: [] for n in runs}
         secs = {n: 0.0 for n in runs}
@@ -69,11 +89,15 @@ def main() -> None:
         for i, rec in enumerate(recs):
             print(f"| {rec.name} | " + " | ".join(f"{err[n][i]:.2f}" for n in names) + " |")
         print("| **mean** | " + " | ".join(f"**{np.mean(err[n]):.3f}**" for n in names) + " |")
-        gain = np.array(err["recommended"]) - np.array(err["recommended offline"])
-        best = int(np.argmax(gain))
-        rest = [i for i in range(len(recs)) if i != best]
-        print(f"| mean without {recs[best].name} (offline's largest gain, {gain[best]:.2f}) | "
-              + " | ".join(f"{np.mean([err[n][i] for i in rest]):.3f}" for n in names) + " |")
+        pairs = [("recommended", "recommended offline", "offline's")]
+        if args.equal_weights:
+            pairs.append(("offline, equal weights", "recommended offline", "the information weights'"))
+        for base, new, what in pairs:
+            gain = np.array(err[base]) - np.array(err[new])
+            best = int(np.argmax(gain))
+            rest = [i for i in range(len(recs)) if i != best]
+            print(f"| mean without {recs[best].name} ({what} largest gain, {gain[best]:.2f}) | "
+                  + " | ".join(f"{np.mean([err[n][i] for i in rest]):.3f}" for n in names) + " |")
         total = sum(len(r) for r in recs)
         print("| samples/s (end to end) | " + " | ".join(f"{total / secs[n]:,.0f}" for n in names) + " |")
 
