@@ -175,11 +175,12 @@ def test_state_continues_an_earlier_run():
     off = fk.make("recommended", offline=True)
     res = off.run(second, state=state)
     # the forward pass is the online continuation; its final state is handed on
-    np.testing.assert_allclose(res.diagnostics["state"], on.run(second, state=state).diagnostics["state"])
+    online = on.run(second, state=state)  # started in motion, the earlier run hands on a poor bias
+    np.testing.assert_allclose(res.diagnostics["bias"], online.diagnostics["bias"], rtol=0, atol=1e-12)
+    assert type(res.diagnostics["state"]) is type(state)  # an online run can continue from it
     # how far the state had converged is not known: the weights count from this run's start
     np.testing.assert_array_equal(res.diagnostics["backward_weight"]["inclination"],
                                   off.run(second).diagnostics["backward_weight"]["inclination"])
-    online = on.run(second, state=state)  # started in motion, the earlier run hands on a poor bias
     assert rms_errors(res, second)["total"] < 0.7 * rms_errors(online, second)["total"]  # measured 0.55 vs 0.99
 
 
