@@ -56,7 +56,7 @@ import numpy as np
 from ._numba import resolve_backend, njit
 from .config import FilterConfig
 from .conventions import change_frame
-from .errors import InputError, PluginError
+from .errors import ConfigError, InputError, PluginError
 from .protocols import Filter
 from .rotations import quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec
 from .types import Flag, Recording, Result
@@ -98,7 +98,7 @@ def reversed_config(filt: Filter, dt: float) -> FilterConfig:
         if d is None:
             continue
         if not 0.0 <= d <= dt * (1.0 + 1e-9):
-            raise PluginError(f"offline: {key}={d} s is outside [0, dt={dt:.6g} s]: its time-reversed pass "
+            raise ConfigError(f"offline: {key}={d} s is outside [0, dt={dt:.6g} s]: its time-reversed pass "
                               "would pair the sensor with a step the recording does not reverse exactly")
         update[key] = max(dt - d, 0.0)
     return c.model_copy(update=update) if update else c
@@ -256,7 +256,8 @@ class OfflineFilter(Filter):
         run that started in motion hands on a poor bias), so the forward pass's information
         counts from this run's first sample either way. ``diagnostics["state"]`` is the forward pass's final
         state (an online run can continue from it); ``diagnostics["backward_weight"]`` holds the
-        per-sample weights of the backward pass (``inclination``, ``heading``)."""
+        per-sample weights of the backward pass (``inclination``, ``heading``); ``backend`` is the
+        passes', ``fusion_backend`` the fusion's."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         inner = self.inner
@@ -266,17 +267,17 @@ class OfflineFilter(Filter):
             inner = type(inner)(inner.config.model_copy(update={"output_lead": 0.0}))
         fwd = inner.run(rec, backend=backend, progress=progress, state=state)
         n = len(rec)
-        if n < 2:
+        if n < 2:  # nothing after the sample: the forward pass is all there is
+            fwd.diagnostics["offline"] = True
             return fwd
         back = type(inner)(reversed_config(inner, rec.nominal_dt))
         bwd = back.run(reverse_recording(rec), backend=backend, progress=progress)
         dt = rec.dt
         c = self.config
         has_mag = self.dimension(rec) == "9D"
-        start = 0.0
         # information of each pass in its own time order; the backward one's sample j is input
         # sample N-1-j and its output is the orientation at sample N-2-j
-        i_f = self._info(fwd.flags, dt, c.tau_acc, _ACC_UNUSED, start, used)
+        i_f = self._info(fwd.flags, dt, c.tau_acc, _ACC_UNUSED, 0.0, used)
         i_b = self._info(bwd.flags, dt[::-1].copy(), c.tau_acc, _ACC_UNUSED, 0.0, used)
         w_i = np.empty(n)
         w_h = np.zeros(n)
@@ -287,7 +288,7 @@ class OfflineFilter(Filter):
         w_i[-1] = 0.0
         if has_mag:
             tau_mag = getattr(c, "tau_mag", c.tau_acc)
-            h_f = self._info(fwd.flags, dt, tau_mag, _MAG_UNUSED, start, used)
+            h_f = self._info(fwd.flags, dt, tau_mag, _MAG_UNUSED, 0.0, used)
             h_b = self._info(bwd.flags, dt[::-1].copy(), tau_mag, _MAG_UNUSED, 0.0, used)
             w_h[:-1] = _weights(h_f[:-1], h_b[-2::-1])
         frame = fwd.frame
@@ -304,7 +305,7 @@ class OfflineFilter(Filter):
             q = _read_ahead(q, rec.time, lead)
         flags = _fused_flags(fwd.flags, bwd.flags[::-1])
         diag = dict(fwd.diagnostics)
-        diag.update({"filter": self.name, "backend": used, "offline": True, "config": self.config.model_dump(),
+        diag.update({"filter": self.name, "fusion_backend": used, "offline": True, "config": self.config.model_dump(),
                      "backward_weight": {"inclination": w_i, "heading": w_h},
                      "backward_diagnostics": {k: v for k, v in bwd.diagnostics.items() if k != "config"}})
         return Result(q, flags, frame, diag)
