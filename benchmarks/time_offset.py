@@ -2,7 +2,7 @@
 and what re-timing does to ``recommended``, ``gradient-descent`` (6D inclination, 9D total),
 with VQF in the same run.
 
-    python benchmarks/time_offset.py [--data DIR] [--json OUT]
+    python benchmarks/time_offset.py [--data DIR] [--json OUT] [--trials A,B] [--extra]
 
 The model reads only the IMU, so the re-timed recording (``retime_recording``, the kernel) fed
 to a filter is what composing it first in a pipeline's ``models`` does. Offsets are in samples
@@ -35,6 +35,8 @@ FILTERS = {  # name: (filter, params, metric)
     "vqf 9D": ("vqf", {"mode": "9D"}, "total"),
 }
 VARIANTS = {"raw": None, "model": {}, "model acc-clock": {"retime": "acc"}}
+#: ``--extra``: the estimate applied whatever its confidence, and the magnetometer's alone
+EXTRA = {"forced (max_std 1e3)": {"max_std": 1e3}, "mag only, gyro clock (max_std 0.35)": {"retime": "acc", "max_std": 0.35}}
 
 
 def main() -> None:
@@ -42,7 +44,10 @@ def main() -> None:
     ap.add_argument("--data", default=str(data_dir() / "broad"))
     ap.add_argument("--json", default="")
     ap.add_argument("--trials", default="")
+    ap.add_argument("--extra", action="store_true", help="also the variants in EXTRA")
     args = ap.parse_args()
+    if args.extra:
+        VARIANTS.update(EXTRA)
     trials = discover(args.data, args.trials.split(",") if args.trials else None)
     out = []
     for tr in trials:

@@ -10,7 +10,7 @@ import pytest
 import fusionkit as fk
 from fusionkit import sim
 from fusionkit.errors import ConfigError
-from fusionkit.models.time_offset import ACC, CONF, EST, MAG, OFFSET, retime_recording
+from fusionkit.models.time_offset import ACC, CONF, EST, MAG, NSEG, OFFSET, retime_recording
 
 RATE = 200.0
 DEG = np.pi / 180
@@ -203,3 +203,15 @@ def test_config_is_checked():
         fk.make("time-offset", kind="model", retime="mag")
     with pytest.raises(ConfigError, match="offset"):
         fk.make("time-offset", kind="model", offset=1.0)
+
+
+def test_a_magnetometer_at_a_lower_rate_is_timed_by_its_fresh_samples():
+    """A magnetometer at 40 Hz held over five 200 Hz samples: repeated samples neither start nor
+    close a segment, so the fresh ones (on time) give an offset of ~0, not the hold's mean delay
+    of two samples, and fewer segments enter than at the full rate."""
+    rec = sim.simulate(sim.scenarios._tumbling(16, 150.0, 0.8, 0.3), rate=RATE, noise=sim.Noise.mems(), seed=6)
+    held = dataclasses.replace(rec, mag=rec.mag[(np.arange(len(rec)) // 5) * 5])
+    _, full = retime_recording(rec, backend="numba")
+    _, st = retime_recording(held, backend="numba")
+    assert abs(_final(st, MAG)) < 0.05
+    assert st[-1, MAG + NSEG] < 0.9 * full[-1, MAG + NSEG]
