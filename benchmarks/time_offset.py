@@ -85,7 +85,7 @@ def main() -> None:
               f"{row['d_mag']:+.2f} (std {row['d_mag_std']:.3f}, applied {row['d_mag_applied']:+.2f})", flush=True)
         print("   " + "  ".join(f"{k}: {v:.3f}" for k, v in row["errors"].items()), flush=True)
     keys = list(out[0]["errors"])
-    print("\n| filter | variant | mean of %d trials [deg] |" % len(out))
+    print(f"\n| filter | variant | mean of {len(out)} trials [deg] |")
     print("|---|---|---:|")
     for k in keys:
         f, v = k.split(" | ")

@@ -156,7 +156,7 @@ def test_acc_clock_moves_the_accelerometer_not_the_gyro():
     """``retime="acc"``: the gyro passes unchanged and the accelerometer is rotated back by the
     offset (its norm kept); ``"gyro"``: the accelerometer passes unchanged."""
     rec = sim.scenario("late-gyro", delay=1.0 / RATE)
-    out, st = retime_recording(rec, retime="acc", estimate=False, offset=1.0 / RATE)
+    out, _ = retime_recording(rec, retime="acc", estimate=False, offset=1.0 / RATE)
     assert np.array_equal(out.gyr, rec.gyr)
     assert np.allclose(np.linalg.norm(out.acc, axis=1), np.linalg.norm(rec.acc, axis=1))
     moved = np.linalg.norm(out.acc - rec.acc, axis=1)

@@ -38,8 +38,9 @@ is lost (long rests forget the information).
 **Re-timing** (``retime``). ``"gyro"`` (default): the gyroscope is moved forward by ``d``
 (linear extrapolation through its last two samples, ``g + d (g_k - g_{k-1}) / dt``) and the
 magnetometer onto the accelerometer's instant (rotated by the gyro rate over its offset from
-the accelerometer, ``exp(-[w tau]x) m``, ``tau = d_acc - d_mag``): **the output follows the
-accelerometer's clock**. An orientation integrated from the extrapolated rate is the one from
+the accelerometer, ``exp(-[w tau]x) m``, ``tau = d_acc - d_mag``, once both offsets have the same
+standing: both estimated, or both as configured): **the output follows the accelerometer's
+clock**. An orientation integrated from the extrapolated rate is the one from
 the raw rate plus ``d g_k`` (the extrapolation's sum telescopes), so the gyro's extra noise does
 not accumulate. This is the default because a gyro's delay is usually its digital filter's,
 which the truth (and any reference) does not share, while the accelerometer's is usually the
@@ -68,8 +69,8 @@ from ..protocols import Sample, SensorModel, SensorModelKernel
 from ..rotations import quat_from_rotvec, quat_mul, quat_to_matrix, rodrigues
 from ..types import GYR_LIMIT
 
-__all__ = ["TimeOffsetConfig", "TimeOffsetModel", "time_offset_apply", "retime_recording", "STATE", "ACC", "MAG",
-           "OFFSET", "EST", "STD", "CONF", "NSEG"]
+__all__ = ["ACC", "CONF", "EST", "MAG", "NSEG", "OFFSET", "STATE", "STD", "TimeOffsetConfig", "TimeOffsetModel",
+           "retime_recording", "time_offset_apply"]
 
 # state layout: the previous gyro sample, then one block per sensor (accelerometer, magnetometer)
 _PG, _PDT, _PGOK, _PM, _PMOK, _DT0 = 0, 3, 4, 5, 8, 9
