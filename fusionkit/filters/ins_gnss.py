@@ -76,22 +76,27 @@ __all__ = ["InsGnssFilter", "InsGnssConfig", "gnss_epoch_rows"]
 #: RFU -> FRD (the same matrix both ways)
 
 # state layout: nominal state, covariance, accumulators, bookkeeping
-_C, _V, _P, _BG, _BA, _COV = 0, 9, 12, 15, 18, 21
-_SC, _DV, _T = 246, 255, 258  # int C dt (9), int C f dt (3), accumulated time
-_PHASE, _TLAST, _TIME, _KSTART, _K = 259, 260, 261, 262, 263  # 0 aligning, 1 heading search, 2 navigating
-_CAL, _GAL = 264, 273  # alignment attitude FRD -> NED (9), mean gyro at rest, FRD (3)
-_RV, _RP, _TGOOD, _RESTART = 276, 277, 278, 279  # last accepted velocity / position, last usable epoch
-_W = 280  # the last bias-corrected rate (3), for the lever arm
-# the earth model at the last covariance step: gravity, map scale north / east, w_ie (3), w_en (3); the stds
-_GRAV, _S0, _S1, _WIE, _WEN, _SD = 283, 284, 285, 286, 289, 292
-_C0, _HVAR, _LEVEL, _PHI0 = 307, 316, 317, 318  # start attitude (9), its heading variance, re-levelled, tilt fix (3)
-_SIZE = 321
+_N = 16  # error states: phi, dv, dp, db_g, db_a (3 each), the IMU-to-GNSS time offset
+_C, _V, _P, _BG, _BA, _DTS, _COV = 0, 9, 12, 15, 18, 21, 22  # _DTS: the time offset (s)
+_SC = _COV + _N * _N
+_DV, _T = _SC + 9, _SC + 12  # int C dt (9), int C f dt (3), accumulated time
+_PHASE, _TLAST, _TIME, _KSTART, _K = _T + 1, _T + 2, _T + 3, _T + 4, _T + 5  # 0 aligning, 1 heading search, 2 navigating
+_CAL, _GAL = _T + 6, _T + 15  # alignment attitude FRD -> NED (9), mean gyro at rest, FRD (3)
+_RV, _RP, _TGOOD, _RESTART = _T + 18, _T + 19, _T + 20, _T + 21  # last accepted velocity / position, last usable epoch
+_W = _T + 22  # the last bias-corrected rate (3), for the lever arm and the time offset
+# the earth model at the last covariance step: gravity, map scale north / east, w_ie (3), w_en (3); the stds (_N)
+_GRAV, _S0, _S1, _WIE, _WEN, _SD = _W + 3, _W + 4, _W + 5, _W + 6, _W + 9, _W + 12
+_C0 = _SD + _N  # start attitude (9)
+_HVAR, _LEVEL, _PHI0 = _C0 + 9, _C0 + 10, _C0 + 11  # its heading variance, re-levelled, tilt fix (3)
+_ACC = _PHI0 + 3  # the last sample's acceleration, NED (3): the velocity's rate, for the time offset
+_SIZE = _ACC + 3
 
 # parameter vector layout
 (_GN, _AN, _GQ, _AQ, _VH, _VV, _PH, _PV, _GATE, _GTO, _CI, _MINV, _SLIP, _BG0, _BA0, _TILT0, _MAGH, _LAT, _H0,
  _EARTH, _DECL, _MAXAGE, _HMAG, _V0, _P0, _LEV) = range(26)
 _RELEVEL = _LEV + 3  # the lever arm is 3 wide
-_NPAR = _RELEVEL + 1
+_TS0 = _RELEVEL + 1  # the time offset's initial std
+_NPAR = _TS0 + 1
 
 
 class InsGnssConfig(FilterConfig):
@@ -151,6 +156,10 @@ class InsGnssConfig(FilterConfig):
         0.1, unit="-", description="once the horizontal accelerometer bias std is below this fraction of its initial "
         "value, level the alignment attitude with the bias estimate and run again from the alignment's end (run() also "
         "re-levels the alignment span's output); None: never (strictly causal output)", gt=0, lt=1)
+    time_offset_std: float | None = param(
+        0.05, unit="s", description="initial std of the IMU-to-GNSS time offset, estimated as a state (the IMU's "
+        "time stamps against the receiver's: sampling conventions, buffering, an unsynchronised clock); None: not "
+        "estimated (taken as 0, the 15-state filter)", gt=0)
     gnss_max_age: float = param(0.5, unit="s", description="an epoch older than this is a gap (GNSS_GAP)", gt=0)
     alignment: Literal["motion", "fixed"] = param("motion", unit="-", description="source 000 alignment mode")
     alignment_duration: float = param(10.0, unit="s", description="mandatory alignment time", gt=0)
@@ -274,6 +283,7 @@ class InsGnssFilter(Filter):
         p[_HMAG] = float(self._use_mag(rec))
         p[_V0], p[_P0] = c.initial_velocity_std, c.initial_position_std
         p[_RELEVEL] = c.relevel * c.initial_acc_bias_std if c.relevel is not None else -1.0
+        p[_TS0] = 0.0 if c.time_offset_std is None else c.time_offset_std
         return p
 
     def new_state(self, dt: float, rec: Recording | None = None) -> dict[str, Any]:
@@ -341,6 +351,7 @@ class InsGnssFilter(Filter):
         x[_DV:_DV + 3] += dv
         x[_T] += dt
         x[_W:_W + 3] = w
+        x[_ACC:_ACC + 3] = (v_new - v) / dt
         # 2. and 3. covariance at the epochs (and every cov_interval), GNSS updates
         new = gn[0] != 0.0 and gn[1] > x[_TLAST] and 0.0 <= t - gn[1] <= p[_MAXAGE] and np.isfinite(gn[2:8]).any()
         if new or x[_T] >= p[_CI]:
@@ -359,7 +370,7 @@ class InsGnssFilter(Filter):
         phi = a @ x[_BA:_BA + 3]
         x[_LEVEL] = 1.0
         x[_PHI0:_PHI0 + 3] = phi
-        self._start(x, rodrigues(phi) @ c0, x[_HVAR], p, t, x[_BA:_BA + 3].copy())
+        self._start(x, rodrigues(phi) @ c0, x[_HVAR], p, t, x[_BA:_BA + 3].copy(), x[_DTS])
         x[_RESTART] = 1.0
 
     def _geo(self, x, p):
@@ -383,7 +394,7 @@ class InsGnssFilter(Filter):
         x[_S1] = (rn0 + p[_H0]) * math.cos(p[_LAT]) / ((rn + h) * math.cos(lat))
         x[_WIE:_WIE + 3] = e * math.cos(lat), 0.0, -e * math.sin(lat)
         x[_WEN:_WEN + 3] = v[1] / (rn + h), -v[0] / (rm + h), -v[1] * math.tan(lat) / (rn + h)
-        x[_SD:_SD + 15] = np.sqrt(np.maximum(np.diag(x[_COV:_COV + 225].reshape(15, 15)), 0.0))
+        x[_SD:_SD + _N] = np.sqrt(np.maximum(np.diag(x[_COV:_COV + _N * _N].reshape(_N, _N)), 0.0))
 
     def _aligned(self, x, c_align, al, k_start, p) -> None:
         """The alignment ended: keep its attitude (FRD -> NED, with the declination when the
@@ -400,9 +411,9 @@ class InsGnssFilter(Filter):
             x[_BG:_BG + 3] = x[_GAL:_GAL + 3]
             x[_PHASE] = 1.0
 
-    def _start(self, x, c0, heading_var, p, t, ba0=None) -> None:
+    def _start(self, x, c0, heading_var, p, t, ba0=None, dts0=0.0) -> None:
         """Start navigating from attitude ``c0`` (FRD -> NED) at rest (see the module docs),
-        with the accelerometer bias ``ba0`` (default 0)."""
+        with the accelerometer bias ``ba0`` (default 0) and the time offset ``dts0``."""
         x[_C:_C + 9] = c0.reshape(9)
         x[_C0:_C0 + 9] = c0.reshape(9)
         x[_HVAR] = heading_var
@@ -412,9 +423,11 @@ class InsGnssFilter(Filter):
         w_ie = p[_EARTH] * EARTH_RATE * np.array([math.cos(lat), 0.0, -math.sin(lat)])
         x[_BG:_BG + 3] = x[_GAL:_GAL + 3] - c0.T @ w_ie
         x[_BA:_BA + 3] = 0.0 if ba0 is None else ba0
+        x[_DTS] = dts0
+        x[_ACC:_ACC + 3] = 0.0
         g = normal_gravity(lat, h)
         a = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]) @ c0 / g
-        pm = np.zeros((15, 15))
+        pm = np.zeros((_N, _N))
         sa = p[_BA0] ** 2
         pm[0:3, 0:3] = sa * a @ a.T + np.diag([p[_TILT0] ** 2, p[_TILT0] ** 2, heading_var])
         pm[0:3, 12:15] = sa * a
@@ -423,7 +436,8 @@ class InsGnssFilter(Filter):
         pm[6:9, 6:9] = p[_P0] ** 2 * np.eye(3)
         pm[9:12, 9:12] = p[_BG0] ** 2 * np.eye(3)
         pm[12:15, 12:15] = sa * np.eye(3)
-        x[_COV:_COV + 225] = pm.reshape(225)
+        pm[15, 15] = p[_TS0] ** 2
+        x[_COV:_COV + _N * _N] = pm.reshape(_N * _N)
         x[_SC:_T + 1] = 0.0
         x[_TLAST] = x[_TGOOD] = -np.inf
         x[_RV] = x[_RP] = t
@@ -438,7 +452,7 @@ class InsGnssFilter(Filter):
         w_ie, w_en = x[_WIE:_WIE + 3], x[_WEN:_WEN + 3]
         sc = x[_SC:_SC + 9].reshape(3, 3)
         sdv = skew(x[_DV:_DV + 3])
-        f = np.eye(15)
+        f = np.eye(_N)
         f[0:3, 0:3] -= skew(w_ie + w_en) * tt
         f[0:3, 9:12] = -sc
         f[3:6, 0:3] = -sdv
@@ -447,7 +461,7 @@ class InsGnssFilter(Filter):
         f[6:9, 0:3] = -0.5 * tt * sdv
         f[6:9, 3:6] = tt * np.eye(3)
         f[6:9, 12:15] = -0.5 * tt * sc
-        pm = x[_COV:_COV + 225].reshape(15, 15)
+        pm = x[_COV:_COV + _N * _N].reshape(_N, _N)
         pm = f @ pm @ f.T
         qa = p[_AN] ** 2
         for i in range(3):
@@ -458,7 +472,7 @@ class InsGnssFilter(Filter):
             pm[6 + i, 3 + i] += qa * tt ** 2 / 2.0
             pm[9 + i, 9 + i] += p[_GQ] ** 2 * tt
             pm[12 + i, 12 + i] += p[_AQ] ** 2 * tt
-        x[_COV:_COV + 225] = (0.5 * (pm + pm.T)).reshape(225)
+        x[_COV:_COV + _N * _N] = (0.5 * (pm + pm.T)).reshape(_N * _N)
         x[_SC:_T + 1] = 0.0
         self._refresh(x, p)
 
@@ -466,27 +480,30 @@ class InsGnssFilter(Filter):
         """The GNSS velocity and position updates of one epoch; returns flags."""
         flags = 0
         age = t - gn[1]
+        lag = age + x[_DTS]  # the INS state is this far ahead of the epoch
         x[_TLAST] = gn[1]
         c = x[_C:_C + 9].reshape(3, 3)
         lev = p[_LEV:_LEV + 3]
-        pm = x[_COV:_COV + 225].reshape(15, 15).copy()
-        dx = np.zeros(15)
+        pm = x[_COV:_COV + _N * _N].reshape(_N, _N).copy()
+        dx = np.zeros(_N)
         cl = c @ lev
         cwl = c @ np.cross(x[_W:_W + 3], lev)
         for kind, z in ((0, gn[2:5]), (1, gn[5:8])):
             if not np.isfinite(z).all():
                 continue
-            hm = np.zeros((3, 15))
+            hm = np.zeros((3, _N))
             if kind == 0:
-                y = z - (x[_V:_V + 3] + cwl)
+                y = z - (x[_V:_V + 3] + cwl - x[_ACC:_ACC + 3] * lag)
                 hm[:, 3:6] = np.eye(3)
+                hm[:, 15] = -x[_ACC:_ACC + 3]
                 hm[:, 0:3] = -skew(cwl)
                 hm[:, 9:12] = c @ skew(lev)
                 r = np.array([p[_VH], p[_VH], p[_VV]]) ** 2
                 blk, last = 3, _RV
             else:
-                y = z - (x[_P:_P + 3] + cl - x[_V:_V + 3] * age)
+                y = z - (x[_P:_P + 3] + cl - x[_V:_V + 3] * lag)
                 hm[:, 6:9] = np.eye(3)
+                hm[:, 15] = -x[_V:_V + 3]
                 hm[:, 0:3] = -skew(cl)
                 r = np.array([p[_PH], p[_PH], p[_PV]]) ** 2
                 blk, last = 6, _RP
@@ -520,20 +537,28 @@ class InsGnssFilter(Filter):
         x[_P:_P + 3] += dx[6:9]
         x[_BG:_BG + 3] += dx[9:12]
         x[_BA:_BA + 3] += dx[12:15]
-        x[_COV:_COV + 225] = (0.5 * (pm + pm.T)).reshape(225)
-        x[_SD:_SD + 15] = np.sqrt(np.maximum(np.diag(x[_COV:_COV + 225].reshape(15, 15)), 0.0))
+        x[_DTS] += dx[15]
+        x[_COV:_COV + _N * _N] = (0.5 * (pm + pm.T)).reshape(_N * _N)
+        x[_SD:_SD + _N] = np.sqrt(np.maximum(np.diag(x[_COV:_COV + _N * _N].reshape(_N, _N)), 0.0))
         return flags
 
     def _output(self, x) -> np.ndarray:
-        return matrix_to_quat(self.F @ x[_C:_C + 9].reshape(3, 3) @ self.M)
+        """The attitude at the sample's time on the GNSS clock: the INS is ``x[_DTS]`` ahead."""
+        c = x[_C:_C + 9].reshape(3, 3)
+        if x[_DTS] != 0.0:
+            c = c @ rodrigues(-x[_W:_W + 3] * x[_DTS])
+        return matrix_to_quat(self.F @ c @ self.M)
 
     def _extras(self, x) -> np.ndarray:
-        """The per-sample outputs (27): velocity, position, biases (output axes) and their stds."""
+        """The per-sample outputs (29): velocity, position (at the sample's time on the GNSS
+        clock), biases (output axes), their stds, the time offset and its std."""
         f, mt = self.F, self.M.T
-        d = x[_SD:_SD + 15] if x[_PHASE] == 2.0 else np.full(15, np.nan)
+        d = x[_SD:_SD + _N] if x[_PHASE] == 2.0 else np.full(_N, np.nan)
         af, am = np.abs(f), np.abs(mt)
-        return np.concatenate([f @ x[_V:_V + 3], f @ x[_P:_P + 3], mt @ x[_BG:_BG + 3], mt @ x[_BA:_BA + 3],
-                               af @ d[0:3], af @ d[3:6], af @ d[6:9], am @ d[9:12], am @ d[12:15]])
+        dts = x[_DTS]
+        v, pos = x[_V:_V + 3] - x[_ACC:_ACC + 3] * dts, x[_P:_P + 3] - x[_V:_V + 3] * dts
+        return np.concatenate([f @ v, f @ pos, mt @ x[_BG:_BG + 3], mt @ x[_BA:_BA + 3],
+                               af @ d[0:3], af @ d[3:6], af @ d[6:9], am @ d[9:12], am @ d[12:15], [dts, d[15]]])
 
     # -- public ----------------------------------------------------------------------------------
     def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None) -> Result:
@@ -554,7 +579,7 @@ class InsGnssFilter(Filter):
         dt, t = rec.dt, rec.time
         q = np.empty((n, 4))
         flags = np.zeros(n, np.uint32)
-        ext = np.empty((n, 27))
+        ext = np.empty((n, 29))
         k0 = st["x"][_K]
         if used == "numba":
             _ins_loop(rec.gyr, rec.acc, mag, dt, t, gn, st["use_mag"], self.M, self.F, st["p"], st["x"], st["det"],
@@ -581,9 +606,10 @@ class InsGnssFilter(Filter):
         names = ("velocity", "position", "gyr_bias", "acc_bias", "attitude_std", "velocity_std", "position_std",
                  "gyr_bias_std", "acc_bias_std")
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "state": st,
-                "P": x[_COV:_COV + 225].reshape(15, 15).copy(),
+                "P": x[_COV:_COV + _N * _N].reshape(_N, _N).copy(),
                 "alignment_end_index": None if st["align"][17] < 0 else int(st["align"][17]),
                 "relevel_tilt": x[_PHI0:_PHI0 + 3].copy() if x[_LEVEL] == 1.0 else None,
+                "time_offset": ext[:, 27].copy(), "time_offset_std": ext[:, 28].copy(),
                 **{nm: ext[:, 3 * i:3 * i + 3] for i, nm in enumerate(names)}}
         return Result(q, flags, self.config.frame, diag)
 
@@ -676,12 +702,12 @@ def _k_refresh(x, p):
     x[_WIE], x[_WIE + 1], x[_WIE + 2] = e * math.cos(lat), 0.0, -e * math.sin(lat)
     v0, v1 = x[_V], x[_V + 1]
     x[_WEN], x[_WEN + 1], x[_WEN + 2] = v1 / (rn + h), -v0 / (rm + h), -v1 * math.tan(lat) / (rn + h)
-    for i in range(15):
-        x[_SD + i] = math.sqrt(max(x[_COV + 16 * i], 0.0))
+    for i in range(_N):
+        x[_SD + i] = math.sqrt(max(x[_COV + (_N + 1) * i], 0.0))
 
 
 @njit
-def _k_start(x, c0, heading_var, p, t, ba0):
+def _k_start(x, c0, heading_var, p, t, ba0, dts0):
     for i in range(9):
         x[_C + i] = c0[i]
         x[_C0 + i] = c0[i]
@@ -694,12 +720,14 @@ def _k_start(x, c0, heading_var, p, t, ba0):
         x[_P + i] = 0.0
         x[_BG + i] = x[_GAL + i] - (c0[i] * wie[0] + c0[3 + i] * wie[1] + c0[6 + i] * wie[2])
         x[_BA + i] = ba0[i]
+        x[_ACC + i] = 0.0
+    x[_DTS] = dts0
     g = normal_gravity(lat, h)
     a = np.zeros((3, 3))
     for j in range(3):  # rows N, E of J C0 / g: phi_N = (C b)_E / g, phi_E = -(C b)_N / g
         a[0, j] = c0[3 + j] / g
         a[1, j] = -c0[j] / g
-    pm = x[_COV:_COV + 225].reshape((15, 15))
+    pm = x[_COV:_COV + _N * _N].reshape((_N, _N))
     pm[:, :] = 0.0
     sa = p[_BA0] ** 2
     for i in range(3):
@@ -718,6 +746,7 @@ def _k_start(x, c0, heading_var, p, t, ba0):
         pm[6 + i, 6 + i] = p[_P0] ** 2
         pm[9 + i, 9 + i] = p[_BG0] ** 2
         pm[12 + i, 12 + i] = sa
+    pm[15, 15] = p[_TS0] ** 2
     for i in range(_SC, _T + 1):
         x[i] = 0.0
     x[_TLAST] = -np.inf
@@ -742,7 +771,7 @@ def _k_relevel(x, p, t, c0, r9):
         for j in range(3):
             c0[3 * i + j] = r9[3 * i] * x[_C0 + j] + r9[3 * i + 1] * x[_C0 + 3 + j] + r9[3 * i + 2] * x[_C0 + 6 + j]
     ba = x[_BA:_BA + 3].copy()
-    _k_start(x, c0, x[_HVAR], p, t, ba)
+    _k_start(x, c0, x[_HVAR], p, t, ba, x[_DTS])
     x[_RESTART] = 1.0
 
 
@@ -765,24 +794,24 @@ def _k_propagate(x, p, fm, tmp, fmt):
             fm[i, 9 + j] = -s
             fm[3 + i, 12 + j] = -s
             fm[6 + i, 12 + j] = -0.5 * tt * s
-    pm = x[_COV:_COV + 225].reshape((15, 15))
-    for i in range(15):  # F P = P + E P
-        for j in range(15):
+    pm = x[_COV:_COV + _N * _N].reshape((_N, _N))
+    for i in range(_N):  # F P = P + E P
+        for j in range(_N):
             tmp[i, j] = pm[i, j]
     for i in range(9):
-        for k in range(15):
+        for k in range(_N):
             e = fm[i, k]
             if e != 0.0:
-                for j in range(15):
+                for j in range(_N):
                     tmp[i, j] += e * pm[k, j]
-    for i in range(15):  # (F P) F^T = F P + (F P) E^T
-        for j in range(15):
+    for i in range(_N):  # (F P) F^T = F P + (F P) E^T
+        for j in range(_N):
             pm[i, j] = tmp[i, j]
     for j in range(9):
-        for k in range(15):
+        for k in range(_N):
             e = fm[j, k]
             if e != 0.0:
-                for i in range(15):
+                for i in range(_N):
                     pm[i, j] += tmp[i, k] * e
     qa = p[_AN] ** 2
     for i in range(3):
@@ -793,8 +822,8 @@ def _k_propagate(x, p, fm, tmp, fmt):
         pm[6 + i, 3 + i] += qa * tt ** 2 / 2.0
         pm[9 + i, 9 + i] += p[_GQ] ** 2 * tt
         pm[12 + i, 12 + i] += p[_AQ] ** 2 * tt
-    for i in range(15):
-        for j in range(i + 1, 15):
+    for i in range(_N):
+        for j in range(i + 1, _N):
             a = 0.5 * (pm[i, j] + pm[j, i])
             pm[i, j] = a
             pm[j, i] = a
@@ -807,6 +836,7 @@ def _k_propagate(x, p, fm, tmp, fmt):
 def _k_update(x, p, gn, t, hm, dx, hp, r9):
     flags = 0
     age = t - gn[1]
+    lag = age + x[_DTS]
     x[_TLAST] = gn[1]
     c = x[_C:_C + 9]
     l0, l1, l2 = p[_LEV], p[_LEV + 1], p[_LEV + 2]
@@ -817,13 +847,13 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
     for i in range(3):
         cl[i] = c[3 * i] * l0 + c[3 * i + 1] * l1 + c[3 * i + 2] * l2
         cwl[i] = c[3 * i] * cr0 + c[3 * i + 1] * cr1 + c[3 * i + 2] * cr2
-    pm = x[_COV:_COV + 225].reshape((15, 15))
+    pm = x[_COV:_COV + _N * _N].reshape((_N, _N))
     dx[:] = 0.0
     y = np.empty(3)
     yg = np.empty(3)
     r = np.empty(3)
     s = np.empty((3, 3))
-    nz = np.empty((3, 15), np.int64)
+    nz = np.empty((3, _N), np.int64)
     nnz = np.zeros(3, np.int64)
     for kind in range(2):
         o = 2 + 3 * kind
@@ -832,8 +862,9 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
         hm[:, :] = 0.0
         if kind == 0:
             for i in range(3):
-                y[i] = gn[o + i] - (x[_V + i] + cwl[i])
+                y[i] = gn[o + i] - (x[_V + i] + cwl[i] - x[_ACC + i] * lag)
                 hm[i, 3 + i] = 1.0
+                hm[i, 15] = -x[_ACC + i]
             _k_skew_into(hm, 0, 0, cwl[0], cwl[1], cwl[2], -1.0)
             for i in range(3):  # C [l x]
                 hm[i, 9] = c[3 * i + 1] * l2 - c[3 * i + 2] * l1
@@ -843,14 +874,15 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
             blk, last = 3, _RV
         else:
             for i in range(3):
-                y[i] = gn[o + i] - (x[_P + i] + cl[i] - x[_V + i] * age)
+                y[i] = gn[o + i] - (x[_P + i] + cl[i] - x[_V + i] * lag)
                 hm[i, 6 + i] = 1.0
+                hm[i, 15] = -x[_V + i]
             _k_skew_into(hm, 0, 0, cl[0], cl[1], cl[2], -1.0)
             r[0], r[1], r[2] = p[_PH] ** 2, p[_PH] ** 2, p[_PV] ** 2
             blk, last = 6, _RP
         for i in range(3):  # the non-zero columns of H's rows (H is sparse: 1 to 7 of 15)
             nnz[i] = 0
-            for j in range(15):
+            for j in range(_N):
                 if hm[i, j] != 0.0:
                     nz[i, nnz[i]] = j
                     nnz[i] += 1
@@ -860,7 +892,7 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
                 acc += hm[i, nz[i, jj]] * dx[nz[i, jj]]
             yg[i] = y[i] - acc
         for i in range(3):  # S = H P H^T + R
-            for j in range(15):
+            for j in range(_N):
                 acc = 0.0
                 for kk in range(nnz[i]):
                     acc += hm[i, nz[i, kk]] * pm[nz[i, kk], j]
@@ -891,7 +923,7 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
             for i in range(3):
                 hdx = 0.0
                 si = r[i]
-                for j in range(15):
+                for j in range(_N):
                     acc = 0.0
                     for kk in range(nnz[i]):
                         acc += hm[i, nz[i, kk]] * pm[nz[i, kk], j]
@@ -900,12 +932,12 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
                     si += hp[0, nz[i, kk]] * hm[i, nz[i, kk]]
                     hdx += hm[i, nz[i, kk]] * dx[nz[i, kk]]
                 innov = y[i] - hdx
-                for j in range(15):
+                for j in range(_N):
                     hp[1, j] = hp[0, j] / si  # the gain
                     dx[j] += hp[1, j] * innov
-                for j in range(15):  # symmetric: the upper triangle, mirrored (the same products)
+                for j in range(_N):  # symmetric: the upper triangle, mirrored (the same products)
                     kj = hp[1, j]
-                    for k in range(j, 15):
+                    for k in range(j, _N):
                         pm[j, k] -= kj * hp[1, k] * si
                         pm[k, j] = pm[j, k]
             x[last] = t
@@ -916,7 +948,7 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
                 else:
                     x[_P + i] += yg[i]
                 dx[blk + i] = 0.0
-                for j in range(15):
+                for j in range(_N):
                     pm[blk + i, j] = 0.0
                     pm[j, blk + i] = 0.0
             for i in range(3):
@@ -935,19 +967,25 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
         x[_P + i] += dx[6 + i]
         x[_BG + i] += dx[9 + i]
         x[_BA + i] += dx[12 + i]
-    for i in range(15):
-        for j in range(i + 1, 15):
+    x[_DTS] += dx[15]
+    for i in range(_N):
+        for j in range(i + 1, _N):
             a = 0.5 * (pm[i, j] + pm[j, i])
             pm[i, j] = a
             pm[j, i] = a
-    for i in range(15):
-        x[_SD + i] = math.sqrt(max(x[_COV + 16 * i], 0.0))
+    for i in range(_N):
+        x[_SD + i] = math.sqrt(max(x[_COV + (_N + 1) * i], 0.0))
     return flags
 
 
 @njit
-def _k_output(x, m, fo, t9, u9, q):
+def _k_output(x, m, fo, t9, u9, q, r9, c9):
     c = x[_C:_C + 9]
+    dts = x[_DTS]
+    if dts != 0.0:  # the attitude at the sample's time on the GNSS clock
+        rodrigues_into(-x[_W] * dts, -x[_W + 1] * dts, -x[_W + 2] * dts, r9)
+        matmul3_into(c, r9, c9)
+        c = c9
     for i in range(3):
         for j in range(3):
             u9[3 * i + j] = fo[i, 0] * c[j] + fo[i, 1] * c[3 + j] + fo[i, 2] * c[6 + j]
@@ -964,8 +1002,8 @@ def _k_extras(x, m, fo, e):
         for blk in range(9):
             e[3 * blk + i] = 0.0
         for j in range(3):
-            e[i] += fo[i, j] * x[_V + j]
-            e[3 + i] += fo[i, j] * x[_P + j]
+            e[i] += fo[i, j] * (x[_V + j] - x[_ACC + j] * x[_DTS])
+            e[3 + i] += fo[i, j] * (x[_P + j] - x[_V + j] * x[_DTS])
             e[6 + i] += m[j, i] * x[_BG + j]
             e[9 + i] += m[j, i] * x[_BA + j]
             for blk in range(3):
@@ -974,6 +1012,8 @@ def _k_extras(x, m, fo, e):
             for blk in range(3, 5):
                 d = math.nan if nan else x[_SD + 3 * blk + j]
                 e[12 + 3 * blk + i] += abs(m[j, i]) * d
+    e[27] = x[_DTS]
+    e[28] = math.nan if nan else x[_SD + 15]
 
 
 @njit(cache=True)
@@ -985,12 +1025,12 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
     r1 = np.empty(9)
     r2 = np.empty(9)
     c0 = np.empty(9)
-    fm = np.empty((15, 15))
-    tmp = np.empty((15, 15))
-    fmt = np.empty((15, 15))
-    hm = np.empty((3, 15))
-    hp = np.empty((3, 15))
-    dxv = np.empty(15)
+    fm = np.empty((_N, _N))
+    tmp = np.empty((_N, _N))
+    fmt = np.empty((_N, _N))
+    hm = np.empty((3, _N))
+    hp = np.empty((3, _N))
+    dxv = np.empty(_N)
     wie = np.empty(3)
     wen = np.empty(3)
     w = np.empty(3)
@@ -1043,7 +1083,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                                    if al[NGYR] > 0 else 0.0)
                 x[_KSTART] = kk + (1.0 if status == ALIGNED_NOW else 0.0)
                 if p[_HMAG] != 0.0:
-                    _k_start(x, u9, p[_MAGH] ** 2, p, x[_TIME], zero3)
+                    _k_start(x, u9, p[_MAGH] ** 2, p, x[_TIME], zero3, 0.0)
                 else:
                     for i in range(9):
                         x[_C + i] = u9[i]
@@ -1095,7 +1135,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                                 c0[j] = ca * x[_CAL + j] - sa * x[_CAL + 3 + j]
                                 c0[3 + j] = sa * x[_CAL + j] + ca * x[_CAL + 3 + j]
                                 c0[6 + j] = x[_CAL + 6 + j]
-                            _k_start(x, c0, (p[_VH] / speed) ** 2 + p[_SLIP] ** 2, p, tk, zero3)
+                            _k_start(x, c0, (p[_VH] / speed) ** 2 + p[_SLIP] ** 2, p, tk, zero3, 0.0)
                             x[_RESTART] = 1.0
                     flags |= 1
                 else:
@@ -1122,6 +1162,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                     x[_P] += x[_S0] * (0.5 * (v0 + n0) * h)
                     x[_P + 1] += x[_S1] * (0.5 * (v1 + n1) * h)
                     x[_P + 2] += 1.0 * (0.5 * (v2 + n2) * h)
+                    x[_ACC], x[_ACC + 1], x[_ACC + 2] = (n0 - v0) / h, (n1 - v1) / h, (n2 - v2) / h
                     x[_V], x[_V + 1], x[_V + 2] = n0, n1, n2
                     for i in range(9):
                         c[i] = u9[i]
@@ -1140,7 +1181,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                         flags |= _k_update(x, p, gn[k], tk, hm, dxv, hp, r1)
                         if x[_LEVEL] == 0.0 and max(x[_SD + 12], x[_SD + 13]) < p[_RELEVEL]:
                             _k_relevel(x, p, tk, c0, r1)
-            _k_output(x, m, fo, t9, u9, q)
+            _k_output(x, m, fo, t9, u9, q, r1, r2)
         out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
         out_f[k] = flags
         _k_extras(x, m, fo, out_e[k])
