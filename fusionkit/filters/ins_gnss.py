@@ -292,7 +292,7 @@ class InsGnssFilter(Filter):
         x[_TLAST] = x[_TGOOD] = -np.inf
         x[_TIME] = np.nan
         use_mag = self._use_mag(rec)
-        return {"dt": dt, "x": x, "det": self.detector.initial_state(dt), "use_mag": use_mag,
+        return {"filter": self.name, "dt": dt, "x": x, "det": self.detector.initial_state(dt), "use_mag": use_mag,
                 "align": self.aligner(dt, use_mag).new_state(), "p": self.params(rec)}
 
     # -- the readable reference ----------------------------------------------------------------
@@ -354,7 +354,7 @@ class InsGnssFilter(Filter):
         x[_ACC:_ACC + 3] = (v_new - v) / dt
         # 2. and 3. covariance at the epochs (and every cov_interval), GNSS updates
         new = gn[0] != 0.0 and gn[1] > x[_TLAST] and 0.0 <= t - gn[1] <= p[_MAXAGE] and np.isfinite(gn[2:8]).any()
-        if new or x[_T] >= p[_CI]:
+        if new or x[_T] >= p[_CI] * (1.0 - 1e-9):  # (a sum of dt a rounding short of it counts)
             self._propagate(x, p)
         if new:
             flags |= self._update(x, p, gn, t)
@@ -561,9 +561,14 @@ class InsGnssFilter(Filter):
                                af @ d[0:3], af @ d[3:6], af @ d[6:9], am @ d[9:12], am @ d[12:15], [dts, d[15]]])
 
     # -- public ----------------------------------------------------------------------------------
-    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None) -> Result:
-        """Process ``rec`` from its start (a run cannot go on from an earlier one's state: its
-        re-runs go back to the end of the alignment; stream with :meth:`update` instead)."""
+    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
+            state: dict | None = None) -> Result:
+        """Process ``rec``; with ``state`` (``diagnostics["state"]`` of the run over the samples
+        before it, e.g. ``rec.slice``) go on from there: the chunks give the samples one run
+        gives. A re-run (course heading, re-levelling) that goes back into an earlier chunk goes
+        over the samples the state keeps (from the alignment's end until the re-levelling) and
+        updates the state and this chunk's output; the earlier chunks' returned outputs stay as
+        they were (as with :meth:`update`)."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         if rec.gnss is None:
@@ -574,23 +579,38 @@ class InsGnssFilter(Filter):
         used = resolve_backend(backend, True)
         n = len(rec)
         gn = gnss_epoch_rows(rec)
-        st = self.new_state(rec.nominal_dt, rec)
-        mag = rec.mag if (st["use_mag"] and rec.mag is not None) else np.zeros((n, 3))
         dt, t = rec.dt, rec.time
-        q = np.empty((n, 4))
-        flags = np.zeros(n, np.uint32)
-        ext = np.empty((n, 29))
-        k0 = st["x"][_K]
+        if state is None:
+            st = self.new_state(rec.nominal_dt, rec)
+        else:
+            st = self._continued(state, rec)
+            t_last = st["x"][_TIME]
+            if np.isfinite(t_last):
+                old = (gn[:, 0] != 0.0) & (gn[:, 1] <= t_last)  # the epoch current at the slice's start: used
+                gn[old, 0] = 0.0
+                gn[old, 1:] = np.nan
+                if n and t[0] > t_last:
+                    dt = dt.copy()
+                    dt[0] = t[0] - t_last
+        mag = rec.mag if (st["use_mag"] and rec.mag is not None) else np.zeros((n, 3))
+        gyr, acc = rec.gyr, rec.acc
+        kept = st.pop("kept", None)  # the samples a re-run may go back to (an earlier chunk's)
+        nk = 0 if kept is None else kept[0].shape[0]
+        if nk:
+            gyr, acc, mag, dt, t, gn = (np.concatenate([a, b]) for a, b in zip(kept, (gyr, acc, mag, dt, t, gn)))
+        q = np.empty((nk + n, 4))
+        flags = np.zeros(nk + n, np.uint32)
+        ext = np.empty((nk + n, 29))
+        k0 = st["x"][_K] - nk  # the sample number of the arrays' first row
         if used == "numba":
-            _ins_loop(rec.gyr, rec.acc, mag, dt, t, gn, st["use_mag"], self.M, self.F, st["p"], st["x"], st["det"],
+            _ins_loop(gyr, acc, mag, dt, t, gn, st["use_mag"], self.M, self.F, st["p"], st["x"], st["det"],
                       self.detector.kernel().params, st["align"], self.aligner(st["dt"], st["use_mag"]).params(),
-                      q, flags, ext)
+                      q, flags, ext, nk)
         else:
             x = st["x"]
-            k = 0
-            while k < n:
-                q[k], flags[k] = self._step(st, rec.gyr[k], rec.acc[k], mag[k] if st["use_mag"] else None, dt[k],
-                                            t[k], gn[k])
+            k = nk
+            while k < nk + n:
+                q[k], flags[k] = self._step(st, gyr[k], acc[k], mag[k] if st["use_mag"] else None, dt[k], t[k], gn[k])
                 ext[k] = self._extras(x)
                 if x[_RESTART]:
                     x[_RESTART] = 0.0
@@ -600,9 +620,13 @@ class InsGnssFilter(Filter):
                 k += 1
         x = st["x"]
         if x[_PHASE] == 2.0:  # the alignment span turned like its end: the course heading and the re-levelling
-            end = min(n, max(0, int(x[_KSTART] - k0)))
+            end = min(nk + n, max(0, int(x[_KSTART] - k0)))
             turn = x[_C0:_C0 + 9].reshape(3, 3) @ x[_CAL:_CAL + 9].reshape(3, 3).T
             q[:end] = quat_mul(matrix_to_quat(self.F @ turn @ self.F.T), q[:end])
+        if x[_PHASE] == 1.0 or (x[_PHASE] == 2.0 and x[_LEVEL] == 0.0 and st["p"][_RELEVEL] > 0.0):
+            s0 = max(0, int(x[_KSTART] - k0))  # a re-run may still come: keep the samples from its start
+            st["kept"] = tuple(a[s0:].copy() for a in (gyr, acc, mag, dt, t, gn))
+        q, flags, ext = q[nk:], flags[nk:], ext[nk:]
         names = ("velocity", "position", "gyr_bias", "acc_bias", "attitude_std", "velocity_std", "position_std",
                  "gyr_bias_std", "acc_bias_std")
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "state": st,
@@ -612,6 +636,17 @@ class InsGnssFilter(Filter):
                 "time_offset": ext[:, 27].copy(), "time_offset_std": ext[:, 28].copy(),
                 **{nm: ext[:, 3 * i:3 * i + 3] for i, nm in enumerate(names)}}
         return Result(q, flags, self.config.frame, diag)
+
+    def _continued(self, state, rec: Recording) -> dict:
+        """A copy of an earlier run's state, checked against this filter and ``rec``."""
+        if not (isinstance(state, dict) and isinstance(state.get("x"), np.ndarray) and state["x"].shape == (_SIZE,)
+                and state.get("filter") == self.name):
+            raise InputError(f"state must be the diagnostics['state'] of an earlier {self.name} run")
+        if not math.isclose(state["dt"], rec.nominal_dt, rel_tol=1e-6):
+            raise InputError(f"state is of a {1.0 / state['dt']:g} Hz run, rec is {1.0 / rec.nominal_dt:g} Hz")
+        if bool(state["use_mag"]) != self._use_mag(rec):
+            raise InputError("state was run with a magnetometer heading and rec is not (or the other way round)")
+        return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in state.items()}
 
     def reset(self) -> None:
         self._stream = None
@@ -1017,8 +1052,9 @@ def _k_extras(x, m, fo, e):
 
 
 @njit(cache=True)
-def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, out_q, out_f, out_e):
-    """The compiled twin of InsGnssFilter.run's reference loop (the same arithmetic)."""
+def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, out_q, out_f, out_e, k_first):
+    """The compiled twin of InsGnssFilter.run's reference loop (the same arithmetic), from row
+    ``k_first`` (the rows before it: kept samples a re-run may go back to)."""
     q = np.empty(4)
     t9 = np.empty(9)
     u9 = np.empty(9)
@@ -1037,8 +1073,8 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
     f = np.empty(3)
     zero3 = np.zeros(3)
     n = gyr.shape[0]
-    k0 = x[_K]
-    k = 0
+    k0 = x[_K] - k_first
+    k = k_first
     while k < n:
         g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
         a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
@@ -1175,7 +1211,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                         x[_W + i] = w[i]
                     age = tk - gn[k, 1]
                     new = gn[k, 0] != 0.0 and gn[k, 1] > x[_TLAST] and 0.0 <= age <= p[_MAXAGE] and fin
-                    if new or x[_T] >= p[_CI]:
+                    if new or x[_T] >= p[_CI] * (1.0 - 1e-9):  # (a sum of dt a rounding short of it counts)
                         _k_propagate(x, p, fm, tmp, fmt)
                     if new:
                         flags |= _k_update(x, p, gn[k], tk, hm, dxv, hp, r1)
