@@ -84,9 +84,11 @@ def budget(rec, res, b_g, b_a, noise_g, noise_a):
         "position at the start": dp0,
     }
     if b_g is not None:
-        parts["gyro bias (estimate's error, drift)"] = propagate(c, fn, dt, eg=b_g[sl] - bg0)
+        parts["gyro bias: estimate's error at the start"] = propagate(c, fn, dt, eg=b_g[k0] - bg0)
+        parts["gyro bias: drift in the outage"] = propagate(c, fn, dt, eg=b_g[sl] - b_g[k0])
         parts["gyro white noise"] = propagate(c, fn, dt, eg=noise_g[sl])
-        parts["accel bias (estimate's error, drift)"] = propagate(c, fn, dt, ea=b_a[sl] - ba0)
+        parts["accel bias: estimate's error at the start"] = propagate(c, fn, dt, ea=b_a[k0] - ba0)
+        parts["accel bias: drift in the outage"] = propagate(c, fn, dt, ea=b_a[sl] - b_a[k0])
         parts["accel white noise"] = propagate(c, fn, dt, ea=noise_a[sl])
     else:
         parts["gyro: turn-on bias minus estimate"] = propagate(c, fn, dt, eg=rec.meta["gyr_bias0"] - bg0)
@@ -189,8 +191,9 @@ parts, total, actual = budget(rec, res, None, None, eg_all - rec.meta["gyr_bias0
 show("car_drive (gnss-ins-sim file), default parameters", parts, total, actual,
      predicted(rec, k0, k1, p_at(rec, k0)))
 
-# -- 1b./2. simulated drives: budget of the first, Monte-Carlo over all
-errs, stds, shares = [], [], {}
+# -- 1b./2. simulated drives: the budget and the Monte-Carlo
+errs, stds, shares, floor = [], [], {}, []
+FLOOR = ("gyro bias: drift in the outage", "gyro white noise", "accel bias: drift in the outage", "accel white noise")
 for seed in range(args.seeds):
     sim = car_like(seed)
     sim.meta["f_body"] = sim_f_body(sim)
@@ -201,17 +204,19 @@ for seed in range(args.seeds):
     errs.append(math.hypot(e[0], e[1]))
     s = r.diagnostics["position_std"][j1]
     stds.append(math.hypot(s[0], s[1]))
-    if seed < 20:  # the budget of the first 20 drives: the RMS share of each source
-        bg, ba = sim.meta["ref_gyr_bias"], sim.meta["ref_acc_bias"]
-        # the sensors' noise is the measurement minus the error-free value; rebuild the latter
-        sim0 = car_like(seed, gyr_noise=0.0, acc_noise=0.0, gyr_bias_instability=0.0, acc_bias_instability=0.0,
-                        gyr_bias=(0.0, 0.0, 0.0), acc_bias=(0.0, 0.0, 0.0))
-        p, tot, act = budget(sim, r, bg, ba, sim.gyr - sim0.gyr - bg, sim.acc - sim0.acc - ba)
-        for k, v in list(p.items()) + [("sum (linear model)", -tot), ("filter's actual error", -act)]:
-            shares.setdefault(k, []).append(math.hypot(v[0], v[1]))
+    # the budget of every drive: the RMS share of each source
+    bg, ba = sim.meta["ref_gyr_bias"], sim.meta["ref_acc_bias"]
+    # the sensors' noise is the measurement minus the error-free value; rebuild the latter
+    sim0 = car_like(seed, gyr_noise=0.0, acc_noise=0.0, gyr_bias_instability=0.0, acc_bias_instability=0.0,
+                    gyr_bias=(0.0, 0.0, 0.0), acc_bias=(0.0, 0.0, 0.0))
+    p, tot, act = budget(sim, r, bg, ba, sim.gyr - sim0.gyr - bg, sim.acc - sim0.acc - ba)
+    for k, v in list(p.items()) + [("sum (linear model)", -tot), ("filter's actual error", -act)]:
+        shares.setdefault(k, []).append(math.hypot(v[0], v[1]))
+    fl = sum(p[k] for k in FLOOR)  # what a filter with the exact state at the outage's start would have
+    floor.append(math.hypot(fl[0], fl[1]))
 errs, stds = np.array(errs), np.array(stds)
 print(f"\n### Simulated drives like car_drive ({args.seeds} seeds), default parameters\n")
-print("| source (first 20 drives) | RMS share, horizontal m |\n|---|---:|")
+print("| source | RMS share, horizontal m |\n|---|---:|")
 for k, v in shares.items():
     print(f"| {k} | {math.sqrt(np.mean(np.square(v))):.2f} |")
 q = np.percentile(errs, [5, 25, 50, 75, 95])
@@ -219,3 +224,8 @@ print(f"\nhorizontal error at the outage's end: median {q[2]:.1f} m, 5/25/75/95 
       f"{q[4]:.1f} m, RMS {math.sqrt(np.mean(errs ** 2)):.1f} m; within 5 m: {np.mean(errs <= 5.0) * 100:.0f} %; "
       f"the filter's 1-sigma (horizontal norm) median {np.median(stds):.1f} m; "
       f"error / sigma RMS {math.sqrt(np.mean((errs / stds) ** 2)):.2f}")
+floor = np.array(floor)
+q = np.percentile(floor, [5, 25, 50, 75, 95])
+print(f"\nthe sensor's floor (the exact state at the outage's start; the IMU's white noise and bias drift over it): "
+      f"median {q[2]:.1f} m, 5/25/75/95 % {q[0]:.1f} / {q[1]:.1f} / {q[3]:.1f} / {q[4]:.1f} m, RMS "
+      f"{math.sqrt(np.mean(floor ** 2)):.1f} m; within 5 m: {np.mean(floor <= 5.0) * 100:.0f} %")

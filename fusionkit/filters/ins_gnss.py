@@ -1,4 +1,4 @@
-"""``ins-gnss``: a loosely coupled INS/GNSS error-state extended Kalman filter (15 states).
+"""``ins-gnss``: a loosely coupled INS/GNSS error-state extended Kalman filter (16 states).
 
 Navigation frame: local-level NED about the GNSS stream's own origin (the coordinates its
 positions are given in), on a WGS-84 earth (``fusionkit.navigation.earth``). Body axes FRD
@@ -6,9 +6,11 @@ inside; sensors in other axes are mapped from the recording's axes (``Recording.
 ``body=``; FRD when neither says).
 
 Nominal state: attitude ``C`` (body FRD -> NED), velocity ``v`` (NED, m/s), position ``p``
-(local NED, m), gyro bias ``b_g`` (rad/s) and accelerometer bias ``b_a`` (m/s^2), body axes.
-Error state (15): ``phi`` (NED, ``C_true = (I + [phi x]) C``), ``dv``, ``dp``, ``db_g``,
-``db_a`` (true minus estimate), covariance ``P``.
+(local NED, m), gyro bias ``b_g`` (rad/s) and accelerometer bias ``b_a`` (m/s^2), body axes,
+and the IMU-to-GNSS time offset ``dt_s`` (s): the IMU's time stamps lag the receiver's clock
+by it, so the INS after the sample stamped ``t`` is the state at GNSS time ``t + dt_s``.
+Error state (16): ``phi`` (NED, ``C_true = (I + [phi x]) C``), ``dv``, ``dp``, ``db_g``,
+``db_a``, ``d dt_s`` (true minus estimate), covariance ``P``.
 
 Per IMU sample (rate held over ``(t[k-1], t[k]]``, ``dt[k] = t[k] - t[k-1]``):
 
@@ -22,10 +24,12 @@ Per IMU sample (rate held over ``(t[k-1], t[k]]``, ``dt[k] = t[k] - t[k-1]``):
    dv - C db_a``, ``dp' = dv``, biases random walks, are accumulated over the samples (``int C
    dt``, ``int f_n dt``) and ``P`` is propagated with them at each GNSS epoch and at least every
    ``cov_interval`` s (the transition matrix to second order in the position rows): the
-   15 x 15 products run at 10 Hz, not per IMU sample;
+   16 x 16 products run at 10 Hz, not per IMU sample; the time offset is a constant;
 3. at each GNSS epoch (``rec.gnss``, in its own time; an epoch is used at the first IMU sample at
-   or after it, its position moved back by ``v * age``): velocity update ``v + C (w x l)`` and
-   position update ``p + C l`` (lever arm ``l``, body), each its 3 rows processed one by one;
+   or after it, the INS ``lag = age + dt_s`` ahead of it): velocity update ``v + C (w x l) - a
+   lag`` (``a`` the velocity's rate over the last sample) and position update ``p + C l - v
+   lag`` (lever arm ``l``, body), their sensitivity to the time offset ``-a`` and ``-v``, each
+   its 3 rows processed one by one;
    each gated on its normalised innovation squared (chi-square, 3 degrees of freedom, flag
    ``GNSS_REJECTED``); rejected for longer than ``gate_timeout`` s in a row, the filter resets
    that state to the measurement (the filter, not the receiver, is wrong then). Invalid epochs
@@ -44,11 +48,14 @@ the heading difference to the course is applied to the alignment attitude and th
 again from the end of the alignment over the buffered samples, now with its heading (``run``
 rewrites those samples; a stream can only go on from there).
 
-Outputs: ``Result.quat`` (sensor -> ``frame``) and in ``diagnostics``: ``velocity``,
-``position`` (N, 3, in ``frame`` axes, m/s and m), ``gyr_bias``, ``acc_bias`` (N, 3, sensor
-axes), ``attitude_std`` (rad, about the ``frame`` axes), ``velocity_std``, ``position_std``,
-``gyr_bias_std``, ``acc_bias_std`` (1-sigma from ``P``, the diagonal of its last propagation),
-``P`` (final 15 x 15, NED/FRD) and ``alignment_end_index``.
+Outputs, at each sample's time on the GNSS clock (the INS moved back by ``dt_s``: ``C exp(-[w
+dt_s x])``, ``v - a dt_s``, ``p - v dt_s``): ``Result.quat`` (sensor -> ``frame``) and in
+``diagnostics``: ``velocity``, ``position`` (N, 3, in ``frame`` axes, m/s and m), ``gyr_bias``,
+``acc_bias`` (N, 3, sensor axes), ``attitude_std`` (rad, about the ``frame`` axes),
+``velocity_std``, ``position_std``, ``gyr_bias_std``, ``acc_bias_std`` (1-sigma from ``P``,
+the diagonal of its last propagation), ``time_offset``, ``time_offset_std`` (N, s), ``P``
+(final 16 x 16, NED/FRD, the time offset last), ``alignment_end_index`` and ``state`` (for
+``run(rec, state=...)``, chunked runs).
 """
 
 from __future__ import annotations
@@ -231,7 +238,8 @@ class InsGnssFilter(Filter):
     #: again (course heading, re-levelling) where a stream cannot: the two differ there by design
     streaming: ClassVar[bool] = False
     source: ClassVar[str] = "baseline (loosely coupled INS/GNSS EKF); strapdown step of source 004, alignment of 000"
-    summary: ClassVar[str] = "15-state error-state EKF: strapdown propagation, GNSS velocity and position updates"
+    summary: ClassVar[str] = ("16-state error-state EKF: strapdown propagation, GNSS velocity and position updates, "
+                              "IMU-to-GNSS time offset")
 
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
