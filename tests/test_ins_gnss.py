@@ -88,7 +88,7 @@ def test_known_biases_are_estimated(flight):
 
 def test_nees_is_consistent():
     """Normalised errors squared, averaged over seeds, times and axes, near 1 for every block."""
-    blocks = {k: [] for k in ("attitude", "velocity", "position", "gyr_bias", "acc_bias")}
+    blocks = {k: [] for k in ("attitude", "velocity", "position", "gyr_bias", "acc_bias", "time_offset")}
     for seed in range(6):
         rec = simulate_flight(100.0, rest=12.0, seed=10 + seed)
         res = _run(rec)
@@ -98,7 +98,8 @@ def test_nees_is_consistent():
                 "velocity": (d["velocity"] - m["ref_vel_ned"], d["velocity_std"]),
                 "position": (d["position"] - m["ref_pos_ned"], d["position_std"]),
                 "gyr_bias": (d["gyr_bias"] - m["ref_gyr_bias"], d["gyr_bias_std"]),
-                "acc_bias": (d["acc_bias"] - m["ref_acc_bias"], d["acc_bias_std"])}
+                "acc_bias": (d["acc_bias"] - m["ref_acc_bias"], d["acc_bias_std"]),
+                "time_offset": (d["time_offset"][:, None], d["time_offset_std"][:, None])}  # (none simulated)
         for k, (e, s) in errs.items():
             blocks[k].append((e[idx] / s[idx]) ** 2)
     for k, v in blocks.items():
