@@ -87,7 +87,8 @@ _N = 16  # error states: phi, dv, dp, db_g, db_a (3 each), the IMU-to-GNSS time 
 _C, _V, _P, _BG, _BA, _DTS, _COV = 0, 9, 12, 15, 18, 21, 22  # _DTS: the time offset (s)
 _SC = _COV + _N * _N
 _DV, _T = _SC + 9, _SC + 12  # int C dt (9), int C f dt (3), accumulated time
-_PHASE, _TLAST, _TIME, _KSTART, _K = _T + 1, _T + 2, _T + 3, _T + 4, _T + 5  # 0 aligning, 1 heading search, 2 navigating
+# phase (0 aligning, 1 heading search, 2 navigating), last epoch used, time, start sample, sample number
+_PHASE, _TLAST, _TIME, _KSTART, _K = _T + 1, _T + 2, _T + 3, _T + 4, _T + 5
 _CAL, _GAL = _T + 6, _T + 15  # alignment attitude FRD -> NED (9), mean gyro at rest, FRD (3)
 _RV, _RP, _TGOOD, _RESTART = _T + 18, _T + 19, _T + 20, _T + 21  # last accepted velocity / position, last usable epoch
 _W = _T + 22  # the last bias-corrected rate (3), for the lever arm and the time offset

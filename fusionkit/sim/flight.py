@@ -18,8 +18,9 @@ the rotation over the interval divided by ``dt`` plus the rotation of the naviga
 Gauss-Markov bias instability and white noise given as densities (per sample
 ``density * sqrt(rate)``). ``time_offset`` shifts the IMU (and magnetometer) against the GNSS
 and the truth: the sample stamped ``t`` measures the interval that ends at ``t + time_offset``
-(an IMU whose time stamps lag the receiver's clock; a multiple of a quarter sample). Positions are the time integral of the velocity (flat local frame:
-over a few km the difference to a map projection is centimetres).
+(an IMU whose time stamps lag the receiver's clock; a multiple of a quarter sample). Positions
+are the time integral of the velocity (flat local frame: over a few km the difference to a map
+projection is centimetres).
 """
 
 from __future__ import annotations
@@ -92,7 +93,8 @@ def simulate_flight(duration: float = 200.0, *, rest: float = 20.0, rate: float 
     rad/s/sqrt(Hz), ``acc_noise`` m/s^2/sqrt(Hz); bias instabilities are the Gauss-Markov
     processes' standard deviations (correlation time ``bias_tau``). ``outages``: [start, end)
     intervals in s without GNSS. ``time_offset`` (s): the IMU's time stamps lag the GNSS and truth
-    clock by this much (a multiple of ``1 / (4 rate)``). The defaults are the low-cost MEMS IMU of the gnss-ins-sim files.
+    clock by this much (a multiple of ``1 / (4 rate)``). The defaults are the low-cost MEMS IMU
+    of the gnss-ins-sim files.
     """
     if duration <= rest or rest < 0:
         raise InputError(f"need 0 <= rest < duration, got rest={rest}, duration={duration}")
@@ -111,9 +113,8 @@ def simulate_flight(duration: float = 200.0, *, rest: float = 20.0, rate: float 
     tf = np.arange(nf) * (dt / ovs)
     a_cmd, r_cmd, w_cmd = _commands(tf, rest, speed, turn_rate, accel, climb, rng)
     sm = int(1.0 * rate * ovs)  # 1 s Hann smoothing: continuous accelerations and bank angles
-    # (the commands held past the end for a late IMU)
-    a_cmd, r_cmd, w_cmd = (np.concatenate([_smooth(x, sm), np.full(max(shift, 0), x[-1])]) for x in (a_cmd, r_cmd,
-                                                                                                   w_cmd))
+    late = max(shift, 0)  # a late IMU needs the motion past the end: the commands held
+    a_cmd, r_cmd, w_cmd = (np.concatenate([_smooth(x, sm), np.full(late, x[-1])]) for x in (a_cmd, r_cmd, w_cmd))
     hf = dt / ovs
     tf = np.arange(a_cmd.size) * hf
 
@@ -132,8 +133,9 @@ def simulate_flight(duration: float = 200.0, *, rest: float = 20.0, rate: float 
         roll = roll + np.arctan(v_h * r_cmd / g0)
     s = slice(0, nf, ovs)  # the sample grid: the truth and GNSS
     vel_s, pos_s = vel[s], pos[s]
-    quat = np.roll(Rotation.from_euler("ZYX", np.stack([yaw[s], pitch[s], roll[s]], axis=1)).as_quat(), 1, axis=1)
-    si = np.clip(np.arange(n) * ovs + shift, 0, nf - 1 + max(shift, 0))  # the IMU's (the motion at rest before 0)
+    truth = Rotation.from_euler("ZYX", np.stack([yaw[s], pitch[s], roll[s]], axis=1))
+    quat = np.roll(truth.as_quat(), 1, axis=1)  # (w, x, y, z) body (FRD) -> NED
+    si = np.clip(np.arange(n) * ovs + shift, 0, nf - 1 + late)  # the IMU's grid (at rest before 0)
     vel_i, pos_i = vel[si], pos[si]
     rot = Rotation.from_euler("ZYX", np.stack([yaw[si], pitch[si], roll[si]], axis=1))
     rel = (rot[:-1].inv() * rot[1:]).as_rotvec()  # body rotation over each interval
