@@ -117,11 +117,10 @@ def predicted(rec, k0, k1, p0):
         a = np.stack([propagate(c, fn, dt, **{key: np.eye(3)[i % 3]}) for i in idx], axis=1)
         cov = a @ p0[np.ix_(idx, idx)] @ a.T
         out[f"{blk} (filter's P at the start)"] = math.sqrt(cov[0, 0] + cov[1, 1])
-    n = c.shape[0]
-    t = np.arange(1, n + 1) * dt
-    tt = t[-1]
+    tt = c.shape[0] * dt  # the outage's length
     # white gyro noise: tilt random walk through gravity; horizontal, two axes
-    out["gyro white noise (spec, g ARW T^2.5 / sqrt(20))"] = math.sqrt(2.0) * G * cfg.gyr_noise * tt ** 2.5 / math.sqrt(20.0)
+    out["gyro white noise (spec, g ARW T^2.5 / sqrt(20))"] = (
+        math.sqrt(2.0) * G * cfg.gyr_noise * tt ** 2.5 / math.sqrt(20.0))
     out["accel white noise (spec, VRW T^1.5 / sqrt(3))"] = math.sqrt(2.0) * cfg.acc_noise * tt ** 1.5 / math.sqrt(3.0)
     q = cfg.gyr_bias_instability * math.sqrt(2.0 / cfg.bias_tau)  # the filter's random walk density
     out["gyro bias instability (random walk of the filter, g q T^3.5 / sqrt(252))"] = (
