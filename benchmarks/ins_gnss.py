@@ -4,7 +4,8 @@
 
 Per flight and filter, default parameters (``body="FRD"``, the files' axes): tilt RMS while
 GNSS is valid and inside the outage, heading RMS after 200 s, velocity RMS and the position
-error at the end of the outage (filters that output them), and throughput (samples/s, numba,
+error at the end of the outage (filters that output them), the estimated IMU-to-GNSS time
+offset at the end (``ins-gnss``), and throughput (samples/s, numba,
 after a warm-up run).
 """
 
@@ -23,6 +24,7 @@ ap.add_argument("--data", default=str(data_dir() / "gnss"))
 ap.add_argument("--flights", nargs="+", default=["heli_cruise", "car_drive"])
 ap.add_argument("--filters", nargs="+", default=["ins-gnss", "gst-gnss", "gst"])
 ap.add_argument("--heading", default=None, help="ins-gnss heading option (auto, magnetometer, course)")
+ap.add_argument("--no-time-offset", action="store_true", help="ins-gnss without the time offset state")
 args = ap.parse_args()
 
 
@@ -33,7 +35,7 @@ def rms(v):
 
 print(machine())
 print("| flight | filter | tilt with GNSS | tilt in outage | heading after 200 s | velocity RMS | position error at outage end "
-      "| samples/s |\n|---|---|---:|---:|---:|---:|---:|---:|")
+      "| time offset | samples/s |\n|---|---|---:|---:|---:|---:|---:|---:|---:|")
 for name in args.flights:
     rec = fk.load(f"{args.data}/{name}/{name}.h5")
     ok, gap = gnss_masks(rec)
@@ -41,6 +43,8 @@ for name in args.flights:
         kw = {"body": "FRD"}
         if nm == "ins-gnss" and args.heading:
             kw["heading"] = args.heading
+        if nm == "ins-gnss" and args.no_time_offset:
+            kw["time_offset_std"] = None
         f = fk.make(nm, **kw)
         f.run(rec.slice(0, 300))
         t0 = time.perf_counter()
@@ -48,7 +52,9 @@ for name in args.flights:
         sps = len(rec) / (time.perf_counter() - t0)
         e = broad_errors(r.quat, change_frame(rec.truth, rec.truth_frame, r.frame))
         late = rec.time > 200
-        vel, pos = "-", "-"
+        vel, pos, dts = "-", "-", "-"
+        if "time_offset" in r.diagnostics:
+            dts = f"{r.diagnostics['time_offset'][-1] * 1e3:.1f} +- {r.diagnostics['time_offset_std'][-1] * 1e3:.1f} ms"
         if "velocity" in r.diagnostics:
             fm = frame_matrix("NED", r.frame)
             ve = r.diagnostics["velocity"] - rec.meta["ref_vel_ned"] @ fm.T
@@ -59,4 +65,4 @@ for name in args.flights:
                 pos = f"{np.linalg.norm(pe):.2f} m"
         tg = f"{rms(e['inclination'][gap]):.3f}" if gap.any() else "-"
         print(f"| {name} | {nm} | {rms(e['inclination'][ok]):.3f} | {tg} | {rms(e['heading'][late]):.3f} | {vel} | {pos} "
-              f"| {sps:,.0f} |", flush=True)
+              f"| {dts} | {sps:,.0f} |", flush=True)

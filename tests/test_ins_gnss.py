@@ -12,7 +12,7 @@ import pytest
 import fusionkit as fk
 from fusionkit.conventions import change_frame
 from fusionkit.errors import InputError
-from fusionkit.filters.ins_gnss import InsGnssFilter, gnss_epoch_rows
+from fusionkit.filters.ins_gnss import _LEVEL, InsGnssFilter, gnss_epoch_rows
 from fusionkit.sim.flight import simulate_flight
 from fusionkit.types import Flag, Gnss
 from fusionkit.rotations import quat_angle
@@ -65,7 +65,8 @@ def test_reference_equals_numba(heading):
     assert (a.flags == b.flags).all()
     assert (a.flags & Flag.GNSS_REJECTED).any()  # the jump
     assert a.diagnostics["relevel_tilt"] is not None
-    for k in KEYS:
+    assert np.abs(a.diagnostics["time_offset"]).max() > 0  # the output at the GNSS clock's time is compared too
+    for k in KEYS + ("time_offset", "time_offset_std"):
         np.testing.assert_allclose(a.diagnostics[k], b.diagnostics[k], rtol=0, atol=1e-9, err_msg=k)
 
 
@@ -87,7 +88,7 @@ def test_known_biases_are_estimated(flight):
 
 def test_nees_is_consistent():
     """Normalised errors squared, averaged over seeds, times and axes, near 1 for every block."""
-    blocks = {k: [] for k in ("attitude", "velocity", "position", "gyr_bias", "acc_bias")}
+    blocks = {k: [] for k in ("attitude", "velocity", "position", "gyr_bias", "acc_bias", "time_offset")}
     for seed in range(6):
         rec = simulate_flight(100.0, rest=12.0, seed=10 + seed)
         res = _run(rec)
@@ -97,12 +98,103 @@ def test_nees_is_consistent():
                 "velocity": (d["velocity"] - m["ref_vel_ned"], d["velocity_std"]),
                 "position": (d["position"] - m["ref_pos_ned"], d["position_std"]),
                 "gyr_bias": (d["gyr_bias"] - m["ref_gyr_bias"], d["gyr_bias_std"]),
-                "acc_bias": (d["acc_bias"] - m["ref_acc_bias"], d["acc_bias_std"])}
+                "acc_bias": (d["acc_bias"] - m["ref_acc_bias"], d["acc_bias_std"]),
+                "time_offset": (d["time_offset"][:, None], d["time_offset_std"][:, None])}  # (none simulated)
         for k, (e, s) in errs.items():
             blocks[k].append((e[idx] / s[idx]) ** 2)
     for k, v in blocks.items():
         nees = float(np.mean(v))
         assert 0.4 < nees < 2.0, (k, nees)
+
+
+def test_time_offset_is_estimated():
+    """The IMU-to-GNSS time offset (a state): about 0 on flights without one, at no cost to the
+    attitude; a simulated one (the IMU's stamps lagging) is recovered, and the attitude output at
+    the GNSS clock's time is then better than the 15-state filter's."""
+    from scipy.spatial.transform import Rotation as R
+
+    def tilt_heading(res, rec):
+        e = _att_err(res, rec)[3000:]
+        return np.degrees(np.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2))), np.degrees(np.sqrt(np.mean(e[:, 2] ** 2)))
+
+    for off in (0.0, 0.03, -0.0125):
+        rec = simulate_flight(150.0, rest=12.0, seed=11, time_offset=off)
+        res = _run(rec)
+        est, std = res.diagnostics["time_offset"][-1], res.diagnostics["time_offset_std"][-1]
+        assert std < 0.005 and abs(est - off) < max(3.0 * std, 0.004), (off, est, std)
+        plain = _run(rec, time_offset_std=None)
+        assert (plain.diagnostics["time_offset"] == 0).all()
+        (t1, h1), (t0, h0) = tilt_heading(res, rec), tilt_heading(plain, rec)
+        if off == 0.0:
+            assert t1 < 1.15 * t0 and h1 < 1.15 * h0
+        elif off == 0.03:
+            assert t1 < 0.8 * t0 and h1 < 0.8 * h0
+    assert R.from_quat(np.roll(res.quat[-1], -1)).magnitude() > 0  # (a finite attitude)
+
+
+def test_simulated_time_offset_shifts_the_imu():
+    """``simulate_flight(time_offset=...)``: the IMU of a flight whose stamps lag by one sample is
+    the IMU one sample later; the truth and GNSS are the same."""
+    quiet = dict(gyr_bias=(0, 0, 0), acc_bias=(0, 0, 0), gyr_noise=0.0, acc_noise=0.0, gyr_bias_instability=0.0,
+                 acc_bias_instability=0.0, mag_noise=0.0, seed=5)
+    a = simulate_flight(40.0, rest=5.0, **quiet)
+    b = simulate_flight(40.0, rest=5.0, time_offset=0.01, **quiet)
+    np.testing.assert_allclose(b.gyr[1:-1], a.gyr[2:], atol=1e-12)
+    np.testing.assert_allclose(b.acc[1:-1], a.acc[2:], atol=1e-12)
+    np.testing.assert_array_equal(b.truth, a.truth)
+    np.testing.assert_array_equal(b.gnss.vel, a.gnss.vel)
+    assert np.abs(b.gyr[1:-1] - a.gyr[1:-1]).max() > 1e-3  # (the shift matters: the vehicle turns)
+    with pytest.raises(InputError, match="time_offset"):
+        simulate_flight(40.0, rest=5.0, time_offset=0.001)
+
+
+def test_chunked_run_equals_one_run(backend="numba"):
+    """run(rec.slice(a, b), state=...) chunk after chunk: every chunk gives what one run over
+    the samples so far gives (the re-levelling, here in the fourth chunk, goes back over the
+    samples the state kept, from the alignment's end in the second), and after it the chunks
+    equal one run over the whole recording."""
+    rec = simulate_flight(60.0, rest=11.0, seed=2, speed=8.0, accel=3.0, turn_rate=0.4, outages=[(50.0, 52.0)])
+    kw = {"heading": "course", "relevel": 0.7}
+    one = _run(rec.slice(0, len(rec)), backend, **kw)
+    f = InsGnssFilter(frame="NED", **kw)
+    state, cuts = None, (0, 500, 1150, 1700, 2400, 3500, len(rec))
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        r = f.run(rec.slice(a, b), backend=backend, state=state)
+        state = r.diagnostics["state"]
+        upto = _run(rec.slice(0, b), backend, **kw)
+        np.testing.assert_allclose(r.quat, upto.quat[a:], rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(r.flags, upto.flags[a:])
+        for k in KEYS:
+            np.testing.assert_allclose(r.diagnostics[k], upto.diagnostics[k][a:], rtol=0, atol=1e-9, err_msg=k)
+        if a >= 1700:
+            assert state["x"][_LEVEL] == 1.0  # re-levelled in the fourth chunk: from here on the one run's
+            np.testing.assert_allclose(r.quat, one.quat[a:b], rtol=0, atol=1e-9)
+        else:
+            assert "kept" in state or a == 0
+    np.testing.assert_allclose(state["x"], one.diagnostics["state"]["x"], rtol=1e-12, atol=1e-9)
+    with pytest.raises(InputError, match="state"):
+        f.run(rec.slice(0, 10), state={"x": np.zeros(3)})
+    part = rec.slice(0, 1000)  # 10 s of samples at 200 Hz: 5 s, its epochs
+    fast = fk.Recording(gyr=part.gyr, acc=part.acc, rate=200.0, gnss=rec.slice(0, 500).gnss)
+    with pytest.raises(InputError, match="Hz"):
+        f.run(fast, state=state)
+
+
+def test_chunked_reference_equals_numba():
+    """The chunked runs' re-run over the kept samples is the same in the readable reference."""
+    rec = simulate_flight(30.0, rest=11.0, seed=2, speed=8.0, accel=3.0, turn_rate=0.4)
+    kw = {"heading": "course", "relevel": 0.7}
+    runs = {}
+    for backend in ("numba", "reference"):
+        f, state, out = InsGnssFilter(frame="NED", **kw), None, []
+        for a, b in ((0, 1150), (1150, 1900), (1900, len(rec))):
+            r = f.run(rec.slice(a, b), backend=backend, state=state)
+            state = r.diagnostics["state"]
+            out.append(r.quat)
+        runs[backend] = (np.vstack(out), state)
+    assert runs["numba"][1]["x"][_LEVEL] == 1.0 and "kept" not in runs["numba"][1]
+    np.testing.assert_allclose(runs["numba"][0], runs["reference"][0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(runs["numba"][1]["x"], runs["reference"][1]["x"], rtol=1e-9, atol=1e-9)
 
 
 def test_outage_flags_grows_and_recovers(flight):

@@ -1,4 +1,4 @@
-"""``ins-gnss``: a loosely coupled INS/GNSS error-state extended Kalman filter (15 states).
+"""``ins-gnss``: a loosely coupled INS/GNSS error-state extended Kalman filter (16 states).
 
 Navigation frame: local-level NED about the GNSS stream's own origin (the coordinates its
 positions are given in), on a WGS-84 earth (``fusionkit.navigation.earth``). Body axes FRD
@@ -6,9 +6,11 @@ inside; sensors in other axes are mapped from the recording's axes (``Recording.
 ``body=``; FRD when neither says).
 
 Nominal state: attitude ``C`` (body FRD -> NED), velocity ``v`` (NED, m/s), position ``p``
-(local NED, m), gyro bias ``b_g`` (rad/s) and accelerometer bias ``b_a`` (m/s^2), body axes.
-Error state (15): ``phi`` (NED, ``C_true = (I + [phi x]) C``), ``dv``, ``dp``, ``db_g``,
-``db_a`` (true minus estimate), covariance ``P``.
+(local NED, m), gyro bias ``b_g`` (rad/s) and accelerometer bias ``b_a`` (m/s^2), body axes,
+and the IMU-to-GNSS time offset ``dt_s`` (s): the IMU's time stamps lag the receiver's clock
+by it, so the INS after the sample stamped ``t`` is the state at GNSS time ``t + dt_s``.
+Error state (16): ``phi`` (NED, ``C_true = (I + [phi x]) C``), ``dv``, ``dp``, ``db_g``,
+``db_a``, ``d dt_s`` (true minus estimate), covariance ``P``.
 
 Per IMU sample (rate held over ``(t[k-1], t[k]]``, ``dt[k] = t[k] - t[k-1]``):
 
@@ -22,10 +24,12 @@ Per IMU sample (rate held over ``(t[k-1], t[k]]``, ``dt[k] = t[k] - t[k-1]``):
    dv - C db_a``, ``dp' = dv``, biases random walks, are accumulated over the samples (``int C
    dt``, ``int f_n dt``) and ``P`` is propagated with them at each GNSS epoch and at least every
    ``cov_interval`` s (the transition matrix to second order in the position rows): the
-   15 x 15 products run at 10 Hz, not per IMU sample;
+   16 x 16 products run at 10 Hz, not per IMU sample; the time offset is a constant;
 3. at each GNSS epoch (``rec.gnss``, in its own time; an epoch is used at the first IMU sample at
-   or after it, its position moved back by ``v * age``): velocity update ``v + C (w x l)`` and
-   position update ``p + C l`` (lever arm ``l``, body), each its 3 rows processed one by one;
+   or after it, the INS ``lag = age + dt_s`` ahead of it): velocity update ``v + C (w x l) - a
+   lag`` (``a`` the velocity's rate over the last sample) and position update ``p + C l - v
+   lag`` (lever arm ``l``, body), their sensitivity to the time offset ``-a`` and ``-v``, each
+   its 3 rows processed one by one;
    each gated on its normalised innovation squared (chi-square, 3 degrees of freedom, flag
    ``GNSS_REJECTED``); rejected for longer than ``gate_timeout`` s in a row, the filter resets
    that state to the measurement (the filter, not the receiver, is wrong then). Invalid epochs
@@ -44,11 +48,14 @@ the heading difference to the course is applied to the alignment attitude and th
 again from the end of the alignment over the buffered samples, now with its heading (``run``
 rewrites those samples; a stream can only go on from there).
 
-Outputs: ``Result.quat`` (sensor -> ``frame``) and in ``diagnostics``: ``velocity``,
-``position`` (N, 3, in ``frame`` axes, m/s and m), ``gyr_bias``, ``acc_bias`` (N, 3, sensor
-axes), ``attitude_std`` (rad, about the ``frame`` axes), ``velocity_std``, ``position_std``,
-``gyr_bias_std``, ``acc_bias_std`` (1-sigma from ``P``, the diagonal of its last propagation),
-``P`` (final 15 x 15, NED/FRD) and ``alignment_end_index``.
+Outputs, at each sample's time on the GNSS clock (the INS moved back by ``dt_s``: ``C exp(-[w
+dt_s x])``, ``v - a dt_s``, ``p - v dt_s``): ``Result.quat`` (sensor -> ``frame``) and in
+``diagnostics``: ``velocity``, ``position`` (N, 3, in ``frame`` axes, m/s and m), ``gyr_bias``,
+``acc_bias`` (N, 3, sensor axes), ``attitude_std`` (rad, about the ``frame`` axes),
+``velocity_std``, ``position_std``, ``gyr_bias_std``, ``acc_bias_std`` (1-sigma from ``P``,
+the diagonal of its last propagation), ``time_offset``, ``time_offset_std`` (N, s), ``P``
+(final 16 x 16, NED/FRD, the time offset last), ``alignment_end_index`` and ``state`` (for
+``run(rec, state=...)``, chunked runs).
 """
 
 from __future__ import annotations
@@ -76,22 +83,28 @@ __all__ = ["InsGnssFilter", "InsGnssConfig", "gnss_epoch_rows"]
 #: RFU -> FRD (the same matrix both ways)
 
 # state layout: nominal state, covariance, accumulators, bookkeeping
-_C, _V, _P, _BG, _BA, _COV = 0, 9, 12, 15, 18, 21
-_SC, _DV, _T = 246, 255, 258  # int C dt (9), int C f dt (3), accumulated time
-_PHASE, _TLAST, _TIME, _KSTART, _K = 259, 260, 261, 262, 263  # 0 aligning, 1 heading search, 2 navigating
-_CAL, _GAL = 264, 273  # alignment attitude FRD -> NED (9), mean gyro at rest, FRD (3)
-_RV, _RP, _TGOOD, _RESTART = 276, 277, 278, 279  # last accepted velocity / position, last usable epoch
-_W = 280  # the last bias-corrected rate (3), for the lever arm
-# the earth model at the last covariance step: gravity, map scale north / east, w_ie (3), w_en (3); the stds
-_GRAV, _S0, _S1, _WIE, _WEN, _SD = 283, 284, 285, 286, 289, 292
-_C0, _HVAR, _LEVEL, _PHI0 = 307, 316, 317, 318  # start attitude (9), its heading variance, re-levelled, tilt fix (3)
-_SIZE = 321
+_N = 16  # error states: phi, dv, dp, db_g, db_a (3 each), the IMU-to-GNSS time offset
+_C, _V, _P, _BG, _BA, _DTS, _COV = 0, 9, 12, 15, 18, 21, 22  # _DTS: the time offset (s)
+_SC = _COV + _N * _N
+_DV, _T = _SC + 9, _SC + 12  # int C dt (9), int C f dt (3), accumulated time
+# phase (0 aligning, 1 heading search, 2 navigating), last epoch used, time, start sample, sample number
+_PHASE, _TLAST, _TIME, _KSTART, _K = _T + 1, _T + 2, _T + 3, _T + 4, _T + 5
+_CAL, _GAL = _T + 6, _T + 15  # alignment attitude FRD -> NED (9), mean gyro at rest, FRD (3)
+_RV, _RP, _TGOOD, _RESTART = _T + 18, _T + 19, _T + 20, _T + 21  # last accepted velocity / position, last usable epoch
+_W = _T + 22  # the last bias-corrected rate (3), for the lever arm and the time offset
+# the earth model at the last covariance step: gravity, map scale north / east, w_ie (3), w_en (3); the stds (_N)
+_GRAV, _S0, _S1, _WIE, _WEN, _SD = _W + 3, _W + 4, _W + 5, _W + 6, _W + 9, _W + 12
+_C0 = _SD + _N  # start attitude (9)
+_HVAR, _LEVEL, _PHI0 = _C0 + 9, _C0 + 10, _C0 + 11  # its heading variance, re-levelled, tilt fix (3)
+_ACC = _PHI0 + 3  # the last sample's acceleration, NED (3): the velocity's rate, for the time offset
+_SIZE = _ACC + 3
 
 # parameter vector layout
 (_GN, _AN, _GQ, _AQ, _VH, _VV, _PH, _PV, _GATE, _GTO, _CI, _MINV, _SLIP, _BG0, _BA0, _TILT0, _MAGH, _LAT, _H0,
  _EARTH, _DECL, _MAXAGE, _HMAG, _V0, _P0, _LEV) = range(26)
 _RELEVEL = _LEV + 3  # the lever arm is 3 wide
-_NPAR = _RELEVEL + 1
+_TS0 = _RELEVEL + 1  # the time offset's initial std
+_NPAR = _TS0 + 1
 
 
 class InsGnssConfig(FilterConfig):
@@ -151,6 +164,10 @@ class InsGnssConfig(FilterConfig):
         0.1, unit="-", description="once the horizontal accelerometer bias std is below this fraction of its initial "
         "value, level the alignment attitude with the bias estimate and run again from the alignment's end (run() also "
         "re-levels the alignment span's output); None: never (strictly causal output)", gt=0, lt=1)
+    time_offset_std: float | None = param(
+        0.05, unit="s", description="initial std of the IMU-to-GNSS time offset, estimated as a state (the IMU's "
+        "time stamps against the receiver's: sampling conventions, buffering, an unsynchronised clock); None: not "
+        "estimated (taken as 0, the 15-state filter)", gt=0)
     gnss_max_age: float = param(0.5, unit="s", description="an epoch older than this is a gap (GNSS_GAP)", gt=0)
     alignment: Literal["motion", "fixed"] = param("motion", unit="-", description="source 000 alignment mode")
     alignment_duration: float = param(10.0, unit="s", description="mandatory alignment time", gt=0)
@@ -222,7 +239,8 @@ class InsGnssFilter(Filter):
     #: again (course heading, re-levelling) where a stream cannot: the two differ there by design
     streaming: ClassVar[bool] = False
     source: ClassVar[str] = "baseline (loosely coupled INS/GNSS EKF); strapdown step of source 004, alignment of 000"
-    summary: ClassVar[str] = "15-state error-state EKF: strapdown propagation, GNSS velocity and position updates"
+    summary: ClassVar[str] = ("16-state error-state EKF: strapdown propagation, GNSS velocity and position updates, "
+                              "IMU-to-GNSS time offset")
 
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
@@ -274,6 +292,7 @@ class InsGnssFilter(Filter):
         p[_HMAG] = float(self._use_mag(rec))
         p[_V0], p[_P0] = c.initial_velocity_std, c.initial_position_std
         p[_RELEVEL] = c.relevel * c.initial_acc_bias_std if c.relevel is not None else -1.0
+        p[_TS0] = 0.0 if c.time_offset_std is None else c.time_offset_std
         return p
 
     def new_state(self, dt: float, rec: Recording | None = None) -> dict[str, Any]:
@@ -282,7 +301,7 @@ class InsGnssFilter(Filter):
         x[_TLAST] = x[_TGOOD] = -np.inf
         x[_TIME] = np.nan
         use_mag = self._use_mag(rec)
-        return {"dt": dt, "x": x, "det": self.detector.initial_state(dt), "use_mag": use_mag,
+        return {"filter": self.name, "dt": dt, "x": x, "det": self.detector.initial_state(dt), "use_mag": use_mag,
                 "align": self.aligner(dt, use_mag).new_state(), "p": self.params(rec)}
 
     # -- the readable reference ----------------------------------------------------------------
@@ -341,9 +360,10 @@ class InsGnssFilter(Filter):
         x[_DV:_DV + 3] += dv
         x[_T] += dt
         x[_W:_W + 3] = w
+        x[_ACC:_ACC + 3] = (v_new - v) / dt
         # 2. and 3. covariance at the epochs (and every cov_interval), GNSS updates
         new = gn[0] != 0.0 and gn[1] > x[_TLAST] and 0.0 <= t - gn[1] <= p[_MAXAGE] and np.isfinite(gn[2:8]).any()
-        if new or x[_T] >= p[_CI]:
+        if new or x[_T] >= p[_CI] * (1.0 - 1e-9):  # (a sum of dt a rounding short of it counts)
             self._propagate(x, p)
         if new:
             flags |= self._update(x, p, gn, t)
@@ -359,7 +379,7 @@ class InsGnssFilter(Filter):
         phi = a @ x[_BA:_BA + 3]
         x[_LEVEL] = 1.0
         x[_PHI0:_PHI0 + 3] = phi
-        self._start(x, rodrigues(phi) @ c0, x[_HVAR], p, t, x[_BA:_BA + 3].copy())
+        self._start(x, rodrigues(phi) @ c0, x[_HVAR], p, t, x[_BA:_BA + 3].copy(), x[_DTS])
         x[_RESTART] = 1.0
 
     def _geo(self, x, p):
@@ -383,7 +403,7 @@ class InsGnssFilter(Filter):
         x[_S1] = (rn0 + p[_H0]) * math.cos(p[_LAT]) / ((rn + h) * math.cos(lat))
         x[_WIE:_WIE + 3] = e * math.cos(lat), 0.0, -e * math.sin(lat)
         x[_WEN:_WEN + 3] = v[1] / (rn + h), -v[0] / (rm + h), -v[1] * math.tan(lat) / (rn + h)
-        x[_SD:_SD + 15] = np.sqrt(np.maximum(np.diag(x[_COV:_COV + 225].reshape(15, 15)), 0.0))
+        x[_SD:_SD + _N] = np.sqrt(np.maximum(np.diag(x[_COV:_COV + _N * _N].reshape(_N, _N)), 0.0))
 
     def _aligned(self, x, c_align, al, k_start, p) -> None:
         """The alignment ended: keep its attitude (FRD -> NED, with the declination when the
@@ -400,9 +420,9 @@ class InsGnssFilter(Filter):
             x[_BG:_BG + 3] = x[_GAL:_GAL + 3]
             x[_PHASE] = 1.0
 
-    def _start(self, x, c0, heading_var, p, t, ba0=None) -> None:
+    def _start(self, x, c0, heading_var, p, t, ba0=None, dts0=0.0) -> None:
         """Start navigating from attitude ``c0`` (FRD -> NED) at rest (see the module docs),
-        with the accelerometer bias ``ba0`` (default 0)."""
+        with the accelerometer bias ``ba0`` (default 0) and the time offset ``dts0``."""
         x[_C:_C + 9] = c0.reshape(9)
         x[_C0:_C0 + 9] = c0.reshape(9)
         x[_HVAR] = heading_var
@@ -412,9 +432,11 @@ class InsGnssFilter(Filter):
         w_ie = p[_EARTH] * EARTH_RATE * np.array([math.cos(lat), 0.0, -math.sin(lat)])
         x[_BG:_BG + 3] = x[_GAL:_GAL + 3] - c0.T @ w_ie
         x[_BA:_BA + 3] = 0.0 if ba0 is None else ba0
+        x[_DTS] = dts0
+        x[_ACC:_ACC + 3] = 0.0
         g = normal_gravity(lat, h)
         a = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]) @ c0 / g
-        pm = np.zeros((15, 15))
+        pm = np.zeros((_N, _N))
         sa = p[_BA0] ** 2
         pm[0:3, 0:3] = sa * a @ a.T + np.diag([p[_TILT0] ** 2, p[_TILT0] ** 2, heading_var])
         pm[0:3, 12:15] = sa * a
@@ -423,7 +445,8 @@ class InsGnssFilter(Filter):
         pm[6:9, 6:9] = p[_P0] ** 2 * np.eye(3)
         pm[9:12, 9:12] = p[_BG0] ** 2 * np.eye(3)
         pm[12:15, 12:15] = sa * np.eye(3)
-        x[_COV:_COV + 225] = pm.reshape(225)
+        pm[15, 15] = p[_TS0] ** 2
+        x[_COV:_COV + _N * _N] = pm.reshape(_N * _N)
         x[_SC:_T + 1] = 0.0
         x[_TLAST] = x[_TGOOD] = -np.inf
         x[_RV] = x[_RP] = t
@@ -438,7 +461,7 @@ class InsGnssFilter(Filter):
         w_ie, w_en = x[_WIE:_WIE + 3], x[_WEN:_WEN + 3]
         sc = x[_SC:_SC + 9].reshape(3, 3)
         sdv = skew(x[_DV:_DV + 3])
-        f = np.eye(15)
+        f = np.eye(_N)
         f[0:3, 0:3] -= skew(w_ie + w_en) * tt
         f[0:3, 9:12] = -sc
         f[3:6, 0:3] = -sdv
@@ -447,7 +470,7 @@ class InsGnssFilter(Filter):
         f[6:9, 0:3] = -0.5 * tt * sdv
         f[6:9, 3:6] = tt * np.eye(3)
         f[6:9, 12:15] = -0.5 * tt * sc
-        pm = x[_COV:_COV + 225].reshape(15, 15)
+        pm = x[_COV:_COV + _N * _N].reshape(_N, _N)
         pm = f @ pm @ f.T
         qa = p[_AN] ** 2
         for i in range(3):
@@ -458,7 +481,7 @@ class InsGnssFilter(Filter):
             pm[6 + i, 3 + i] += qa * tt ** 2 / 2.0
             pm[9 + i, 9 + i] += p[_GQ] ** 2 * tt
             pm[12 + i, 12 + i] += p[_AQ] ** 2 * tt
-        x[_COV:_COV + 225] = (0.5 * (pm + pm.T)).reshape(225)
+        x[_COV:_COV + _N * _N] = (0.5 * (pm + pm.T)).reshape(_N * _N)
         x[_SC:_T + 1] = 0.0
         self._refresh(x, p)
 
@@ -466,27 +489,30 @@ class InsGnssFilter(Filter):
         """The GNSS velocity and position updates of one epoch; returns flags."""
         flags = 0
         age = t - gn[1]
+        lag = age + x[_DTS]  # the INS state is this far ahead of the epoch
         x[_TLAST] = gn[1]
         c = x[_C:_C + 9].reshape(3, 3)
         lev = p[_LEV:_LEV + 3]
-        pm = x[_COV:_COV + 225].reshape(15, 15).copy()
-        dx = np.zeros(15)
+        pm = x[_COV:_COV + _N * _N].reshape(_N, _N).copy()
+        dx = np.zeros(_N)
         cl = c @ lev
         cwl = c @ np.cross(x[_W:_W + 3], lev)
         for kind, z in ((0, gn[2:5]), (1, gn[5:8])):
             if not np.isfinite(z).all():
                 continue
-            hm = np.zeros((3, 15))
+            hm = np.zeros((3, _N))
             if kind == 0:
-                y = z - (x[_V:_V + 3] + cwl)
+                y = z - (x[_V:_V + 3] + cwl - x[_ACC:_ACC + 3] * lag)
                 hm[:, 3:6] = np.eye(3)
+                hm[:, 15] = -x[_ACC:_ACC + 3]
                 hm[:, 0:3] = -skew(cwl)
                 hm[:, 9:12] = c @ skew(lev)
                 r = np.array([p[_VH], p[_VH], p[_VV]]) ** 2
                 blk, last = 3, _RV
             else:
-                y = z - (x[_P:_P + 3] + cl - x[_V:_V + 3] * age)
+                y = z - (x[_P:_P + 3] + cl - x[_V:_V + 3] * lag)
                 hm[:, 6:9] = np.eye(3)
+                hm[:, 15] = -x[_V:_V + 3]
                 hm[:, 0:3] = -skew(cl)
                 r = np.array([p[_PH], p[_PH], p[_PV]]) ** 2
                 blk, last = 6, _RP
@@ -520,25 +546,38 @@ class InsGnssFilter(Filter):
         x[_P:_P + 3] += dx[6:9]
         x[_BG:_BG + 3] += dx[9:12]
         x[_BA:_BA + 3] += dx[12:15]
-        x[_COV:_COV + 225] = (0.5 * (pm + pm.T)).reshape(225)
-        x[_SD:_SD + 15] = np.sqrt(np.maximum(np.diag(x[_COV:_COV + 225].reshape(15, 15)), 0.0))
+        x[_DTS] += dx[15]
+        x[_COV:_COV + _N * _N] = (0.5 * (pm + pm.T)).reshape(_N * _N)
+        x[_SD:_SD + _N] = np.sqrt(np.maximum(np.diag(x[_COV:_COV + _N * _N].reshape(_N, _N)), 0.0))
         return flags
 
     def _output(self, x) -> np.ndarray:
-        return matrix_to_quat(self.F @ x[_C:_C + 9].reshape(3, 3) @ self.M)
+        """The attitude at the sample's time on the GNSS clock: the INS is ``x[_DTS]`` ahead."""
+        c = x[_C:_C + 9].reshape(3, 3)
+        if x[_DTS] != 0.0:
+            c = c @ rodrigues(-x[_W:_W + 3] * x[_DTS])
+        return matrix_to_quat(self.F @ c @ self.M)
 
     def _extras(self, x) -> np.ndarray:
-        """The per-sample outputs (27): velocity, position, biases (output axes) and their stds."""
+        """The per-sample outputs (29): velocity, position (at the sample's time on the GNSS
+        clock), biases (output axes), their stds, the time offset and its std."""
         f, mt = self.F, self.M.T
-        d = x[_SD:_SD + 15] if x[_PHASE] == 2.0 else np.full(15, np.nan)
+        d = x[_SD:_SD + _N] if x[_PHASE] == 2.0 else np.full(_N, np.nan)
         af, am = np.abs(f), np.abs(mt)
-        return np.concatenate([f @ x[_V:_V + 3], f @ x[_P:_P + 3], mt @ x[_BG:_BG + 3], mt @ x[_BA:_BA + 3],
-                               af @ d[0:3], af @ d[3:6], af @ d[6:9], am @ d[9:12], am @ d[12:15]])
+        dts = x[_DTS]
+        v, pos = x[_V:_V + 3] - x[_ACC:_ACC + 3] * dts, x[_P:_P + 3] - x[_V:_V + 3] * dts
+        return np.concatenate([f @ v, f @ pos, mt @ x[_BG:_BG + 3], mt @ x[_BA:_BA + 3],
+                               af @ d[0:3], af @ d[3:6], af @ d[6:9], am @ d[9:12], am @ d[12:15], [dts, d[15]]])
 
     # -- public ----------------------------------------------------------------------------------
-    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None) -> Result:
-        """Process ``rec`` from its start (a run cannot go on from an earlier one's state: its
-        re-runs go back to the end of the alignment; stream with :meth:`update` instead)."""
+    def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
+            state: dict | None = None) -> Result:
+        """Process ``rec``; with ``state`` (``diagnostics["state"]`` of the run over the samples
+        before it, e.g. ``rec.slice``) go on from there: the chunks give the samples one run
+        gives. A re-run (course heading, re-levelling) that goes back into an earlier chunk goes
+        over the samples the state keeps (from the alignment's end until the re-levelling) and
+        updates the state and this chunk's output; the earlier chunks' returned outputs stay as
+        they were (as with :meth:`update`)."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         if rec.gnss is None:
@@ -549,23 +588,38 @@ class InsGnssFilter(Filter):
         used = resolve_backend(backend, True)
         n = len(rec)
         gn = gnss_epoch_rows(rec)
-        st = self.new_state(rec.nominal_dt, rec)
-        mag = rec.mag if (st["use_mag"] and rec.mag is not None) else np.zeros((n, 3))
         dt, t = rec.dt, rec.time
-        q = np.empty((n, 4))
-        flags = np.zeros(n, np.uint32)
-        ext = np.empty((n, 27))
-        k0 = st["x"][_K]
+        if state is None:
+            st = self.new_state(rec.nominal_dt, rec)
+        else:
+            st = self._continued(state, rec)
+            t_last = st["x"][_TIME]
+            if np.isfinite(t_last):
+                old = (gn[:, 0] != 0.0) & (gn[:, 1] <= t_last)  # the epoch current at the slice's start: used
+                gn[old, 0] = 0.0
+                gn[old, 1:] = np.nan
+                if n and t[0] > t_last:
+                    dt = dt.copy()
+                    dt[0] = t[0] - t_last
+        mag = rec.mag if (st["use_mag"] and rec.mag is not None) else np.zeros((n, 3))
+        gyr, acc = rec.gyr, rec.acc
+        kept = st.pop("kept", None)  # the samples a re-run may go back to (an earlier chunk's)
+        nk = 0 if kept is None else kept[0].shape[0]
+        if nk:
+            gyr, acc, mag, dt, t, gn = (np.concatenate([a, b]) for a, b in zip(kept, (gyr, acc, mag, dt, t, gn)))
+        q = np.empty((nk + n, 4))
+        flags = np.zeros(nk + n, np.uint32)
+        ext = np.empty((nk + n, 29))
+        k0 = st["x"][_K] - nk  # the sample number of the arrays' first row
         if used == "numba":
-            _ins_loop(rec.gyr, rec.acc, mag, dt, t, gn, st["use_mag"], self.M, self.F, st["p"], st["x"], st["det"],
+            _ins_loop(gyr, acc, mag, dt, t, gn, st["use_mag"], self.M, self.F, st["p"], st["x"], st["det"],
                       self.detector.kernel().params, st["align"], self.aligner(st["dt"], st["use_mag"]).params(),
-                      q, flags, ext)
+                      q, flags, ext, nk)
         else:
             x = st["x"]
-            k = 0
-            while k < n:
-                q[k], flags[k] = self._step(st, rec.gyr[k], rec.acc[k], mag[k] if st["use_mag"] else None, dt[k],
-                                            t[k], gn[k])
+            k = nk
+            while k < nk + n:
+                q[k], flags[k] = self._step(st, gyr[k], acc[k], mag[k] if st["use_mag"] else None, dt[k], t[k], gn[k])
                 ext[k] = self._extras(x)
                 if x[_RESTART]:
                     x[_RESTART] = 0.0
@@ -575,17 +629,33 @@ class InsGnssFilter(Filter):
                 k += 1
         x = st["x"]
         if x[_PHASE] == 2.0:  # the alignment span turned like its end: the course heading and the re-levelling
-            end = min(n, max(0, int(x[_KSTART] - k0)))
+            end = min(nk + n, max(0, int(x[_KSTART] - k0)))
             turn = x[_C0:_C0 + 9].reshape(3, 3) @ x[_CAL:_CAL + 9].reshape(3, 3).T
             q[:end] = quat_mul(matrix_to_quat(self.F @ turn @ self.F.T), q[:end])
+        if x[_PHASE] == 1.0 or (x[_PHASE] == 2.0 and x[_LEVEL] == 0.0 and st["p"][_RELEVEL] > 0.0):
+            s0 = max(0, int(x[_KSTART] - k0))  # a re-run may still come: keep the samples from its start
+            st["kept"] = tuple(a[s0:].copy() for a in (gyr, acc, mag, dt, t, gn))
+        q, flags, ext = q[nk:], flags[nk:], ext[nk:]
         names = ("velocity", "position", "gyr_bias", "acc_bias", "attitude_std", "velocity_std", "position_std",
                  "gyr_bias_std", "acc_bias_std")
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "state": st,
-                "P": x[_COV:_COV + 225].reshape(15, 15).copy(),
+                "P": x[_COV:_COV + _N * _N].reshape(_N, _N).copy(),
                 "alignment_end_index": None if st["align"][17] < 0 else int(st["align"][17]),
                 "relevel_tilt": x[_PHI0:_PHI0 + 3].copy() if x[_LEVEL] == 1.0 else None,
+                "time_offset": ext[:, 27].copy(), "time_offset_std": ext[:, 28].copy(),
                 **{nm: ext[:, 3 * i:3 * i + 3] for i, nm in enumerate(names)}}
         return Result(q, flags, self.config.frame, diag)
+
+    def _continued(self, state, rec: Recording) -> dict:
+        """A copy of an earlier run's state, checked against this filter and ``rec``."""
+        if not (isinstance(state, dict) and isinstance(state.get("x"), np.ndarray) and state["x"].shape == (_SIZE,)
+                and state.get("filter") == self.name):
+            raise InputError(f"state must be the diagnostics['state'] of an earlier {self.name} run")
+        if not math.isclose(state["dt"], rec.nominal_dt, rel_tol=1e-6):
+            raise InputError(f"state is of a {1.0 / state['dt']:g} Hz run, rec is {1.0 / rec.nominal_dt:g} Hz")
+        if bool(state["use_mag"]) != self._use_mag(rec):
+            raise InputError("state was run with a magnetometer heading and rec is not (or the other way round)")
+        return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in state.items()}
 
     def reset(self) -> None:
         self._stream = None
@@ -676,12 +746,12 @@ def _k_refresh(x, p):
     x[_WIE], x[_WIE + 1], x[_WIE + 2] = e * math.cos(lat), 0.0, -e * math.sin(lat)
     v0, v1 = x[_V], x[_V + 1]
     x[_WEN], x[_WEN + 1], x[_WEN + 2] = v1 / (rn + h), -v0 / (rm + h), -v1 * math.tan(lat) / (rn + h)
-    for i in range(15):
-        x[_SD + i] = math.sqrt(max(x[_COV + 16 * i], 0.0))
+    for i in range(_N):
+        x[_SD + i] = math.sqrt(max(x[_COV + (_N + 1) * i], 0.0))
 
 
 @njit
-def _k_start(x, c0, heading_var, p, t, ba0):
+def _k_start(x, c0, heading_var, p, t, ba0, dts0):
     for i in range(9):
         x[_C + i] = c0[i]
         x[_C0 + i] = c0[i]
@@ -694,12 +764,14 @@ def _k_start(x, c0, heading_var, p, t, ba0):
         x[_P + i] = 0.0
         x[_BG + i] = x[_GAL + i] - (c0[i] * wie[0] + c0[3 + i] * wie[1] + c0[6 + i] * wie[2])
         x[_BA + i] = ba0[i]
+        x[_ACC + i] = 0.0
+    x[_DTS] = dts0
     g = normal_gravity(lat, h)
     a = np.zeros((3, 3))
     for j in range(3):  # rows N, E of J C0 / g: phi_N = (C b)_E / g, phi_E = -(C b)_N / g
         a[0, j] = c0[3 + j] / g
         a[1, j] = -c0[j] / g
-    pm = x[_COV:_COV + 225].reshape((15, 15))
+    pm = x[_COV:_COV + _N * _N].reshape((_N, _N))
     pm[:, :] = 0.0
     sa = p[_BA0] ** 2
     for i in range(3):
@@ -718,6 +790,7 @@ def _k_start(x, c0, heading_var, p, t, ba0):
         pm[6 + i, 6 + i] = p[_P0] ** 2
         pm[9 + i, 9 + i] = p[_BG0] ** 2
         pm[12 + i, 12 + i] = sa
+    pm[15, 15] = p[_TS0] ** 2
     for i in range(_SC, _T + 1):
         x[i] = 0.0
     x[_TLAST] = -np.inf
@@ -742,7 +815,7 @@ def _k_relevel(x, p, t, c0, r9):
         for j in range(3):
             c0[3 * i + j] = r9[3 * i] * x[_C0 + j] + r9[3 * i + 1] * x[_C0 + 3 + j] + r9[3 * i + 2] * x[_C0 + 6 + j]
     ba = x[_BA:_BA + 3].copy()
-    _k_start(x, c0, x[_HVAR], p, t, ba)
+    _k_start(x, c0, x[_HVAR], p, t, ba, x[_DTS])
     x[_RESTART] = 1.0
 
 
@@ -765,24 +838,24 @@ def _k_propagate(x, p, fm, tmp, fmt):
             fm[i, 9 + j] = -s
             fm[3 + i, 12 + j] = -s
             fm[6 + i, 12 + j] = -0.5 * tt * s
-    pm = x[_COV:_COV + 225].reshape((15, 15))
-    for i in range(15):  # F P = P + E P
-        for j in range(15):
+    pm = x[_COV:_COV + _N * _N].reshape((_N, _N))
+    for i in range(_N):  # F P = P + E P
+        for j in range(_N):
             tmp[i, j] = pm[i, j]
     for i in range(9):
-        for k in range(15):
+        for k in range(_N):
             e = fm[i, k]
             if e != 0.0:
-                for j in range(15):
+                for j in range(_N):
                     tmp[i, j] += e * pm[k, j]
-    for i in range(15):  # (F P) F^T = F P + (F P) E^T
-        for j in range(15):
+    for i in range(_N):  # (F P) F^T = F P + (F P) E^T
+        for j in range(_N):
             pm[i, j] = tmp[i, j]
     for j in range(9):
-        for k in range(15):
+        for k in range(_N):
             e = fm[j, k]
             if e != 0.0:
-                for i in range(15):
+                for i in range(_N):
                     pm[i, j] += tmp[i, k] * e
     qa = p[_AN] ** 2
     for i in range(3):
@@ -793,8 +866,8 @@ def _k_propagate(x, p, fm, tmp, fmt):
         pm[6 + i, 3 + i] += qa * tt ** 2 / 2.0
         pm[9 + i, 9 + i] += p[_GQ] ** 2 * tt
         pm[12 + i, 12 + i] += p[_AQ] ** 2 * tt
-    for i in range(15):
-        for j in range(i + 1, 15):
+    for i in range(_N):
+        for j in range(i + 1, _N):
             a = 0.5 * (pm[i, j] + pm[j, i])
             pm[i, j] = a
             pm[j, i] = a
@@ -807,6 +880,7 @@ def _k_propagate(x, p, fm, tmp, fmt):
 def _k_update(x, p, gn, t, hm, dx, hp, r9):
     flags = 0
     age = t - gn[1]
+    lag = age + x[_DTS]
     x[_TLAST] = gn[1]
     c = x[_C:_C + 9]
     l0, l1, l2 = p[_LEV], p[_LEV + 1], p[_LEV + 2]
@@ -817,13 +891,13 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
     for i in range(3):
         cl[i] = c[3 * i] * l0 + c[3 * i + 1] * l1 + c[3 * i + 2] * l2
         cwl[i] = c[3 * i] * cr0 + c[3 * i + 1] * cr1 + c[3 * i + 2] * cr2
-    pm = x[_COV:_COV + 225].reshape((15, 15))
+    pm = x[_COV:_COV + _N * _N].reshape((_N, _N))
     dx[:] = 0.0
     y = np.empty(3)
     yg = np.empty(3)
     r = np.empty(3)
     s = np.empty((3, 3))
-    nz = np.empty((3, 15), np.int64)
+    nz = np.empty((3, _N), np.int64)
     nnz = np.zeros(3, np.int64)
     for kind in range(2):
         o = 2 + 3 * kind
@@ -832,8 +906,9 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
         hm[:, :] = 0.0
         if kind == 0:
             for i in range(3):
-                y[i] = gn[o + i] - (x[_V + i] + cwl[i])
+                y[i] = gn[o + i] - (x[_V + i] + cwl[i] - x[_ACC + i] * lag)
                 hm[i, 3 + i] = 1.0
+                hm[i, 15] = -x[_ACC + i]
             _k_skew_into(hm, 0, 0, cwl[0], cwl[1], cwl[2], -1.0)
             for i in range(3):  # C [l x]
                 hm[i, 9] = c[3 * i + 1] * l2 - c[3 * i + 2] * l1
@@ -843,14 +918,15 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
             blk, last = 3, _RV
         else:
             for i in range(3):
-                y[i] = gn[o + i] - (x[_P + i] + cl[i] - x[_V + i] * age)
+                y[i] = gn[o + i] - (x[_P + i] + cl[i] - x[_V + i] * lag)
                 hm[i, 6 + i] = 1.0
+                hm[i, 15] = -x[_V + i]
             _k_skew_into(hm, 0, 0, cl[0], cl[1], cl[2], -1.0)
             r[0], r[1], r[2] = p[_PH] ** 2, p[_PH] ** 2, p[_PV] ** 2
             blk, last = 6, _RP
         for i in range(3):  # the non-zero columns of H's rows (H is sparse: 1 to 7 of 15)
             nnz[i] = 0
-            for j in range(15):
+            for j in range(_N):
                 if hm[i, j] != 0.0:
                     nz[i, nnz[i]] = j
                     nnz[i] += 1
@@ -860,7 +936,7 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
                 acc += hm[i, nz[i, jj]] * dx[nz[i, jj]]
             yg[i] = y[i] - acc
         for i in range(3):  # S = H P H^T + R
-            for j in range(15):
+            for j in range(_N):
                 acc = 0.0
                 for kk in range(nnz[i]):
                     acc += hm[i, nz[i, kk]] * pm[nz[i, kk], j]
@@ -891,7 +967,7 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
             for i in range(3):
                 hdx = 0.0
                 si = r[i]
-                for j in range(15):
+                for j in range(_N):
                     acc = 0.0
                     for kk in range(nnz[i]):
                         acc += hm[i, nz[i, kk]] * pm[nz[i, kk], j]
@@ -900,12 +976,12 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
                     si += hp[0, nz[i, kk]] * hm[i, nz[i, kk]]
                     hdx += hm[i, nz[i, kk]] * dx[nz[i, kk]]
                 innov = y[i] - hdx
-                for j in range(15):
+                for j in range(_N):
                     hp[1, j] = hp[0, j] / si  # the gain
                     dx[j] += hp[1, j] * innov
-                for j in range(15):  # symmetric: the upper triangle, mirrored (the same products)
+                for j in range(_N):  # symmetric: the upper triangle, mirrored (the same products)
                     kj = hp[1, j]
-                    for k in range(j, 15):
+                    for k in range(j, _N):
                         pm[j, k] -= kj * hp[1, k] * si
                         pm[k, j] = pm[j, k]
             x[last] = t
@@ -916,7 +992,7 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
                 else:
                     x[_P + i] += yg[i]
                 dx[blk + i] = 0.0
-                for j in range(15):
+                for j in range(_N):
                     pm[blk + i, j] = 0.0
                     pm[j, blk + i] = 0.0
             for i in range(3):
@@ -935,19 +1011,25 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
         x[_P + i] += dx[6 + i]
         x[_BG + i] += dx[9 + i]
         x[_BA + i] += dx[12 + i]
-    for i in range(15):
-        for j in range(i + 1, 15):
+    x[_DTS] += dx[15]
+    for i in range(_N):
+        for j in range(i + 1, _N):
             a = 0.5 * (pm[i, j] + pm[j, i])
             pm[i, j] = a
             pm[j, i] = a
-    for i in range(15):
-        x[_SD + i] = math.sqrt(max(x[_COV + 16 * i], 0.0))
+    for i in range(_N):
+        x[_SD + i] = math.sqrt(max(x[_COV + (_N + 1) * i], 0.0))
     return flags
 
 
 @njit
-def _k_output(x, m, fo, t9, u9, q):
+def _k_output(x, m, fo, t9, u9, q, r9, c9):
     c = x[_C:_C + 9]
+    dts = x[_DTS]
+    if dts != 0.0:  # the attitude at the sample's time on the GNSS clock
+        rodrigues_into(-x[_W] * dts, -x[_W + 1] * dts, -x[_W + 2] * dts, r9)
+        matmul3_into(c, r9, c9)
+        c = c9
     for i in range(3):
         for j in range(3):
             u9[3 * i + j] = fo[i, 0] * c[j] + fo[i, 1] * c[3 + j] + fo[i, 2] * c[6 + j]
@@ -964,8 +1046,8 @@ def _k_extras(x, m, fo, e):
         for blk in range(9):
             e[3 * blk + i] = 0.0
         for j in range(3):
-            e[i] += fo[i, j] * x[_V + j]
-            e[3 + i] += fo[i, j] * x[_P + j]
+            e[i] += fo[i, j] * (x[_V + j] - x[_ACC + j] * x[_DTS])
+            e[3 + i] += fo[i, j] * (x[_P + j] - x[_V + j] * x[_DTS])
             e[6 + i] += m[j, i] * x[_BG + j]
             e[9 + i] += m[j, i] * x[_BA + j]
             for blk in range(3):
@@ -974,31 +1056,34 @@ def _k_extras(x, m, fo, e):
             for blk in range(3, 5):
                 d = math.nan if nan else x[_SD + 3 * blk + j]
                 e[12 + 3 * blk + i] += abs(m[j, i]) * d
+    e[27] = x[_DTS]
+    e[28] = math.nan if nan else x[_SD + 15]
 
 
 @njit(cache=True)
-def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, out_q, out_f, out_e):
-    """The compiled twin of InsGnssFilter.run's reference loop (the same arithmetic)."""
+def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, out_q, out_f, out_e, k_first):
+    """The compiled twin of InsGnssFilter.run's reference loop (the same arithmetic), from row
+    ``k_first`` (the rows before it: kept samples a re-run may go back to)."""
     q = np.empty(4)
     t9 = np.empty(9)
     u9 = np.empty(9)
     r1 = np.empty(9)
     r2 = np.empty(9)
     c0 = np.empty(9)
-    fm = np.empty((15, 15))
-    tmp = np.empty((15, 15))
-    fmt = np.empty((15, 15))
-    hm = np.empty((3, 15))
-    hp = np.empty((3, 15))
-    dxv = np.empty(15)
+    fm = np.empty((_N, _N))
+    tmp = np.empty((_N, _N))
+    fmt = np.empty((_N, _N))
+    hm = np.empty((3, _N))
+    hp = np.empty((3, _N))
+    dxv = np.empty(_N)
     wie = np.empty(3)
     wen = np.empty(3)
     w = np.empty(3)
     f = np.empty(3)
     zero3 = np.zeros(3)
     n = gyr.shape[0]
-    k0 = x[_K]
-    k = 0
+    k0 = x[_K] - k_first
+    k = k_first
     while k < n:
         g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
         a0, a1, a2 = acc[k, 0], acc[k, 1], acc[k, 2]
@@ -1043,7 +1128,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                                    if al[NGYR] > 0 else 0.0)
                 x[_KSTART] = kk + (1.0 if status == ALIGNED_NOW else 0.0)
                 if p[_HMAG] != 0.0:
-                    _k_start(x, u9, p[_MAGH] ** 2, p, x[_TIME], zero3)
+                    _k_start(x, u9, p[_MAGH] ** 2, p, x[_TIME], zero3, 0.0)
                 else:
                     for i in range(9):
                         x[_C + i] = u9[i]
@@ -1095,7 +1180,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                                 c0[j] = ca * x[_CAL + j] - sa * x[_CAL + 3 + j]
                                 c0[3 + j] = sa * x[_CAL + j] + ca * x[_CAL + 3 + j]
                                 c0[6 + j] = x[_CAL + 6 + j]
-                            _k_start(x, c0, (p[_VH] / speed) ** 2 + p[_SLIP] ** 2, p, tk, zero3)
+                            _k_start(x, c0, (p[_VH] / speed) ** 2 + p[_SLIP] ** 2, p, tk, zero3, 0.0)
                             x[_RESTART] = 1.0
                     flags |= 1
                 else:
@@ -1122,6 +1207,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                     x[_P] += x[_S0] * (0.5 * (v0 + n0) * h)
                     x[_P + 1] += x[_S1] * (0.5 * (v1 + n1) * h)
                     x[_P + 2] += 1.0 * (0.5 * (v2 + n2) * h)
+                    x[_ACC], x[_ACC + 1], x[_ACC + 2] = (n0 - v0) / h, (n1 - v1) / h, (n2 - v2) / h
                     x[_V], x[_V + 1], x[_V + 2] = n0, n1, n2
                     for i in range(9):
                         c[i] = u9[i]
@@ -1134,13 +1220,13 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                         x[_W + i] = w[i]
                     age = tk - gn[k, 1]
                     new = gn[k, 0] != 0.0 and gn[k, 1] > x[_TLAST] and 0.0 <= age <= p[_MAXAGE] and fin
-                    if new or x[_T] >= p[_CI]:
+                    if new or x[_T] >= p[_CI] * (1.0 - 1e-9):  # (a sum of dt a rounding short of it counts)
                         _k_propagate(x, p, fm, tmp, fmt)
                     if new:
                         flags |= _k_update(x, p, gn[k], tk, hm, dxv, hp, r1)
                         if x[_LEVEL] == 0.0 and max(x[_SD + 12], x[_SD + 13]) < p[_RELEVEL]:
                             _k_relevel(x, p, tk, c0, r1)
-            _k_output(x, m, fo, t9, u9, q)
+            _k_output(x, m, fo, t9, u9, q, r1, r2)
         out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]
         out_f[k] = flags
         _k_extras(x, m, fo, out_e[k])

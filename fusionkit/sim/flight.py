@@ -16,8 +16,11 @@ the rotation over the interval divided by ``dt`` plus the rotation of the naviga
 (earth rate and transport rate), the accelerometer the mean specific force over the interval
 ``C_mid^T (dv/dt - g + (2 w_ie + w_en) x v)``; both with constant biases, optional first-order
 Gauss-Markov bias instability and white noise given as densities (per sample
-``density * sqrt(rate)``). Positions are the time integral of the velocity (flat local frame:
-over a few km the difference to a map projection is centimetres).
+``density * sqrt(rate)``). ``time_offset`` shifts the IMU (and magnetometer) against the GNSS
+and the truth: the sample stamped ``t`` measures the interval that ends at ``t + time_offset``
+(an IMU whose time stamps lag the receiver's clock; a multiple of a quarter sample). Positions
+are the time integral of the velocity (flat local frame: over a few km the difference to a map
+projection is centimetres).
 """
 
 from __future__ import annotations
@@ -82,14 +85,16 @@ def simulate_flight(duration: float = 200.0, *, rest: float = 20.0, rate: float 
                     gyr_bias_instability: float = 4.85e-5, acc_bias_instability: float = 2e-4,
                     bias_tau: float = 100.0, mag_field=_FIELD_NED, mag_noise: float = 0.1,
                     gnss_pos_std=(5.0, 5.0, 7.0), gnss_vel_std: float = 0.05, outages=(),
-                    seed: int = 0, name: str = "flight") -> Recording:
+                    time_offset: float = 0.0, seed: int = 0, name: str = "flight") -> Recording:
     """Simulate a vehicle with IMU, magnetometer and GNSS (see the module docs).
 
     Units: s, m, m/s, m/s^2, rad/s, deg (``trim`` = (pitch, roll) at rest, ``heading0``,
     ``origin`` latitude/longitude), ``turn_rate`` rad/s. Noise densities: ``gyr_noise``
     rad/s/sqrt(Hz), ``acc_noise`` m/s^2/sqrt(Hz); bias instabilities are the Gauss-Markov
     processes' standard deviations (correlation time ``bias_tau``). ``outages``: [start, end)
-    intervals in s without GNSS. The defaults are the low-cost MEMS IMU of the gnss-ins-sim files.
+    intervals in s without GNSS. ``time_offset`` (s): the IMU's time stamps lag the GNSS and truth
+    clock by this much (a multiple of ``1 / (4 rate)``). The defaults are the low-cost MEMS IMU
+    of the gnss-ins-sim files.
     """
     if duration <= rest or rest < 0:
         raise InputError(f"need 0 <= rest < duration, got rest={rest}, duration={duration}")
@@ -97,15 +102,21 @@ def simulate_flight(duration: float = 200.0, *, rest: float = 20.0, rate: float 
         raise InputError(f"need 0 < gnss_rate <= rate, got {gnss_rate}, {rate}")
     from scipy.spatial.transform import Rotation
 
+    ovs = 4  # the motion is integrated on a grid 4x finer than the samples
+    shift = int(round(time_offset * rate * ovs))  # the IMU's offset in steps of that grid
+    if not abs(shift - time_offset * rate * ovs) < 1e-6:
+        raise InputError(f"time_offset must be a multiple of 1 / (4 rate) = {0.25 / rate} s, got {time_offset}")
     rng = np.random.default_rng(seed)
     dt = 1.0 / rate
     n = int(round(duration * rate)) + 1
-    ovs = 4  # the motion is integrated on a grid 4x finer than the samples
-    tf = np.arange((n - 1) * ovs + 1) * (dt / ovs)
+    nf = (n - 1) * ovs + 1
+    tf = np.arange(nf) * (dt / ovs)
     a_cmd, r_cmd, w_cmd = _commands(tf, rest, speed, turn_rate, accel, climb, rng)
     sm = int(1.0 * rate * ovs)  # 1 s Hann smoothing: continuous accelerations and bank angles
-    a_cmd, r_cmd, w_cmd = (_smooth(x, sm) for x in (a_cmd, r_cmd, w_cmd))
+    late = max(shift, 0)  # a late IMU needs the motion past the end: the commands held
+    a_cmd, r_cmd, w_cmd = (np.concatenate([_smooth(x, sm), np.full(late, x[-1])]) for x in (a_cmd, r_cmd, w_cmd))
     hf = dt / ovs
+    tf = np.arange(a_cmd.size) * hf
 
     def integ(x, x0=0.0):
         return x0 + np.concatenate([[0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * hf)])
@@ -120,23 +131,26 @@ def simulate_flight(duration: float = 200.0, *, rest: float = 20.0, rate: float 
     if bank:
         pitch = pitch + np.arctan2(w_cmd, np.maximum(v_h, 1.0))
         roll = roll + np.arctan(v_h * r_cmd / g0)
-    s = slice(None, None, ovs)  # the sample grid
+    s = slice(0, nf, ovs)  # the sample grid: the truth and GNSS
     vel_s, pos_s = vel[s], pos[s]
-    rot = Rotation.from_euler("ZYX", np.stack([yaw[s], pitch[s], roll[s]], axis=1))
-    quat = np.roll(rot.as_quat(), 1, axis=1)  # (w, x, y, z) body (FRD) -> NED
+    truth = Rotation.from_euler("ZYX", np.stack([yaw[s], pitch[s], roll[s]], axis=1))
+    quat = np.roll(truth.as_quat(), 1, axis=1)  # (w, x, y, z) body (FRD) -> NED
+    si = np.clip(np.arange(n) * ovs + shift, 0, nf - 1 + late)  # the IMU's grid (at rest before 0)
+    vel_i, pos_i = vel[si], pos[si]
+    rot = Rotation.from_euler("ZYX", np.stack([yaw[si], pitch[si], roll[si]], axis=1))
     rel = (rot[:-1].inv() * rot[1:]).as_rotvec()  # body rotation over each interval
     mid = rot[:-1] * Rotation.from_rotvec(0.5 * rel)
     # navigation-frame rotation at the interval's middle: earth rate and transport rate
     lat0, h0 = math.radians(origin[0]), origin[2]
     rm, rn = radii(lat0)
-    pm = 0.5 * (pos_s[1:] + pos_s[:-1])
-    vm = 0.5 * (vel_s[1:] + vel_s[:-1])
+    pm = 0.5 * (pos_i[1:] + pos_i[:-1])
+    vm = 0.5 * (vel_i[1:] + vel_i[:-1])
     lat = lat0 + pm[:, 0] / (rm + h0)
     h = h0 - pm[:, 2]
     w_ie = EARTH_RATE * np.stack([np.cos(lat), np.zeros_like(lat), -np.sin(lat)], axis=1)
     w_en = np.stack([vm[:, 1] / (rn + h), -vm[:, 0] / (rm + h), -vm[:, 1] * np.tan(lat) / (rn + h)], axis=1)
     grav = np.array([normal_gravity(a, b) for a, b in zip(lat, h)])
-    f_n = np.diff(vel_s, axis=0) / dt + np.cross(2.0 * w_ie + w_en, vm)
+    f_n = np.diff(vel_i, axis=0) / dt + np.cross(2.0 * w_ie + w_en, vm)
     f_n[:, 2] -= grav
     gyr_true = np.zeros((n, 3))
     acc_true = np.zeros((n, 3))
