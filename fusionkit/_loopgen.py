@@ -47,7 +47,7 @@ __all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack"
 @dataclass(frozen=True)
 class KernelSpec:
     """One plugin kernel in the loop: its function, role (``"model"``, ``"det"``, ``"state"``,
-    ``"rate"``), whether it takes the GNSS row, and for detectors the flag it sets and whether
+    ``"rate"``, ``"bias"``, ``"factor"``), whether it takes the GNSS row, and for detectors the flag it sets and whether
     its criteria are the ones the pipeline reports (its first detector's); for correctors, whether
     it works on the estimator's state itself (its ``state_layout``: no quaternion round trip)."""
 
@@ -154,15 +154,18 @@ def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
           f"    if status == {ALIGNING} or status == {ALIGNED_NOW}:",
           "        flags |= 1", "        done = True",
           "if not done:",
-          f"    al[{SEEN}] += 1.0",
-          "    if gyr_ok:",
+          f"    al[{SEEN}] += 1.0"]
+    factors = [i for i, k in enumerate(lay.kernels) if k.role == "factor"]
+    L += _bias_lines(lay, names, bool(factors))
+    L += ["    if gyr_ok:",
           f"        e_propagate(x, g0 - al[{BIAS}] + al[{rc}], g1 - al[{BIAS + 1}] + al[{rc + 1}], "
           f"g2 - al[{BIAS + 2}] + al[{rc + 2}], h, ep)"]
     cors = [i for i, k in enumerate(lay.kernels) if k.role in ("state", "rate")]
     if cors:  # 5. correctors (the bias removed; MAG_DISTURBED / ACC_REJECTED withhold a sensor)
         has_rate = any(lay.kernels[i].role == "rate" for i in cors)
-        L += [f"    b0, b1, b2 = g0 - al[{BIAS}], g1 - al[{BIAS + 1}], g2 - al[{BIAS + 2}]",
-              "    ga_ok = acc_ok and (flags & 512) == 0", "    gm_ok = mag_ok and (flags & 256) == 0"]
+        L += [f"    b0, b1, b2 = g0 - al[{BIAS}], g1 - al[{BIAS + 1}], g2 - al[{BIAS + 2}]"]
+        if not _withholds(lay):
+            L += ["    ga_ok = acc_ok and (flags & 512) == 0", "    gm_ok = mag_ok and (flags & 256) == 0"]
         if has_rate:
             L.append("    rate[0] = rate[1] = rate[2] = 0.0")
         for i in cors:
@@ -184,8 +187,32 @@ def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
         if has_rate:
             L.append(f"    al[{rc}], al[{rc + 1}], al[{rc + 2}] = rate[0], rate[1], rate[2]")
     L.append("    e_to_quat(x, q)")
+    for i in factors:  # 6. factor correctors compose the output, in order
+        L += [f"    cf = {names[i]}(q, s{i}, bv, g0, g1, g2, w0, w1, w2, a0, a1, a2, m0, m1, m2, ga_ok, gm_ok, flags, "
+              f"h, p{i})", "    if cf > 0:", "        flags |= cf"]
     L.append(f"al[{qp}], al[{qp + 1}], al[{qp + 2}], al[{qp + 3}] = q[0], q[1], q[2], q[3]")
     return [ind + s for s in L]
+
+
+def _withholds(lay: Layout) -> bool:
+    """Whether the bias or factor correctors' lines already set ``ga_ok`` / ``gm_ok``."""
+    return any(k.role in ("bias", "factor") for k in lay.kernels)
+
+
+def _bias_lines(lay: Layout, names: dict[int, str], factors: bool) -> list[str]:
+    """Before the propagation: the bias correctors update the gyro bias ``bv`` (the alignment's,
+    in the run state); with factor correctors, ``w`` keeps the rate the propagation integrates."""
+    if not _withholds(lay):
+        return []
+    rc = lay.rcorr
+    L = ["    ga_ok = acc_ok and (flags & 512) == 0", "    gm_ok = mag_ok and (flags & 256) == 0"]
+    for i, k in enumerate(lay.kernels):
+        if k.role == "bias":
+            L += [f"    cf = {names[i]}(s{i}, bv, g0, g1, g2, a0, a1, a2, m0, m1, m2, ga_ok, gm_ok, flags, h, p{i})",
+                  "    if cf > 0:", "        flags |= cf"]
+    if factors:
+        L.append(f"    w0, w1, w2 = g0 - bv[0] + al[{rc}], g1 - bv[1] + al[{rc + 1}], g2 - bv[2] + al[{rc + 2}]")
+    return L
 
 
 def _views(lay: Layout) -> list[str]:
@@ -200,6 +227,8 @@ def _views(lay: Layout) -> list[str]:
     for i in range(n):
         out += [f"s{i} = S[O[{2 + 2 * i}]:O[{3 + 2 * i}]]", f"p{i} = P[O[{pa(i + 1)}]:O[{pa(i + 1) + 1}]]"]
     out += ["rate = np.zeros(3)", "v = np.empty(9)", "motion = int(pp[2])"]
+    if _withholds(lay):  # the gyro bias, a view of the run state
+        out.append(f"bv = al[{BIAS}:{BIAS + 3}]")
     return ["    " + s for s in out]
 
 
