@@ -115,12 +115,13 @@ class CorrectorKernel(NamedTuple):
     sample's flags so far; it *adds* its correction rate into ``rate`` (summed with the other rate
     correctors, fed into the next propagation) and returns its flag bits.
 
-    ``mode == "factor"``: ``correct(q, s, b, g0, g1, g2, w0, w1, w2, a0, a1, a2, m0, m1, m2, acc_ok,
-    mag_ok, flags, dt, params) -> int``: ``q`` is the output composed so far (the estimator's
-    quaternion with the factors of the factor correctors before it), which it overwrites with its own
-    factor composed in; ``b`` is the pipeline's gyro bias (read and write); ``g`` the gyroscope as
-    measured (NaN when invalid) and ``w`` the rate the estimator integrated over this step; it
-    returns its flag bits.
+    ``mode == "factor"``: ``correct(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2,
+    acc_ok, mag_ok, flags, dt, params) -> int``: ``q`` is the output composed so far (the
+    estimator's quaternion with the factors of the factor correctors before it), which it
+    overwrites with its own factor composed in; ``b`` is the pipeline's gyro bias (read and write);
+    ``g`` the gyroscope as measured (NaN when invalid); ``h = exp(-w dt / 2)`` the way back from the
+    end of the step to its middle (``w`` the rate the estimator integrated; NaN without a valid
+    gyro sample), computed once per sample for every factor corrector; it returns its flag bits.
 
     ``mode == "bias"``: ``correct(s, b, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt,
     params) -> int``, run before the propagation: it updates the pipeline's gyro bias ``b`` (``g``

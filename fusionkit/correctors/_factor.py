@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from .._kernels import rotvec_scalars as k_rotvec
 from .._numba import njit
 from ..conventions import frame_matrix
 from ..rotations import quat_from_rotvec, quat_mul, quat_to_matrix
@@ -75,22 +76,13 @@ def k_rot(w, x, y, z, v0, v1, v2):
 
 
 @njit(inline="always")
-def k_rotvec(r0, r1, r2):
-    """The exact quaternion of a rotation vector (rotations.quat_from_rotvec), four scalars."""
-    a = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-    k = 0.5 - a * a / 48.0 if a < 1e-8 else math.sin(0.5 * a) / a
-    return math.cos(0.5 * a), k * r0, k * r1, k * r2
-
-
-@njit(inline="always")
-def k_paired(q, delay, w0, w1, w2, g0, g1, g2, b, dt):
-    """:func:`paired` (``delay`` NaN for None) as four scalars."""
-    if not (math.isfinite(w0) and math.isfinite(w1) and math.isfinite(w2)):
+def k_paired(q, delay, h0, h1, h2, h3, g0, g1, g2, b, dt):
+    """:func:`paired` (``delay`` NaN for None) as four scalars; ``h = exp(-rate dt / 2)``, the step's
+    way back to its middle (the pipeline computes it once per sample; NaN without a valid gyro)."""
+    if not math.isfinite(h0):
         return q[0], q[1], q[2], q[3]
     if math.isnan(delay):
-        h = -0.5 * dt
-        d0, d1, d2, d3 = k_rotvec(w0 * h, w1 * h, w2 * h)
-        return k_qmul(q[0], q[1], q[2], q[3], d0, d1, d2, d3)
+        return k_qmul(q[0], q[1], q[2], q[3], h0, h1, h2, h3)
     if delay != 0.0:
         d0, d1, d2, d3 = k_rotvec((b[0] - g0) * delay, (b[1] - g1) * delay, (b[2] - g2) * delay)
         return k_qmul(q[0], q[1], q[2], q[3], d0, d1, d2, d3)

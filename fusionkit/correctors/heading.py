@@ -49,10 +49,12 @@ from ._factor import (bias_step, frame_axes, gyro_lowpass, k_bias_step, k_gyro_l
 
 __all__ = ["MagHeadingConfig", "MagHeading", "mag_heading_kernel", "MAG_REFERENCE"]
 
-# state: delta, the low-passed gyro and its sample count, the magnetic reference's state, the frame's
+# state: the magnetic reference's state, delta, the low-passed gyro and its sample count, the frame's
 # east, north, up axes, and the coefficients for the last dt (k of the heading, k of the gyro low-pass)
-_DELTA, _LW, _SEEN, _MAG, _AX, _DT, _KM, _KW = 0, 1, 4, 5, 5 + MAG_SIZE, 14 + MAG_SIZE, 15 + MAG_SIZE, 16 + MAG_SIZE
-_SIZE = 17 + MAG_SIZE
+# (the reference's state first: the kernel hands the state itself to magnetic_step, no slice per sample)
+_MAG, _DELTA, _LW, _SEEN = 0, MAG_SIZE, MAG_SIZE + 1, MAG_SIZE + 4
+_AX, _DT, _KM, _KW = MAG_SIZE + 5, MAG_SIZE + 14, MAG_SIZE + 15, MAG_SIZE + 16
+_SIZE = MAG_SIZE + 17
 #: where the magnetic reference (norm, dip) sits in the corrector's state
 MAG_REFERENCE = _MAG
 _REST, _ACC_REJECTED, _MAG_DISTURBED = int(Flag.REST), int(Flag.ACC_REJECTED), int(Flag.MAG_DISTURBED)
@@ -137,7 +139,7 @@ class MagHeading(FactorCorrector):
 
 
 @njit(inline="always")
-def mag_heading_kernel(q, s, b, g0, g1, g2, w0, w1, w2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
+def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
     """The kernel of :meth:`MagHeading.compose`: ``p = (tau, rejection, mag_delay (NaN: None), rate_tau,
     mag_bias, motion_bias_tau, bias_max, *magnetic params)``."""
     if s[_DT] != dt:
@@ -147,7 +149,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, w0, w1, w2, a0, a1, a2, m0, m1, m2, 
     out = 0
     ax = _AX
     if mag_ok:
-        p0, p1, p2, p3 = k_paired(q, p[2], w0, w1, w2, g0, g1, g2, b, dt)
+        p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
         v0, v1, v2 = k_rot(p0, p1, p2, p3, m0, m1, m2)
         norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
         vu = v0 * s[ax + 6] + v1 * s[ax + 7] + v2 * s[ax + 8]
@@ -155,10 +157,9 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, w0, w1, w2, a0, a1, a2, m0, m1, m2, 
         target = 0.5 * math.pi - math.atan2(v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5],
                                             v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2])
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
-        ms = s[_MAG:_MAG + MAG_SIZE]
-        code = magnetic_step(ms, norm, dip, rate, dt, p[7], p[8], p[9], p[10], p[11], p[12])
+        code = magnetic_step(s, norm, dip, rate, dt, p[7], p[8], p[9], p[10], p[11], p[12])
         if code == MAG_LEARNING:
-            n = ms[MAG_COUNT]
+            n = s[MAG_COUNT]
             s[_DELTA] = _kwrap(target if n == 1.0 else s[_DELTA] + _kwrap(target - s[_DELTA]) / n)
         elif code == MAG_DISTURBED and p[1] != 0.0:
             out = _MAG_DISTURBED

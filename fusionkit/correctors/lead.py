@@ -50,7 +50,7 @@ class OutputLead(FactorCorrector):
 
 
 @njit(inline="always")
-def output_lead_kernel(q, s, b, g0, g1, g2, w0, w1, w2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
+def output_lead_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
     """The kernel of :meth:`OutputLead.compose`: ``p = (lead,)``."""
     lead = p[0]
     if lead > 0.0 and math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2):

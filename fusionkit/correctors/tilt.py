@@ -158,11 +158,11 @@ class InertialTilt(FactorCorrector):
 
 
 @njit(inline="always")
-def inertial_tilt_kernel(q, s, b, g0, g1, g2, w0, w1, w2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
+def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
     """The kernel of :meth:`InertialTilt.compose`: ``p = (tau, fast_start, acc_delay (NaN: None),
     motion_bias_tau (0: off), bias_max)``."""
     if acc_ok:
-        p0, p1, p2, p3 = k_paired(q, p[2], w0, w1, w2, g0, g1, g2, b, dt)
+        p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
         v0, v1, v2 = k_rot(p0, p1, p2, p3, a0, a1, a2)
         s[_TACC] += dt
         if p[1] != 0.0 and s[_READY] == 0.0 and s[_TACC] + 0.5 * dt < p[0]:

@@ -143,8 +143,13 @@ class RecommendedFilter(Pipeline):
             rec = dataclasses.replace(rec, mag=None)  # not read at all: no MAG_INVALID flags either
         return super().run(rec, **kw)
 
-    def update(self, gyr, acc, mag=None, dt: float | None = None, gnss=None):
-        return super().update(gyr, acc, mag if self.config.use_mag else None, dt, gnss)
+    def __init__(self, config=None, **params: Any) -> None:
+        super().__init__(config, **params)
+        if not self.config.use_mag:  # (an instance attribute: the default's update() pays no extra call)
+            self.update = self._update_without_mag
+
+    def _update_without_mag(self, gyr, acc, mag=None, dt: float | None = None, gnss=None):
+        return Pipeline.update(self, gyr, acc, None, dt, gnss)
 
     def _diagnostics(self, st, flags, crit, backend) -> dict[str, Any]:
         d = super()._diagnostics(st, flags, crit, backend)
