@@ -14,19 +14,12 @@ from fusionkit.benchmarking.metrics import broad_errors
 from fusionkit.testing import check_plugin
 from fusionkit.types import Flag
 
-DEG = np.pi / 180
-BIAS = (0.01, -0.008, 0.006)
+from test_recommended import BIAS, DEG
+from test_recommended import motion as _motion
 
 
-def motion(seed=1, bias=BIAS, rest_every=True, n=2):
-    segs = [sim.Rest(6.0)]
-    for i in range(n):
-        segs += [sim.Rotate((1, 0.3 * i, 0), 60 * DEG, 2.0), sim.Rotate((0, 0, 1), 120 * DEG, 2.0),
-                 sim.Translate((1, 1, 0), 0.3, 1.0), sim.Rotate((1, 0.3 * i, 0), -60 * DEG, 2.0)]
-        if rest_every:
-            segs.append(sim.Rest(5.0))
-    noise = sim.Noise(gyr_noise=0.003, gyr_bias=bias, acc_noise=0.03, mag_noise=0.3)
-    return sim.simulate(segs, rate=100.0, noise=noise, seed=seed, gnss_rate=None)
+def motion(n=2, **kw):
+    return _motion(n=n, **kw)
 
 
 def composition(correctors, detectors=("rest",), initial=(1.0, 0.0, 0.0, 0.0)):
