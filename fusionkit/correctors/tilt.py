@@ -196,13 +196,15 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
             c0, c1, c2, c3 = c0 / n, c1 / n, c2 / n, c3 / n
         else:
             c0, c1, c2, c3 = 0.0, s[_EAST], s[_EAST + 1], s[_EAST + 2]
-        s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3] = k_qmul(c0, c1, c2, c3, s[_QA], s[_QA + 1], s[_QA + 2],
-                                                            s[_QA + 3])
+        t0, t1, t2, t3 = k_qmul(c0, c1, c2, c3, s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3])
+        s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3] = t0, t1, t2, t3
+        e0, e1, e2, e3 = k_qmul(t0, t1, t2, t3, q[0], q[1], q[2], q[3])  # the output (and the bias step's q6)
         if p[3] > 0.0 and (flags & _REST) == 0 and s[_READY] != 0.0:
             sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
             if sn > 0.0:
                 f = 2.0 * math.atan2(sn, c0) / (sn * dt)
-                e0, e1, e2, e3 = k_qmul(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], q[0], q[1], q[2], q[3])
                 k_bias_step(b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, dt / p[3], p[4])
+        q[0], q[1], q[2], q[3] = e0, e1, e2, e3
+        return 0
     q[0], q[1], q[2], q[3] = k_qmul(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], q[0], q[1], q[2], q[3])
     return 0
