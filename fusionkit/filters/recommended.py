@@ -138,10 +138,12 @@ class RecommendedFilter(Pipeline):
             alignment=AlignmentConfig(mode="none", initial_quat=initial_attitude(c.frame)),
         )
 
-    def run(self, rec, **kw):
+    def run(self, rec, *, backend: str = "auto", progress: bool | None = None, state: dict[str, Any] | None = None):
+        """:meth:`Pipeline.run`; ``use_mag=False`` does not read the recording's magnetometer at all
+        (no MAG_INVALID flags either)."""
         if not self.config.use_mag and getattr(rec, "mag", None) is not None:
-            rec = dataclasses.replace(rec, mag=None)  # not read at all: no MAG_INVALID flags either
-        return super().run(rec, **kw)
+            rec = dataclasses.replace(rec, mag=None)
+        return super().run(rec, backend=backend, progress=progress, state=state)
 
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
