@@ -200,3 +200,11 @@ def validity_all(gyr, acc, mag, has_mag, gyr_range, acc_range, ok, flags):
         g, a, m, f = validity_flags(gyr[k, 0], gyr[k, 1], gyr[k, 2], acc[k, 0], acc[k, 1], acc[k, 2],
                                     mag[k, 0], mag[k, 1], mag[k, 2], has_mag, gyr_range, acc_range)
         ok[k, 0], ok[k, 1], ok[k, 2], flags[k] = g, a, m, f
+
+
+@njit(inline="always")
+def rotvec_scalars(r0, r1, r2):
+    """:func:`rotvec_quat` returning four scalars (no output array)."""
+    a = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    k = 0.5 - a * a / 48.0 if a < 1e-8 else math.sin(0.5 * a) / a
+    return math.cos(0.5 * a), k * r0, k * r1, k * r2

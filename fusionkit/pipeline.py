@@ -17,13 +17,22 @@ Per sample, in this fixed order:
    sample after the mandatory ``duration`` (that sample is navigated, not averaged); mode
    ``fixed`` after ``duration``; mode ``none`` skips it. On the end, the estimator starts from
    the alignment attitude and the mean gyro output becomes the bias.
-4. **propagation**: ``estimator.propagate(gyr - bias + correction_rate, dt)``.
-5. **correctors**, in order; rate correctors' outputs are summed into the next correction rate.
+4. **bias correctors** (``mode = "bias"``), in order: they update the gyro bias (the
+   alignment's, shared) before this sample's propagation subtracts it.
+5. **propagation**: ``estimator.propagate(gyr - bias + correction_rate, dt)``.
+6. **correctors**, in order; rate correctors' outputs are summed into the next correction rate.
    A sample flagged MAG_DISTURBED (by the ``magnetic`` detector) reaches them without its
    magnetometer reading, one flagged ACC_REJECTED (by the ``acceleration`` detector) without its
    accelerometer reading: that correction is skipped. A corrector that names a
    ``state_layout`` works on the estimator's state itself (e.g. a DCM's columns); the others
-   through its quaternion.
+   through its quaternion. **Factor correctors** (``mode = "factor"``) come last: the estimator
+   never sees their corrections; each keeps its own factor and composes it into the output, in
+   order, from the estimator's quaternion on (``recommended``: ``q = Rz(delta) (x) q_tilt (x)
+   q_gyr``). They see the gyroscope as measured, the rate the estimator integrated and the gyro
+   bias, which they may update (it takes effect in the next propagation).
+
+Before a sample that follows a timestamp gap (GAP) or a saturated gyro (the first unsaturated
+sample), correctors that declare ``restarts`` forget what became stale (:meth:`Corrector.restart`).
 
 Two paths run this: the readable reference (:meth:`Pipeline._step`) and, when every plugin has
 a numba kernel (an estimator, any models, detectors and correctors of either mode), one compiled
@@ -67,6 +76,7 @@ from .protocols import Filter, Sample
 from .registry import Registry, default_registry
 from .types import (Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, sample_validity,
                     stream_gap)
+from .filters._step_filter import _after_saturation
 from .validation import as_vector, check_finite_all, check_positive, check_sample_finite, finite_sample
 
 __all__ = ["Pipeline", "run_detector"]
@@ -112,6 +122,11 @@ class Pipeline(Filter):
                 "alignment mode 'motion' ends on a MOTION flag, but no detector sets it: add the "
                 "'motion' detector or use mode 'fixed'"
             )
+        modes = [c.mode for c in self.correctors if c.mode != "bias"]
+        if "factor" in modes and any(m != "factor" for m in modes[modes.index("factor"):]):
+            raise ConfigError("factor correctors compose their factors onto the estimate: they come after every "
+                              "state and rate corrector (reorder the correctors)")
+        self._restarts = any(c.restarts for c in self.correctors)
         for c in self.correctors:
             if c.state_layout and c.state_layout != self.estimator.state_layout:
                 raise ConfigError(f"corrector {c.name!r} works on a {c.state_layout!r} estimator state, but estimator "
@@ -222,25 +237,38 @@ class Pipeline(Filter):
         if status in (ALIGNING, ALIGNED_NOW):
             al[_QPREV:_QPREV + 4] = q
             return q, flags | Flag.ALIGNING, crit0
-        # 4. propagation
         al[SEEN] += 1.0
+        if flags & Flag.MAG_DISTURBED:  # withheld from every corrector
+            sample = sample._replace(mag=None)
+        if flags & Flag.ACC_REJECTED:
+            sample = sample._replace(acc=None)
+        bias = al[BIAS:BIAS + 3]  # a view: bias and factor correctors update it in place
+        # 4. bias correctors (the gyroscope as measured)
+        for i, cor in enumerate(self.correctors):
+            if cor.mode == "bias":
+                flags |= cor.update_bias(st["cor"][i], bias, sample, flags)
+        # 5. propagation
+        w = gyr - bias + al[_RCORR:_RCORR + 3]
         if gyr_ok:
-            self.estimator.propagate(st["x"], gyr - al[BIAS:BIAS + 3] + al[_RCORR:_RCORR + 3], dt)
-        # 5. correctors (they see the rate the estimator integrated: the alignment's bias removed)
+            self.estimator.propagate(st["x"], w, dt)
+        # 6. correctors (they see the rate the estimator integrated: the alignment's bias removed)
+        q = None
         if self.correctors:
             rate = np.zeros(3)
-            sample = sample._replace(gyr=gyr - al[BIAS:BIAS + 3])
-            if flags & Flag.MAG_DISTURBED:
-                sample = sample._replace(mag=None)
-            if flags & Flag.ACC_REJECTED:
-                sample = sample._replace(acc=None)
+            measured, sample = sample, sample._replace(gyr=gyr - bias)
             for i, cor in enumerate(self.correctors):
-                out = cor.correct(self.estimator, st["x"], st["cor"][i], sample, flags)
-                flags |= out.flags
-                if out.rate is not None:
-                    rate += out.rate
+                if cor.mode == "factor":
+                    q, f = cor.compose(st["cor"][i], self.estimator.quat(st["x"]) if q is None else q, measured,
+                                       bias, w, flags)
+                    flags |= f
+                elif cor.mode != "bias":
+                    out = cor.correct(self.estimator, st["x"], st["cor"][i], sample, flags)
+                    flags |= out.flags
+                    if out.rate is not None:
+                        rate += out.rate
             al[_RCORR:_RCORR + 3] = rate
-        q = self.estimator.quat(st["x"])
+        if q is None:
+            q = self.estimator.quat(st["x"])
         al[_QPREV:_QPREV + 4] = q
         return q, flags, crit0
 
@@ -329,12 +357,20 @@ class Pipeline(Filter):
         out_f = np.zeros(n, dtype=np.uint32)
         out_c = np.zeros(n, dtype=np.uint32)
         bar = _progress(n, progress, f"{self.name}")
+        restart = (gaps | _after_saturation(rec.gyr, self.spec.gyr_range)) if self._restarts else np.zeros(n, bool)
+        cuts = np.flatnonzero(restart).tolist()
         for start in range(0, n, _CHUNK):
             stop = min(n, start + _CHUNK)
-            if used == "numba":
-                self._run_compiled(st, kernels, gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop, gn)
+            if used == "numba":  # one compiled run per stretch between restarts
+                bounds = [start, *[c for c in cuts if start < c < stop], stop]
+                for s, e in zip(bounds[:-1], bounds[1:]):
+                    if restart[s]:
+                        self._restart(st)
+                    self._run_compiled(st, kernels, gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, s, e, gn)
             else:
                 for k in range(start, stop):
+                    if restart[k]:
+                        self._restart(st)
                     q, f, c = self._step(st, gyr[k], rec.acc[k], mag[k], dt[k], has_mag,
                                          None if gn is None else gn[k])
                     out_q[k], out_f[k], out_c[k] = q, f, c
@@ -346,6 +382,13 @@ class Pipeline(Filter):
         report_disturbed(st["align"], st["dt"], self.spec.alignment.duration)
         mark_gaps(out_f, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.spec.max_gap))
         return Result(out_q, out_f, self.spec.frame, diag)
+
+    def _restart(self, st) -> None:
+        """Before a sample after a gap or a saturated gyro: the correctors that declare
+        ``restarts`` forget what became stale."""
+        for i, c in enumerate(self.correctors):
+            if c.restarts:
+                c.restart(st["cor"][i])
 
     def _set_body(self, body: str | None) -> None:
         """The correctors for sensors in ``body`` axes (a corrector with a forward axis gets
@@ -403,6 +446,13 @@ class Pipeline(Filter):
             self._stream = self.new_state(dt)
         g, dt, gap = stream_gap(g, dt, self._stream["dt"], self.spec.max_gap)
         self._set_body(self.config.body)  # no recording: the config's body axes
+        if self._restarts:
+            saturated = self.spec.gyr_range is not None and bool(np.max(np.abs(g)) >= self.spec.gyr_range)
+            if gap or (self.__dict__.get("_saturated", False) and not saturated):
+                self._sync_stream()
+                self._restart(self._stream)
+                self._packed = None  # packed again from the restarted state
+            self._saturated = saturated
         pk = self._stream_kernel()
         if pk is not None:
             step, S, P, O, q, _ = pk
@@ -410,7 +460,8 @@ class Pipeline(Filter):
             g, a, m = g.tolist(), a.tolist(), m.tolist()
             f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q, *n)
             self.last_flags = gap_flags(f, gap)
-            if len(self.__dict__.get("_unit_samples", ())) >= self.UNIT_CHECK_SAMPLES:  # the units are checked:
+            if len(self.__dict__.get("_unit_samples", ())) >= self.UNIT_CHECK_SAMPLES and not (
+                    self._restarts and self.spec.gyr_range is not None):  # the units are checked, no range to watch:
                 self._fast_dt = gap_threshold(self._stream["dt"], self.spec.max_gap)  # the fast path may run
             return q.copy()
         gn = None if gnss is None else np.asarray(gnss, dtype=float)

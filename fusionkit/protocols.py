@@ -28,6 +28,8 @@ __all__ = [
     "Plugin",
     "Estimator",
     "Corrector",
+    "FactorCorrector",
+    "BiasCorrector",
     "Detector",
     "Filter",
     "SensorModel",
@@ -113,6 +115,18 @@ class CorrectorKernel(NamedTuple):
     sample's flags so far; it *adds* its correction rate into ``rate`` (summed with the other rate
     correctors, fed into the next propagation) and returns its flag bits.
 
+    ``mode == "factor"``: ``correct(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2,
+    acc_ok, mag_ok, flags, dt, params) -> int``: ``q`` is the output composed so far (the
+    estimator's quaternion with the factors of the factor correctors before it), which it
+    overwrites with its own factor composed in; ``b`` is the pipeline's gyro bias (read and write);
+    ``g`` the gyroscope as measured (NaN when invalid); ``h = exp(-w dt / 2)`` the way back from the
+    end of the step to its middle (``w`` the rate the estimator integrated; NaN without a valid
+    gyro sample), computed once per sample for every factor corrector; it returns its flag bits.
+
+    ``mode == "bias"``: ``correct(s, b, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt,
+    params) -> int``, run before the propagation: it updates the pipeline's gyro bias ``b`` (``g``
+    as measured) and returns its flag bits.
+
     A corrector with a ``state_layout`` (see :class:`Corrector`) corrects the estimator's state
     ``x`` itself, in place: the pipeline then passes ``x`` as ``q`` too and does no
     ``to_quat`` / ``from_quat`` round trip around it (the return value is only flag bits).
@@ -180,11 +194,15 @@ class Corrector(Plugin, ABC):
 
     ``mode = "rate"``: returns a correction rate fed into the next propagation (Mahony/GST
     style). ``mode = "state"``: updates the estimator state directly (gradient step, DCM column
-    replacement) and returns ``Correction(None, flags)``.
+    replacement) and returns ``Correction(None, flags)``. ``mode = "factor"``: keeps its own
+    correction as a factor of the output, which the estimator never sees (``recommended``'s
+    ``q = Rz(delta) (x) q_tilt (x) q_gyr``): :meth:`compose` instead of :meth:`correct`.
+    ``mode = "bias"``: updates the pipeline's gyro bias before the propagation:
+    :meth:`update_bias` instead of :meth:`correct`.
     """
 
     kind: ClassVar[str] = "corrector"
-    mode: ClassVar[Literal["rate", "state"]] = "rate"
+    mode: ClassVar[Literal["rate", "state", "factor", "bias"]] = "rate"
     uses_mag: ClassVar[bool] = False  #: True for magnetometer correctors (makes a pipeline 9D)
     #: a flag some detector of the pipeline must set (the pipeline refuses the composition otherwise)
     requires_flag: ClassVar[Flag] = Flag.NONE
@@ -207,11 +225,54 @@ class Corrector(Plugin, ABC):
         """The compiled counterpart for this estimator (its ``mode`` that of the corrector), or None."""
         return None
 
+    #: the pipeline calls :meth:`restart` before a sample that follows a timestamp gap (GAP) or a
+    #: saturated gyro (the first unsaturated sample): what the corrector averaged has become stale
+    restarts: ClassVar[bool] = False
+
+    def restart(self, state: np.ndarray) -> None:
+        """Forget what became stale across a gap or a saturated gyro (``restarts = True``)."""
+
     def for_body(self, body: str | None) -> "Corrector":
         """This corrector for sensors in ``body`` axes (the run's, None: not known): itself, or
         for one that needs a body axis (``gst-gnss``'s forward axis) a copy set to them. The
         pipeline calls it at each run."""
         return self
+
+
+class FactorCorrector(Corrector):
+    """A corrector that keeps its correction as its own factor of the output (``mode = "factor"``):
+    the estimator propagates the gyroscope alone, and each factor corrector composes its factor into
+    the output, in order (they come after the state and rate correctors). They see the gyroscope as
+    measured and the pipeline's gyro bias, which they may update (a correction that is the gyro's
+    drift teaches the bias)."""
+
+    mode: ClassVar[str] = "factor"
+
+    @abstractmethod
+    def compose(self, state: np.ndarray, quat: np.ndarray, sample: Sample, bias: np.ndarray, rate: np.ndarray,
+                flags: int) -> tuple[np.ndarray, int]:
+        """``(quat', flags)``: ``quat`` (the output composed so far, body -> the pipeline's frame)
+        with this corrector's factor composed in, after updating the factor from ``sample``
+        (``sample.gyr`` as measured, NaN when invalid); ``bias`` is the pipeline's gyro bias (may be
+        updated in place), ``rate`` what the estimator integrated over this step."""
+
+    def correct(self, estimator, est_state, state, sample, flags) -> Correction:
+        raise TypeError(f"corrector {self.name!r} is a factor corrector: the pipeline calls compose()")
+
+
+class BiasCorrector(Corrector):
+    """A corrector that updates the pipeline's gyro bias before the propagation (``mode = "bias"``):
+    the sample's own propagation already subtracts what it learned."""
+
+    mode: ClassVar[str] = "bias"
+
+    @abstractmethod
+    def update_bias(self, state: np.ndarray, bias: np.ndarray, sample: Sample, flags: int) -> int:
+        """Update ``bias`` (in place) from ``sample`` (``gyr`` as measured, NaN when invalid);
+        returns flag bits."""
+
+    def correct(self, estimator, est_state, state, sample, flags) -> Correction:
+        raise TypeError(f"corrector {self.name!r} is a bias corrector: the pipeline calls update_bias()")
 
 
 class SensorModel(Plugin, ABC):

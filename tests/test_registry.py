@@ -231,3 +231,33 @@ def test_example_corrector_reduces_drift(example_plugin_installed):
     gyro = rms_errors(fk.make("poisson", alignment="fixed", alignment_duration=1.0).run(drifting), drifting)["inclination"]
     # a proportional loop leaves bias / k_p = 0.014 rad (0.8 deg); gyro integration drifts without bound
     assert comp < np.degrees(0.0142) and gyro > 4 * comp
+
+
+def test_recommended_with_a_third_party_part(example_plugin_installed, tmp_path):
+    """docs/configuration.md: ``recommended``'s composition with its inclination factor replaced by
+    the example package's tilt loop (a rate corrector: it goes before the factor correctors) runs
+    from a TOML file; the heading factor is still heading-only on top of it."""
+    import dataclasses
+
+    from fusionkit import sim
+    from fusionkit.config import to_toml
+    from fusionkit.rotations import quat_to_matrix
+
+    cfg = fk.describe("recommended").config()
+    names = [c["name"] for c in cfg["correctors"]]
+    assert names == ["rest-bias-lowpass", "inertial-tilt", "mag-heading"]
+    cfg["correctors"][1] = {"name": "example-tilt", "params": {"k_p": 2.0}}
+    path = tmp_path / "mine.toml"
+    path.write_text(to_toml(cfg))
+    rec = sim.simulate([sim.Rest(2.0), sim.Rotate((1, 0, 0), 0.8, 1.0), sim.Rotate((0, 0, 1), 1.5, 1.0)], rate=100.0,
+                       noise=sim.Noise(gyr_noise=0.003, acc_noise=0.03, mag_noise=0.3), seed=2, gnss_rate=None)
+    mine = fk.compose(path)
+    res = mine.run(rec)
+    assert [c.name for c in mine.correctors] == ["rest-bias-lowpass", "example-tilt", "mag-heading"]
+    assert res.diagnostics["backend"] == "reference"  # the example's corrector has no kernel
+    up = lambda q: np.einsum("nji,j->ni", quat_to_matrix(q), [0, 0, 1.0])  # noqa: E731
+    tilt = np.degrees(np.arccos(np.clip(np.sum(up(res.quat) * up(rec.truth), axis=1), -1, 1)))
+    assert tilt[-100:].mean() < 2.0
+    assert np.abs(res.quat - fk.make("recommended").run(rec).quat).max() > 1e-3  # a different inclination
+    no_mag = mine.run(dataclasses.replace(rec, mag=None))
+    np.testing.assert_allclose(up(res.quat), up(no_mag.quat), atol=1e-12)

@@ -14,9 +14,20 @@ propagation, summed with the other rate correctors). So the estimator integrates
 detector took for rest cannot teach a bias larger than any the gyro has).
 
 The pipeline refuses this corrector without a detector that sets ``Flag.REST`` (it would never
-learn). The ``recommended`` filter does the same inside its own loop (``rest_bias``). The
-readable reference is :meth:`RestBiasCorrector.correct`; :func:`rest_bias_correct` is its
-kernel (rate mode, any estimator), held to it on every sample by the tests.
+learn). The readable reference is :meth:`RestBiasCorrector.correct`; :func:`rest_bias_correct`
+is its kernel (rate mode, any estimator), held to it on every sample by the tests.
+
+``rest-bias-lowpass`` (:class:`RestBiasLowpass`, ``mode = "bias"``) is the same idea as
+``recommended`` runs it: on REST samples the pipeline's gyro bias itself (the one the
+propagation subtracts, shared with the alignment's and with the bias learned in motion by
+``inertial-tilt``) follows the low-passed gyroscope, *before* the sample's propagation:
+
+``bias += (1 - exp(-dt / tau)) (lowpass(w) - bias)``.
+
+The low-pass (time constant ``lowpass_tau``, the ``rest`` detector's ``tau``) is the one the rest
+detector keeps, on the same samples (valid gyr and acc): at rest it is the gyro output without
+its noise. ``max_bias`` None: no limit (the low-pass at rest is below the rest detector's
+``max_rate`` anyway).
 """
 
 from __future__ import annotations
@@ -28,12 +39,15 @@ import numpy as np
 
 from .._numba import njit
 from ..config import PluginConfig, param
-from ..protocols import Correction, Corrector, CorrectorKernel
+from ..protocols import BiasCorrector, Correction, Corrector, CorrectorKernel
 from ..types import Flag
+from ._factor import gyro_lowpass, k_clamp3, k_gyro_lowpass
 
-__all__ = ["RestBiasConfig", "RestBiasCorrector", "rest_bias_correct"]
+__all__ = ["RestBiasConfig", "RestBiasCorrector", "rest_bias_correct", "RestBiasLowpassConfig", "RestBiasLowpass",
+           "rest_bias_lowpass_kernel"]
 
 _REST = int(Flag.REST)
+_ACC_REJECTED = int(Flag.ACC_REJECTED)
 
 
 class RestBiasConfig(PluginConfig):
@@ -74,13 +88,67 @@ def rest_bias_correct(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, 
         s[0] += k * (g0 - s[0])
         s[1] += k * (g1 - s[1])
         s[2] += k * (g2 - s[2])
-        n = math.sqrt(s[0] * s[0] + s[1] * s[1] + s[2] * s[2])
-        if n > p[1]:
-            f = p[1] / n
-            s[0] *= f
-            s[1] *= f
-            s[2] *= f
+        k_clamp3(s, p[1])
     rate[0] -= s[0]
     rate[1] -= s[1]
     rate[2] -= s[2]
+    return 0
+
+
+class RestBiasLowpassConfig(PluginConfig):
+    tau: float = param(1.0, unit="s", description="time constant of the bias at rest", gt=0)
+    lowpass_tau: float = param(0.5, unit="s", description="time constant of the gyro low-pass it learns from (the "
+                               "rest detector's tau)", gt=0)
+    max_bias: float | None = param(None, unit="rad/s", description="largest bias it leaves; None: no limit", gt=0)
+
+
+# state: the low-passed gyro, its sample count, and the coefficients for the last dt
+_LW, _SEEN, _DT, _KB, _KL = 0, 3, 4, 5, 6
+
+
+class RestBiasLowpass(BiasCorrector):
+    """At rest (``Flag.REST``), the pipeline's gyro bias follows the low-passed gyro, before the propagation."""
+
+    name: ClassVar[str] = "rest-bias-lowpass"
+    Config = RestBiasLowpassConfig
+    requires_flag: ClassVar[Flag] = Flag.REST
+    source: ClassVar[str] = "fusionkit (source 000's bias estimate, repeated at every rest)"
+    summary: ClassVar[str] = "at rest, the gyro bias follows the low-passed gyro (before the propagation)"
+
+    def initial_state(self, dt: float, frame: str) -> np.ndarray:
+        return np.zeros(7)
+
+    def update_bias(self, state, bias, sample, flags) -> int:
+        c, s, dt = self.config, state, sample.dt
+        if s[_DT] != dt:  # the coefficients, once per distinct dt
+            s[_DT], s[_KB], s[_KL] = dt, 1.0 - math.exp(-dt / c.tau), 1.0 - math.exp(-dt / c.lowpass_tau)
+        g = sample.gyr
+        if np.isfinite(g).all() and (sample.acc is not None or flags & _ACC_REJECTED):  # the rest detector's samples
+            gyro_lowpass(s, _LW, _SEEN, g, s[_KL])
+            if flags & _REST:
+                bias += s[_KB] * (s[_LW:_LW + 3] - bias)
+                n = float(np.linalg.norm(bias))
+                if c.max_bias is not None and n > c.max_bias:
+                    bias *= c.max_bias / n
+        return 0
+
+    def kernel(self, estimator) -> CorrectorKernel:
+        c = self.config
+        p = np.array([c.tau, c.lowpass_tau, c.max_bias if c.max_bias is not None else math.inf])
+        return CorrectorKernel(rest_bias_lowpass_kernel, p, mode="bias")
+
+
+@njit(inline="always")
+def rest_bias_lowpass_kernel(s, b, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
+    """The kernel of :meth:`RestBiasLowpass.update_bias`: ``p = (tau, lowpass_tau, max_bias (inf: none))``."""
+    if s[_DT] != dt:
+        s[_DT], s[_KB], s[_KL] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[1])
+    if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and (acc_ok or (flags & _ACC_REJECTED) != 0):
+        k_gyro_lowpass(s, _LW, _SEEN, g0, g1, g2, s[_KL])
+        if (flags & _REST) != 0:
+            k = s[_KB]
+            b[0] += k * (s[_LW] - b[0])
+            b[1] += k * (s[_LW + 1] - b[1])
+            b[2] += k * (s[_LW + 2] - b[2])
+            k_clamp3(b, p[2])
     return 0

@@ -17,7 +17,7 @@ Recovery:
   carried along with the body (its norm and dip seen against the vertical change as the body
   turns, or it is never consistent).
 
-The core, :func:`magnetic_step`, works on scalars: the ``recommended`` and ``ekf`` filters call
+The core, :func:`magnetic_step`, works on scalars: the ``mag-heading`` corrector and the ``ekf`` filter call
 it with the norm and dip of the field seen in their own levelled frame (the dip needs a vertical;
 an estimated one is better than the accelerometer's under motion). As a plugin (in a pipeline or
 alone), :class:`MagneticDetector` takes the vertical from the accelerometer and the rate from the

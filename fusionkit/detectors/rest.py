@@ -5,7 +5,7 @@ Both sensors are low-passed (first order, ``tau``); the sensor is at rest when, 
 gyroscope and within ``acc_threshold`` of the low-passed accelerometer, and the low-passed
 gyroscope itself is below ``max_rate`` (the largest gyro bias to expect: a slow, steady rotation
 is otherwise "quiet" too). While at rest, the low-passed gyroscope output is the gyro bias
-(:class:`~fusionkit.filters.recommended.RecommendedFilter` re-estimates its bias from it).
+(the ``rest-bias-lowpass`` corrector keeps the same low-pass and learns the bias from it).
 
 Deviations from a low-pass rather than absolute levels: a gyro bias or a tilted accelerometer
 must not look like motion. Criterion bit 0 (``rest``) fires on rest samples; the pipeline sets
@@ -45,7 +45,7 @@ class RestConfig(PluginConfig):
 @njit
 def rest_step(s, g0, g1, g2, a0, a1, a2, dt, tau, gyr_th, acc_th, max_rate, min_time):
     """One sample of the rest detector (state ``s``, layout above); returns 1 at rest, else 0.
-    Shared by the detector's kernel and the ``recommended`` filter's kernel."""
+    The detector's kernel."""
     if s[_SEEN] == 0.0:
         s[_LW], s[_LW + 1], s[_LW + 2] = g0, g1, g2
         s[_LA], s[_LA + 1], s[_LA + 2] = a0, a1, a2

@@ -1,4 +1,4 @@
-"""The shared frame of the monolithic filters (``recommended``, ``ekf``).
+"""The shared frame of the monolithic filters (``ekf``).
 
 Such a filter keeps its whole state in one flat ``float64`` array (copyable, splittable, the same
 array its numba loop works on) and has

@@ -1,0 +1,175 @@
+"""The heading-only magnetometer correction (``mag-heading``, a factor corrector).
+
+It keeps the factor ``Rz(delta)``, a rotation about the vertical by the heading correction
+``delta``, and composes the output ``Rz(delta) (x) q`` from the orientation ``q`` the factors before
+it give (``recommended``: ``q_tilt (x) q_gyr``, levelled). The field, seen in that levelled frame,
+gives a heading (the angle that turns its horizontal part to north); ``delta`` follows it with time
+constant ``tau``. A rotation about the vertical cannot change roll and pitch: a magnetic
+disturbance reaches heading only (source 002's channel separation; tested to 1e-12).
+
+Around it, each a separate idea:
+
+- **magnetic disturbance rejection** (``rejection``; settings in ``magnetic``): the ``magnetic``
+  detector's reference (:func:`fusionkit.detectors.magnetic.magnetic_step`) judged on the norm and
+  dip of the field in the levelled frame (an estimated vertical is better than the
+  accelerometer's under motion); a disturbed sample is not used (flag MAG_DISTURBED); a new field
+  consistent for ``magnetic.new_time`` s while the sensor turns becomes the reference. The turning
+  rate is the gyroscope low-passed with ``rate_tau`` (the ``rest`` detector's low-pass, kept on the
+  same samples);
+- **fast start**: while the reference is learned (the first ``magnetic.init_time`` s), ``delta``
+  is the mean heading of the samples so far; ``init_time = 0``: it starts from the first sample;
+- **vertical bias** (``mag_bias``, with ``motion_bias_tau``): the correction as a rate about the
+  vertical is the gyro's vertical drift; the pipeline's gyro bias takes it in (off by default: it
+  is the one path by which the magnetometer reaches roll and pitch);
+- **sensor pairing** (``mag_delay``): as ``inertial-tilt``'s ``acc_delay`` (None: the middle of the
+  gyro's step).
+
+Assumes: the field is homogeneous (the earth's) apart from the disturbances the reference
+catches, and the orientation it gets is levelled (an inclination factor or corrector runs
+before it). The readable reference is :meth:`MagHeading.compose`; :func:`mag_heading_kernel` does
+the same arithmetic (tests: 1e-9 on every sample).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar
+
+import numpy as np
+
+from .._numba import njit
+from ..config import PluginConfig, param
+from ..detectors.magnetic import (MAG_COUNT, MAG_DISTURBED, MAG_LEARNING, MAG_SIZE, MagneticConfig,
+                                  MagneticDetector, field_norm_dip, magnetic_step)
+from ..protocols import CorrectorKernel, FactorCorrector
+from ..rotations import quat_mul, quat_to_matrix, wrap_angle
+from ..types import Flag
+from ._factor import (bias_step, frame_axes, gyro_lowpass, k_bias_step, k_gyro_lowpass, k_paired, k_qmul, k_rot,
+                      paired)
+
+__all__ = ["MagHeadingConfig", "MagHeading", "mag_heading_kernel", "MAG_REFERENCE"]
+
+# state: the magnetic reference's state, delta, the low-passed gyro and its sample count, the frame's
+# east, north, up axes, and the coefficients for the last dt (k of the heading, k of the gyro low-pass)
+# (the reference's state first: the kernel hands the state itself to magnetic_step, no slice per sample)
+_MAG, _DELTA, _LW, _SEEN = 0, MAG_SIZE, MAG_SIZE + 1, MAG_SIZE + 4
+_AX, _DT, _KM, _KW = MAG_SIZE + 5, MAG_SIZE + 14, MAG_SIZE + 15, MAG_SIZE + 16
+_SIZE = MAG_SIZE + 17
+#: where the magnetic reference (norm, dip) sits in the corrector's state
+MAG_REFERENCE = _MAG
+_REST, _ACC_REJECTED, _MAG_DISTURBED = int(Flag.REST), int(Flag.ACC_REJECTED), int(Flag.MAG_DISTURBED)
+_kwrap = njit(wrap_angle)
+
+
+class MagHeadingConfig(PluginConfig):
+    tau: float = param(15.0, unit="s", description="time constant of the heading correction", gt=0)
+    rejection: bool = param(True, unit="-", description="leave out samples the magnetic reference calls disturbed")
+    magnetic: MagneticConfig = param(
+        MagneticConfig(), unit="-", description="the magnetic reference (the magnetic detector's settings; its "
+        "init_time is the fast start's heading averaging, 0: the first sample)")
+    rate_tau: float = param(0.5, unit="s", description="time constant of the gyro low-pass whose norm is the turning "
+                            "rate of the new-field test", gt=0)
+    mag_bias: bool = param(
+        False, unit="-", description="the gyro bias learns the vertical drift from the heading correction (lets the "
+        "magnetometer reach roll and pitch through the bias)")
+    motion_bias_tau: float = param(100.0, unit="s", description="time constant of that bias learning", gt=0)
+    bias_max: float = param(math.radians(2.0), unit="rad/s", description="largest bias it teaches", gt=0)
+    mag_delay: float | None = param(
+        None, unit="s", description="how long before the end of the gyro's step the magnetometer sample describes "
+        "(None: the middle of the step; 0: its end)")
+
+
+class MagHeading(FactorCorrector):
+    """Heading only, from the magnetometer in the levelled frame, with disturbance rejection (a factor)."""
+
+    name: ClassVar[str] = "mag-heading"
+    Config = MagHeadingConfig
+    uses_mag: ClassVar[bool] = True
+    source: ClassVar[str] = "fusionkit (source 002's channel separation; magnetic disturbance rejection)"
+    summary: ClassVar[str] = "heading factor about the vertical from the magnetometer; disturbances rejected"
+
+    def __init__(self, config=None, **params) -> None:
+        super().__init__(config, **params)
+        self.magnetic = MagneticDetector(self.config.magnetic)
+
+    def initial_state(self, dt: float, frame: str) -> np.ndarray:
+        s = np.zeros(_SIZE)
+        s[_AX:_AX + 9] = frame_axes(frame)
+        return s
+
+    def compose(self, state, quat, sample, bias, rate, flags):
+        c, x, dt = self.config, state, sample.dt
+        out = 0
+        g = sample.gyr
+        if x[_DT] != dt:  # the coefficients, once per distinct dt
+            x[_DT], x[_KM], x[_KW] = dt, 1.0 - math.exp(-dt / c.tau), 1.0 - math.exp(-dt / c.rate_tau)
+        if np.isfinite(g).all() and (sample.acc is not None or flags & _ACC_REJECTED):
+            gyro_lowpass(x, _LW, _SEEN, g, x[_KW])  # the turning rate, on the samples the rest detector sees
+        if sample.mag is not None:
+            qm = paired(quat, c.mag_delay, rate, g, bias, sample.dt)
+            out = self._heading(x, quat_to_matrix(qm) @ sample.mag, quat, bias, sample.dt, bool(flags & _REST))
+        half = 0.5 * x[_DELTA]
+        up = x[_AX + 6:_AX + 9]
+        return quat_mul(np.array([math.cos(half), *(math.sin(half) * up)]), quat), out
+
+    def _heading(self, x, m, q6, bias, dt, rest) -> int:
+        c = self.config
+        east, north, up = x[_AX:_AX + 3], x[_AX + 3:_AX + 6], x[_AX + 6:_AX + 9]
+        norm, dip = field_norm_dip(m, up)
+        target = 0.5 * math.pi - math.atan2(m @ north, m @ east)  # turns the field's azimuth to north
+        code = self.magnetic.reference_step(x[_MAG:_MAG + MAG_SIZE], norm, dip, float(np.linalg.norm(x[_LW:_LW + 3])),
+                                            dt)
+        if code == MAG_LEARNING:  # the heading is the mean over the reference's learning time
+            n = x[_MAG + MAG_COUNT]
+            x[_DELTA] = wrap_angle(target if n == 1.0 else x[_DELTA] + wrap_angle(target - x[_DELTA]) / n)
+            return 0
+        if code == MAG_DISTURBED and c.rejection:
+            return _MAG_DISTURBED
+        step = x[_KM] * wrap_angle(target - x[_DELTA])
+        x[_DELTA] = wrap_angle(x[_DELTA] + step)
+        if c.mag_bias and not rest:  # the correction as a rate about the vertical: the gyro's vertical drift
+            bias_step(bias, up * (step / dt), q6, dt, c.motion_bias_tau, c.bias_max)
+        return 0
+
+    def kernel(self, estimator) -> CorrectorKernel:
+        c = self.config
+        p = np.array([c.tau, float(c.rejection), c.mag_delay if c.mag_delay is not None else math.nan,
+                      c.rate_tau, float(c.mag_bias), c.motion_bias_tau, c.bias_max, *self.magnetic.params()])
+        return CorrectorKernel(mag_heading_kernel, p, mode="factor")
+
+
+@njit(inline="always")
+def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
+    """The kernel of :meth:`MagHeading.compose`: ``p = (tau, rejection, mag_delay (NaN: None), rate_tau,
+    mag_bias, motion_bias_tau, bias_max, *magnetic params)``."""
+    if s[_DT] != dt:
+        s[_DT], s[_KM], s[_KW] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[3])
+    if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and (acc_ok or (flags & _ACC_REJECTED) != 0):
+        k_gyro_lowpass(s, _LW, _SEEN, g0, g1, g2, s[_KW])
+    out = 0
+    ax = _AX
+    if mag_ok:
+        p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
+        v0, v1, v2 = k_rot(p0, p1, p2, p3, m0, m1, m2)
+        norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        vu = v0 * s[ax + 6] + v1 * s[ax + 7] + v2 * s[ax + 8]
+        dip = math.asin(max(-1.0, min(1.0, vu / norm)))
+        target = 0.5 * math.pi - math.atan2(v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5],
+                                            v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2])
+        rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
+        code = magnetic_step(s, norm, dip, rate, dt, p[7], p[8], p[9], p[10], p[11], p[12])
+        if code == MAG_LEARNING:
+            n = s[MAG_COUNT]
+            s[_DELTA] = _kwrap(target if n == 1.0 else s[_DELTA] + _kwrap(target - s[_DELTA]) / n)
+        elif code == MAG_DISTURBED and p[1] != 0.0:
+            out = _MAG_DISTURBED
+        else:
+            step = s[_KM] * _kwrap(target - s[_DELTA])
+            s[_DELTA] = _kwrap(s[_DELTA] + step)
+            if p[4] != 0.0 and (flags & _REST) == 0:
+                r = step / dt
+                k_bias_step(b, q[0], q[1], q[2], q[3], s[ax + 6] * r, s[ax + 7] * r, s[ax + 8] * r, dt / p[5], p[6])
+    half = 0.5 * s[_DELTA]
+    c, sn = math.cos(half), math.sin(half)
+    q[0], q[1], q[2], q[3] = k_qmul(c, sn * s[ax + 6], sn * s[ax + 7], sn * s[ax + 8], q[0], q[1], q[2], q[3])
+    return out
