@@ -62,10 +62,11 @@ G0 = 9.80665
 
 # state: up (3), north (3), east (3) of the frame, lp autonomous (3), lp GNSS (3), the pending
 # platform rate w_P (3), seconds paused by the horizontal test, V_prev, t_prev, dV/dt, V, heading
-# initialised, the forward axis' heading after the previous sample, the accelerometer bias (3, body)
-_UP, _N, _E, _LPA, _LPG, _WP, _REJT, _VPREV, _TPREV, _ALONG, _V, _HINIT, _HPREV, _BA = (
-    0, 3, 6, 9, 12, 15, 18, 19, 20, 21, 22, 23, 24, 25)
-_SIZE = 28
+# initialised, the forward axis' heading after the previous sample, the accelerometer bias (3, body),
+# and the kernel's low-pass gains for the last interval (dt, autonomous, GNSS)
+_UP, _N, _E, _LPA, _LPG, _WP, _REJT, _VPREV, _TPREV, _ALONG, _V, _HINIT, _HPREV, _BA, _KDT = (
+    0, 3, 6, 9, 12, 15, 18, 19, 20, 21, 22, 23, 24, 25, 28)
+_SIZE = 31
 
 
 class GnssLoopConfig(PluginConfig):
@@ -161,9 +162,11 @@ class GstCorrector(Corrector):
         # 1. the platform rate found on the previous sample (the platform equation's left factor)
         q = quat_mul(quat_from_rotvec(-s[_WP:_WP + 3] * dt), estimator.quat(est_state))
         r = quat_to_matrix(q)
+        if dt != s[_KDT]:  # the low-pass gains (kept for the kernel, which computes them once per interval)
+            s[_KDT:_KDT + 3] = dt, 1.0 - math.exp(-dt / p[1]), 1.0 - math.exp(-dt / p[9])
         fwd = self._forward()
-        heading = _heading(r @ fwd, up, north, east)
-        if np.isnan(s[_HPREV]):  # the first sample: the heading before this sample's rotation
+        heading = _heading(r @ fwd, up, north, east) if self.combined else 0.0  # of the forward axis
+        if self.combined and np.isnan(s[_HPREV]):  # the first sample: the heading before its rotation
             s[_HPREV] = _heading(r @ rodrigues(-sample.gyr * dt) @ fwd, up, north, east)
         out = 0
         usable = False
@@ -179,8 +182,8 @@ class GstCorrector(Corrector):
                 e /= np.linalg.norm(e)
                 turn = _wrap(heading - s[_HPREV]) / dt if p[17] != 0.0 else -w_up
                 a_kin = s[_ALONG] * e + s[_V] * turn * np.cross(e, up)
-                s[_LPG:_LPG + 3] += (1.0 - math.exp(-dt / p[9])) * ((f_h - a_kin) - s[_LPG:_LPG + 3])
-            s[_LPA:_LPA + 3] += (1.0 - math.exp(-dt / p[1])) * (f_h - s[_LPA:_LPA + 3])
+                s[_LPG:_LPG + 3] += s[_KDT + 2] * ((f_h - a_kin) - s[_LPG:_LPG + 3])
+            s[_LPA:_LPA + 3] += s[_KDT + 1] * (f_h - s[_LPA:_LPA + 3])
             horizontal = np.linalg.norm(s[_LPA:_LPA + 3]) > p[6]
             s[_REJT] = s[_REJT] + dt if horizontal else 0.0
             rejected = p[3] != 0.0 and (abs(np.linalg.norm(a) - p[2]) > p[4] or abs(w_up) > p[5]
@@ -201,7 +204,8 @@ class GstCorrector(Corrector):
                 s[_BA:_BA + 3] += (p[18] * dt) * (r.T @ s[_LPG:_LPG + 3])
         else:  # no specific force: the levelling pauses, the gyros go on
             s[_WP:_WP + 3] = 0.0
-        s[_HPREV] = heading
+        if self.combined:
+            s[_HPREV] = heading
         if usable and s[_V] >= p[12]:  # eq. 5: turn the heading towards the track angle
             delta = _wrap(math.atan2(sample.gnss[1], sample.gnss[0]) - heading)
             if not (s[_HINIT] == 0.0 and p[11] != 0.0):  # heading_init="track": the whole offset at first
@@ -343,10 +347,15 @@ def _gst_step(q, s, g0, g1, g2, a0, a1, a2, acc_ok, dt, p, vn, ve, valid, age, n
     r10, r11, r12 = 2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx)
     r20, r21, r22 = 2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
-    b0, b1, b2 = p[14], p[15], p[16]  # the forward axis, its heading
-    e0, e1, e2 = r00 * b0 + r01 * b1 + r02 * b2, r10 * b0 + r11 * b1 + r12 * b2, r20 * b0 + r21 * b1 + r22 * b2
-    heading = math.atan2(e0 * s[_E] + e1 * s[_E + 1] + e2 * s[_E + 2], e0 * s[_N] + e1 * s[_N + 1] + e2 * s[_N + 2])
-    if math.isnan(s[_HPREV]):  # the first sample: the heading before this sample's rotation
+    if dt != s[_KDT]:  # the low-pass gains, recomputed only when the interval changes
+        s[_KDT], s[_KDT + 1], s[_KDT + 2] = dt, 1.0 - math.exp(-dt / p[1]), 1.0 - math.exp(-dt / p[9])
+    b0, b1, b2 = p[14], p[15], p[16]  # the forward axis, its heading (gst-gnss)
+    e0 = e1 = e2 = heading = 0.0
+    if combined:
+        e0, e1, e2 = r00 * b0 + r01 * b1 + r02 * b2, r10 * b0 + r11 * b1 + r12 * b2, r20 * b0 + r21 * b1 + r22 * b2
+        heading = math.atan2(e0 * s[_E] + e1 * s[_E + 1] + e2 * s[_E + 2],
+                             e0 * s[_N] + e1 * s[_N + 1] + e2 * s[_N + 2])
+    if combined and math.isnan(s[_HPREV]):  # the first sample: the heading before this sample's rotation
         m00, m01, m02, m10, m11, m12, m20, m21, m22 = rodrigues_entries(-g0 * dt, -g1 * dt, -g2 * dt)
         c0, c1, c2 = m00 * b0 + m01 * b1 + m02 * b2, m10 * b0 + m11 * b1 + m12 * b2, m20 * b0 + m21 * b1 + m22 * b2
         o0, o1, o2 = r00 * c0 + r01 * c1 + r02 * c2, r10 * c0 + r11 * c1 + r12 * c2, r20 * c0 + r21 * c1 + r22 * c2
@@ -376,11 +385,11 @@ def _gst_step(q, s, g0, g1, g2, a0, a1, a2, acc_ok, dt, p, vn, ve, valid, age, n
             x0, x1, x2 = x0 / en, x1 / en, x2 / en
             turn = _kwrap(heading - s[_HPREV]) / dt if p[17] != 0.0 else -w_up
             along, lateral = s[_ALONG], s[_V] * turn
-            k = 1.0 - math.exp(-dt / p[9])  # right = e x u
+            k = s[_KDT + 2]  # right = e x u
             s[_LPG] += k * ((h0 - (along * x0 + lateral * (x1 * u2 - x2 * u1))) - s[_LPG])
             s[_LPG + 1] += k * ((h1 - (along * x1 + lateral * (x2 * u0 - x0 * u2))) - s[_LPG + 1])
             s[_LPG + 2] += k * ((h2 - (along * x2 + lateral * (x0 * u1 - x1 * u0))) - s[_LPG + 2])
-        k = 1.0 - math.exp(-dt / p[1])
+        k = s[_KDT + 1]
         s[_LPA] += k * (h0 - s[_LPA])
         s[_LPA + 1] += k * (h1 - s[_LPA + 1])
         s[_LPA + 2] += k * (h2 - s[_LPA + 2])
@@ -409,7 +418,8 @@ def _gst_step(q, s, g0, g1, g2, a0, a1, a2, acc_ok, dt, p, vn, ve, valid, age, n
             s[_BA + 2] += kb * (r02 * l0 + r12 * l1 + r22 * l2)
     else:
         s[_WP] = s[_WP + 1] = s[_WP + 2] = 0.0
-    s[_HPREV] = heading
+    if combined:
+        s[_HPREV] = heading
     if usable and s[_V] >= p[12]:  # eq. 5
         delta = _kwrap(math.atan2(ve, vn) - heading)
         if not (s[_HINIT] == 0.0 and p[11] != 0.0):
