@@ -26,6 +26,7 @@ estimate (``tau_acc_bias=None``: the document's GNSS loop), ``heading_init="trac
 
 from __future__ import annotations
 
+import warnings
 from typing import ClassVar, Literal
 
 import numpy as np
@@ -111,7 +112,11 @@ class GstFilter(Pipeline):
             state: dict | None = None):
         if self.config.combined and isinstance(rec, Recording) and rec.gnss is None:
             raise InputError(f"{self.name} needs a GNSS stream (Recording(gnss=...)); use 'gst' without GNSS")
-        res = super().run(rec, backend=backend, progress=progress, state=state)
+        with warnings.catch_warnings(record=True) as caught:  # re-issued below at the caller's line
+            warnings.simplefilter("always")
+            res = super().run(rec, backend=backend, progress=progress, state=state)
+        for w in caught:
+            warnings.warn(w.message, w.category, stacklevel=2)
         res.diagnostics.update(mode=modes(res.flags, self.config.combined), mode_names=MODES,
                                body=self.body_axes(rec) or "RFU")
         return res
