@@ -47,7 +47,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from .._kernels import rodrigues_entries
+from .._kernels import rodrigues_entries, rotvec_quat_entries
 from .._numba import njit
 from ..config import BodyAxes, PluginConfig, param
 from ..conventions import body_axis, east_vector, north_vector, resolve_body, up_vector
@@ -143,11 +143,13 @@ class GstCorrector(Corrector):
         p = [c.tau, c.lp, c.gravity, float(c.reject), c.reject_acc, c.reject_turn, c.reject_horizontal,
              c.reject_timeout]
         if not self.combined:
-            return np.array(p + [1.0, 1.0, 1.0, 0.0, 0.0, 1.0] + self._forward().tolist() + [0.0, 0.0, 1.0, 0.0])
-        return np.array(p + [c.gnss_time_constant(), c.lp_gnss, c.heading_T, float(c.heading_init == "track"),
-                             c.min_speed, c.gnss_max_age] + self._forward().tolist() + [
-            float(c.turn_rate == "heading"), 0.0 if c.tau_acc_bias is None else 1.0 / c.tau_acc_bias,
-            c.gnss_weight, 1.0])
+            p += [1.0, 1.0, 1.0, 0.0, 0.0, 1.0] + self._forward().tolist() + [0.0, 0.0, 1.0, 0.0]
+        else:
+            p += [c.gnss_time_constant(), c.lp_gnss, c.heading_T, float(c.heading_init == "track"), c.min_speed,
+                  c.gnss_max_age] + self._forward().tolist() + [
+                float(c.turn_rate == "heading"), 0.0 if c.tau_acc_bias is None else 1.0 / c.tau_acc_bias,
+                c.gnss_weight, 1.0]
+        return np.array(p + [1.0 / (G0 * p[0]), p[19] / (G0 * p[8])])  # the gains K_a, w K_g
 
     def _forward(self) -> np.ndarray:
         """The forward axis in the sensor's axes (RFU, the document's, when not known)."""
@@ -188,10 +190,10 @@ class GstCorrector(Corrector):
             s[_REJT] = s[_REJT] + dt if horizontal else 0.0
             rejected = p[3] != 0.0 and (abs(np.linalg.norm(a) - p[2]) > p[4] or abs(w_up) > p[5]
                                         or (horizontal and s[_REJT] <= p[7]))
-            k_auto = 1.0 / (G0 * p[0])
+            k_auto = p[21]  # 1 / (g tau)
             if usable:  # (a), with the document's combination weight
                 auto = 0.0 if rejected else (1.0 - p[19]) * k_auto
-                d = p[19] / (G0 * p[8]) * s[_LPG:_LPG + 3] + auto * s[_LPA:_LPA + 3]
+                d = p[22] * s[_LPG:_LPG + 3] + auto * s[_LPA:_LPA + 3]
             elif rejected:
                 d = np.zeros(3)
                 out |= Flag.ACC_REJECTED
@@ -301,22 +303,6 @@ def _kwrap(a):
 
 
 @njit(inline="always")
-def _exp_quat(r0, r1, r2):
-    """The exact quaternion of the rotation vector r (rotations.quat_from_rotvec); a polynomial
-    below 0.05 rad (error under 1e-22), sin/cos above."""
-    s2 = r0 * r0 + r1 * r1 + r2 * r2
-    if s2 < 0.0025:
-        x = 0.25 * s2  # (s/2)^2
-        c = 1.0 - x / 2.0 + x * x / 24.0 - x * x * x / 720.0 + x * x * x * x / 40320.0
-        k = 0.5 * (1.0 - x / 6.0 + x * x / 120.0 - x * x * x / 5040.0 + x * x * x * x / 362880.0)
-    else:
-        s = math.sqrt(s2)
-        c = math.cos(0.5 * s)
-        k = math.sin(0.5 * s) / s
-    return c, k * r0, k * r1, k * r2
-
-
-@njit(inline="always")
 def _qmul(a0, a1, a2, a3, b0, b1, b2, b3):
     return (a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3, a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
             a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1, a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0)
@@ -341,7 +327,7 @@ def _gst_step(q, s, g0, g1, g2, a0, a1, a2, acc_ok, dt, p, vn, ve, valid, age, n
     qw, qx, qy, qz = q[0], q[1], q[2], q[3]
     wp0, wp1, wp2 = s[_WP], s[_WP + 1], s[_WP + 2]
     if wp0 != 0.0 or wp1 != 0.0 or wp2 != 0.0:  # 1. q <- exp(-w_P dt) (x) q
-        d0, d1, d2, d3 = _exp_quat(-wp0 * dt, -wp1 * dt, -wp2 * dt)
+        d0, d1, d2, d3 = rotvec_quat_entries(-wp0 * dt, -wp1 * dt, -wp2 * dt)
         qw, qx, qy, qz = _qmul(d0, d1, d2, d3, qw, qx, qy, qz)
     r00, r01, r02 = 1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy)
     r10, r11, r12 = 2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx)
@@ -381,8 +367,8 @@ def _gst_step(q, s, g0, g1, g2, a0, a1, a2, acc_ok, dt, p, vn, ve, valid, age, n
             usable = valid != 0.0 and age <= p[13]
             eu = e0 * u0 + e1 * u1 + e2 * u2
             x0, x1, x2 = e0 - eu * u0, e1 - eu * u1, e2 - eu * u2
-            en = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
-            x0, x1, x2 = x0 / en, x1 / en, x2 / en
+            en = 1.0 / math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+            x0, x1, x2 = x0 * en, x1 * en, x2 * en
             turn = _kwrap(heading - s[_HPREV]) / dt if p[17] != 0.0 else -w_up
             along, lateral = s[_ALONG], s[_V] * turn
             k = s[_KDT + 2]  # right = e x u
@@ -398,10 +384,10 @@ def _gst_step(q, s, g0, g1, g2, a0, a1, a2, acc_ok, dt, p, vn, ve, valid, age, n
         s[_REJT] = s[_REJT] + dt if horizontal else 0.0
         rejected = p[3] != 0.0 and (abs(math.sqrt(a0 * a0 + a1 * a1 + a2 * a2) - p[2]) > p[4] or abs(w_up) > p[5]
                                     or (horizontal and s[_REJT] <= p[7]))
-        k_auto = 1.0 / (9.80665 * p[0])
+        k_auto = p[21]
         if usable:
             auto = 0.0 if rejected else (1.0 - p[19]) * k_auto
-            kg = p[19] / (9.80665 * p[8])
+            kg = p[22]
             d0, d1, d2 = kg * s[_LPG] + auto * l0, kg * s[_LPG + 1] + auto * l1, kg * s[_LPG + 2] + auto * l2
         elif rejected:
             d0 = d1 = d2 = 0.0
@@ -425,9 +411,10 @@ def _gst_step(q, s, g0, g1, g2, a0, a1, a2, acc_ok, dt, p, vn, ve, valid, age, n
         if not (s[_HINIT] == 0.0 and p[11] != 0.0):
             delta = delta * dt / p[10]
         s[_HINIT] = 1.0
-        c, sn = math.cos(0.5 * delta), -math.sin(0.5 * delta)  # about u by -delta
-        qw, qx, qy, qz = _qmul(c, sn * u0, sn * u1, sn * u2, qw, qx, qy, qz)
-        c, sn = math.cos(delta), -math.sin(delta)
+        d0, d1, d2, d3 = rotvec_quat_entries(-delta * u0, -delta * u1, -delta * u2)  # about u by -delta
+        qw, qx, qy, qz = _qmul(d0, d1, d2, d3, qw, qx, qy, qz)
+        sh = d1 * u0 + d2 * u1 + d3 * u2  # sin(-delta / 2): the full angle's cos and sin from the half's
+        c, sn = d0 * d0 - sh * sh, 2.0 * d0 * sh
         _turn_about(s, _LPA, c, sn, u0, u1, u2)
         _turn_about(s, _LPG, c, sn, u0, u1, u2)
         _turn_about(s, _WP, c, sn, u0, u1, u2)
@@ -449,5 +436,6 @@ def gst_gnss_correct(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok
     """The kernel of :meth:`GstGnssCorrector.correct` (it takes the sample's GNSS row): ``p`` =
     (tau, lp, gravity, reject, reject_acc, reject_turn, reject_horizontal, reject_timeout,
     tau_gnss, lp_gnss, heading_T, heading_init == "track", min_speed, gnss_max_age, the body's
-    forward axis (3), turn_rate == "heading", 1 / tau_acc_bias or 0, gnss_weight, reads GNSS)."""
+    forward axis (3), turn_rate == "heading", 1 / tau_acc_bias or 0, gnss_weight, reads GNSS,
+    1 / (g tau), gnss_weight / (g tau_gnss))."""
     return _gst_step(q, s, g0, g1, g2, a0, a1, a2, acc_ok, dt, p, vn, ve, valid, age, new, t_epoch)
