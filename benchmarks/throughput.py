@@ -104,11 +104,12 @@ CASES = {
     "poisson filter (alignment + motion detector + integrator)": (lambda: fk.make("poisson"), False, "ours"),
     "motion detector alone": (None, False, "detector"),
     "gst (source 001, autonomous)": (lambda: fk.make("gst"), False, "ours"),
+    "gst-gnss (source 001, combined; GNSS rows, 10 Hz)": (lambda: fk.make("gst-gnss"), "gnss", "ours"),
     "gradient-descent 6D, N = 1 (source 003)": (lambda: fk.make("gradient-descent"), False, "ours"),
     "gradient-descent 9D, N = 1 (+ magnetic detector)": (lambda: fk.make("gradient-descent"), True, "ours"),
     "gradient-descent madgwick=True, 6D": (lambda: fk.make("gradient-descent", madgwick=True), False, "ours"),
     "channel-dcm 9D (source 002)": (lambda: fk.make("channel-dcm"), True, "ours"),
-    "pipeline: poisson-quat + gst corrector (rate mode)": (
+    "pipeline: poisson-quat + gst corrector (state mode)": (
         pipe({"estimator": "poisson-quat", "detectors": ["motion"], "correctors": ["gst"]}), False, "ours"),
     "pipeline: poisson-quat + gst-gnss corrector + gnss-gap detector (GNSS rows, 10 Hz)": (
         pipe({"estimator": "poisson-quat", "detectors": ["gnss-gap", "motion"], "correctors": ["gst-gnss"]}), "gnss",

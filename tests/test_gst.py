@@ -116,10 +116,11 @@ def test_gap_switches_to_autonomous_without_a_jump():
     assert steps[around_switches].max() < 0.05  # no jump entering or leaving the gap (the motion is smooth)
 
 
-@pytest.mark.parametrize("name", ["gst", "gst-gnss"])
-def test_numba_equals_reference(name):
-    rec = north_run(heading_deg=60.0)
-    f = fk.make(name)
+@pytest.mark.parametrize("name, params", [("gst", {}), ("gst-gnss", {}), ("gst-gnss", {"gnss_weight": 0.6}),
+                                          ("gst-gnss", {"frame": "NED", "body": "FRD", "heading_init": "blend"})])
+def test_numba_equals_reference(name, params):
+    rec = _with_gap(north_run(heading_deg=60.0))
+    f = fk.make(name, **params)
     ref, fast = f.run(rec, backend="reference"), f.run(rec, backend="numba")
     np.testing.assert_allclose(fast.quat, ref.quat, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(fast.flags, ref.flags)
@@ -195,8 +196,8 @@ def corrector_pipeline(name, **params):
 
 @pytest.mark.parametrize("name", ["gst", "gst-gnss"])
 def test_corrector_plugins_match_the_filters_in_a_pipeline(name):
-    """The platform rate is a body-rate correction -C^T w_P: the same laws as pipeline
-    correctors on another estimator give the filter's accuracy."""
+    """The correctors composed by hand (a pipeline without the presets' alignment settings)
+    give the presets' accuracy."""
     rec = north_run(heading_deg=60.0)
     rms = lambda e: np.sqrt(np.mean(e**2))  # noqa: E731
     filt = rms(incl(fk.make(name).run(rec), rec, rec.movement))
@@ -218,7 +219,7 @@ def _with_gap(rec, t0=20.0, t1=30.0):
 @pytest.mark.parametrize("name, params", [("gst", {}), ("gst", {"reject": False}), ("gst-gnss", {}),
                                           ("gst-gnss", {"heading_init": "blend", "reject": False})])
 def test_gst_corrector_kernels_match_reference(name, params):
-    """Both correctors compile (rate-mode kernels; ``gst-gnss``'s takes the sample's GNSS row):
+    """Both correctors compile (state-mode kernels; ``gst-gnss``'s takes the sample's GNSS row):
     equal to the reference on every sample, flags (ACC_REJECTED, GNSS_GAP) and corrector state
     included, through a GNSS gap, and split runs equal one run."""
     rec = _with_gap(north_run(heading_deg=60.0, accel_s=30.0, v=20.0))
@@ -296,9 +297,9 @@ def test_accelerometer_bias_is_estimated_as_the_vehicle_turns():
     est = fk.make("gst-gnss").run(rec)
     doc = fk.make("gst-gnss", tau_acc_bias=None).run(rec)
     assert rms(est) < 0.18 and rms(doc) > 0.25  # measured 0.14 and 0.29 deg
-    b = est.diagnostics["state"]["x"][25:28]  # the estimate, in the document's RFU axes (this body is RFU)
+    b = est.diagnostics["state"]["cor"][0][25:28]  # the corrector's estimate, in the sensor axes (RFU here)
     assert np.linalg.norm(b[:2] - [0.05, -0.03]) < 0.5 * np.hypot(0.05, 0.03)
-    np.testing.assert_array_equal(doc.diagnostics["state"]["x"][25:28], 0.0)  # the document's loop: no estimate
+    np.testing.assert_array_equal(doc.diagnostics["state"]["cor"][0][25:28], 0.0)  # the document's loop: no estimate
     pipe = corrector_pipeline("gst-gnss").run(rec)  # the corrector has the same estimate
     assert rms(pipe) < 0.18 and rms(corrector_pipeline("gst-gnss", tau_acc_bias=None).run(rec)) > 0.25
 
@@ -316,7 +317,7 @@ def test_numba_equals_reference_with_the_options(params):
     f = fk.make("gst-gnss", **params)
     ref, fast = f.run(rec, backend="reference"), f.run(rec, backend="numba")
     np.testing.assert_allclose(fast.quat, ref.quat, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(fast.diagnostics["state"]["x"], ref.diagnostics["state"]["x"], atol=1e-9)
+    np.testing.assert_allclose(fast.diagnostics["state"]["cor"][0], ref.diagnostics["state"]["cor"][0], atol=1e-9)
 
 
 def test_turn_rate_is_the_heading_rate_on_the_helicopter(flights):
@@ -353,3 +354,97 @@ def test_gst_gnss_defaults_on_each_flight_separately(flights):
         new = trial_metrics(fk.make("gst-gnss").run(rec), rec, "6D")["tilt_gnss"]
         old = trial_metrics(fk.make("gst-gnss", **BEFORE).run(rec), rec, "6D")["tilt_gnss"]
         assert new <= 0.3 and new < old - 0.03, name
+
+
+# ---- the presets: compositions of the GST correctors --------------------------------------------
+
+
+def test_describe_toml_runs_to_the_same_numbers(capsys, tmp_path):
+    """``fusionkit describe gst-gnss --toml`` prints the composition; ``fusionkit run`` on it
+    gives the preset's numbers (the compiled loop of the same plugins)."""
+    try:
+        import tomllib
+    except ImportError:  # Python 3.10
+        import tomli as tomllib
+    from fusionkit.cli import _build_filter, main
+
+    rec = _with_gap(north_run(heading_deg=60.0))
+    for name in ("gst-gnss", "gst"):
+        assert main(["describe", name, "--toml"]) == 0
+        text = capsys.readouterr().out
+        cfg = tomllib.loads(text)
+        assert cfg["estimator"]["name"] == "poisson-quat" and [c["name"] for c in cfg["correctors"]] == [name]
+        path = tmp_path / f"{name}.toml"
+        path.write_text(text)
+        mine = _build_filter(str(path), {})
+        assert np.abs(mine.run(rec).quat - fk.make(name).run(rec).quat).max() < 1e-12
+    out = tmp_path / "out.csv"
+    assert main(["run", str(tmp_path / "gst.toml"), "sim:translation", "-o", str(out)]) == 0
+    capsys.readouterr()
+    rows = np.loadtxt(out, delimiter=",", skiprows=1)
+    ref = fk.make("gst").run([r for r in sim.demo_recordings() if r.name == "translation"][0])
+    assert np.abs(rows[:, 1:5] - ref.quat).max() < 1e-8  # the CSV keeps 9 digits
+
+
+def test_the_flat_config_maps_onto_the_composition():
+    f = fk.make("gst-gnss", tau_auto=30.0, lp_auto=1.0, tau_gnss=15.0, gnss_weight=0.5, reject=False, body="FRD",
+                alignment="fixed", alignment_duration=5.0, frame="NED")
+    spec = f.pipeline_config()
+    (cor,) = spec.correctors
+    assert cor.name == "gst-gnss" and spec.estimator.params == {"step": "exact"}
+    assert (cor.params["tau"], cor.params["lp"], cor.params["tau_gnss"], cor.params["gnss_weight"],
+            cor.params["reject"], cor.params["body"]) == (30.0, 1.0, 15.0, 0.5, False, "FRD")
+    assert spec.detectors == [] and spec.alignment.mode == "fixed" and spec.alignment.duration == 5.0
+    assert spec.frame == "NED"
+    motion = fk.make("gst", early_motion=False).pipeline_config().detectors[0]
+    assert motion.name == "motion" and motion.params["once"] and motion.params["arm_after"] == 10.0
+    assert fk.make("gst", combined=True).pipeline_config().correctors[0].name == "gst-gnss"
+
+
+def test_gnss_weight_mixes_in_the_autonomous_loop():
+    """gnss_weight < 1: the document's combination of (a) and (b) while GNSS is usable. Under a
+    sustained acceleration the autonomous part tilts the platform; w = 1 is (a) alone."""
+    rec = north_run()
+    moving = rec.movement
+    err = {w: incl(fk.make("gst-gnss", gnss_weight=w, reject=False).run(rec), rec, moving).max()
+           for w in (1.0, 0.5, 0.0)}
+    assert err[1.0] < 0.3 and err[1.0] < err[0.5] < err[0.0]
+    assert err[0.0] > 0.5
+
+
+def test_the_platform_rate_is_azimuth_free():
+    """w_P = u x (K d) has no vertical component, and the autonomous loop leaves the heading
+    to the gyros: gst's heading is the gyro integration's (the poisson preset) to within the
+    small coupling of the levelling."""
+    rec = north_run(heading_deg=30.0)
+    for frame in ("ENU", "NED", "NUE"):
+        res = fk.make("gst-gnss", frame=frame).run(rec)
+        s = res.diagnostics["state"]["cor"][0]
+        assert abs(s[15:18] @ s[0:3]) < 1e-15 and np.linalg.norm(s[15:18]) > 0
+    gst = fk.make("gst").run(rec)
+    gyro = fk.make("poisson", step="exact").run(rec)
+    h = broad_errors(gst.quat, gyro.quat)["heading"]
+    assert np.nanmax(h) < 0.05
+
+
+def test_the_gate_gravity():
+    """The gate compares |f| with ``gravity``: set 0.5 m/s^2 off (beyond reject_acc 0.3), the
+    autonomous correction of a still IMU is rejected; with the standard gravity it is not."""
+    rec = biased([0.0, 0.0, 0.0], 12.0)
+    still = rec.time > 20.0  # after the turn
+    rejected = lambda res: np.mean((res.flags[still] & Flag.ACC_REJECTED) != 0)  # noqa: E731
+    assert rejected(fk.make("gst", gravity=9.80665 + 0.5).run(rec)) == 1.0
+    assert rejected(fk.make("gst").run(rec)) == 0.0
+
+
+def test_motion_detector_once_stops_at_the_onset():
+    """``once``: the detector fires on the onset only (all an alignment reads), then is quiet and
+    untested; before it, it is the same detector; the kernel equals the reference."""
+    rec = north_run()
+    full = fk.make("motion", kind="detector", arm_after=2.0)
+    once = fk.make("motion", kind="detector", arm_after=2.0, once=True)
+    a, b = full.run(rec), once.run(rec)
+    on = a.onset_index
+    assert on is not None and b.onset_index == on and b.criteria[on] == a.criteria[on]
+    assert a.fired[on + 1:].any() and not b.fired[on + 1:].any()
+    np.testing.assert_array_equal(once.run(rec, backend="reference").criteria, once.run(rec, backend="numba").criteria)

@@ -66,6 +66,9 @@ class MotionConfig(PluginConfig):
         description="criterion 5 subtracts 'model' gravity (source 000) or the 'measured' mean |f| "
         "(insensitive to accelerometer scale error)",
     )
+    once: bool = param(
+        False, unit="-", description="stop at the onset: after its first firing every sample is quiet, untested (a "
+        "detector that only ends an alignment: nothing reads it afterwards, and it costs nothing more)")
 
 
 # state layout
@@ -108,6 +111,8 @@ class MotionDetector(Detector):
     # -- readable reference ----------------------------------------------------------------
     def step(self, s: np.ndarray, sample: Sample) -> int:
         cfg = self.config
+        if cfg.once and s[_LATCH] != 0.0:
+            return 0
         w, f, dt = sample.gyr, sample.acc, sample.dt
         # the sliding window of criteria 4 and 5: a ring of (w dt, dt, f dt) and its running sums
         slots = s[_RING:].reshape(int(s[_NW]), _SLOT)
@@ -169,13 +174,15 @@ class MotionDetector(Detector):
         p = np.array([
             float(c.acc_norm), c.acc_norm_sigma, float(c.gyr_norm), c.gyr_norm_sigma, float(c.dot), c.dot_sigma,
             float(c.angle), c.angle_threshold, float(c.velocity), c.velocity_threshold, c.arm_after,
-            c.gravity, float(c.gravity_source == "measured"),
+            c.gravity, float(c.gravity_source == "measured"), float(c.once),
         ])
         return DetectorKernel(_motion_step, p)
 
 
 @njit
 def _motion_step(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
+    if s[_LATCH] != 0.0 and p[13] != 0.0:  # once: stopped at the onset
+        return 0
     nwin = int(s[_NW])
     pos = int(s[_POS])
     base = _RING + _SLOT * pos

@@ -23,7 +23,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from .._kernels import dcm_to_quat, qmul_into, qnormalize, quat_to_dcm, rodrigues_entries
+from .._kernels import dcm_to_quat, qmul_into, qnormalize, quat_to_dcm, rodrigues_entries, rotvec_quat_entries
 from .._numba import njit
 from ..config import PluginConfig, param
 from ..protocols import Estimator, EstimatorKernel
@@ -122,9 +122,7 @@ def _quat_propagate(x, w0, w1, w2, dt, p):
     if p[0] == 0.0:
         d0, d1, d2, d3 = 1.0, 0.5 * r0, 0.5 * r1, 0.5 * r2
     else:
-        a = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-        k = 0.5 - a * a / 48.0 if a < 1e-8 else math.sin(0.5 * a) / a
-        d0, d1, d2, d3 = math.cos(0.5 * a), k * r0, k * r1, k * r2
+        d0, d1, d2, d3 = rotvec_quat_entries(r0, r1, r2)
     x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
     qmul_into(x0, x1, x2, x3, d0, d1, d2, d3, x)
     if p[1] != 0.0:
