@@ -166,10 +166,11 @@ def test_bad_input_is_refused():
 def test_broad_gyro_runs_behind_its_reference(broad_dir):
     """What BENCHMARKS.md states about BROAD's clocks (skipped without the data): the
     accelerometer is near fusionkit's convention (0.4-0.8 samples on every trial), the gyroscope
-    runs behind it (1.2) and the magnetometer further behind (2.6-5)."""
+    runs behind it (1.2) and the magnetometer further behind (2.6-5). On each trial's first 70 s
+    (20000 samples; the bounds hold there as on the whole trial, which takes three times longer)."""
     for name in ("03_undisturbed_slow_rotation_C.hdf5", "06_undisturbed_fast_rotation_A.hdf5",
                  "15_undisturbed_fast_translation_A.hdf5"):
-        rec = fk.load(broad_dir / name)
+        rec = fk.load(broad_dir / name).slice(0, 20000)
         lags = sensor_lags(rec)  # with the optical position (meta["ref_pos"])
         assert lags.acc_model == "position"
         assert lags.gyr == pytest.approx(1.2, abs=0.07), name
@@ -186,4 +187,4 @@ def test_gnss_ins_sim_holds_the_rate_forward(broad_dir):
     path = broad_dir.parent / "gnss" / "heli_cruise" / "heli_cruise.h5"
     if not path.exists():
         pytest.skip("no gnss data")
-    assert sensor_lags(fk.load(path)).gyr == pytest.approx(-0.5, abs=0.03)
+    assert sensor_lags(fk.load(path).slice(0, 10000)).gyr == pytest.approx(-0.5, abs=0.03)  # its first 100 s
