@@ -34,6 +34,35 @@ def njit(func=None, *, cache: bool = True, inline: str = "never"):
     return wrap(func) if func is not None else wrap
 
 
+_INLINED: dict = {}
+
+
+def inline_copy(func):
+    """An ``inline="always"`` twin of the njit function ``func``, in which every njit function
+    it calls by a global name is such a twin too (recursively): compiled into a caller, the whole
+    call tree becomes one function body, with no call, no argument marshalling and no reference
+    counting of the arrays between a caller and its kernels. The pipeline's generated loop calls
+    its plugins' kernels through these (:mod:`fusionkit._loopgen`); ``func`` itself is unchanged.
+    Anything that is not a numba dispatcher is returned as it is."""
+    if not HAVE_NUMBA or not isinstance(func, _nb.core.registry.CPUDispatcher):
+        return func
+    if func in _INLINED:
+        return _INLINED[func]
+    _INLINED[func] = func  # a function that reaches itself again is called, not inlined
+    import types
+
+    py = func.py_func
+    glb = dict(py.__globals__)
+    for name in py.__code__.co_names:
+        if isinstance(glb.get(name), _nb.core.registry.CPUDispatcher):
+            glb[name] = inline_copy(glb[name])
+    twin = types.FunctionType(py.__code__, glb, py.__name__, py.__defaults__, py.__closure__)
+    twin.__qualname__, twin.__module__ = py.__qualname__, py.__module__
+    opts = {k: v for k, v in func.targetoptions.items() if k not in ("cache", "inline", "nopython")}
+    _INLINED[func] = _nb.njit(inline="always", **opts)(twin)
+    return _INLINED[func]
+
+
 def resolve_backend(backend: str, has_kernel: bool) -> str:
     """Pick the backend that will run: ``"numba"`` or ``"reference"``.
 

@@ -67,7 +67,8 @@ from .protocols import Filter, Sample
 from .registry import Registry, default_registry
 from .types import (Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, sample_validity,
                     stream_gap)
-from .validation import as_vector, check_finite_all, check_positive, check_sample_finite, finite_sample
+from .validation import (as_vector, check_finite_all, check_finite_flagged, check_positive, check_sample_finite,
+                         finite_sample)
 
 __all__ = ["Pipeline", "run_detector"]
 
@@ -77,6 +78,7 @@ _RCORR = ALIGN_SIZE
 _QPREV = ALIGN_SIZE + 3
 _STATE_SIZE = ALIGN_SIZE + 7
 _CHUNK = 200_000
+_INVALID = int(Flag.GYR_INVALID | Flag.ACC_INVALID | Flag.MAG_INVALID)
 #: the most correctors the compiled loop takes: its first compile grows by about half a second per
 #: corrector (measured in docs/robustness.md); beyond this a composition is more likely a mistake,
 #: and the reference path needs no compile and gives the same numbers
@@ -306,7 +308,9 @@ class Pipeline(Filter):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         n = len(rec)
         self._set_body(self.body_axes(rec))
-        check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}, self.spec.nan_policy)
+        inputs = {"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}
+        if self.models:  # a sensor model may change a sample before it is judged: the input first
+            check_finite_all(inputs, self.spec.nan_policy)
         has_mag = rec.mag is not None
         if self.spec.alignment.heading == "magnetometer" and not has_mag:
             raise InputError("alignment heading='magnetometer' needs mag in the recording")
@@ -342,6 +346,8 @@ class Pipeline(Filter):
                 bar.update(stop - start)
         if bar is not None:
             bar.close()
+        if not self.models:  # a non-finite sample is flagged invalid: nan_policy="raise" needs no scan before
+            check_finite_flagged(inputs, self.spec.nan_policy, out_f, _INVALID)
         diag = self._diagnostics(st, out_f, out_c, used)
         report_disturbed(st["align"], st["dt"], self.spec.alignment.duration)
         mark_gaps(out_f, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.spec.max_gap))
@@ -362,10 +368,11 @@ class Pipeline(Filter):
         d["alignment_end_index"] = None if al[END] < 0 else int(al[END])
         d["alignment_disturbed"] = bool(al[DISTURBED])
         if self.detectors:
-            fired = np.flatnonzero(crit)
+            fired = crit != 0
+            first = int(fired.argmax())  # the first True, found without listing them all
             d["criteria"] = crit
             d["criteria_names"] = self.detectors[0].criteria_names
-            d["onset_index"] = int(fired[0]) if fired.size else None
+            d["onset_index"] = first if fired[first] else None
         d["state"] = copy.deepcopy(st)
         return d
 

@@ -105,6 +105,15 @@ def check_finite_all(arrays: dict, policy: str) -> None:
         check_finite(name, x, "raise")
 
 
+def check_finite_flagged(arrays: dict, policy: str, flags: np.ndarray, invalid: int) -> None:
+    """:func:`check_finite_all` after a run whose per-sample ``flags`` mark every non-finite input
+    sample with a bit of ``invalid``: the arrays are scanned only when some sample has one (a
+    sample flagged for another reason, e.g. a zero reading or a gap, costs the scan and passes).
+    A run of clean data then reads its input once, in the filter's loop, not twice."""
+    if policy == "raise" and np.bitwise_and(flags, flags.dtype.type(invalid)).any():
+        check_finite_all(arrays, policy)
+
+
 def check_sample_finite(policy: str, **vectors) -> None:
     """``update()``'s :func:`check_finite`: with ``policy="raise"`` a non-finite vector (None: not
     given) raises naming it."""
