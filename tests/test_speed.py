@@ -74,3 +74,39 @@ def test_a_non_finite_sample_still_raises_and_a_gap_does_not(rec):
     skip = fk.make("gradient-descent", nan_policy="skip").run(fk.Recording(gyr=bad, acc=rec.acc, mag=rec.mag,
                                                                            rate=rec.rate))
     assert skip.flags[150] & fk.Flag.GYR_INVALID and np.isfinite(skip.quat).all()
+
+
+@pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed")
+def test_numbas_first_start_skips_scipy_linalg_and_blas_still_works():
+    """numba's BLAS check finds scipy.linalg.cython_blas without importing all of scipy.linalg; a
+    later np.dot compiles, and scipy.linalg imported later has its cython_blas."""
+    import subprocess
+    import sys
+    import textwrap
+
+    pytest.importorskip("scipy")
+    code = textwrap.dedent("""
+        import sys
+        import numpy as np
+        import fusionkit
+        from fusionkit._numba import njit
+
+        @njit(cache=False)
+        def total(a):
+            return a.sum()
+
+        total(np.ones(3))
+        import numba.np.arraymath
+        print("scipy.linalg" in sys.modules, numba.np.arraymath._HAVE_BLAS)
+
+        @njit(cache=False)
+        def dot(a, b):
+            return np.dot(a, b)
+
+        print(dot(np.eye(2), np.ones(2)).tolist())
+        import scipy.linalg
+        print(scipy.linalg.cython_blas.__name__, "fusionkit.sim" in sys.modules, fusionkit.sim.__name__)
+    """)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split("\n")[:3] == ["False True", "[1.0, 1.0]", "scipy.linalg.cython_blas False fusionkit.sim"]
