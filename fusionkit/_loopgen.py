@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ._sources import fusionkit_hash, source_hash
+from .gnss_rows import NO_GNSS
 from .navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, PHASE, SEEN
 
 __all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack"]
@@ -261,7 +262,15 @@ def source(lay: Layout, cache: bool, imports: dict[int, tuple[str, str]] | None,
     step = ["", "", f"@njit(cache={cache})",
             f"def step({_SAMPLE}, h, has_mag, S, P, O, q, {_GN}):",
             *_views(lay), *_body(lay, names, "    "), "    return flags, crit", ""]
-    return "\n".join(head + loop + step)
+    return "\n".join(head + loop + step + _step_sample(cache))
+
+
+def _step_sample(cache: bool) -> list[str]:
+    """``step_sample``: ``step`` without a GNSS row, returning the flags: ``update()``'s fast path
+    (each argument of a call from Python costs its type check, and most streams have no GNSS)."""
+    gn = ", ".join("math.nan" if v != v else "math.inf" if v == math.inf else repr(float(v)) for v in NO_GNSS)
+    return ["", f"@njit(cache={cache})", f"def step_sample({_SAMPLE}, h, has_mag, S, P, O, q):",
+            f"    return step({_SAMPLE}, h, has_mag, S, P, O, q, {gn})[0]", ""]
 
 
 # -- building and caching -------------------------------------------------------------------

@@ -122,7 +122,7 @@ class Pipeline(Filter):
                 raise ConfigError(f"corrector {c.name!r} acts on {c.requires_flag.name} samples, but no detector "
                                   f"sets that flag: add one (e.g. 'rest' for REST)")
         self._stream: dict[str, Any] | None = None
-        self._packed: tuple | None = None  # the compiled stream: (step, S, P, O, q, has_mag)
+        self._packed: tuple | None = None  # the compiled stream: (step, S, P, O, q, states, step_sample)
         self._fast_dt = 0.0  # update()'s fast path takes intervals up to this (0: not yet, see update)
         self.last_flags = 0
 
@@ -388,10 +388,9 @@ class Pipeline(Filter):
             sample = finite_sample(gyr, acc, mag)
             if sample is not None:
                 g, a, m = sample
-                step, S, P, O, q, _ = pk
-                f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, mag is not None, S, P, O, q,
-                            *_NO_GNSS)
-                self.last_flags = f
+                _, S, P, O, q, _, step_sample = pk
+                self.last_flags = step_sample(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt,
+                                              mag is not None, S, P, O, q)
                 return q.copy()
         return self._update_checked(gyr, acc, mag, dt, gnss)
 
@@ -412,7 +411,7 @@ class Pipeline(Filter):
         self._set_body(self.config.body)  # no recording: the config's body axes
         pk = self._stream_kernel()
         if pk is not None:
-            step, S, P, O, q, _ = pk
+            step, S, P, O, q = pk[:5]
             n = _NO_GNSS if gnss is None else as_vector("gnss", gnss, width=6).tolist()
             g, a, m = g.tolist(), a.tolist(), m.tolist()
             f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q, *n)
@@ -439,7 +438,7 @@ class Pipeline(Filter):
                 self._packed = False
             else:  # every detector: whether a sample has a magnetometer is known per call only
                 mod, S, P, O, states = self._compiled(self._stream, kernels, list(range(len(self.detectors))))
-                self._packed = (mod.step, S, P, O, np.empty(4), states)
+                self._packed = (mod.step, S, P, O, np.empty(4), states, mod.step_sample)
         return self._packed or None
 
 
