@@ -110,3 +110,29 @@ def test_numbas_first_start_skips_scipy_linalg_and_blas_still_works():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split("\n")[:3] == ["False True", "[1.0, 1.0]", "scipy.linalg.cython_blas False fusionkit.sim"]
+
+
+@pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed")
+def test_unit_scan_stops_when_the_median_is_decided_and_decides_as_numpy():
+    """The compiled unit scan stops once more than half of every possible count lies on one side
+    of a threshold; its decisions are still numpy's median's, for data decided early, late (the
+    deciding values at the end) and not at all until the last sample."""
+    from fusionkit import validation
+
+    rng = np.random.default_rng(7)
+    n = 5 * validation._BLOCK + 17
+    thr = np.array([*validation.ACC_G_WINDOW, validation.GYR_DEG_BOUND])
+    g_in_rad = 0.3 * rng.standard_normal((n, 3))
+    a_in_ms2 = np.array([0.0, 0.0, 9.81]) + 0.1 * rng.standard_normal((n, 3))
+    st = validation.unit_scan(g_in_rad, a_in_ms2, thr)
+    assert list(st[:, 5]) == [1.0, 1.0, -1.0] and st[0, 0] < n and st[2, 0] < 3 * n  # stopped early
+    late = a_in_ms2.copy()
+    late[: n // 2 + 1] /= 9.81  # in g for the first half and one sample: the median is in g
+    g_late = g_in_rad.copy()
+    g_late[n // 2:] *= 100.0  # the second half far above 2 pi
+    for gyr, acc in ((g_in_rad, a_in_ms2), (g_late, late), (g_in_rad, late[::-1].copy())):
+        scan = validation._unit_medians(gyr, acc)
+        norms = np.linalg.norm(acc, axis=1)
+        expect = tuple(int(m > t) - int(m < t) for m, t in ((np.median(norms), thr[0]), (np.median(norms), thr[1]),
+                                                            (np.median(np.abs(gyr)), thr[2])))
+        assert scan == expect
