@@ -411,10 +411,13 @@ class Pipeline(Filter):
         self._set_body(self.config.body)  # no recording: the config's body axes
         pk = self._stream_kernel()
         if pk is not None:
-            step, S, P, O, q = pk[:5]
-            n = _NO_GNSS if gnss is None else as_vector("gnss", gnss, width=6).tolist()
+            step, S, P, O, q, _, step_sample = pk
             g, a, m = g.tolist(), a.tolist(), m.tolist()
-            f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q, *n)
+            if gnss is None:  # the fast path's function: one compile serves both
+                f = step_sample(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q)
+            else:
+                n = as_vector("gnss", gnss, width=6).tolist()
+                f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q, *n)
             self.last_flags = gap_flags(f, gap)
             if len(self.__dict__.get("_unit_samples", ())) >= self.UNIT_CHECK_SAMPLES:  # the units are checked:
                 self._fast_dt = gap_threshold(self._stream["dt"], self.spec.max_gap)  # the fast path may run
