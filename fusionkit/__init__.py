@@ -14,7 +14,7 @@ Public API::
 Conventions: :mod:`fusionkit.conventions`.
 """
 
-from . import conventions, rotations, sim
+from . import conventions, rotations
 from .config import AlignmentConfig, PipelineConfig, PluginSpec, load_config
 from .errors import ConfigError, FusionkitError, InputError, PluginError
 from .io import load
@@ -55,6 +55,15 @@ __all__ = [
     "sim",
     "__version__",
 ]
+
+
+def __getattr__(name: str):
+    """``fusionkit.sim`` is imported on first use: a make-and-run needs none of it (import time)."""
+    if name == "sim":
+        import importlib
+
+        return importlib.import_module(".sim", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def bench(filters, data, **kwargs):

@@ -7,6 +7,8 @@ Without numba the decorator returns the plain Python function, and ``HAVE_NUMBA`
 
 from __future__ import annotations
 
+import sys
+
 from .errors import ConfigError
 
 try:  # pragma: no cover - exercised implicitly
@@ -18,6 +20,87 @@ except ImportError:  # pragma: no cover
     HAVE_NUMBA = False
 
 BACKENDS = ("auto", "numba", "reference")
+
+
+# -- numba's one-time start without all of scipy.linalg -----------------------------------------
+#
+# The first compile or cache load in a process makes numba import numba.np.arraymath, which checks
+# that a BLAS is there by importing scipy.linalg.cython_blas: that imports all of scipy.linalg
+# (and through scipy's array API layer numpy.f2py), a third or more of numba's start before a
+# first result. The finder below imports the BLAS module alone for that check (scipy.linalg's
+# package stands in for its parent while numba.np.arraymath runs, with the same search path), so
+# the check finds the same module; scipy.linalg itself is imported by whoever uses it, and gets
+# its cython_blas attribute then. Nothing changes when scipy.linalg is already imported, and any
+# failure falls back to numba's own import.
+
+
+class _LightBlasCheck:
+    """A meta path finder for ``numba.np.arraymath`` (once) and, after it, ``scipy.linalg``."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name == "numba.np.arraymath":
+            return self._wrap(name, self._without_scipy_linalg)
+        if name == "scipy.linalg" and "scipy.linalg.cython_blas" in sys.modules:
+            return self._wrap(name, self._with_blas_attribute)
+        return None
+
+    def _wrap(self, name, run):
+        import importlib.util
+
+        sys.meta_path.remove(self)  # not asked again for this name while it is found
+        try:
+            spec = importlib.util.find_spec(name)
+        finally:
+            sys.meta_path.insert(0, self)
+        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        inner = spec.loader
+
+        class Loader:
+            def create_module(self, spec):
+                return inner.create_module(spec)
+
+            def exec_module(self, module):
+                run(inner, module)
+
+        spec.loader = Loader()
+        return spec
+
+    def _without_scipy_linalg(self, inner, module) -> None:
+        import importlib.util
+        import types
+
+        stub = None
+        try:
+            if "scipy.linalg" not in sys.modules:
+                found = importlib.util.find_spec("scipy.linalg")
+                if found is not None and found.submodule_search_locations:
+                    stub = types.ModuleType("scipy.linalg")
+                    stub.__path__ = list(found.submodule_search_locations)
+                    sys.modules["scipy.linalg"] = stub
+        except Exception:  # no scipy, or an unusual one: numba's own check decides
+            stub = None
+        try:
+            inner.exec_module(module)
+        finally:
+            if stub is not None and sys.modules.get("scipy.linalg") is stub:
+                del sys.modules["scipy.linalg"]
+            if stub is None or "scipy.linalg.cython_blas" not in sys.modules:
+                _remove_finder()
+
+    def _with_blas_attribute(self, inner, module) -> None:
+        _remove_finder()
+        inner.exec_module(module)
+        if not hasattr(module, "cython_blas"):
+            module.cython_blas = sys.modules["scipy.linalg.cython_blas"]
+
+
+def _remove_finder() -> None:
+    sys.meta_path[:] = [f for f in sys.meta_path if not isinstance(f, _LightBlasCheck)]
+
+
+if HAVE_NUMBA and "numba.np.arraymath" not in sys.modules and "scipy.linalg" not in sys.modules:
+    sys.meta_path.insert(0, _LightBlasCheck())
 
 
 def njit(func=None, *, cache: bool = True, inline: str = "never"):
@@ -32,6 +115,35 @@ def njit(func=None, *, cache: bool = True, inline: str = "never"):
         return _nb.njit(cache=cache, fastmath=False, nogil=True, inline=inline)(f)
 
     return wrap(func) if func is not None else wrap
+
+
+_INLINED: dict = {}
+
+
+def inline_copy(func):
+    """An ``inline="always"`` twin of the njit function ``func``, in which every njit function
+    it calls by a global name is such a twin too (recursively): compiled into a caller, the whole
+    call tree becomes one function body, with no call, no argument marshalling and no reference
+    counting of the arrays between a caller and its kernels. The pipeline's generated loop calls
+    its plugins' kernels through these (:mod:`fusionkit._loopgen`); ``func`` itself is unchanged.
+    Anything that is not a numba dispatcher is returned as it is."""
+    if not HAVE_NUMBA or not isinstance(func, _nb.core.registry.CPUDispatcher):
+        return func
+    if func in _INLINED:
+        return _INLINED[func]
+    _INLINED[func] = func  # a function that reaches itself again is called, not inlined
+    import types
+
+    py = func.py_func
+    glb = dict(py.__globals__)
+    for name in py.__code__.co_names:
+        if isinstance(glb.get(name), _nb.core.registry.CPUDispatcher):
+            glb[name] = inline_copy(glb[name])
+    twin = types.FunctionType(py.__code__, glb, py.__name__, py.__defaults__, py.__closure__)
+    twin.__qualname__, twin.__module__ = py.__qualname__, py.__module__
+    opts = {k: v for k, v in func.targetoptions.items() if k not in ("cache", "inline", "nopython")}
+    _INLINED[func] = _nb.njit(inline="always", **opts)(twin)
+    return _INLINED[func]
 
 
 def resolve_backend(backend: str, has_kernel: bool) -> str:

@@ -77,7 +77,8 @@ from .registry import Registry, default_registry
 from .types import (Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, sample_validity,
                     stream_gap)
 from .filters._step_filter import _after_saturation
-from .validation import as_vector, check_finite_all, check_positive, check_sample_finite, finite_sample
+from .validation import (as_vector, check_finite_all, check_finite_flagged, check_positive, check_sample_finite,
+                         finite_sample)
 
 __all__ = ["Pipeline", "run_detector"]
 
@@ -87,6 +88,7 @@ _RCORR = ALIGN_SIZE
 _QPREV = ALIGN_SIZE + 3
 _STATE_SIZE = ALIGN_SIZE + 7
 _CHUNK = 200_000
+_INVALID = int(Flag.GYR_INVALID | Flag.ACC_INVALID | Flag.MAG_INVALID)
 #: the most correctors the compiled loop takes: its first compile grows by about half a second per
 #: corrector (measured in docs/robustness.md); beyond this a composition is more likely a mistake,
 #: and the reference path needs no compile and gives the same numbers
@@ -135,7 +137,7 @@ class Pipeline(Filter):
                 raise ConfigError(f"corrector {c.name!r} acts on {c.requires_flag.name} samples, but no detector "
                                   f"sets that flag: add one (e.g. 'rest' for REST)")
         self._stream: dict[str, Any] | None = None
-        self._packed: tuple | None = None  # the compiled stream: (step, S, P, O, q, has_mag)
+        self._packed: tuple | None = None  # the compiled stream: (step, S, P, O, q, states, step_sample)
         self._fast_dt = 0.0  # update()'s fast path takes intervals up to this (0: not yet, see update)
         self.last_flags = 0
 
@@ -334,7 +336,9 @@ class Pipeline(Filter):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         n = len(rec)
         self._set_body(self.body_axes(rec))
-        check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}, self.spec.nan_policy)
+        inputs = {"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}
+        if self.models:  # a sensor model may change a sample before it is judged: the input first
+            check_finite_all(inputs, self.spec.nan_policy)
         has_mag = rec.mag is not None
         if self.spec.alignment.heading == "magnetometer" and not has_mag:
             raise InputError("alignment heading='magnetometer' needs mag in the recording")
@@ -378,6 +382,8 @@ class Pipeline(Filter):
                 bar.update(stop - start)
         if bar is not None:
             bar.close()
+        if not self.models:  # a non-finite sample is flagged invalid: nan_policy="raise" needs no scan before
+            check_finite_flagged(inputs, self.spec.nan_policy, out_f, _INVALID)
         diag = self._diagnostics(st, out_f, out_c, used)
         report_disturbed(st["align"], st["dt"], self.spec.alignment.duration)
         mark_gaps(out_f, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.spec.max_gap))
@@ -405,10 +411,11 @@ class Pipeline(Filter):
         d["alignment_end_index"] = None if al[END] < 0 else int(al[END])
         d["alignment_disturbed"] = bool(al[DISTURBED])
         if self.detectors:
-            fired = np.flatnonzero(crit)
+            fired = crit != 0
+            first = int(fired.argmax())  # the first True, found without listing them all
             d["criteria"] = crit
             d["criteria_names"] = self.detectors[0].criteria_names
-            d["onset_index"] = int(fired[0]) if fired.size else None
+            d["onset_index"] = first if fired[first] else None
         d["state"] = copy.deepcopy(st)
         return d
 
@@ -424,10 +431,9 @@ class Pipeline(Filter):
             sample = finite_sample(gyr, acc, mag)
             if sample is not None:
                 g, a, m = sample
-                step, S, P, O, q, _ = pk
-                f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, mag is not None, S, P, O, q,
-                            *_NO_GNSS)
-                self.last_flags = f
+                _, S, P, O, q, _, step_sample = pk
+                self.last_flags = step_sample(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt,
+                                              mag is not None, S, P, O, q)
                 return q.copy()
         return self._update_checked(gyr, acc, mag, dt, gnss)
 
@@ -455,10 +461,13 @@ class Pipeline(Filter):
             self._saturated = saturated
         pk = self._stream_kernel()
         if pk is not None:
-            step, S, P, O, q, _ = pk
-            n = _NO_GNSS if gnss is None else as_vector("gnss", gnss, width=6).tolist()
+            step, S, P, O, q, _, step_sample = pk
             g, a, m = g.tolist(), a.tolist(), m.tolist()
-            f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q, *n)
+            if gnss is None:  # the fast path's function: one compile serves both
+                f = step_sample(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q)
+            else:
+                n = as_vector("gnss", gnss, width=6).tolist()
+                f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q, *n)
             self.last_flags = gap_flags(f, gap)
             if len(self.__dict__.get("_unit_samples", ())) >= self.UNIT_CHECK_SAMPLES and not (
                     self._restarts and self.spec.gyr_range is not None):  # the units are checked, no range to watch:
@@ -483,11 +492,9 @@ class Pipeline(Filter):
                 self._packed = False
             else:  # every detector: whether a sample has a magnetometer is known per call only
                 mod, S, P, O, states = self._compiled(self._stream, kernels, list(range(len(self.detectors))))
-                self._packed = (mod.step, S, P, O, np.empty(4), states)
+                self._packed = (mod.step, S, P, O, np.empty(4), states, mod.step_sample)
         return self._packed or None
 
-
-_NO_GNSS = tuple(NO_GNSS.tolist())
 
 
 def _progress(n: int, progress: bool | None, desc: str):

@@ -123,9 +123,18 @@ class Registry:
         entries: dict[str, dict[str, _Entry]] = {kind: {} for kind in KINDS}
         found: list[_Entry] = []
         if self._use_entry_points:
+            # one scan of the installed distributions for every group (each scan reads every
+            # distribution's entry points), and each distribution's name read once (it parses
+            # the distribution's metadata file)
+            eps, names = metadata.entry_points(), {}
             for kind, group in GROUPS.items():
-                for ep in metadata.entry_points(group=group):
-                    dist = ep.dist.name if ep.dist is not None else "<unknown distribution>"
+                for ep in eps.select(group=group):
+                    if ep.dist is None:
+                        dist = "<unknown distribution>"
+                    elif id(ep.dist) in names:
+                        dist = names[id(ep.dist)]
+                    else:
+                        dist = names[id(ep.dist)] = ep.dist.name
                     found.append(_Entry(ep.name, kind, ep.value, dist, ep))
         found.extend(self._extra)
         duplicates = []

@@ -46,25 +46,32 @@ def as_vector(name: str, x, width: int = 3) -> np.ndarray:
     return arr
 
 
+_F64 = np.dtype(np.float64)  # numpy's float64 dtype is one object: ``is`` tells it, ``==`` converts first
+_SHAPE3 = (3,)
+
+
 def _floats3(v):
     """A float64 vector of 3 as a list of floats, cheaply, or None for anything else."""
-    if type(v) is np.ndarray and v.shape == (3,) and v.dtype == np.float64:
-        return v.tolist()
+    if type(v) is np.ndarray:
+        return v.tolist() if v.dtype is _F64 and v.shape == _SHAPE3 else None
     if type(v) in (list, tuple) and len(v) == 3 and all(type(e) is float for e in v):
         return v
     return None
 
 
 _NO_MAG = (0.0, 0.0, 0.0)
+_isfinite = math.isfinite
 
 
 def finite_sample(gyr, acc, mag):
     """``(gyr, acc, mag)`` as lists of floats when each is a float64 vector of 3 and all are finite
     (``mag`` None: zeros), else None: the streaming fast paths take the sample as it is, and
-    anything else goes to the checked path, which names what is wrong."""
+    anything else goes to the checked path, which names what is wrong. (It runs once per sample
+    of a stream: every attribute look-up and call in it shows in ``update()``'s time.)"""
     g, a = _floats3(gyr), _floats3(acc)
     m = _NO_MAG if mag is None else _floats3(mag)
-    if g is None or a is None or m is None or not math.isfinite(sum(g) + sum(a) + sum(m)):
+    if g is None or a is None or m is None or not _isfinite(g[0] + g[1] + g[2] + a[0] + a[1] + a[2] + m[0] + m[1]
+                                                            + m[2]):
         return None
     return g, a, m
 
@@ -103,6 +110,18 @@ def check_finite_all(arrays: dict, policy: str) -> None:
     if policy == "raise" and bad:
         _, name, x = min(bad, key=lambda b: b[0])
         check_finite(name, x, "raise")
+
+
+def check_finite_flagged(arrays: dict, policy: str, flags: np.ndarray, invalid: int) -> None:
+    """:func:`check_finite_all` after a run whose per-sample ``flags`` mark every non-finite input
+    sample with a bit of ``invalid``: the arrays are scanned only when some sample has one (a
+    sample flagged for another reason, e.g. a zero reading or a gap, costs the scan and passes).
+    A run of clean data then reads its input once, in the filter's loop, not twice."""
+    if policy != "raise":
+        return
+    bits, step = flags.dtype.type(invalid), 1 << 16  # in blocks: no temporary the size of the run
+    if any(np.bitwise_and(flags[i:i + step], bits).any() for i in range(0, flags.shape[0], step)):
+        check_finite_all(arrays, policy)
 
 
 def check_sample_finite(policy: str, **vectors) -> None:
@@ -174,34 +193,67 @@ def median_vs(n: int, lo: int, eq: int, max_lt: float, min_gt: float, thr: float
 @njit
 def unit_scan(gyr, acc, thr):
     """One pass over ``gyr`` and ``acc`` for :func:`check_units`: row ``i`` of the result holds
-    ``(n, lo, eq, max_lt, min_gt)`` of :func:`median_vs` for threshold ``thr[i]``: ``thr[0]``,
-    ``thr[1]`` on the norms of the accelerometer rows (finite and nonzero), ``thr[2]`` on the
-    absolute components of the gyroscope rows that are finite."""
-    out = np.zeros((3, 5))
+    ``(n, lo, eq, max_lt, min_gt, sign)`` for threshold ``thr[i]``: ``thr[0]``, ``thr[1]`` on the
+    norms of the accelerometer rows (finite and nonzero), ``thr[2]`` on the absolute components of
+    the gyroscope rows that are finite. ``sign`` (+1 / -1) is the side of the median when the
+    samples seen already decide it whatever the rest are (more than half of every possible total
+    on one side: :func:`_decided`); each sensor's pass stops there, and its counts are partial.
+    ``sign`` 0: the counts are complete, for :func:`median_vs`. (Typical data is decided halfway.)"""
+    out = np.zeros((3, 6))
     t0, t1 = thr[0], thr[1]
     n = lo0 = eq0 = lo1 = eq1 = 0
     mx0 = mx1 = -np.inf
     mn0 = mn1 = np.inf
-    for k in range(acc.shape[0]):  # scalars, not the output array: no store per sample
-        v = math.sqrt(acc[k, 0] * acc[k, 0] + acc[k, 1] * acc[k, 1] + acc[k, 2] * acc[k, 2])
-        if math.isfinite(v) and v > 0.0:
-            n += 1
-            lo0, eq0, mx0, mn0 = _count(v, t0, lo0, eq0, mx0, mn0)
-            lo1, eq1, mx1, mn1 = _count(v, t1, lo1, eq1, mx1, mn1)
-    out[0, 0], out[0, 1], out[0, 2], out[0, 3], out[0, 4] = n, lo0, eq0, mx0, mn0
-    out[1, 0], out[1, 1], out[1, 2], out[1, 3], out[1, 4] = n, lo1, eq1, mx1, mn1
+    rows = acc.shape[0]
+    s0 = s1 = 0
+    for b in range(0, rows, _BLOCK):
+        for k in range(b, min(rows, b + _BLOCK)):  # scalars, not the output array: no store per sample
+            v = math.sqrt(acc[k, 0] * acc[k, 0] + acc[k, 1] * acc[k, 1] + acc[k, 2] * acc[k, 2])
+            if math.isfinite(v) and v > 0.0:
+                n += 1
+                lo0, eq0, mx0, mn0 = _count(v, t0, lo0, eq0, mx0, mn0)
+                lo1, eq1, mx1, mn1 = _count(v, t1, lo1, eq1, mx1, mn1)
+        rest = max(0, rows - b - _BLOCK)  # rows not seen: at most one value each
+        s0, s1 = _decided(n, lo0, eq0, rest), _decided(n, lo1, eq1, rest)
+        if s0 != 0 and s1 != 0:
+            break
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3], out[0, 4], out[0, 5] = n, lo0, eq0, mx0, mn0, s0
+    out[1, 0], out[1, 1], out[1, 2], out[1, 3], out[1, 4], out[1, 5] = n, lo1, eq1, mx1, mn1, s1
     t2 = thr[2]
     n = lo0 = eq0 = 0
     mx0, mn0 = -np.inf, np.inf
-    for k in range(gyr.shape[0]):
-        g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
-        if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2):
-            n += 3
-            lo0, eq0, mx0, mn0 = _count(abs(g0), t2, lo0, eq0, mx0, mn0)
-            lo0, eq0, mx0, mn0 = _count(abs(g1), t2, lo0, eq0, mx0, mn0)
-            lo0, eq0, mx0, mn0 = _count(abs(g2), t2, lo0, eq0, mx0, mn0)
-    out[2, 0], out[2, 1], out[2, 2], out[2, 3], out[2, 4] = n, lo0, eq0, mx0, mn0
+    rows = gyr.shape[0]
+    s0 = 0
+    for b in range(0, rows, _BLOCK):
+        for k in range(b, min(rows, b + _BLOCK)):
+            g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
+            if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2):
+                n += 3
+                lo0, eq0, mx0, mn0 = _count(abs(g0), t2, lo0, eq0, mx0, mn0)
+                lo0, eq0, mx0, mn0 = _count(abs(g1), t2, lo0, eq0, mx0, mn0)
+                lo0, eq0, mx0, mn0 = _count(abs(g2), t2, lo0, eq0, mx0, mn0)
+        s0 = _decided(n, lo0, eq0, 3 * max(0, rows - b - _BLOCK))
+        if s0 != 0:
+            break
+    out[2, 0], out[2, 1], out[2, 2], out[2, 3], out[2, 4], out[2, 5] = n, lo0, eq0, mx0, mn0, s0
     return out
+
+
+_BLOCK = 8192
+
+
+@njit(inline="always")
+def _decided(n, lo, eq, rest):
+    """The side of the median (+1 above, -1 below the threshold) that ``n`` counted values (``lo``
+    below, ``eq`` at it) decide whatever up to ``rest`` more are, else 0. With ``m`` values in all,
+    both middle order statistics lie above when more than ``m // 2`` values do; ``m`` is at most
+    ``n + rest``, and the values not seen may all fall on the other side."""
+    need = (n + rest) // 2 + 1
+    if n - lo - eq >= need:
+        return 1
+    if lo >= need:
+        return -1
+    return 0
 
 
 @njit(inline="always")
@@ -220,8 +272,9 @@ def _unit_medians(gyr: np.ndarray, acc: np.ndarray):
     thr = np.array([*ACC_G_WINDOW, GYR_DEG_BOUND])
     if HAVE_NUMBA and gyr.shape[0] >= SCAN_MIN_SAMPLES:
         st = unit_scan(gyr, acc, thr)
-        return tuple(None if st[i, 0] == 0 else median_vs(int(st[i, 0]), int(st[i, 1]), int(st[i, 2]), st[i, 3],
-                                                          st[i, 4], thr[i]) for i in range(3))
+        return tuple(int(st[i, 5]) if st[i, 5] != 0 else None if st[i, 0] == 0 else
+                     median_vs(int(st[i, 0]), int(st[i, 1]), int(st[i, 2]), st[i, 3], st[i, 4], thr[i])
+                     for i in range(3))
     norm, w = _acc_norms(acc), _gyr_abs(gyr)
     sign = lambda v, t: None if v is None else int(v > t) - int(v < t)  # noqa: E731
     m_acc = float(np.median(norm)) if norm.size else None
