@@ -54,6 +54,7 @@ from ..conventions import body_axis, east_vector, north_vector, resolve_body, up
 from ..protocols import Correction, Corrector, CorrectorKernel
 from ..rotations import quat_from_axis_angle, quat_from_rotvec, quat_mul, quat_to_matrix, rodrigues
 from ..types import Flag
+from ._factor import k_qmul as _qmul
 
 __all__ = ["GstCorrector", "GstGnssCorrector", "GnssLoopConfig", "GateConfig", "gst_correct", "gst_gnss_correct", "G0"]
 
@@ -300,12 +301,6 @@ def _kwrap(a):
     if a < -math.pi:
         return a + 2.0 * math.pi
     return a
-
-
-@njit(inline="always")
-def _qmul(a0, a1, a2, a3, b0, b1, b2, b3):
-    return (a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3, a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
-            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1, a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0)
 
 
 @njit(inline="always")
