@@ -39,7 +39,7 @@ gives the same orientation up to the frame change (tested to 1e-9).
 
 from __future__ import annotations
 
-import dataclasses
+import copy
 import math
 from typing import Any, ClassVar
 
@@ -142,7 +142,8 @@ class RecommendedFilter(Pipeline):
         """:meth:`Pipeline.run`; ``use_mag=False`` does not read the recording's magnetometer at all
         (no MAG_INVALID flags either)."""
         if not self.config.use_mag and getattr(rec, "mag", None) is not None:
-            rec = dataclasses.replace(rec, mag=None)
+            rec = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
+            rec.mag = None
         return super().run(rec, backend=backend, progress=progress, state=state)
 
     def __init__(self, config=None, **params: Any) -> None:
