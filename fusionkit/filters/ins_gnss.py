@@ -472,15 +472,7 @@ class InsGnssFilter(Filter):
         f[6:9, 12:15] = -0.5 * tt * sc
         pm = x[_COV:_COV + _N * _N].reshape(_N, _N)
         pm = f @ pm @ f.T
-        qa = p[_AN] ** 2
-        for i in range(3):
-            pm[i, i] += p[_GN] ** 2 * tt
-            pm[3 + i, 3 + i] += qa * tt
-            pm[6 + i, 6 + i] += qa * tt ** 3 / 3.0
-            pm[3 + i, 6 + i] += qa * tt ** 2 / 2.0
-            pm[6 + i, 3 + i] += qa * tt ** 2 / 2.0
-            pm[9 + i, 9 + i] += p[_GQ] ** 2 * tt
-            pm[12 + i, 12 + i] += p[_AQ] ** 2 * tt
+        _add_process_noise(pm, p, tt)
         x[_COV:_COV + _N * _N] = (0.5 * (pm + pm.T)).reshape(_N * _N)
         x[_SC:_T + 1] = 0.0
         self._refresh(x, p)
@@ -719,6 +711,22 @@ def _rz(a: float) -> np.ndarray:
 
 
 @njit
+def _add_process_noise(pm, p, tt):
+    """Add the process noise over an interval ``tt`` to the covariance ``pm`` (in place): gyro and
+    accelerometer white noise (the latter integrated into velocity and position), the biases'
+    random walks. One function for the reference and the kernel."""
+    qa = p[_AN] ** 2
+    for i in range(3):
+        pm[i, i] += p[_GN] ** 2 * tt
+        pm[3 + i, 3 + i] += qa * tt
+        pm[6 + i, 6 + i] += qa * tt ** 3 / 3.0
+        pm[3 + i, 6 + i] += qa * tt ** 2 / 2.0
+        pm[6 + i, 3 + i] += qa * tt ** 2 / 2.0
+        pm[9 + i, 9 + i] += p[_GQ] ** 2 * tt
+        pm[12 + i, 12 + i] += p[_AQ] ** 2 * tt
+
+
+@njit
 def _k_geo(x, p):
     rm0, _ = radii(p[_LAT])
     lat = p[_LAT] + x[_P] / (rm0 + p[_H0])
@@ -857,15 +865,7 @@ def _k_propagate(x, p, fm, tmp, fmt):
             if e != 0.0:
                 for i in range(_N):
                     pm[i, j] += tmp[i, k] * e
-    qa = p[_AN] ** 2
-    for i in range(3):
-        pm[i, i] += p[_GN] ** 2 * tt
-        pm[3 + i, 3 + i] += qa * tt
-        pm[6 + i, 6 + i] += qa * tt ** 3 / 3.0
-        pm[3 + i, 6 + i] += qa * tt ** 2 / 2.0
-        pm[6 + i, 3 + i] += qa * tt ** 2 / 2.0
-        pm[9 + i, 9 + i] += p[_GQ] ** 2 * tt
-        pm[12 + i, 12 + i] += p[_AQ] ** 2 * tt
+    _add_process_noise(pm, p, tt)
     for i in range(_N):
         for j in range(i + 1, _N):
             a = 0.5 * (pm[i, j] + pm[j, i])
