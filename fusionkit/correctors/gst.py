@@ -183,7 +183,7 @@ class GstCorrector(Corrector):
                 e = r @ fwd
                 e = e - (e @ up) * up
                 e /= np.linalg.norm(e)
-                turn = _wrap(heading - s[_HPREV]) / dt if p[17] != 0.0 else -w_up
+                turn = _kwrap(heading - s[_HPREV]) / dt if p[17] != 0.0 else -w_up
                 a_kin = s[_ALONG] * e + s[_V] * turn * np.cross(e, up)
                 s[_LPG:_LPG + 3] += s[_KDT + 2] * ((f_h - a_kin) - s[_LPG:_LPG + 3])
             s[_LPA:_LPA + 3] += s[_KDT + 1] * (f_h - s[_LPA:_LPA + 3])
@@ -210,7 +210,7 @@ class GstCorrector(Corrector):
         if self.combined:
             s[_HPREV] = heading
         if usable and s[_V] >= p[12]:  # eq. 5: turn the heading towards the track angle
-            delta = _wrap(math.atan2(sample.gnss[1], sample.gnss[0]) - heading)
+            delta = _kwrap(math.atan2(sample.gnss[1], sample.gnss[0]) - heading)
             if not (s[_HINIT] == 0.0 and p[11] != 0.0):  # heading_init="track": the whole offset at first
                 delta = delta * dt / p[10]
             s[_HINIT] = 1.0
@@ -244,15 +244,6 @@ class GstCorrector(Corrector):
 def _heading(v, up, north, east) -> float:
     """The heading of ``v`` (clockwise from north) in the frame."""
     return math.atan2(v @ east, v @ north)
-
-
-def _wrap(a: float) -> float:
-    """``a`` in [-pi, pi) for ``|a| < 3 pi`` (differences of wrapped angles)."""
-    if a >= math.pi:
-        return a - 2.0 * math.pi
-    if a < -math.pi:
-        return a + 2.0 * math.pi
-    return a
 
 
 class GstGnssCorrectorConfig(GstCorrectorConfig, GnssLoopConfig):
@@ -296,6 +287,7 @@ _GNSS_GAP = int(Flag.GNSS_GAP)
 
 @njit(inline="always")
 def _kwrap(a):
+    """``a`` in [-pi, pi) for ``|a| < 3 pi`` (differences of wrapped angles); the reference calls it too."""
     if a >= math.pi:
         return a - 2.0 * math.pi
     if a < -math.pi:
