@@ -496,7 +496,6 @@ class Pipeline(Filter):
         return self._packed or None
 
 
-
 def _progress(n: int, progress: bool | None, desc: str):
     """A tqdm bar for long runs: always with ``progress=True``, on a terminal above 1M samples
     with ``None``."""
