@@ -25,13 +25,32 @@ segments stop fitting (a residual above ``outlier_sigma`` standard deviations in
 ``outlier_count`` segments in a row: the magnet moved), the estimate is forgotten and learned
 again; the last confident offset is applied meanwhile.
 
-Assumptions and limits: soft iron (a distortion matrix) is not modelled (a soft-iron error
-leaves a residual in every segment, which ``sigma_e`` absorbs and the gate then demands more
-rotation); the gyroscope's own bias turns ``C`` by ``bias * segment_time`` (small against the
+Soft iron (``soft_iron=True``, the default): ferrous material carried with the sensor, or a
+magnetometer's unequal axis gains, distort the field seen from the body by a matrix: ``m = S R^T h
++ b``. The calibration is ``W = S^-1`` up to a scale: ``W (m_k - b) = C^T W (m_a - b)``. With ``W =
+I + E`` (``E`` symmetric and traceless: the field's scale is not observable from directions, so
+the calibrated field keeps about the raw one's unit) and ``c = W b`` this is
+
+``(I - C^T) c - E m_k + C^T E m_a = m_k - C^T m_a``,
+
+still linear: eight unknowns (five in ``E``, three in ``c``) in the same forgetting least squares,
+and the calibrated sample is ``W m - c``. The confidence is then each unknown's own standard
+deviation (``sigma_e^2`` times the diagonal of the inverse information matrix): the offset's
+below ``max_std`` of the field's norm and the distortion's below ``max_std``. It needs more
+rotation than the offset alone. ``soft_iron=False`` estimates the offset alone, as above (a
+soft-iron error then leaves a residual in every segment, which ``sigma_e`` absorbs and the gate
+then demands more rotation).
+
+Limits: the gyroscope's own bias turns ``C`` by ``bias * segment_time`` (small against the
 segment angle); the magnetometer and gyroscope are taken to be sampled at the same times (a
 magnetometer late by ``d`` seconds adds an error of ``|w| d`` per segment, which averages over
 rotations in both directions). The readable reference is :meth:`MagCalibrationModel.apply`;
 :func:`mag_calibration_apply` is its kernel.
+
+Where this sits among the classic calibrations: an ellipsoid fit (the field's norm constant, the
+offset and distortion its centre and shape) needs no gyroscope but takes any change of the field's
+magnitude, a magnet on the desk included, for part of the ellipsoid; the gyro-aided relation
+above is blind to a field that turns with the earth, which is the property that matters online.
 """
 
 from __future__ import annotations
@@ -53,6 +72,11 @@ __all__ = ["MagCalibrationConfig", "MagCalibrationModel", "mag_calibration_apply
 _B, _A, _Y, _MA, _DQ, _T, _ANCHOR, _VAR, _N, _CONF, _BAD, _BEST = 0, 3, 12, 15, 18, 22, 23, 24, 25, 26, 27, 28
 _RR, _NE = 31, 32  # the weighted sum of |r|^2 and of the weights (the fit's residual noise)
 STATE = 33
+# soft iron: the unknowns (E's five entries, then c), their information matrix and right-hand side,
+# the best and the applied estimate, after the offset's state
+_NP = 8
+_SA, _SY, _SBEST, _SAPP = 33, 33 + 64, 33 + 72, 33 + 80
+STATE_SOFT = 33 + 88
 
 
 class MagCalibrationConfig(PluginConfig):
@@ -71,6 +95,9 @@ class MagCalibrationConfig(PluginConfig):
         gt=0)
     outlier_count: int = param(
         3, unit="-", description="this many misfits in a row: the offset changed, learn it again", ge=1)
+    soft_iron: bool = param(
+        True, unit="-", description="estimate the soft-iron distortion (a symmetric matrix) with the offset; "
+        "False: the offset alone, which needs less rotation to become confident")
 
 
 class MagCalibrationModel(SensorModel):
@@ -79,17 +106,18 @@ class MagCalibrationModel(SensorModel):
     name: ClassVar[str] = "mag-calibration"
     Config = MagCalibrationConfig
     source: ClassVar[str] = "fusionkit (gyro-aided hard-iron estimation: the field turns with the body, the offset not)"
-    summary: ClassVar[str] = "online hard-iron offset from gyro-propagated field directions, applied when confident"
+    summary: ClassVar[str] = ("online hard- and soft-iron calibration from gyro-propagated field directions, applied "
+                              "when confident")
 
     def initial_state(self, dt: float) -> np.ndarray:
-        s = np.zeros(STATE)
+        s = np.zeros(STATE_SOFT if self.config.soft_iron else STATE)
         s[_DQ] = 1.0
         return s
 
     def params(self) -> np.ndarray:
         c = self.config
         return np.array([c.segment_angle, c.segment_time, c.forget_time, c.max_std, float(c.min_segments),
-                         c.outlier_sigma, float(c.outlier_count)])
+                         c.outlier_sigma, float(c.outlier_count), float(c.soft_iron)])
 
     def kernel(self) -> SensorModelKernel:
         return SensorModelKernel(mag_calibration_apply, self.params())
@@ -111,13 +139,19 @@ class MagCalibrationModel(SensorModel):
             dq = s[_DQ:_DQ + 4]
             angle = 2.0 * math.atan2(math.sqrt(dq[1] ** 2 + dq[2] ** 2 + dq[3] ** 2), abs(dq[0]))
             if angle >= c.segment_angle or s[_T] >= c.segment_time:
-                self._segment(s, quat_to_matrix(dq).T, m)
+                if c.soft_iron:
+                    self._segment_soft(s, quat_to_matrix(dq).T, m)
+                else:
+                    self._segment(s, quat_to_matrix(dq).T, m)
                 s[_ANCHOR] = 0.0
         if gyr_ok and not s[_ANCHOR]:  # this sample starts the next segment
             s[_MA:_MA + 3] = m
             s[_DQ:_DQ + 4] = (1.0, 0.0, 0.0, 0.0)
             s[_T] = 0.0
             s[_ANCHOR] = 1.0
+        if c.soft_iron:
+            t = s[_SAPP:_SAPP + _NP]
+            return sample._replace(mag=(np.eye(3) + _distortion(t)) @ m - t[5:8]), 0
         return sample._replace(mag=m - s[_B:_B + 3]), 0
 
     def _segment(self, s, ct, m) -> None:
@@ -155,6 +189,110 @@ class MagCalibrationModel(SensorModel):
         if s[_N] >= c.min_segments and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= c.max_std * field:
             s[_B:_B + 3] = best
             s[_CONF] = 1.0
+
+    def _segment_soft(self, s, ct, m) -> None:
+        """One closed segment, soft iron: ``(I - C^T) c - E m_k + C^T E m_a = m_k - C^T m_a``."""
+        c = self.config
+        h = np.empty((3, _NP))
+        _soft_rows(ct, s[_MA:_MA + 3], m, h)
+        r = m - ct @ s[_MA:_MA + 3]
+        n = s[_N]
+        e = r - h @ s[_SBEST:_SBEST + _NP]
+        if n >= c.min_segments and float(e @ e) / 3.0 > c.outlier_sigma ** 2 * s[_VAR]:
+            s[_BAD] += 1.0
+            if s[_BAD] >= c.outlier_count:  # the calibration changed: forget it and learn again
+                s[_SA:_SA + _NP * _NP] = 0.0
+                s[_SY:_SY + _NP] = 0.0
+                s[_N] = s[_VAR] = s[_CONF] = s[_BAD] = s[_RR] = s[_NE] = 0.0
+            return
+        s[_BAD] = 0.0
+        lam = math.exp(-s[_T] / c.forget_time)
+        a = lam * s[_SA:_SA + _NP * _NP].reshape(_NP, _NP) + h.T @ h
+        s[_SA:_SA + _NP * _NP] = a.ravel()
+        s[_SY:_SY + _NP] = lam * s[_SY:_SY + _NP] + h.T @ r
+        s[_RR] = lam * s[_RR] + float(r @ r)
+        s[_NE] = lam * s[_NE] + 1.0
+        s[_N] = n + 1.0
+        inv = np.empty((_NP, _NP))
+        if not _invert(a.copy(), inv):
+            return
+        best = inv @ s[_SY:_SY + _NP]
+        s[_SBEST:_SBEST + _NP] = best
+        if 3.0 * s[_NE] > _NP:  # the residual noise: sum |r - H x|^2 = sum |r|^2 - y . x at the optimum
+            s[_VAR] = max(s[_RR] - float(s[_SY:_SY + _NP] @ best), 0.0) / (3.0 * s[_NE] - _NP)
+        w = np.eye(3) + _distortion(best)
+        field = float(np.linalg.norm(w @ m - best[5:8]))
+        std = np.sqrt(s[_VAR] * np.diag(inv))
+        if s[_N] >= c.min_segments and std[5:8].max() <= c.max_std * field and std[:5].max() <= c.max_std:
+            s[_SAPP:_SAPP + _NP] = best
+            s[_B:_B + 3] = np.linalg.solve(w, best[5:8])  # the offset in the raw field's units, b = W^-1 c
+            s[_CONF] = 1.0
+
+
+def _distortion(t):
+    """``E`` from its five entries: symmetric and traceless."""
+    return np.array([[t[0], t[2], t[3]], [t[2], t[1], t[4]], [t[3], t[4], -t[0] - t[1]]])
+
+
+def _basis(j, v0, v1, v2):
+    """``G_j v`` for the j-th basis matrix of the symmetric traceless ``E``: diag(1, 0, -1),
+    diag(0, 1, -1), and the (0, 1), (0, 2), (1, 2) symmetric pairs."""
+    if j == 0:
+        return v0, 0.0, -v2
+    if j == 1:
+        return 0.0, v1, -v2
+    if j == 2:
+        return v1, v0, 0.0
+    if j == 3:
+        return v2, 0.0, v0
+    return 0.0, v2, v1
+
+
+def _soft_rows(ct, ma, mk, h):
+    """The segment's 3x8 design matrix into ``h``: ``-G_j m_k + C^T G_j m_a`` for E's entries, then
+    ``I - C^T`` for ``c``. The same statements in the reference and, compiled, in the kernel."""
+    for j in range(5):
+        k0, k1, k2 = _basis(j, mk[0], mk[1], mk[2])
+        a0, a1, a2 = _basis(j, ma[0], ma[1], ma[2])
+        for i in range(3):
+            h[i, j] = -(k0, k1, k2)[i] + ct[i, 0] * a0 + ct[i, 1] * a1 + ct[i, 2] * a2
+    for i in range(3):
+        for j in range(3):
+            h[i, 5 + j] = (1.0 if i == j else 0.0) - ct[i, j]
+
+
+def _invert(a, inv) -> bool:
+    """``inv = a^-1`` by Gauss-Jordan elimination with partial pivoting (``a`` is overwritten);
+    False for a matrix singular to working precision. The same statements in the reference and,
+    compiled, in the kernel."""
+    n = a.shape[0]
+    scale = 0.0
+    for i in range(n):
+        scale = max(scale, abs(a[i, i]))
+        for j in range(n):
+            inv[i, j] = 1.0 if i == j else 0.0
+    for col in range(n):
+        piv = col
+        for i in range(col + 1, n):
+            if abs(a[i, col]) > abs(a[piv, col]):
+                piv = i
+        if not abs(a[piv, col]) > 1e-12 * scale:
+            return False
+        if piv != col:
+            for j in range(n):
+                a[col, j], a[piv, j] = a[piv, j], a[col, j]
+                inv[col, j], inv[piv, j] = inv[piv, j], inv[col, j]
+        d = a[col, col]
+        for j in range(n):
+            a[col, j] /= d
+            inv[col, j] /= d
+        for i in range(n):
+            if i != col and a[i, col] != 0.0:
+                f = a[i, col]
+                for j in range(n):
+                    a[i, j] -= f * a[col, j]
+                    inv[i, j] -= f * inv[col, j]
+    return True
 
 
 def _inverse3(a, inv) -> bool:
@@ -202,12 +340,29 @@ def _min_eig_sym3(a) -> float:
 
 _k_min_eig = njit(_min_eig_sym3)
 _k_inverse3 = njit(_inverse3)
+_k_invert = njit(_invert)
+_k_basis = njit(_basis)
+
+
+@njit
+def _k_soft_rows(ct, ma, mk, h):
+    """:func:`_soft_rows`, compiled (its basis products through the compiled :func:`_basis`)."""
+    for j in range(5):
+        k0, k1, k2 = _k_basis(j, mk[0], mk[1], mk[2])
+        a0, a1, a2 = _k_basis(j, ma[0], ma[1], ma[2])
+        kk = (k0, k1, k2)
+        for i in range(3):
+            h[i, j] = -kk[i] + ct[i, 0] * a0 + ct[i, 1] * a1 + ct[i, 2] * a2
+    for i in range(3):
+        for j in range(3):
+            h[i, 5 + j] = (1.0 if i == j else 0.0) - ct[i, j]
 
 
 @njit
 def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
     """Kernel of :class:`MagCalibrationModel` (``SensorModelKernel.apply``)."""
     seg_angle, seg_time, forget, max_std, min_seg, out_sigma, out_count = p[0], p[1], p[2], p[3], p[4], p[5], p[6]
+    soft = p[7] != 0.0
     if not gyr_ok:
         s[_ANCHOR] = 0.0
     elif s[_ANCHOR] != 0.0:
@@ -224,13 +379,22 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
         w, x, y, z = s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3]
         angle = 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
         if angle >= seg_angle or s[_T] >= seg_time:
-            _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count)
+            if soft:
+                _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count)
+            else:
+                _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count)
             s[_ANCHOR] = 0.0
     if gyr_ok and s[_ANCHOR] == 0.0:
         s[_MA], s[_MA + 1], s[_MA + 2] = m0, m1, m2
         s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3] = 1.0, 0.0, 0.0, 0.0
         s[_T] = 0.0
         s[_ANCHOR] = 1.0
+    if soft:
+        t = s[_SAPP:_SAPP + _NP]
+        v[6] = (1.0 + t[0]) * m0 + t[2] * m1 + t[3] * m2 - t[5]
+        v[7] = t[2] * m0 + (1.0 + t[1]) * m1 + t[4] * m2 - t[6]
+        v[8] = t[3] * m0 + t[4] * m1 + (1.0 - t[0] - t[1]) * m2 - t[7]
+        return 0
     v[6], v[7], v[8] = m0 - s[_B], m1 - s[_B + 1], m2 - s[_B + 2]
     return 0
 
@@ -289,4 +453,82 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count):
     field = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
     if s[_N] >= min_seg and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= max_std * field:
         s[_B], s[_B + 1], s[_B + 2] = s[_BEST], s[_BEST + 1], s[_BEST + 2]
+        s[_CONF] = 1.0
+
+
+@njit
+def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count):
+    c9 = np.empty(9)
+    quat_to_dcm(s[_DQ:_DQ + 4], c9)
+    ct = np.empty((3, 3))  # R(dq)^T
+    for i in range(3):
+        for j in range(3):
+            ct[i, j] = c9[3 * j + i]
+    ma = np.array((s[_MA], s[_MA + 1], s[_MA + 2]))
+    mk = np.array((m0, m1, m2))
+    h = np.empty((3, _NP))
+    _k_soft_rows(ct, ma, mk, h)
+    r = np.empty(3)
+    for i in range(3):
+        r[i] = mk[i] - (ct[i, 0] * ma[0] + ct[i, 1] * ma[1] + ct[i, 2] * ma[2])
+    e2 = 0.0
+    for i in range(3):
+        ei = r[i]
+        for j in range(_NP):
+            ei -= h[i, j] * s[_SBEST + j]
+        e2 += ei * ei
+    n = s[_N]
+    if n >= min_seg and e2 / 3.0 > out_sigma * out_sigma * s[_VAR]:
+        s[_BAD] += 1.0
+        if s[_BAD] >= out_count:
+            for i in range(_NP * _NP):
+                s[_SA + i] = 0.0
+            for i in range(_NP):
+                s[_SY + i] = 0.0
+            s[_N] = s[_VAR] = s[_CONF] = s[_BAD] = s[_RR] = s[_NE] = 0.0
+        return
+    s[_BAD] = 0.0
+    lam = math.exp(-s[_T] / forget)
+    a = np.empty((_NP, _NP))
+    for i in range(_NP):
+        for j in range(_NP):
+            a[i, j] = lam * s[_SA + _NP * i + j] + (h[0, i] * h[0, j] + h[1, i] * h[1, j] + h[2, i] * h[2, j])
+            s[_SA + _NP * i + j] = a[i, j]
+    for i in range(_NP):
+        s[_SY + i] = lam * s[_SY + i] + (h[0, i] * r[0] + h[1, i] * r[1] + h[2, i] * r[2])
+    s[_RR] = lam * s[_RR] + (r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    s[_NE] = lam * s[_NE] + 1.0
+    s[_N] = n + 1.0
+    inv = np.empty((_NP, _NP))
+    if not _k_invert(a, inv):
+        return
+    yb = 0.0
+    for i in range(_NP):
+        x = 0.0
+        for j in range(_NP):
+            x += inv[i, j] * s[_SY + j]
+        s[_SBEST + i] = x
+        yb += s[_SY + i] * x
+    if 3.0 * s[_NE] > _NP:
+        s[_VAR] = max(s[_RR] - yb, 0.0) / (3.0 * s[_NE] - _NP)
+    t = s[_SBEST:_SBEST + _NP]
+    w = np.array(((1.0 + t[0], t[2], t[3]), (t[2], 1.0 + t[1], t[4]), (t[3], t[4], 1.0 - t[0] - t[1])))
+    f0 = w[0, 0] * m0 + w[0, 1] * m1 + w[0, 2] * m2 - t[5]
+    f1 = w[1, 0] * m0 + w[1, 1] * m1 + w[1, 2] * m2 - t[6]
+    f2 = w[2, 0] * m0 + w[2, 1] * m1 + w[2, 2] * m2 - t[7]
+    field = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+    std_c, std_e = 0.0, 0.0
+    for i in range(_NP):
+        sd = math.sqrt(max(s[_VAR] * inv[i, i], 0.0))
+        if i < 5:
+            std_e = max(std_e, sd)
+        else:
+            std_c = max(std_c, sd)
+    if s[_N] >= min_seg and std_c <= max_std * field and std_e <= max_std:
+        for i in range(_NP):
+            s[_SAPP + i] = t[i]
+        winv = np.empty((3, 3))
+        if _k_inverse3(w, winv):
+            for i in range(3):
+                s[_B + i] = winv[i, 0] * t[5] + winv[i, 1] * t[6] + winv[i, 2] * t[7]
         s[_CONF] = 1.0
