@@ -1,6 +1,6 @@
 """The INS/GNSS filter against source 001's GST loops on the simulated GNSS flights.
 
-    python benchmarks/ins_gnss.py [--data DIR] [--filters ins-gnss gst-gnss gst]
+    python benchmarks/ins_gnss.py [--data DIR] [--filters ins-gnss gst-gnss gst] [--param key=value]
 
 Per flight and filter, default parameters (``body="FRD"``, the files' axes): tilt RMS while
 GNSS is valid and inside the outage, heading RMS after 200 s, velocity RMS and the position
@@ -10,6 +10,7 @@ after a warm-up run).
 """
 
 import argparse
+import json
 import time
 
 import numpy as np
@@ -25,6 +26,8 @@ ap.add_argument("--flights", nargs="+", default=["heli_cruise", "car_drive"])
 ap.add_argument("--filters", nargs="+", default=["ins-gnss", "gst-gnss", "gst"])
 ap.add_argument("--heading", default=None, help="ins-gnss heading option (auto, magnetometer, course)")
 ap.add_argument("--no-time-offset", action="store_true", help="ins-gnss without the time offset state")
+ap.add_argument("--param", action="append", default=[], help="key=value for ins-gnss (JSON value), e.g. "
+                "nonholonomic=0.2")
 args = ap.parse_args()
 
 
@@ -45,6 +48,8 @@ for name in args.flights:
             kw["heading"] = args.heading
         if nm == "ins-gnss" and args.no_time_offset:
             kw["time_offset_std"] = None
+        if nm == "ins-gnss":
+            kw.update({k: json.loads(v) for k, v in (a.split("=", 1) for a in args.param)})
         f = fk.make(nm, **kw)
         f.run(rec.slice(0, 300))
         t0 = time.perf_counter()

@@ -97,14 +97,19 @@ _GRAV, _S0, _S1, _WIE, _WEN, _SD = _W + 3, _W + 4, _W + 5, _W + 6, _W + 9, _W + 
 _C0 = _SD + _N  # start attitude (9)
 _HVAR, _LEVEL, _PHI0 = _C0 + 9, _C0 + 10, _C0 + 11  # its heading variance, re-levelled, tilt fix (3)
 _ACC = _PHI0 + 3  # the last sample's acceleration, NED (3): the velocity's rate, for the time offset
-_SIZE = _ACC + 3
+# the non-holonomic check: exponentially weighted sums (times the epoch interval) of the GNSS
+# velocity's body-frame products x x, x y, x z, y y, z z, the weights' sum, the moving time seen
+_NXX, _NXY, _NXZ, _NYY, _NZZ, _NHW, _NHT = range(_ACC + 3, _ACC + 10)
+_SIZE = _ACC + 10
 
 # parameter vector layout
 (_GN, _AN, _GQ, _AQ, _VH, _VV, _PH, _PV, _GATE, _GTO, _CI, _MINV, _SLIP, _BG0, _BA0, _TILT0, _MAGH, _LAT, _H0,
  _EARTH, _DECL, _MAXAGE, _HMAG, _V0, _P0, _LEV) = range(26)
 _RELEVEL = _LEV + 3  # the lever arm is 3 wide
 _TS0 = _RELEVEL + 1  # the time offset's initial std
-_NPAR = _TS0 + 1
+_NHC, _NHM, _NHT0 = _TS0 + 1, _TS0 + 2, _TS0 + 3  # non-holonomic: std (m/s), mode (0 off, 1 on, 2 auto), check (s)
+_NHGATE = 10.83  # the constraint's gate: chi-square, 1 dof, p = 1e-3 (a skid, a kerb)
+_NPAR = _NHT0 + 1
 
 
 class InsGnssConfig(FilterConfig):
@@ -168,6 +173,19 @@ class InsGnssConfig(FilterConfig):
         0.05, unit="s", description="initial std of the IMU-to-GNSS time offset, estimated as a state (the IMU's "
         "time stamps against the receiver's: sampling conventions, buffering, an unsynchronised clock); None: not "
         "estimated (taken as 0, the 15-state filter)", gt=0)
+    nonholonomic: Literal["auto", "on", "off"] = param(
+        "auto", unit="-", description="a wheeled ground vehicle's constraint (its velocity has no lateral and no "
+        "vertical part in the vehicle's axes: the IMU's, turned by a mounting yaw and pitch estimated from GNSS), a "
+        "pseudo-measurement at every covariance step: 'on' always (a car), 'off' never (aircraft, helicopters, boats, "
+        "people), 'auto' once GNSS has shown it holds: over nonholonomic_check s of motion (speed >= min_speed) the "
+        "GNSS velocity's lateral and vertical parts, the mounting removed, have an RMS within nonholonomic_std, and "
+        "for as long as they do")
+    nonholonomic_std: float = param(
+        0.2, unit="m/s", description="the constraint's std: sideslip, suspension, an IMU ahead of the rear axle in "
+        "turns", gt=0)
+    nonholonomic_check: float = param(
+        60.0, unit="s", description="'auto': the moving time over which GNSS must confirm the constraint, and the "
+        "time constant of that running check", gt=0)
     gnss_max_age: float = param(0.5, unit="s", description="an epoch older than this is a gap (GNSS_GAP)", gt=0)
     alignment: Literal["motion", "fixed"] = param("motion", unit="-", description="source 000 alignment mode")
     alignment_duration: float = param(10.0, unit="s", description="mandatory alignment time", gt=0)
@@ -293,6 +311,8 @@ class InsGnssFilter(Filter):
         p[_V0], p[_P0] = c.initial_velocity_std, c.initial_position_std
         p[_RELEVEL] = c.relevel * c.initial_acc_bias_std if c.relevel is not None else -1.0
         p[_TS0] = 0.0 if c.time_offset_std is None else c.time_offset_std
+        p[_NHC], p[_NHT0] = c.nonholonomic_std, c.nonholonomic_check
+        p[_NHM] = {"off": 0.0, "on": 1.0, "auto": 2.0}[c.nonholonomic]
         return p
 
     def new_state(self, dt: float, rec: Recording | None = None) -> dict[str, Any]:
@@ -365,6 +385,8 @@ class InsGnssFilter(Filter):
         new = gn[0] != 0.0 and gn[1] > x[_TLAST] and 0.0 <= t - gn[1] <= p[_MAXAGE] and np.isfinite(gn[2:8]).any()
         if new or x[_T] >= p[_CI] * (1.0 - 1e-9):  # (a sum of dt a rounding short of it counts)
             self._propagate(x, p)
+            if _nonholonomic_on(x, p):
+                self._nonholonomic(x, p)
         if new:
             flags |= self._update(x, p, gn, t)
             if x[_LEVEL] == 0.0 and max(x[_SD + 12], x[_SD + 13]) < p[_RELEVEL]:
@@ -448,6 +470,7 @@ class InsGnssFilter(Filter):
         pm[15, 15] = p[_TS0] ** 2
         x[_COV:_COV + _N * _N] = pm.reshape(_N * _N)
         x[_SC:_T + 1] = 0.0
+        x[_NXX:_NHT + 1] = 0.0
         x[_TLAST] = x[_TGOOD] = -np.inf
         x[_RV] = x[_RP] = t
         x[_PHASE] = 2.0
@@ -482,6 +505,7 @@ class InsGnssFilter(Filter):
         flags = 0
         age = t - gn[1]
         lag = age + x[_DTS]  # the INS state is this far ahead of the epoch
+        interval = gn[1] - x[_TLAST]
         x[_TLAST] = gn[1]
         c = x[_C:_C + 9].reshape(3, 3)
         lev = p[_LEV:_LEV + 3]
@@ -512,6 +536,8 @@ class InsGnssFilter(Filter):
             s = hm @ pm @ hm.T + np.diag(r)
             nis = float(yg @ np.linalg.solve(s, yg))
             if nis <= p[_GATE]:
+                if kind == 0 and p[_NHM] != 0.0:
+                    _nonholonomic_check(x, p, c.T @ (z - cwl), interval)
                 for i in range(3):
                     hp = hm[i] @ pm
                     si = hp @ hm[i] + r[i]
@@ -533,6 +559,37 @@ class InsGnssFilter(Filter):
                 flags |= Flag.GNSS_REJECTED
             else:
                 flags |= Flag.GNSS_REJECTED
+        self._correct(x, dx, pm)
+        return flags
+
+    def _nonholonomic(self, x, p) -> None:
+        """A wheeled vehicle does not slide sideways or leave the road: its velocity has no
+        lateral and no vertical part in the vehicle's axes, which are the IMU's (FRD) turned by the
+        mounting ``(a_y, a_z)``: ``u_i . v_b = 0`` with ``u_i = e_i - a_i e_x``, each a scalar
+        pseudo-measurement of std ``p[_NHC]``. With ``C_true = (I + [phi x]) C`` and ``v_b = C^T v``,
+        ``u . v_b_true = (C u) . v + (C u) . dv + ((C u) x v) . phi``."""
+        c = x[_C:_C + 9].reshape(3, 3)
+        v = x[_V:_V + 3]
+        pm = x[_COV:_COV + _N * _N].reshape(_N, _N).copy()
+        dx = np.zeros(_N)
+        for i, a in zip((1, 2), _nonholonomic_mount(x)):
+            cu = c @ (np.eye(3)[i] - a * np.eye(3)[0])
+            hm = np.zeros(_N)
+            hm[0:3] = np.cross(cu, v)
+            hm[3:6] = cu
+            hp = hm @ pm
+            si = hp @ hm + p[_NHC] ** 2
+            innov = -(cu @ v) - hm @ dx
+            if innov ** 2 > _NHGATE * si:  # not a vehicle on its wheels just now
+                continue
+            kg = hp / si
+            dx += kg * innov
+            pm -= np.outer(kg, kg) * si
+        self._correct(x, dx, pm)
+
+    def _correct(self, x, dx, pm) -> None:
+        """The error state ``dx`` into the nominal state, ``pm`` the updated covariance."""
+        c = x[_C:_C + 9].reshape(3, 3)
         x[_C:_C + 9] = (rodrigues(dx[0:3]) @ c).reshape(9)
         x[_V:_V + 3] += dx[3:6]
         x[_P:_P + 3] += dx[6:9]
@@ -541,7 +598,6 @@ class InsGnssFilter(Filter):
         x[_DTS] += dx[15]
         x[_COV:_COV + _N * _N] = (0.5 * (pm + pm.T)).reshape(_N * _N)
         x[_SD:_SD + _N] = np.sqrt(np.maximum(np.diag(x[_COV:_COV + _N * _N].reshape(_N, _N)), 0.0))
-        return flags
 
     def _output(self, x) -> np.ndarray:
         """The attitude at the sample's time on the GNSS clock: the INS is ``x[_DTS]`` ahead."""
@@ -701,6 +757,44 @@ class InsGnssFilter(Filter):
         return q
 
 
+def _nonholonomic_check(x, p, vb, interval) -> None:
+    """One accepted GNSS velocity (``vb`` in body axes, at the IMU) into the running check of the
+    constraint; only while moving (``min_speed``), over epoch intervals of up to a second."""
+    if not (p[_NHM] != 0.0 and 0.0 < interval <= 1.0 and vb[0] ** 2 + vb[1] ** 2 + vb[2] ** 2 >= p[_MINV] ** 2):
+        return
+    lam = math.exp(-interval / p[_NHT0])
+    for i, v in ((_NXX, vb[0] * vb[0]), (_NXY, vb[0] * vb[1]), (_NXZ, vb[0] * vb[2]), (_NYY, vb[1] * vb[1]),
+                 (_NZZ, vb[2] * vb[2]), (_NHW, 1.0)):
+        x[i] = lam * x[i] + interval * v
+    x[_NHT] += interval
+
+
+def _nonholonomic_mount(x) -> tuple[float, float]:
+    """The IMU's mounting in the vehicle, from the check's sums: the least-squares ratios of the
+    GNSS velocity's lateral and vertical body parts to its forward part (``v_y = a_y v_x``,
+    ``v_z = a_z v_x``: the yaw and pitch of the IMU against the wheels' direction, small angles)."""
+    if not x[_NXX] > 0.0:
+        return 0.0, 0.0
+    return x[_NXY] / x[_NXX], x[_NXZ] / x[_NXX]
+
+
+def _nonholonomic_on(x, p) -> bool:
+    """Whether the constraint applies now: 'on' (once moving: the mounting is estimated on the
+    way), or 'auto' once the check has seen ``nonholonomic_check`` s of motion whose lateral and
+    vertical velocity, the mounting removed, has an RMS within the constraint's std."""
+    if p[_NHM] == 1.0:
+        return True
+    if not (p[_NHM] == 2.0 and x[_NHT] >= p[_NHT0] and x[_NXX] > 0.0):
+        return False
+    rss = x[_NYY] - x[_NXY] ** 2 / x[_NXX] + x[_NZZ] - x[_NXZ] ** 2 / x[_NXX]  # (the mounting removed)
+    return rss <= 2.0 * x[_NHW] * p[_NHC] ** 2
+
+
+_k_nonholonomic_check = njit(_nonholonomic_check)
+_k_nonholonomic_mount = njit(_nonholonomic_mount)
+_k_nonholonomic_on = njit(_nonholonomic_on)
+
+
 def _rz(a: float) -> np.ndarray:
     """Rotation by ``a`` about NED's down axis (heading + a)."""
     ca, sa = math.cos(a), math.sin(a)
@@ -801,6 +895,8 @@ def _k_start(x, c0, heading_var, p, t, ba0, dts0):
     pm[15, 15] = p[_TS0] ** 2
     for i in range(_SC, _T + 1):
         x[i] = 0.0
+    for i in range(_NXX, _NHT + 1):
+        x[i] = 0.0
     x[_TLAST] = -np.inf
     x[_TGOOD] = -np.inf
     x[_RV] = t
@@ -881,6 +977,7 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
     flags = 0
     age = t - gn[1]
     lag = age + x[_DTS]
+    interval = gn[1] - x[_TLAST]
     x[_TLAST] = gn[1]
     c = x[_C:_C + 9]
     l0, l1, l2 = p[_LEV], p[_LEV + 1], p[_LEV + 2]
@@ -964,6 +1061,12 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
                 nis += yg[i] * r9[3 * i + j] * yg[j]
         nis /= det
         if nis <= p[_GATE]:
+            if kind == 0 and p[_NHM] != 0.0:
+                vb = np.empty(3)
+                for i in range(3):
+                    vb[i] = (c[i] * (gn[o] - cwl[0]) + c[3 + i] * (gn[o + 1] - cwl[1])
+                             + c[6 + i] * (gn[o + 2] - cwl[2]))
+                _k_nonholonomic_check(x, p, vb, interval)
             for i in range(3):
                 hdx = 0.0
                 si = r[i]
@@ -1001,6 +1104,55 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
             flags |= 4096  # GNSS_REJECTED
         else:
             flags |= 4096  # GNSS_REJECTED
+    _k_correct(x, dx, r9)
+    return flags
+
+
+@njit
+def _k_nonholonomic(x, p, dx, hp, r9):
+    """InsGnssFilter._nonholonomic, compiled."""
+    c = x[_C:_C + 9]
+    pm = x[_COV:_COV + _N * _N].reshape((_N, _N))
+    r = p[_NHC] * p[_NHC]
+    v0, v1, v2 = x[_V], x[_V + 1], x[_V + 2]
+    dx[:] = 0.0
+    ay, az = _k_nonholonomic_mount(x)
+    hm = np.empty(6)  # the non-zero part of H's row: phi, dv
+    for i in range(1, 3):
+        a = ay if i == 1 else az
+        a0, a1, a2 = c[i] - a * c[0], c[3 + i] - a * c[3], c[6 + i] - a * c[6]  # C u
+        hm[0], hm[1], hm[2] = a1 * v2 - a2 * v1, a2 * v0 - a0 * v2, a0 * v1 - a1 * v0
+        hm[3], hm[4], hm[5] = a0, a1, a2
+        vb = a0 * v0 + a1 * v1 + a2 * v2
+        for j in range(_N):
+            acc = 0.0
+            for kk in range(6):
+                acc += hm[kk] * pm[kk, j]
+            hp[0, j] = acc
+        si = r
+        hdx = 0.0
+        for kk in range(6):
+            si += hp[0, kk] * hm[kk]
+            hdx += hm[kk] * dx[kk]
+        innov = -vb - hdx
+        if innov * innov > _NHGATE * si:
+            continue
+        for j in range(_N):
+            hp[1, j] = hp[0, j] / si
+            dx[j] += hp[1, j] * innov
+        for j in range(_N):
+            kj = hp[1, j]
+            for k in range(j, _N):
+                pm[j, k] -= kj * hp[1, k] * si
+                pm[k, j] = pm[j, k]
+    _k_correct(x, dx, r9)
+
+
+@njit
+def _k_correct(x, dx, r9):
+    """InsGnssFilter._correct, compiled (the covariance is updated in place in ``x``)."""
+    c = x[_C:_C + 9]
+    pm = x[_COV:_COV + _N * _N].reshape((_N, _N))
     rodrigues_into(dx[0], dx[1], dx[2], r9)
     t9 = np.empty(9)
     matmul3_into(r9, c, t9)
@@ -1019,7 +1171,6 @@ def _k_update(x, p, gn, t, hm, dx, hp, r9):
             pm[j, i] = a
     for i in range(_N):
         x[_SD + i] = math.sqrt(max(x[_COV + (_N + 1) * i], 0.0))
-    return flags
 
 
 @njit
@@ -1222,6 +1373,8 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                     new = gn[k, 0] != 0.0 and gn[k, 1] > x[_TLAST] and 0.0 <= age <= p[_MAXAGE] and fin
                     if new or x[_T] >= p[_CI] * (1.0 - 1e-9):  # (a sum of dt a rounding short of it counts)
                         _k_propagate(x, p, fm, tmp, fmt)
+                        if _k_nonholonomic_on(x, p):
+                            _k_nonholonomic(x, p, dxv, hp, r1)
                     if new:
                         flags |= _k_update(x, p, gn[k], tk, hm, dxv, hp, r1)
                         if x[_LEVEL] == 0.0 and max(x[_SD + 12], x[_SD + 13]) < p[_RELEVEL]:

@@ -7,7 +7,8 @@ outages, and the truth (attitude body -> NED, velocity, position, the sensor bia
 ``truth`` and ``meta``.
 
 Motion: still for ``rest`` s, then a random (seeded) sequence of straight legs, coordinated
-turns, speed changes and climbs. The nose follows the ground track (no sideslip); with
+turns, speed changes and climbs. The nose follows the ground track (no sideslip, unless
+``sideslip``); with
 ``bank=True`` the vehicle rolls into its turns (coordinated, ``tan(roll) = V r / g``) and its
 pitch follows the flight path, else roll and pitch stay at their initial trim (a car).
 
@@ -85,7 +86,8 @@ def simulate_flight(duration: float = 200.0, *, rest: float = 20.0, rate: float 
                     gyr_bias_instability: float = 4.85e-5, acc_bias_instability: float = 2e-4,
                     bias_tau: float = 100.0, mag_field=_FIELD_NED, mag_noise: float = 0.1,
                     gnss_pos_std=(5.0, 5.0, 7.0), gnss_vel_std: float = 0.05, outages=(),
-                    time_offset: float = 0.0, seed: int = 0, name: str = "flight") -> Recording:
+                    time_offset: float = 0.0, sideslip: float = 0.0, seed: int = 0,
+                    name: str = "flight") -> Recording:
     """Simulate a vehicle with IMU, magnetometer and GNSS (see the module docs).
 
     Units: s, m, m/s, m/s^2, rad/s, deg (``trim`` = (pitch, roll) at rest, ``heading0``,
@@ -93,8 +95,10 @@ def simulate_flight(duration: float = 200.0, *, rest: float = 20.0, rate: float 
     rad/s/sqrt(Hz), ``acc_noise`` m/s^2/sqrt(Hz); bias instabilities are the Gauss-Markov
     processes' standard deviations (correlation time ``bias_tau``). ``outages``: [start, end)
     intervals in s without GNSS. ``time_offset`` (s): the IMU's time stamps lag the GNSS and truth
-    clock by this much (a multiple of ``1 / (4 rate)``). The defaults are the low-cost MEMS IMU
-    of the gnss-ins-sim files.
+    clock by this much (a multiple of ``1 / (4 rate)``). ``sideslip`` (deg): the nose swings off
+    the ground track by up to this much, a 30 s sine scaled with the speed (a vehicle that crabs:
+    a helicopter, a boat in a current; a car does not). The defaults are the low-cost MEMS IMU of
+    the gnss-ins-sim files.
     """
     if duration <= rest or rest < 0:
         raise InputError(f"need 0 <= rest < duration, got rest={rest}, duration={duration}")
@@ -126,6 +130,11 @@ def simulate_flight(duration: float = 200.0, *, rest: float = 20.0, rate: float 
     vel = np.stack([v_h * np.cos(yaw), v_h * np.sin(yaw), -w_cmd], axis=1)
     pos = np.stack([integ(vel[:, i]) for i in range(3)], axis=1)
     g0 = normal_gravity(math.radians(origin[0]), origin[2])
+    if sideslip:  # the nose off the track (the velocity keeps the track's direction)
+        yaw_v = yaw
+        yaw = yaw + math.radians(sideslip) * np.sin(2.0 * math.pi * tf / 30.0) * np.clip(v_h / max(speed, 1e-9), 0, 1)
+        vel = np.stack([v_h * np.cos(yaw_v), v_h * np.sin(yaw_v), -w_cmd], axis=1)
+        pos = np.stack([integ(vel[:, i]) for i in range(3)], axis=1)
     pitch = np.full_like(tf, math.radians(trim[0]))
     roll = np.full_like(tf, math.radians(trim[1]))
     if bank:
