@@ -86,6 +86,10 @@ class RecommendedConfig(FilterConfig):
         0.0, unit="s", description="output the orientation this far ahead, q (x) exp((w - bias) lead): compensates a "
         "known delay of the gyroscope against the time base (its filter's group delay; `fusionkit lags` measures it: "
         "on BROAD 0.7 samples, see BENCHMARKS.md); the state is not changed. 0: the estimate itself", ge=0)
+    lever_arm: bool = param(
+        False, unit="-", description="the `lever-arm` sensor model in front: learns where the accelerometer sits from "
+        "the rotation centre and removes the rotation's tangential and centripetal accelerations once confident "
+        "(off by default: on BROAD it gains only together with output_lead, see recommended.md)")
     acc_delay: float | None = param(
         None, unit="s", description="how long before the end of the gyro's step the accelerometer sample describes: "
         "it is paired with the orientation R(q_gyr (x) exp(-(w - bias) d)). None: half the sample interval, the middle "
@@ -135,6 +139,7 @@ class RecommendedFilter(Pipeline):
             max_gap=c.max_gap, body=c.body,
             estimator=PluginSpec(name="poisson-quat", params={"step": "exact"}),
             detectors=detectors, correctors=correctors,
+            models=[PluginSpec(name="lever-arm")] if c.lever_arm else [],
             alignment=AlignmentConfig(mode="none", initial_quat=initial_attitude(c.frame)),
         )
 

@@ -167,7 +167,10 @@ class SensorErrors:
 
     Geometry: ``gyr_scale`` / ``acc_scale`` (3 fractions, ``S = diag``) and
     ``gyr_misalignment`` / ``acc_misalignment`` (3x3 ``M``, its diagonal must be 0): the sensor
-    reads ``(I + S + M) x``.
+    reads ``(I + S + M) x``. ``lever_arm`` (m, body): the accelerometer sits there, away from
+    the point the body rotates about (the trajectory's point): it feels the rotation's tangential
+    and centripetal accelerations too, ``w_dot x r + w x (w x r)`` (in the body). The orientation,
+    ``ref_pos`` and the GNSS velocity stay the rotation centre's.
 
     Biases: ``gyr_bias_rw`` (rad/s/sqrt(s)) and ``acc_bias_rw`` (m/s^2/sqrt(s)): the bias
     random-walk density; each sample adds a Gaussian step of std ``density sqrt(dt)`` per axis
@@ -197,6 +200,7 @@ class SensorErrors:
     gyr_misalignment: np.ndarray | None = None
     acc_scale: tuple[float, float, float] = (0.0, 0.0, 0.0)
     acc_misalignment: np.ndarray | None = None
+    lever_arm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyr_bias_rw: float = 0.0
     acc_bias_rw: float = 0.0
     vibration: Vibration | tuple[Vibration, ...] | None = None
@@ -206,7 +210,7 @@ class SensorErrors:
 
     def __post_init__(self) -> None:
         s = object.__setattr__
-        for name in ("mag_offset", "gyr_scale", "acc_scale"):
+        for name in ("mag_offset", "gyr_scale", "acc_scale", "lever_arm"):
             s(self, name, _vec(name, getattr(self, name)))
         for name in ("mag_matrix", "gyr_misalignment", "acc_misalignment"):
             s(self, name, _mat(name, getattr(self, name)))

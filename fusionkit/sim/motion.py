@@ -56,6 +56,21 @@ def _segment_position(seg, p0, u):
     return p0 + (seg.distance * _progress(u))[:, None] * (d / np.linalg.norm(d))
 
 
+def _lever_arm_force(seg, u, duration, r):
+    """The rotation's tangential and centripetal accelerations ``w_dot x r + w x (w x r)`` (m/s^2,
+    body) of a point at ``r`` (m, body) from the rotation centre, at progress ``u`` of ``seg``
+    (zero outside a :class:`Rotate`: its axis is fixed in the body, ``w = n angle P'(u) / T``)."""
+    out = np.zeros((u.size, 3))
+    if isinstance(seg, Rotate):
+        n = np.asarray(seg.axis, dtype=float)
+        n = n / np.linalg.norm(n)
+        rate = seg.angle * (1.0 - np.cos(2.0 * np.pi * u)) / duration
+        rate_dot = seg.angle * 2.0 * np.pi * np.sin(2.0 * np.pi * u) / duration**2
+        r = np.asarray(r, dtype=float)
+        out = rate_dot[:, None] * np.cross(n, r) + (rate**2)[:, None] * np.cross(n, np.cross(n, r))
+    return out
+
+
 def _in_body(quat, v_e):
     """ENU vectors ``v_e`` ((n, 3) or (3,)) seen in the body: ``R^T v``."""
     return np.einsum("nji,nj->ni", quat_to_matrix(quat), np.broadcast_to(v_e, (len(quat), 3)))

@@ -22,7 +22,7 @@ from .noise import Noise
 from .sensors import simulate
 
 __all__ = ["demo_recordings", "hard_iron_turning", "magnet_nearby", "late_gyro", "lowpass_gyro", "scaled_gyro",
-           "drifting_bias_long", "vibrating", "tapped", "lossy", "SCENARIOS", "scenario"]
+           "drifting_bias_long", "vibrating", "tapped", "lossy", "hand_held", "SCENARIOS", "scenario"]
 
 _DEG = math.pi / 180.0
 
@@ -152,11 +152,20 @@ def lossy(drop_rate: float = 0.02, gaps=((6.0, 0.25), (14.0, 1.0)), rate: float 
     return _run("lossy", _tumbling(8, 120.0, 1.5, 0.5), SensorErrors(drop_rate=drop_rate, gaps=gaps), rate, noise, seed)
 
 
+def hand_held(lever_arm=(0.15, 0.03, -0.05), rate: float = 200.0, noise: Noise | None = None,
+              seed: int = 0) -> Recording:
+    """Turns by hand (90 deg in 0.8 s about many axes, up to 4 rad/s) with the accelerometer
+    ``lever_arm`` m (body) from the point the body turns about, a sensor held at the wrist: the
+    rotation's tangential and centripetal accelerations (1-3 m/s^2) are what a lever-arm model is
+    tested on."""
+    return _run("hand-held", _tumbling(24, 90.0, 0.8, 0.3), SensorErrors(lever_arm=lever_arm), rate, noise, seed)
+
+
 #: scenario name -> function (called with its defaults by :func:`scenario` and ``sim:NAME``)
 SCENARIOS = {n: f for n, f in (
     ("hard-iron-turning", hard_iron_turning), ("magnet-nearby", magnet_nearby), ("late-gyro", late_gyro),
     ("lowpass-gyro", lowpass_gyro), ("scaled-gyro", scaled_gyro), ("drifting-bias-long", drifting_bias_long),
-    ("vibrating", vibrating), ("tapped", tapped), ("lossy", lossy))}
+    ("vibrating", vibrating), ("tapped", tapped), ("lossy", lossy), ("hand-held", hand_held))}
 
 
 def scenario(name: str, **params) -> Recording:

@@ -15,6 +15,7 @@ from .motion import (
     Rotate,
     Translate,
     _in_body,
+    _lever_arm_force,
     _progress,
     _segment_motion,
     _segment_position,
@@ -73,6 +74,7 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     nodes = 0.5 * (nodes + 1.0)  # on (0, 1)
     weights = 0.5 * weights
     disturbed = errors is not None and bool(errors.dipoles or errors.patches)
+    lever = None if errors is None or not any(errors.lever_arm) else errors.lever_arm
     pos = np.zeros((n, 3))  # the true position (m, ENU) from the start
     p = np.zeros(3)
     k = 1
@@ -95,12 +97,16 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
                 return m_e
         if sampling == "point":
             acc[k:k + m] = _in_body(quat[k:k + m], acc_e[k:k + m] + g_e)
+            if lever is not None:
+                acc[k:k + m] += _lever_arm_force(seg, u, m * dt, lever)
             mag[k:k + m] = _in_body(quat[k:k + m], field(u))
         else:  # the means over each sample's interval ((j - 1) / m, j / m]
             acc[k:k + m] = mag[k:k + m] = 0.0
             for c, w in zip(nodes, weights):
                 qn, an = _segment_motion(seg, q, (np.arange(m) + c) / m, m * dt)
                 acc[k:k + m] += w * _in_body(qn, an + g_e)
+                if lever is not None:
+                    acc[k:k + m] += w * _lever_arm_force(seg, (np.arange(m) + c) / m, m * dt, lever)
                 mag[k:k + m] += w * _in_body(qn, field((np.arange(m) + c) / m))
         q = quat[k + m - 1].copy()
         p = pos[k + m - 1].copy()
