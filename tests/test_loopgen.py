@@ -28,12 +28,23 @@ def rec():
     return sim.simulate(segs, rate=100.0, noise=sim.Noise.mems(), seed=4)
 
 
-def test_a_new_process_loads_the_loop_from_disk(tmp_path, monkeypatch, rec):
-    monkeypatch.setenv("FUSIONKIT_CACHE_DIR", str(tmp_path))
-    monkeypatch.setattr(_loopgen, "_BUILT", {})
-    fk.compose(CONFIG).run(rec, backend="numba")
-    written = list((tmp_path / "loops").glob("loop_*.py"))
-    assert len(written) == 1
+@pytest.fixture(scope="module")
+def cached_loop(tmp_path_factory, rec):
+    """CONFIG's loop compiled once into a fresh cache directory: (the directory, the module's
+    name). Shared by the cache tests: each compile of a loop costs seconds."""
+    where = tmp_path_factory.mktemp("fusionkit-cache")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("FUSIONKIT_CACHE_DIR", str(where))
+        mp.setattr(_loopgen, "_BUILT", {})
+        fk.compose(CONFIG).run(rec, backend="numba")
+        (mod,) = _loopgen._BUILT.values()
+    return where, mod.__name__
+
+
+def test_a_new_process_loads_the_loop_from_disk(cached_loop):
+    where, name = cached_loop
+    written = where / "loops" / f"loop_{name[len('_fusionkit_loop_'):]}.py"
+    assert written.exists()
     code = textwrap.dedent(f"""
         import numpy as np, fusionkit as fk
         from fusionkit import _loopgen
@@ -42,23 +53,39 @@ def test_a_new_process_loads_the_loop_from_disk(tmp_path, monkeypatch, rec):
         (mod,) = _loopgen._BUILT.values()
         print(mod.__name__, sum(mod.loop.stats.cache_hits.values()), sum(mod.loop.stats.cache_misses.values()))
     """)
-    env = {**os.environ, "FUSIONKIT_CACHE_DIR": str(tmp_path)}
+    env = {**os.environ, "FUSIONKIT_CACHE_DIR": str(where)}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
-    name, hits, misses = out.stdout.split()
-    assert name == "_fusionkit_loop_" + written[0].stem[len("loop_"):]
+    loaded, hits, misses = out.stdout.split()
+    assert loaded == name
     assert (hits, misses) == ("1", "0")
 
 
-def test_a_changed_kernel_source_is_a_new_cache_entry(tmp_path, monkeypatch, rec):
-    """The file's name hashes the kernels' source: an edited plugin is never served stale code."""
-    monkeypatch.setenv("FUSIONKIT_CACHE_DIR", str(tmp_path))
+def test_a_changed_kernel_source_is_a_new_cache_entry(cached_loop, monkeypatch, rec):
+    """The file's name hashes the kernels' source: an edited plugin is never served stale code.
+    (The module is written when it is built; numba compiles it at its first call, not needed here.)"""
+    where, name = cached_loop
+    monkeypatch.setenv("FUSIONKIT_CACHE_DIR", str(where))
     monkeypatch.setattr(_loopgen, "_BUILT", {})
-    fk.compose(CONFIG).run(rec, backend="numba")
+    layouts, build = [], _loopgen.get_compiled
+
+    class Built(Exception):
+        pass
+
+    def capture(lay):
+        layouts.append(lay)
+        raise Built
+
+    monkeypatch.setattr(_loopgen, "get_compiled", capture)
+    with pytest.raises(Built):
+        fk.compose(CONFIG).run(rec, backend="numba")
+    assert build(layouts[0]).__name__ == name  # the same source: the entry on disk
     monkeypatch.setattr(_loopgen, "_BUILT", {})
     monkeypatch.setattr(_loopgen, "fusionkit_hash", lambda: "the hash of an edited fusionkit")
-    fk.compose(CONFIG).run(rec, backend="numba")
-    assert len(list((tmp_path / "loops").glob("loop_*.py"))) == 2
+    edited = build(layouts[0]).__name__
+    assert edited != name
+    assert {p.stem for p in (where / "loops").glob("loop_*.py")} == {"loop_" + n[len("_fusionkit_loop_"):]
+                                                                     for n in (name, edited)}
 
 
 def test_a_kernel_that_cannot_be_imported_is_compiled_in_memory(rec):

@@ -361,16 +361,48 @@ def _mm(a, b, out, n, m, l, b_t):
 
 
 @njit
-def _nis(P, hj, rows, y, r_var, pht, s):
+def _inv(a, n, out):
+    """``out[:n, :n] = a[:n, :n]^-1`` by Gauss-Jordan elimination with partial pivoting (``a`` is
+    not changed). The innovation covariances here are at most 4 x 4; numba's ``np.linalg`` (its
+    LAPACK wrappers and their error paths) took longer to compile than the rest of the filter."""
+    w = np.empty((n, 2 * n))
+    for i in range(n):
+        for j in range(n):
+            w[i, j] = a[i, j]
+            w[i, n + j] = 1.0 if i == j else 0.0
+    for c in range(n):
+        piv = c
+        for r in range(c + 1, n):
+            if abs(w[r, c]) > abs(w[piv, c]):
+                piv = r
+        if piv != c:
+            for j in range(2 * n):
+                w[c, j], w[piv, j] = w[piv, j], w[c, j]
+        d = w[c, c]
+        for j in range(2 * n):
+            w[c, j] /= d
+        for r in range(n):
+            if r != c:
+                f = w[r, c]
+                for j in range(2 * n):
+                    w[r, j] -= f * w[c, j]
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = w[i, n + j]
+
+
+@njit
+def _nis(P, hj, rows, y, r_var, pht, s, si):
     """``y^T (H P H^T + r_var I)^-1 y`` of ``rows`` measurement rows (EkfFilter._accept)."""
     _mm(P, hj, pht, 6, 6, rows, True)
     _mm(hj, pht, s, rows, 6, rows, False)
     for i in range(rows):
         s[i, i] += r_var
-    sol = np.linalg.solve(s[:rows, :rows].copy(), y[:rows].copy())
+    _inv(s, rows, si)
     v = 0.0
     for i in range(rows):
-        v += y[i] * sol[i]
+        for j in range(rows):
+            v += y[i] * si[i, j] * y[j]
     return v
 
 
@@ -390,6 +422,7 @@ def _ekf_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
     K = np.empty((6, 4))
     pht = np.empty((6, 4))
     S = np.empty((4, 4))
+    si = np.empty((4, 4))
     y = np.empty(4)
     rr = np.empty(4)
     hj1 = np.zeros((3, 6))  # the accelerometer's rows, [v x] 0
@@ -464,7 +497,8 @@ def _ekf_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             sigma = (acc_noise + acc_dynamic * dyn) / (grav * math.sqrt(h))
             hj1[0, 1], hj1[0, 2], hj1[1, 0], hj1[1, 2], hj1[2, 0], hj1[2, 1] = -v2, v1, v2, -v0, -v1, v0
             y[0], y[1], y[2] = a0 / na - v0, a1 / na - v1, a2 / na - v2
-            if gate == math.inf or _nis(P, hj1, 3, y, sigma ** 2, pht, S) <= gate:
+            # the row count as a run-time number (a literal 3 or 1 would compile _nis and _mm once each)
+            if gate == math.inf or _nis(P, hj1, hj1.shape[0], y, sigma ** 2, pht, S, si) <= gate:
                 for i in range(3):
                     for j in range(6):
                         H[i, j] = hj1[i, j]
@@ -499,7 +533,7 @@ def _ekf_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
                 hm[0, 0], hm[0, 1], hm[0, 2] = r9[6], r9[7], r9[8]
             r_mag = mag_noise ** 2 / h
             y[0] = _kwrap(-psi)
-            if gate == math.inf or _nis(P, hm, 1, y, r_mag, pht, S) <= gate:
+            if gate == math.inf or _nis(P, hm, hm.shape[0], y, r_mag, pht, S, si) <= gate:
                 for j in range(6):
                     H[rows, j] = hm[0, j]
                 rr[rows] = r_mag
@@ -516,7 +550,7 @@ def _ekf_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             _mm(H, pht, S, rows, 6, rows, False)
             for i in range(rows):
                 S[i, i] += rr[i]
-            si = np.linalg.inv(S[:rows, :rows].copy())
+            _inv(S, rows, si)
             _mm(pht, si, K, 6, rows, rows, False)
             dx = np.zeros(6)
             for i in range(6):
