@@ -43,11 +43,19 @@ def gnss_sample_rows(rec: Recording) -> np.ndarray:
     ``update(..., gnss=row)``). Without a GNSS stream every row is a gap."""
     from .conventions import frame_matrix
 
-    out = np.tile(NO_GNSS, (len(rec), 1))
     if rec.gnss is None:
-        return out
-    per = gnss_per_sample(rec)
-    vel = per["vel"] @ frame_matrix(rec.gnss.frame, "NED").T
-    out[:, 0], out[:, 1] = vel[:, 0], vel[:, 1]
-    out[:, 2], out[:, 3], out[:, 4], out[:, 5] = per["valid"], per["age"], per["new"], per["t"]
+        return np.tile(NO_GNSS, (len(rec), 1))
+    g, t = rec.gnss, rec.time
+    # each epoch's row once (north and east from the stream's frame), then one gather per sample; the
+    # last row stands for the samples before the first epoch (the same numbers as gnss_per_sample's)
+    rows = np.empty((g.t.size + 1, 6))
+    rows[:-1, 0:2] = g.vel @ frame_matrix(g.frame, "NED")[:2].T
+    rows[:-1, 2], rows[:-1, 3], rows[:-1, 4], rows[:-1, 5] = g.valid, 0.0, 0.0, g.t
+    rows[-1] = NO_GNSS
+    idx = np.searchsorted(g.t, t, side="right") - 1
+    out = rows[idx]
+    has = idx >= 0
+    np.subtract(t, out[:, 5], out=out[:, 3], where=has)  # the epoch's age (inf before the first)
+    out[0, 4] = float(has[0])
+    out[1:, 4] = has[1:] & (idx[1:] != idx[:-1])
     return out

@@ -352,7 +352,10 @@ class Pipeline(Filter):
             kernels = None
         used = resolve_backend(backend, kernels is not None)
         st = self._check_state(copy.deepcopy(state)) if state is not None else self.new_state(rec.nominal_dt)
-        mag = rec.mag if has_mag else np.zeros((n, 3))
+        # without a magnetometer the compiled loop reads one row of zeros (never judged valid), the
+        # reference a read-only view of it per sample
+        mag_row = rec.mag if has_mag else np.zeros((1, 3))
+        mag = rec.mag if has_mag else np.broadcast_to(mag_row, (n, 3))
         gyr, dt, gaps = hold_gaps(rec.gyr, rec.dt, rec.nominal_dt, self.spec.max_gap)
         # the GNSS rows: the reference's samples carry them; compiled, only kernels that take them
         want = used != "numba" or any(k.gnss for k in kernels[2] + kernels[3])
@@ -370,7 +373,8 @@ class Pipeline(Filter):
                 for s, e in zip(bounds[:-1], bounds[1:]):
                     if restart[s]:
                         self._restart(st)
-                    self._run_compiled(st, kernels, gyr, rec.acc, mag, dt, has_mag, out_q, out_f, out_c, s, e, gn)
+                    self._run_compiled(st, kernels, gyr, rec.acc, mag_row, dt, has_mag, out_q, out_f, out_c, s, e,
+                                       gn)
             else:
                 for k in range(start, stop):
                     if restart[k]:

@@ -81,7 +81,8 @@ class EstimatorKernel(NamedTuple):
     """numba counterparts of an estimator: ``propagate(x, w0, w1, w2, dt, params)``,
     ``to_quat(x, out4)``, ``from_quat(q4, x)``, and the parameter vector. ``unit_quat``: the
     state *is* the unit quaternion after every propagation (a compiled pipeline then hands it to a
-    state-mode corrector directly, without the round trip through ``to_quat`` / ``from_quat``)."""
+    state-mode corrector directly, without the round trip through ``to_quat`` / ``from_quat``, and
+    takes it as the output as it is)."""
 
     propagate: Callable
     to_quat: Callable

@@ -43,14 +43,18 @@ def test_inline_copy_makes_inline_twins_of_the_whole_call_tree():
 def test_the_loop_calls_its_kernels_inline_and_step_calls_them():
     f = fk.make("gradient-descent")
     ek, mks, dks, cks = f._kernels()
-    lay = _loopgen.Layout((ek.propagate, ek.to_quat, ek.from_quat), True,
-                          (_loopgen.KernelSpec(cks[0].correct, "state"),), 20, 23)
-    text = _loopgen.source(lay, False, None)
-    loop, step = text.split("def step(")
-    loop = loop.split("def loop(")[1]
-    for name in ("k0", "e_propagate", "e_to_quat", "validity_flags"):
-        assert f"i_{name}(" in loop and f"{name} = inline_copy({name})" in text
-        assert f" {name}(" in step and f"i_{name}(" not in step
+    for unit in (False, True):  # a unit-quaternion state is the output itself: no to_quat
+        lay = _loopgen.Layout((ek.propagate, ek.to_quat, ek.from_quat), unit,
+                              (_loopgen.KernelSpec(cks[0].correct, "state"),), 20, 23)
+        text = _loopgen.source(lay, False, None)
+        loop, step = text.split("def step(")
+        loop = loop.split("def loop(")[1]
+        for name in ("k0", "e_propagate", "e_to_quat", "validity_flags"):
+            if name == "e_to_quat" and unit:
+                assert "e_to_quat(" not in loop + step and "q[0], q[1], q[2], q[3] = x[0]" in loop
+                continue
+            assert f"i_{name}(" in loop and f"{name} = inline_copy({name})" in text
+            assert f" {name}(" in step and f"i_{name}(" not in step
 
 
 def test_a_non_finite_sample_still_raises_and_a_gap_does_not(rec):

@@ -169,7 +169,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             if p[4] != 0.0 and (flags & _REST) == 0:
                 r = step / dt
                 k_bias_step(b, q[0], q[1], q[2], q[3], s[ax + 6] * r, s[ax + 7] * r, s[ax + 8] * r, dt / p[5], p[6])
-    half = 0.5 * s[_DELTA]
-    c, sn = math.cos(half), math.sin(half)
-    q[0], q[1], q[2], q[3] = k_qmul(c, sn * s[ax + 6], sn * s[ax + 7], sn * s[ax + 8], q[0], q[1], q[2], q[3])
+    if s[_DELTA] != 0.0:  # Rz(0) is the identity (a run without a magnetometer never leaves 0)
+        half = 0.5 * s[_DELTA]
+        c, sn = math.cos(half), math.sin(half)
+        q[0], q[1], q[2], q[3] = k_qmul(c, sn * s[ax + 6], sn * s[ax + 7], sn * s[ax + 8], q[0], q[1], q[2], q[3])
     return out

@@ -26,9 +26,10 @@ from ..types import Flag
 
 __all__ = ["RestDetector", "RestConfig", "rest_step", "REST_SIZE"]
 
-# state: low-passed gyr (3), low-passed acc (3), seconds quiet, samples seen
-_LW, _LA, _QUIET, _SEEN = 0, 3, 6, 7
-REST_SIZE = 8
+# state: low-passed gyr (3), low-passed acc (3), seconds quiet, samples seen, and the low-pass
+# coefficient for the last dt (dt, k: an exponential per distinct interval, not per sample)
+_LW, _LA, _QUIET, _SEEN, _DT, _K = 0, 3, 6, 7, 8, 9
+REST_SIZE = 10
 
 
 class RestConfig(PluginConfig):
@@ -50,7 +51,9 @@ def rest_step(s, g0, g1, g2, a0, a1, a2, dt, tau, gyr_th, acc_th, max_rate, min_
         s[_LW], s[_LW + 1], s[_LW + 2] = g0, g1, g2
         s[_LA], s[_LA + 1], s[_LA + 2] = a0, a1, a2
     s[_SEEN] += 1.0
-    k = 1.0 - math.exp(-dt / tau)
+    if s[_DT] != dt:
+        s[_DT], s[_K] = dt, 1.0 - math.exp(-dt / tau)
+    k = s[_K]
     s[_LW] += k * (g0 - s[_LW])
     s[_LW + 1] += k * (g1 - s[_LW + 1])
     s[_LW + 2] += k * (g2 - s[_LW + 2])
@@ -97,7 +100,9 @@ class RestDetector(Detector):
         if state[_SEEN] == 0.0:
             lw[:], la[:] = g, a
         state[_SEEN] += 1.0
-        k = 1.0 - math.exp(-sample.dt / tau)
+        if state[_DT] != sample.dt:
+            state[_DT], state[_K] = sample.dt, 1.0 - math.exp(-sample.dt / tau)
+        k = state[_K]
         lw += k * (g - lw)
         la += k * (a - la)
         quiet = (math.sqrt(np.sum((g - lw) ** 2)) < gyr_th and math.sqrt(np.sum((a - la) ** 2)) < acc_th
