@@ -22,7 +22,12 @@ Around it, each a separate idea:
   vertical is the gyro's vertical drift; the pipeline's gyro bias takes it in (off by default: it
   is the one path by which the magnetometer reaches roll and pitch);
 - **sensor pairing** (``mag_delay``): as ``inertial-tilt``'s ``acc_delay`` (None: the middle of the
-  gyro's step).
+  gyro's step);
+- **sample and hold** (``mag_hold``): a magnetometer read at a lower rate than the gyro repeats its
+  last reading until the next one; a sample equal to the previous one (every component exactly) is
+  that held reading, as old as the samples since it changed, so it is paired with the orientation
+  its fresh sample was paired with (its age is part of its delay). Where values never repeat it
+  changes nothing.
 
 Assumes: the field is homogeneous (the earth's) apart from the disturbances the reference
 catches, and the orientation it gets is levelled (an inclination factor or corrector runs
@@ -54,7 +59,9 @@ __all__ = ["MagHeadingConfig", "MagHeading", "mag_heading_kernel", "MAG_REFERENC
 # (the reference's state first: the kernel hands the state itself to magnetic_step, no slice per sample)
 _MAG, _DELTA, _LW, _SEEN = 0, MAG_SIZE, MAG_SIZE + 1, MAG_SIZE + 4
 _AX, _DT, _KM, _KW = MAG_SIZE + 5, MAG_SIZE + 14, MAG_SIZE + 15, MAG_SIZE + 16
-_SIZE = MAG_SIZE + 17
+# the last magnetometer sample, whether there was one, and the orientation its fresh reading was paired with
+_PM, _PMOK, _QH = MAG_SIZE + 17, MAG_SIZE + 20, MAG_SIZE + 21
+_SIZE = MAG_SIZE + 25
 #: where the magnetic reference (norm, dip) sits in the corrector's state
 MAG_REFERENCE = _MAG
 _REST, _ACC_REJECTED, _MAG_DISTURBED = int(Flag.REST), int(Flag.ACC_REJECTED), int(Flag.MAG_DISTURBED)
@@ -77,6 +84,9 @@ class MagHeadingConfig(PluginConfig):
     mag_delay: float | None = param(
         None, unit="s", description="how long before the end of the gyro's step the magnetometer sample describes "
         "(None: the middle of the step; 0: its end)")
+    mag_hold: bool = param(
+        True, unit="-", description="a magnetometer sample equal to the previous one is its held reading: pair it with "
+        "the orientation the fresh one was paired with (False: with this step's, as a new reading)")
 
 
 class MagHeading(FactorCorrector):
@@ -106,8 +116,15 @@ class MagHeading(FactorCorrector):
         if np.isfinite(g).all() and (sample.acc is not None or flags & _ACC_REJECTED):
             gyro_lowpass(x, _LW, _SEEN, g, x[_KW])  # the turning rate, on the samples the rest detector sees
         if sample.mag is not None:
-            qm = paired(quat, c.mag_delay, rate, g, bias, sample.dt)
-            out = self._heading(x, quat_to_matrix(qm) @ sample.mag, quat, bias, sample.dt, bool(flags & _REST))
+            m = np.asarray(sample.mag, dtype=float)
+            if c.mag_hold and x[_PMOK] and np.array_equal(m, x[_PM:_PM + 3]):
+                qm = x[_QH:_QH + 4].copy()  # the held reading: as old as its fresh sample
+            else:
+                qm = paired(quat, c.mag_delay, rate, g, bias, sample.dt)
+                x[_QH:_QH + 4] = qm
+            x[_PM:_PM + 3] = m
+            out = self._heading(x, quat_to_matrix(qm) @ m, quat, bias, sample.dt, bool(flags & _REST))
+        x[_PMOK] = float(sample.mag is not None)
         half = 0.5 * x[_DELTA]
         up = x[_AX + 6:_AX + 9]
         return quat_mul(np.array([math.cos(half), *(math.sin(half) * up)]), quat), out
@@ -134,14 +151,15 @@ class MagHeading(FactorCorrector):
     def kernel(self, estimator) -> CorrectorKernel:
         c = self.config
         p = np.array([c.tau, float(c.rejection), c.mag_delay if c.mag_delay is not None else math.nan,
-                      c.rate_tau, float(c.mag_bias), c.motion_bias_tau, c.bias_max, *self.magnetic.params()])
+                      c.rate_tau, float(c.mag_bias), c.motion_bias_tau, c.bias_max, *self.magnetic.params(),
+                      float(c.mag_hold)])
         return CorrectorKernel(mag_heading_kernel, p, mode="factor")
 
 
 @njit(inline="always")
 def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
     """The kernel of :meth:`MagHeading.compose`: ``p = (tau, rejection, mag_delay (NaN: None), rate_tau,
-    mag_bias, motion_bias_tau, bias_max, *magnetic params)``."""
+    mag_bias, motion_bias_tau, bias_max, *magnetic params (6), mag_hold)``."""
     if s[_DT] != dt:
         s[_DT], s[_KM], s[_KW] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[3])
     if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and (acc_ok or (flags & _ACC_REJECTED) != 0):
@@ -149,7 +167,12 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
     out = 0
     ax = _AX
     if mag_ok:
-        p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
+        if p[13] != 0.0 and s[_PMOK] != 0.0 and m0 == s[_PM] and m1 == s[_PM + 1] and m2 == s[_PM + 2]:
+            p0, p1, p2, p3 = s[_QH], s[_QH + 1], s[_QH + 2], s[_QH + 3]
+        else:
+            p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
+            s[_QH], s[_QH + 1], s[_QH + 2], s[_QH + 3] = p0, p1, p2, p3
+        s[_PM], s[_PM + 1], s[_PM + 2] = m0, m1, m2
         v0, v1, v2 = k_rot(p0, p1, p2, p3, m0, m1, m2)
         norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
         vu = v0 * s[ax + 6] + v1 * s[ax + 7] + v2 * s[ax + 8]
@@ -169,6 +192,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             if p[4] != 0.0 and (flags & _REST) == 0:
                 r = step / dt
                 k_bias_step(b, q[0], q[1], q[2], q[3], s[ax + 6] * r, s[ax + 7] * r, s[ax + 8] * r, dt / p[5], p[6])
+    s[_PMOK] = 1.0 if mag_ok else 0.0
     half = 0.5 * s[_DELTA]
     c, sn = math.cos(half), math.sin(half)
     q[0], q[1], q[2], q[3] = k_qmul(c, sn * s[ax + 6], sn * s[ax + 7], sn * s[ax + 8], q[0], q[1], q[2], q[3])

@@ -95,6 +95,10 @@ class RecommendedConfig(FilterConfig):
     mag_delay: float | None = param(
         None, unit="s", description="the same for the magnetometer: it is paired with R(q (x) exp(-(w - bias) d)). "
         "None: half the sample interval (the middle of the step); 0: the end of the step")
+    mag_hold: bool = param(
+        True, unit="-", description="a magnetometer sample equal to the previous one is a lower-rate magnetometer's "
+        "held reading: it is paired with the orientation of its fresh sample (its age is part of its delay); "
+        "changes nothing where values never repeat")
 
 
 class RecommendedFilter(Pipeline):
@@ -127,7 +131,7 @@ class RecommendedFilter(Pipeline):
                 "tau": c.tau_mag, "rejection": c.mag_rejection, "magnetic": magnetic.model_dump(),
                 "rate_tau": c.rest.tau, "mag_bias": c.mag_bias and c.motion_bias_tau is not None,
                 "motion_bias_tau": c.motion_bias_tau if c.motion_bias_tau is not None else 100.0,
-                "bias_max": c.bias_max, "mag_delay": c.mag_delay}))
+                "bias_max": c.bias_max, "mag_delay": c.mag_delay, "mag_hold": c.mag_hold}))
         if c.output_lead > 0.0:
             correctors.append(PluginSpec(name="output-lead", params={"lead": c.output_lead}))
         return PipelineConfig(
