@@ -22,7 +22,24 @@ Around it, each a separate idea:
   vertical is the gyro's vertical drift; the pipeline's gyro bias takes it in (off by default: it
   is the one path by which the magnetometer reaches roll and pitch);
 - **sensor pairing** (``mag_delay``): as ``inertial-tilt``'s ``acc_delay`` (None: the middle of the
-  gyro's step).
+  gyro's step);
+- **sample and hold** (``mag_hold``): a magnetometer read at a lower rate than the gyro repeats its
+  last reading until the next one; a sample equal to the previous one (every component exactly) is
+  that held reading, as old as the samples since it changed, so it is paired with the orientation
+  its fresh sample was paired with (its age is part of its delay). Where values never repeat it
+  changes nothing;
+- **the magnetometer's delay, estimated** (``mag_delay_estimate``, off by default): the
+  ``time-offset`` model's estimate of the gyro's delay against the magnetometer (a late sensor
+  leaves a residual proportional to the angular acceleration, ``fusionkit/models/time_offset.py``),
+  computed here from the field's direction at two fresh samples ``_SEGMENT_TIME`` apart and the
+  orientations the configured pairing gives them, so it is the *remaining* offset of that
+  pairing. Only samples the magnetic reference uses enter (not while it learns, not disturbed)
+  and, once the estimate is applied, no segment whose residual ``|r - d x|`` is over
+  ``_RESIDUAL_GATE`` times the fit's RMS (a magnet moving with the body, an unrejected
+  disturbance; earlier the gate would favour the segments that agree with an estimate still far
+  off). Once its standard deviation is below ``delay_max_std`` samples the pairing is the
+  configured one moved by the estimate (before that the configured one, to the bit). The output
+  stays on the gyroscope's clock: the magnetometer is moved onto it.
 
 Assumes: the field is homogeneous (the earth's) apart from the disturbances the reference
 catches, and the orientation it gets is levelled (an inclination factor or corrector runs
@@ -39,22 +56,40 @@ import numpy as np
 
 from .._numba import njit
 from ..config import PluginConfig, param
-from ..detectors.magnetic import (MAG_COUNT, MAG_DISTURBED, MAG_LEARNING, MAG_SIZE, MagneticConfig,
+from ..detectors.magnetic import (MAG_COUNT, MAG_DISTURBED, MAG_LEARNING, MAG_SIZE, MAG_USE, MagneticConfig,
                                   MagneticDetector, field_norm_dip, magnetic_step)
+from ..models.time_offset import _ANC, _DQ, _GA, _LINK, _NORM, _T, _U, CONF, EST, OFFSET, _enter, _k_enter
+from ..models.time_offset import _BLOCK as _EST_SIZE
 from ..protocols import CorrectorKernel, FactorCorrector
 from ..rotations import quat_mul, quat_to_matrix, wrap_angle
 from ..types import Flag
 from ._factor import (bias_step, frame_axes, gyro_lowpass, k_bias_step, k_gyro_lowpass, k_paired, k_qmul, k_rot,
                       paired)
 
-__all__ = ["MagHeadingConfig", "MagHeading", "mag_heading_kernel", "MAG_REFERENCE"]
+__all__ = ["MagHeadingConfig", "MagHeading", "mag_heading_kernel", "MAG_REFERENCE", "MAG_DELAY"]
 
 # state: the magnetic reference's state, delta, the low-passed gyro and its sample count, the frame's
 # east, north, up axes, and the coefficients for the last dt (k of the heading, k of the gyro low-pass)
 # (the reference's state first: the kernel hands the state itself to magnetic_step, no slice per sample)
 _MAG, _DELTA, _LW, _SEEN = 0, MAG_SIZE, MAG_SIZE + 1, MAG_SIZE + 4
 _AX, _DT, _KM, _KW = MAG_SIZE + 5, MAG_SIZE + 14, MAG_SIZE + 15, MAG_SIZE + 16
-_SIZE = MAG_SIZE + 17
+# the last magnetometer sample, whether there was one, and the orientation its fresh reading was paired with
+_PM, _PMOK, _QH = MAG_SIZE + 17, MAG_SIZE + 20, MAG_SIZE + 21
+# the delay estimate: a block laid out as the time-offset model's (its _enter runs on it); _DQ holds the
+# orientation the segment's first sample was paired with, _NORM the forgetting-weighted segment count
+_EB = MAG_SIZE + 25
+_E2 = _EB + _EST_SIZE  # the forgetting-weighted sum of the segments' squared residuals |r - d x|^2
+_SIZE = _E2 + 1
+#: where the delay estimate's block sits in the corrector's state (``+ EST``, ``+ STD``, ``+ OFFSET``,
+#: ``+ CONF``, ``+ NSEG`` of fusionkit.models.time_offset: the gyro's delay against the magnetometer, s)
+MAG_DELAY = _EB
+_W = _NORM
+_SEGMENT_TIME = 0.02  #: s between a segment's two fresh samples (the time-offset model's default)
+_MIN_SEGMENTS = 50.0  #: segments before the estimate may be applied
+_MAX_OFFSET = 0.05  #: s: the estimate is clamped to +- this
+#: once the estimate is applied, a segment whose residual ``|r - d x|`` is over this many RMS residuals
+#: does not enter (a Gaussian residual's square is over 9 times its mean with probability 6e-6)
+_RESIDUAL_GATE = 3.0
 #: where the magnetic reference (norm, dip) sits in the corrector's state
 MAG_REFERENCE = _MAG
 _REST, _ACC_REJECTED, _MAG_DISTURBED = int(Flag.REST), int(Flag.ACC_REJECTED), int(Flag.MAG_DISTURBED)
@@ -77,6 +112,16 @@ class MagHeadingConfig(PluginConfig):
     mag_delay: float | None = param(
         None, unit="s", description="how long before the end of the gyro's step the magnetometer sample describes "
         "(None: the middle of the step; 0: its end)")
+    mag_hold: bool = param(
+        True, unit="-", description="a magnetometer sample equal to the previous one is its held reading: pair it with "
+        "the orientation the fresh one was paired with (False: with this step's, as a new reading)")
+    mag_delay_estimate: bool = param(
+        False, unit="-", description="estimate the magnetometer's delay against the gyroscope online and pair with it "
+        "once confident (the configured mag_delay until then)")
+    delay_max_std: float = param(0.1, unit="samples", description="apply the estimate once its standard deviation "
+                                 "is below this many sample intervals", gt=0)
+    delay_forget_time: float = param(60.0, unit="s", description="time constant with which the estimate forgets",
+                                     gt=0)
 
 
 class MagHeading(FactorCorrector):
@@ -105,14 +150,57 @@ class MagHeading(FactorCorrector):
             x[_DT], x[_KM], x[_KW] = dt, 1.0 - math.exp(-dt / c.tau), 1.0 - math.exp(-dt / c.rate_tau)
         if np.isfinite(g).all() and (sample.acc is not None or flags & _ACC_REJECTED):
             gyro_lowpass(x, _LW, _SEEN, g, x[_KW])  # the turning rate, on the samples the rest detector sees
+        if c.mag_delay_estimate:
+            _segment_time(x, dt, bool(np.isfinite(rate).all()))
         if sample.mag is not None:
-            qm = paired(quat, c.mag_delay, rate, g, bias, sample.dt)
-            out = self._heading(x, quat_to_matrix(qm) @ sample.mag, quat, bias, sample.dt, bool(flags & _REST))
+            m = np.asarray(sample.mag, dtype=float)
+            fresh = not (c.mag_hold and x[_PMOK] and np.array_equal(m, x[_PM:_PM + 3]))
+            if fresh:
+                qm = qc = paired(quat, c.mag_delay, rate, g, bias, dt)  # the configured pairing
+                if x[_EB + CONF]:  # the estimate's: the configured one moved by the remaining offset
+                    qm = paired(quat, (0.5 * dt if c.mag_delay is None else c.mag_delay) - x[_EB + OFFSET], rate, g,
+                                bias, dt)
+                x[_QH:_QH + 4] = qm
+            else:
+                qm = x[_QH:_QH + 4].copy()  # the held reading: as old as its fresh sample
+            x[_PM:_PM + 3] = m
+            out, code = self._heading(x, quat_to_matrix(qm) @ m, quat, bias, dt, bool(flags & _REST))
+            if c.mag_delay_estimate and fresh:
+                self._estimate(x, qc, m, g - bias, dt, code == MAG_USE and bool(np.isfinite(rate).all()))
+        x[_PMOK] = float(sample.mag is not None)
         half = 0.5 * x[_DELTA]
         up = x[_AX + 6:_AX + 9]
         return quat_mul(np.array([math.cos(half), *(math.sin(half) * up)]), quat), out
 
-    def _heading(self, x, m, q6, bias, dt, rest) -> int:
+    def _estimate(self, x, qc, m, w, dt, use) -> None:
+        """A fresh magnetometer sample ``m``, paired as configured with ``qc``, at the rate ``w``:
+        it closes the running segment once ``_SEGMENT_TIME`` has passed (the time-offset model's
+        residual ``r = u_j - C^T u_i ~ d x``, ``x = -(w_j - w_i) x C^T u_i``, ``C`` the turn between
+        the two pairings) and starts the next one; ``use``: the magnetic reference used it."""
+        b = _EB
+        if not use:
+            x[b + _ANC] = 0.0
+            return
+        u = m / np.linalg.norm(m)
+        closed = False
+        if x[b + _ANC] and x[b + _T] >= _SEGMENT_TIME - 0.5 * dt:
+            v = quat_to_matrix(qc).T @ (quat_to_matrix(x[b + _DQ:b + _DQ + 4]) @ x[b + _U:b + _U + 3])
+            xv = -np.cross(w - x[b + _GA:b + _GA + 3], v)
+            r = u - v
+            closed = _fit(x, b, float(xv @ xv), float(xv @ r), float(r @ r),
+                          math.exp(-x[b + _T] / self.config.delay_forget_time), self.config.delay_max_std * dt)
+            x[b + _ANC] = 0.0
+        if not x[b + _ANC]:  # the next segment starts here
+            x[b + _ANC] = 1.0
+            x[b + _LINK] = float(closed)  # where the last one that entered ended
+            x[b + _U:b + _U + 3] = u
+            x[b + _GA:b + _GA + 3] = w
+            x[b + _DQ:b + _DQ + 4] = qc
+            x[b + _T] = 0.0
+
+    def _heading(self, x, m, q6, bias, dt, rest) -> tuple[int, int]:
+        """One magnetometer sample (``m`` in the levelled frame): the reference's verdict and the
+        heading step; the flag bits and the verdict (MAG_USE, MAG_DISTURBED, MAG_LEARNING)."""
         c = self.config
         east, north, up = x[_AX:_AX + 3], x[_AX + 3:_AX + 6], x[_AX + 6:_AX + 9]
         norm, dip = field_norm_dip(m, up)
@@ -122,34 +210,122 @@ class MagHeading(FactorCorrector):
         if code == MAG_LEARNING:  # the heading is the mean over the reference's learning time
             n = x[_MAG + MAG_COUNT]
             x[_DELTA] = wrap_angle(target if n == 1.0 else x[_DELTA] + wrap_angle(target - x[_DELTA]) / n)
-            return 0
+            return 0, code
         if code == MAG_DISTURBED and c.rejection:
-            return _MAG_DISTURBED
+            return _MAG_DISTURBED, code
         step = x[_KM] * wrap_angle(target - x[_DELTA])
         x[_DELTA] = wrap_angle(x[_DELTA] + step)
         if c.mag_bias and not rest:  # the correction as a rate about the vertical: the gyro's vertical drift
             bias_step(bias, up * (step / dt), q6, dt, c.motion_bias_tau, c.bias_max)
-        return 0
+        return 0, code
 
     def kernel(self, estimator) -> CorrectorKernel:
         c = self.config
         p = np.array([c.tau, float(c.rejection), c.mag_delay if c.mag_delay is not None else math.nan,
-                      c.rate_tau, float(c.mag_bias), c.motion_bias_tau, c.bias_max, *self.magnetic.params()])
+                      c.rate_tau, float(c.mag_bias), c.motion_bias_tau, c.bias_max, *self.magnetic.params(),
+                      float(c.mag_hold), float(c.mag_delay_estimate), c.delay_max_std, c.delay_forget_time])
         return CorrectorKernel(mag_heading_kernel, p, mode="factor")
+
+
+def _segment_time(x, dt, ok) -> None:
+    """Every sample: the running segment's time grows by ``dt``; one that waited over four
+    segment times (a long hold, a lost magnetometer) or a sample without a valid rate ends it."""
+    if x[_EB + _ANC] != 0.0:
+        x[_EB + _T] += dt
+        if not ok or x[_EB + _T] > 4.0 * _SEGMENT_TIME:
+            x[_EB + _ANC] = 0.0
+
+
+def _gate(x, b, xx, xr, rr, lam) -> bool:
+    """Whether one segment (``xx = |x|^2``, ``xr = x.r``, ``rr = |r|^2``) enters the estimate: not
+    when, once it is applied, its residual ``|r - d x|^2`` is over ``_RESIDUAL_GATE^2`` times the
+    mean one; if it does, its residual joins that mean (the same statements run in the reference
+    and, compiled, in the kernel)."""
+    d = x[b + EST]
+    e2 = rr - 2.0 * d * xr + d * d * xx
+    if x[b + CONF] != 0.0 and e2 * x[b + _W] > _RESIDUAL_GATE * _RESIDUAL_GATE * x[_E2]:
+        return False
+    x[b + _W] = lam * x[b + _W] + 1.0
+    x[_E2] = lam * x[_E2] + e2
+    return True
+
+
+def _fit(x, b, xx, xr, rr, lam, max_std) -> bool:
+    """One segment into the estimate if :func:`_gate` lets it: whether it entered."""
+    if not _gate(x, b, xx, xr, rr, lam):
+        return False
+    _enter(x, b, xx, xr, lam, max_std, _MIN_SEGMENTS, _MAX_OFFSET)
+    return True
+
+
+_k_segment_time = njit(_segment_time)
+_k_gate = njit(_gate)
+
+
+@njit
+def _k_fit(x, b, xx, xr, rr, lam, max_std):
+    if not _k_gate(x, b, xx, xr, rr, lam):
+        return False
+    _k_enter(x, b, xx, xr, lam, max_std, _MIN_SEGMENTS, _MAX_OFFSET)
+    return True
+
+
+@njit
+def _k_estimate(s, c0, c1, c2, c3, m0, m1, m2, w0, w1, w2, dt, use, max_std, forget):
+    """:meth:`MagHeading._estimate` with scalars (``c``: the configured pairing's orientation)."""
+    b = _EB
+    if not use:
+        s[b + _ANC] = 0.0
+        return
+    n = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+    u0, u1, u2 = m0 / n, m1 / n, m2 / n
+    closed = False
+    if s[b + _ANC] != 0.0 and s[b + _T] >= _SEGMENT_TIME - 0.5 * dt:
+        e0, e1, e2 = k_rot(s[b + _DQ], s[b + _DQ + 1], s[b + _DQ + 2], s[b + _DQ + 3], s[b + _U], s[b + _U + 1],
+                           s[b + _U + 2])
+        v0, v1, v2 = k_rot(c0, -c1, -c2, -c3, e0, e1, e2)  # C^T u_i
+        d0, d1, d2 = w0 - s[b + _GA], w1 - s[b + _GA + 1], w2 - s[b + _GA + 2]
+        x0, x1, x2 = -(d1 * v2 - d2 * v1), -(d2 * v0 - d0 * v2), -(d0 * v1 - d1 * v0)
+        r0, r1, r2 = u0 - v0, u1 - v1, u2 - v2
+        closed = _k_fit(s, b, x0 * x0 + x1 * x1 + x2 * x2, x0 * r0 + x1 * r1 + x2 * r2, r0 * r0 + r1 * r1 + r2 * r2,
+                        math.exp(-s[b + _T] / forget), max_std * dt)
+        s[b + _ANC] = 0.0
+    if s[b + _ANC] == 0.0:
+        s[b + _ANC] = 1.0
+        s[b + _LINK] = 1.0 if closed else 0.0
+        s[b + _U], s[b + _U + 1], s[b + _U + 2] = u0, u1, u2
+        s[b + _GA], s[b + _GA + 1], s[b + _GA + 2] = w0, w1, w2
+        s[b + _DQ], s[b + _DQ + 1], s[b + _DQ + 2], s[b + _DQ + 3] = c0, c1, c2, c3
+        s[b + _T] = 0.0
 
 
 @njit(inline="always")
 def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
     """The kernel of :meth:`MagHeading.compose`: ``p = (tau, rejection, mag_delay (NaN: None), rate_tau,
-    mag_bias, motion_bias_tau, bias_max, *magnetic params)``."""
+    mag_bias, motion_bias_tau, bias_max, *magnetic params (6), mag_hold, mag_delay_estimate, delay_max_std,
+    delay_forget_time)``."""
     if s[_DT] != dt:
         s[_DT], s[_KM], s[_KW] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[3])
     if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and (acc_ok or (flags & _ACC_REJECTED) != 0):
         k_gyro_lowpass(s, _LW, _SEEN, g0, g1, g2, s[_KW])
     out = 0
     ax = _AX
+    estimate = p[14] != 0.0
+    if estimate:
+        _k_segment_time(s, dt, math.isfinite(h0))
     if mag_ok:
-        p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
+        fresh = not (p[13] != 0.0 and s[_PMOK] != 0.0 and m0 == s[_PM] and m1 == s[_PM + 1] and m2 == s[_PM + 2])
+        if fresh:
+            c0, c1, c2, c3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
+            p0, p1, p2, p3 = c0, c1, c2, c3
+            if s[_EB + CONF] != 0.0:
+                p0, p1, p2, p3 = k_paired(q, (0.5 * dt if math.isnan(p[2]) else p[2]) - s[_EB + OFFSET], h0, h1, h2,
+                                          h3, g0, g1, g2, b, dt)
+            s[_QH], s[_QH + 1], s[_QH + 2], s[_QH + 3] = p0, p1, p2, p3
+        else:
+            p0, p1, p2, p3 = s[_QH], s[_QH + 1], s[_QH + 2], s[_QH + 3]
+            c0, c1, c2, c3 = p0, p1, p2, p3
+        s[_PM], s[_PM + 1], s[_PM + 2] = m0, m1, m2
         v0, v1, v2 = k_rot(p0, p1, p2, p3, m0, m1, m2)
         norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
         vu = v0 * s[ax + 6] + v1 * s[ax + 7] + v2 * s[ax + 8]
@@ -169,6 +345,10 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             if p[4] != 0.0 and (flags & _REST) == 0:
                 r = step / dt
                 k_bias_step(b, q[0], q[1], q[2], q[3], s[ax + 6] * r, s[ax + 7] * r, s[ax + 8] * r, dt / p[5], p[6])
+        if estimate and fresh:
+            _k_estimate(s, c0, c1, c2, c3, m0, m1, m2, g0 - b[0], g1 - b[1], g2 - b[2], dt,
+                        code == MAG_USE and math.isfinite(h0), p[15], p[16])
+    s[_PMOK] = 1.0 if mag_ok else 0.0
     if s[_DELTA] != 0.0:  # Rz(0) is the identity (a run without a magnetometer never leaves 0)
         half = 0.5 * s[_DELTA]
         c, sn = math.cos(half), math.sin(half)

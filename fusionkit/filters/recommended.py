@@ -99,6 +99,15 @@ class RecommendedConfig(FilterConfig):
     mag_delay: float | None = param(
         None, unit="s", description="the same for the magnetometer: it is paired with R(q (x) exp(-(w - bias) d)). "
         "None: half the sample interval (the middle of the step); 0: the end of the step")
+    mag_hold: bool = param(
+        True, unit="-", description="a magnetometer sample equal to the previous one is a lower-rate magnetometer's "
+        "held reading: it is paired with the orientation of its fresh sample (its age is part of its delay); "
+        "changes nothing where values never repeat")
+    mag_delay_estimate: bool = param(
+        False, unit="-", description="estimate the magnetometer's delay against the gyroscope online (mag-heading's "
+        "estimate; mag_delay until its standard deviation is below mag_delay_max_std)")
+    mag_delay_max_std: float = param(0.1, unit="samples", description="apply the delay estimate once its standard "
+                                     "deviation is below this many sample intervals", gt=0)
 
 
 class RecommendedFilter(Pipeline):
@@ -131,7 +140,8 @@ class RecommendedFilter(Pipeline):
                 "tau": c.tau_mag, "rejection": c.mag_rejection, "magnetic": magnetic.model_dump(),
                 "rate_tau": c.rest.tau, "mag_bias": c.mag_bias and c.motion_bias_tau is not None,
                 "motion_bias_tau": c.motion_bias_tau if c.motion_bias_tau is not None else 100.0,
-                "bias_max": c.bias_max, "mag_delay": c.mag_delay}))
+                "bias_max": c.bias_max, "mag_delay": c.mag_delay, "mag_hold": c.mag_hold,
+                "mag_delay_estimate": c.mag_delay_estimate, "delay_max_std": c.mag_delay_max_std}))
         if c.output_lead > 0.0:
             correctors.append(PluginSpec(name="output-lead", params={"lead": c.output_lead}))
         return PipelineConfig(

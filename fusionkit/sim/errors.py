@@ -14,6 +14,8 @@ them to what it feels (see ``docs/simulator.md``):
    accelerometer); hard and soft iron, ``A m + b`` (magnetometer);
 4. slowly varying biases: a random walk of the given density (plus :class:`~fusionkit.sim.Noise`'s
    constant bias and white noise, drawn exactly as without errors);
+   a magnetometer read at a lower rate (``mag_rate``) then holds each reading, noise and all,
+   until the next one (sample and hold: the held samples repeat it exactly);
 5. the transport: dropped samples (rows lost at random) and timestamp gaps (every row in a time
    span lost). The samples that remain are as the sensor made them: after a lost row the gyro's
    mean rate still covers its own interval, so ``(t[k-1], t[k]]`` spans more than it.
@@ -163,7 +165,11 @@ class SensorErrors:
     would have reported at ``t[k] - delay`` (a cubic spline through the samples, the ends held).
     ``gyr_lowpass`` / ``acc_lowpass`` / ``mag_lowpass`` (Hz): a causal Butterworth low-pass of
     order ``lowpass_order`` at that cutoff (started at steady state), as a sensor's digital
-    filter; its low-frequency group delay is :func:`lowpass_delay`.
+    filter; its low-frequency group delay is :func:`lowpass_delay`. ``mag_rate`` (Hz, below the
+    IMU's rate): the magnetometer is read at this rate (readings at ``j / mag_rate``) and every
+    sample reports the newest reading, taken at the first sample at or after its instant, so a
+    sample is either fresh (on time) or repeats an older one exactly, as many samples old as
+    have passed since (:func:`held_source`).
 
     Geometry: ``gyr_scale`` / ``acc_scale`` (3 fractions, ``S = diag``) and
     ``gyr_misalignment`` / ``acc_misalignment`` (3x3 ``M``, its diagonal must be 0): the sensor
@@ -196,6 +202,7 @@ class SensorErrors:
     acc_lowpass: float | None = None
     mag_lowpass: float | None = None
     lowpass_order: int = 2
+    mag_rate: float | None = None
     gyr_scale: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyr_misalignment: np.ndarray | None = None
     acc_scale: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -229,6 +236,8 @@ class SensorErrors:
             v = getattr(self, name)
             if v is not None and not (math.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be None or a cutoff > 0 Hz, got {v}")
+        if self.mag_rate is not None and not (math.isfinite(self.mag_rate) and self.mag_rate > 0):
+            raise InputError(f"mag_rate must be None or a rate > 0 Hz, got {self.mag_rate}")
         if self.lowpass_order not in (1, 2, 3, 4):
             raise InputError(f"lowpass_order must be 1, 2, 3 or 4, got {self.lowpass_order}")
         for name in ("gyr_bias_rw", "acc_bias_rw"):
@@ -342,6 +351,19 @@ def delayed(x: np.ndarray, delay_samples: float) -> np.ndarray:
 
     k = np.arange(len(x), dtype=float)
     return CubicSpline(k, x, axis=0)(np.clip(k - delay_samples, 0.0, len(x) - 1.0))
+
+
+def held_source(n: int, mag_rate: float, rate: float) -> np.ndarray:
+    """For each of ``n`` samples at ``rate`` Hz, the sample whose value it reports when the sensor is
+    read at ``mag_rate`` Hz and sampled and held: the newest reading ``j`` (at ``j / mag_rate``,
+    not after the sample) appears at the first sample at or after its instant. ``k - src[k]`` is
+    the sample's age (0: fresh)."""
+    k = np.arange(n)
+    if mag_rate >= rate:
+        return k
+    eps = 1e-9
+    j = np.floor(k * (mag_rate / rate) + eps)  # the newest reading at or before sample k
+    return np.minimum(np.ceil(j * (rate / mag_rate) - eps), k).astype(int)
 
 
 def lowpassed(x: np.ndarray, cutoff: float | None, rate: float, order: int) -> np.ndarray:

@@ -21,8 +21,8 @@ from .motion import Rest, Rotate, Translate
 from .noise import Noise
 from .sensors import simulate
 
-__all__ = ["demo_recordings", "hard_iron_turning", "magnet_nearby", "late_gyro", "lowpass_gyro", "scaled_gyro",
-           "drifting_bias_long", "vibrating", "tapped", "lossy", "hand_held", "SCENARIOS", "scenario"]
+__all__ = ["demo_recordings", "hard_iron_turning", "magnet_nearby", "late_gyro", "late_mag", "lowpass_gyro",
+           "scaled_gyro", "drifting_bias_long", "vibrating", "tapped", "lossy", "hand_held", "SCENARIOS", "scenario"]
 
 _DEG = math.pi / 180.0
 
@@ -89,6 +89,18 @@ def late_gyro(delay: float = 0.005, rate: float = 200.0, noise: Noise | None = N
     magnetometer (one sample at 200 Hz by default): what a time-offset estimator is tested on
     (:func:`~fusionkit.benchmarking.timing.sensor_lags` shows ``0.5 + delay * rate`` samples)."""
     return _run("late-gyro", _tumbling(16, 150.0, 0.8, 0.3), SensorErrors(gyr_delay=delay), rate, noise, seed)
+
+
+def late_mag(delay: float = 0.005, cutoff: float | None = None, order: int = 2, mag_rate: float | None = None,
+             turns: int = 32, rate: float = 200.0, noise: Noise | None = None, seed: int = 0) -> Recording:
+    """Brisk turns about many axes with the magnetometer's timing off the gyro's (and the
+    accelerometer's): ``delay`` s late (one sample at 200 Hz by default), behind a Butterworth low-pass (``cutoff`` Hz, ``order``;
+    :func:`~fusionkit.sim.lowpass_delay` samples of group delay), and/or read at ``mag_rate`` Hz
+    and sampled and held (its held samples repeat the reading exactly). All off (``delay=0``): the
+    sensors follow fusionkit's convention. What a magnetometer-timing estimate and a heading's pairing
+    are tested on (``turns`` 1 s turns of 150 deg with 0.3 s rests)."""
+    errors = SensorErrors(mag_delay=delay, mag_lowpass=cutoff, lowpass_order=order, mag_rate=mag_rate)
+    return _run("late-mag", _tumbling(turns, 150.0, 0.8, 0.3), errors, rate, noise, seed)
 
 
 def lowpass_gyro(cutoff: float = 20.0, order: int = 2, rate: float = 200.0, noise: Noise | None = None,
@@ -164,6 +176,7 @@ def hand_held(lever_arm=(0.15, 0.03, -0.05), rate: float = 200.0, noise: Noise |
 #: scenario name -> function (called with its defaults by :func:`scenario` and ``sim:NAME``)
 SCENARIOS = {n: f for n, f in (
     ("hard-iron-turning", hard_iron_turning), ("magnet-nearby", magnet_nearby), ("late-gyro", late_gyro),
+    ("late-mag", late_mag),
     ("lowpass-gyro", lowpass_gyro), ("scaled-gyro", scaled_gyro), ("drifting-bias-long", drifting_bias_long),
     ("vibrating", vibrating), ("tapped", tapped), ("lossy", lossy), ("hand-held", hand_held))}
 

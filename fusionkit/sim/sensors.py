@@ -120,6 +120,8 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     gyr = gyr + np.asarray(noise.gyr_bias) + noise.gyr_noise * rng.standard_normal((n, 3))
     acc = acc + np.asarray(noise.acc_bias) + noise.acc_noise * rng.standard_normal((n, 3))
     mag = mag + noise.mag_noise * rng.standard_normal((n, 3))
+    if errors is not None and errors.mag_rate is not None:  # sample and hold: the reading, noise and all
+        mag = mag[_err.held_source(n, errors.mag_rate, rate)]
     gnss = None
     if gnss_rate:
         vel = np.asarray(initial_velocity, dtype=float) + np.concatenate(
