@@ -249,7 +249,8 @@ class OfflineFilter(Filter):
             raise PluginError(f"filter {inner.name!r} does not support offline=True: {why}")
         if disturbance_gap is not None and not (isinstance(disturbance_gap, (int, float))
                                                 and math.isfinite(disturbance_gap) and disturbance_gap >= 0.0):
-            raise ConfigError(f"disturbance_gap must be None or a finite number of seconds >= 0, got {disturbance_gap!r}")
+            raise ConfigError(f"disturbance_gap must be None or a finite number of seconds >= 0, "
+                              f"got {disturbance_gap!r}")
         self.inner = inner
         self.disturbance_gap = None if disturbance_gap is None else float(disturbance_gap)
         self.config = inner.config
@@ -294,8 +295,8 @@ class OfflineFilter(Filter):
         if has_mag and self.disturbance_gap is not None:
             # the disturbances as both passes saw them (the backward pass's flags j are input sample N-1-j)
             disturbed = disturbance_mask(fwd.flags, bwd.flags[::-1], rec.time, self.disturbance_gap)
-            accepted = (fwd.flags & _MAG_UNUSED) == 0
-            if (disturbed & accepted).any():  # the passes again, without the disturbed samples
+            used = ((fwd.flags & _MAG_UNUSED) == 0) | ((bwd.flags[::-1] & _MAG_UNUSED) == 0)
+            if (disturbed & used).any():  # the passes again, without the disturbed samples either had used
                 fwd, bwd = self._without(rec, disturbed, inner, back, backend, progress, state)
         dt = rec.dt
         c = self.config
