@@ -295,8 +295,8 @@ class OfflineFilter(Filter):
         if has_mag and self.disturbance_gap is not None:
             # the disturbances as both passes saw them (the backward pass's flags j are input sample N-1-j)
             disturbed = disturbance_mask(fwd.flags, bwd.flags[::-1], rec.time, self.disturbance_gap)
-            used = ((fwd.flags & _MAG_UNUSED) == 0) | ((bwd.flags[::-1] & _MAG_UNUSED) == 0)
-            if (disturbed & used).any():  # the passes again, without the disturbed samples either had used
+            took = ((fwd.flags & _MAG_UNUSED) == 0) | ((bwd.flags[::-1] & _MAG_UNUSED) == 0)
+            if (disturbed & took).any():  # the passes again, without the disturbed samples either had used
                 fwd, bwd = self._without(rec, disturbed, inner, back, backend, progress, state)
         dt = rec.dt
         c = self.config
