@@ -7,7 +7,9 @@ throughput (samples/s, compilation excluded).
 
 ``--param`` sets a parameter of the recommended filter in both of its runs (an ablation);
 ``--equal-weights`` adds a column with the two passes fused half and half (the information
-weights switched off: the ablation of the one design choice the mode adds).
+weights switched off); ``--no-mask`` a column without the disturbance mask decided by both passes
+(``disturbance_gap=None``: each pass's own rejection only); ``--gap S`` sets ``disturbance_gap``
+of the offline mode (default: ``OfflineFilter.DISTURBANCE_GAP``).
 """
 
 from __future__ import annotations
@@ -53,6 +55,8 @@ def main() -> None:
     ap.add_argument("--param", action="append", default=[], help="key=value for recommended (JSON value)")
     ap.add_argument("--modes", default="9D,6D")
     ap.add_argument("--equal-weights", action="store_true")
+    ap.add_argument("--no-mask", action="store_true", help="add the offline mode without the disturbance mask")
+    ap.add_argument("--gap", type=float, default=OfflineFilter.DISTURBANCE_GAP, help="disturbance_gap [s]")
     args = ap.parse_args()
     files = sorted(Path(args.data).glob("*.hdf5"))
     if args.trials:
@@ -68,10 +72,12 @@ def main() -> None:
         six = mode == "6D"
         kw = dict(params, use_mag=False) if six else params
         runs = {"recommended": fk.make("recommended", **kw),
-                "recommended offline": fk.make("recommended", offline=True, **kw),
+                "recommended offline": OfflineFilter(fk.make("recommended", **kw), disturbance_gap=args.gap),
                 "vqf-offline": fk.make("vqf-offline", mode="6D" if six else "auto")}
         if args.equal_weights:
-            runs["offline, equal weights"] = _EqualWeights(fk.make("recommended", **kw))
+            runs["offline, equal weights"] = _EqualWeights(fk.make("recommended", **kw), disturbance_gap=args.gap)
+        if args.no_mask and not six:
+            runs["offline, no mask"] = OfflineFilter(fk.make("recommended", **kw), disturbance_gap=None)
         key = "inclination" if six else "total"
         err = {n: [] for n in runs}
         secs = {n: 0.0 for n in runs}
@@ -92,6 +98,8 @@ def main() -> None:
         pairs = [("recommended", "recommended offline", "offline's")]
         if args.equal_weights:
             pairs.append(("offline, equal weights", "recommended offline", "the information weights'"))
+        if "offline, no mask" in runs:
+            pairs.append(("offline, no mask", "recommended offline", "the disturbance mask's"))
         for base, new, what in pairs:
             gain = np.array(err[base]) - np.array(err[new])
             best = int(np.argmax(gain))

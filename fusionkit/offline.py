@@ -37,9 +37,17 @@ it does not do: a gyroscope late against the time base lags *both* passes alike 
 the same delayed rate, anchored where the recording is still), so that delay stays (the
 filter's ``output_lead`` is the answer to it, offline too).
 
+**Magnetic disturbances decided with the whole recording** (``disturbance_gap``, default 1 s;
+None: off): a sample either pass rejected, and every sample between two such samples at most
+``disturbance_gap`` apart, is left out of both passes, which then run again
+(:func:`disturbance_mask`). Online, the detector judges each sample on its own and lets through
+the samples of a disturbance whose field happens to pass its norm and dip test; offline, the
+disturbance around them is known. Costs two more passes where a sample is left out that a pass
+had used.
+
 Flags: REST where either pass detects rest (the future confirms a rest the past could not yet
-see), MAG_DISTURBED only where both passes reject the magnetometer (VQF's offline rule), the
-other bits where either pass sets them.
+see), MAG_DISTURBED where the magnetometer was left out (the mask above) or both passes reject it
+(VQF's offline rule), the other bits where either pass sets them.
 
 The readable reference is :func:`fuse_reference`; :func:`_fuse_kernel` (numba) does the same
 arithmetic (tests hold them to 1e-9).
@@ -62,7 +70,7 @@ from .rotations import quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec
 from .types import Flag, Recording, Result
 
 __all__ = ["OfflineFilter", "reverse_recording", "reversed_config", "information", "fuse_reference",
-           "supports_offline"]
+           "supports_offline", "disturbance_mask"]
 
 #: the bits that mean a pass did not use its accelerometer / magnetometer on a sample
 _ACC_UNUSED = int(Flag.ACC_INVALID | Flag.ACC_SATURATED | Flag.ACC_REJECTED)
@@ -232,11 +240,19 @@ class OfflineFilter(Filter):
     summary: ClassVar[str] = "a filter run forward and backward in time, fused per sample (acausal)"
     source: ClassVar[str] = "fusionkit (after VQF's offline mode, Laidig and Seel 2023)"
 
-    def __init__(self, inner: Filter) -> None:
+    #: default of ``disturbance_gap`` (s): see :func:`disturbance_mask`
+    DISTURBANCE_GAP: ClassVar[float] = 1.0
+
+    def __init__(self, inner: Filter, disturbance_gap: float | None = DISTURBANCE_GAP) -> None:
         why = supports_offline(inner)
         if why is not None:
             raise PluginError(f"filter {inner.name!r} does not support offline=True: {why}")
+        if disturbance_gap is not None and not (isinstance(disturbance_gap, (int, float))
+                                                and math.isfinite(disturbance_gap) and disturbance_gap >= 0.0):
+            raise ConfigError(f"disturbance_gap must be None or a finite number of seconds >= 0, "
+                              f"got {disturbance_gap!r}")
         self.inner = inner
+        self.disturbance_gap = None if disturbance_gap is None else float(disturbance_gap)
         self.config = inner.config
         self.name = f"{inner.name} (offline)"
 
@@ -256,8 +272,10 @@ class OfflineFilter(Filter):
         run that started in motion hands on a poor bias), so the forward pass's information
         counts from this run's first sample either way. ``diagnostics["state"]`` is the forward pass's final
         state (an online run can continue from it); ``diagnostics["backward_weight"]`` holds the
-        per-sample weights of the backward pass (``inclination``, ``heading``); ``backend`` is the
-        passes', ``fusion_backend`` the fusion's."""
+        per-sample weights of the backward pass (``inclination``, ``heading``);
+        ``diagnostics["mag_disturbed"]`` the magnetometer samples left out (:func:`disturbance_mask`;
+        None without a magnetometer or with ``disturbance_gap=None``); ``backend`` is the passes',
+        ``fusion_backend`` the fusion's."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         inner = self.inner
@@ -272,9 +290,16 @@ class OfflineFilter(Filter):
             return fwd
         back = type(inner)(reversed_config(inner, rec.nominal_dt))
         bwd = back.run(reverse_recording(rec), backend=backend, progress=progress)
+        has_mag = self.dimension(rec) == "9D"
+        disturbed = None
+        if has_mag and self.disturbance_gap is not None:
+            # the disturbances as both passes saw them (the backward pass's flags j are input sample N-1-j)
+            disturbed = disturbance_mask(fwd.flags, bwd.flags[::-1], rec.time, self.disturbance_gap)
+            took = ((fwd.flags & _MAG_UNUSED) == 0) | ((bwd.flags[::-1] & _MAG_UNUSED) == 0)
+            if (disturbed & took).any():  # the passes again, without the disturbed samples either had used
+                fwd, bwd = self._without(rec, disturbed, inner, back, backend, progress, state)
         dt = rec.dt
         c = self.config
-        has_mag = self.dimension(rec) == "9D"
         # information of each pass in its own time order; the backward one's sample j is input
         # sample N-1-j and its output is the orientation at sample N-2-j
         i_f = self._info(fwd.flags, dt, c.tau_acc, _ACC_UNUSED, 0.0, used)
@@ -306,9 +331,26 @@ class OfflineFilter(Filter):
         flags = _fused_flags(fwd.flags, bwd.flags[::-1])
         diag = dict(fwd.diagnostics)
         diag.update({"filter": self.name, "fusion_backend": used, "offline": True, "config": self.config.model_dump(),
-                     "backward_weight": {"inclination": w_i, "heading": w_h},
+                     "backward_weight": {"inclination": w_i, "heading": w_h}, "mag_disturbed": disturbed,
                      "backward_diagnostics": {k: v for k, v in bwd.diagnostics.items() if k != "config"}})
         return Result(q, flags, frame, diag)
+
+    @staticmethod
+    def _without(rec, disturbed, inner, back, backend, progress, state):
+        """Both passes on ``rec`` with the magnetometer's ``disturbed`` samples left out (made
+        invalid, the passes skipping them); their flags say MAG_DISTURBED there, not MAG_INVALID."""
+        masked = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
+        masked.mag = rec.mag.copy()
+        masked.mag[disturbed] = np.nan
+        skip = {"nan_policy": "skip"}
+        inner, back = type(inner)(inner.config.model_copy(update=skip)), type(back)(back.config.model_copy(update=skip))
+        fwd = inner.run(masked, backend=backend, progress=progress, state=state)
+        bwd = back.run(reverse_recording(masked), backend=backend, progress=progress)
+        ours = disturbed & np.isfinite(rec.mag).all(axis=1)  # an invalid sample stays MAG_INVALID
+        inv, dis = np.uint32(Flag.MAG_INVALID), np.uint32(Flag.MAG_DISTURBED)
+        for res, mask in ((fwd, ours), (bwd, ours[::-1])):
+            res.flags[mask] = (res.flags[mask] & ~inv) | dis
+        return fwd, bwd
 
     @staticmethod
     def _info(flags, dt, tau, unused, start, used) -> np.ndarray:
@@ -343,6 +385,33 @@ def _read_ahead(q: np.ndarray, t: np.ndarray, lead: float) -> np.ndarray:
     frac = ((t + lead - t[i]) / (t[i + 1] - t[i]))[:, None]
     step = quat_to_rotvec(quat_mul(quat_conj(q[i]), q[i + 1]))
     return quat_mul(q[i], quat_from_rotvec(step * frac))
+
+
+def disturbance_mask(flags_f: np.ndarray, flags_b: np.ndarray, time: np.ndarray, gap: float) -> np.ndarray:
+    """The magnetometer samples the offline mode leaves out, decided with the whole recording:
+    those either pass flagged MAG_DISTURBED (``flags_b`` in the recording's order), and those
+    between two such samples at most ``gap`` seconds apart.
+
+    Why: a magnetic disturbance (a magnet passing, carried along, a steel object nearby) lasts an
+    interval, and inside it the detector judges each sample on its own: where the disturbed
+    field's norm and dip happen to fall within the thresholds (the sensor turning through an
+    orientation where the disturbance and the earth's field combine so), the sample is accepted
+    and pulls the heading by the disturbance. Online a filter cannot know a later sample will be
+    disturbed again; offline it can. The price of a gap closed wrongly is small: a clean stretch
+    shorter than ``gap`` carries at most ``gap / tau_mag`` of the heading's information, and the
+    samples around it and the other pass carry the rest. ``gap = 0``: the union of the passes'
+    decisions only."""
+    dist = ((flags_f | flags_b) & np.uint32(Flag.MAG_DISTURBED)) != 0
+    idx = np.flatnonzero(dist)
+    if idx.size < 2 or gap <= 0.0:
+        return dist
+    close = np.flatnonzero((np.diff(idx) > 1) & (np.diff(time[idx]) <= gap))
+    if close.size:
+        edges = np.zeros(dist.shape[0] + 1, dtype=np.int64)
+        np.add.at(edges, idx[close] + 1, 1)
+        np.add.at(edges, idx[close + 1], -1)
+        dist |= np.cumsum(edges[:-1]) > 0
+    return dist
 
 
 def _weights(i_f: np.ndarray, i_b: np.ndarray) -> np.ndarray:
