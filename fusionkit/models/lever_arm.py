@@ -62,7 +62,7 @@ from ..config import PluginConfig, param
 from ..protocols import Sample, SensorModel, SensorModelKernel
 from ..rotations import quat_from_rotvec, quat_mul, quat_to_matrix
 from ..types import GYR_LIMIT
-from .mag_calibration import _inverse3, _k_inverse3, _k_min_eig, _min_eig_sym3
+from .mag_calibration import _inverse3, _k_inverse3, _k_min_eig, _min_eig_sym3, k_forget_accumulate
 
 __all__ = ["LeverArmConfig", "LeverArmModel", "lever_arm_apply", "STATE", "LEVER", "BEST", "STD", "CONF"]
 
@@ -260,14 +260,7 @@ def _k_fit(s, y, pk, dt, hp_tau, forget, max_std):
         ph[i // 3, i % 3] = pk[i // 3, i % 3] - s[_LP + i]
     lam = math.exp(-dt / forget)
     a = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            a[i, j] = lam * s[_A + 3 * i + j] + (ph[0, i] * ph[0, j] + ph[1, i] * ph[1, j] + ph[2, i] * ph[2, j])
-            s[_A + 3 * i + j] = a[i, j]
-    for i in range(3):
-        s[_BV + i] = lam * s[_BV + i] + (ph[0, i] * yh[0] + ph[1, i] * yh[1] + ph[2, i] * yh[2])
-    s[_YY] = lam * s[_YY] + (yh[0] * yh[0] + yh[1] * yh[1] + yh[2] * yh[2])
-    s[_NE] = lam * s[_NE] + 1.0
+    k_forget_accumulate(s, _A, _BV, _YY, _NE, ph, yh, lam, a)
     lmin = _k_min_eig(a)
     inv = np.empty((3, 3))
     if s[_NE] * dt / hp_tau >= _MIN_INDEPENDENT and lmin > _COND * (a[0, 0] + a[1, 1] + a[2, 2]) and \

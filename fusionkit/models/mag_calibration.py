@@ -400,6 +400,22 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
 
 
 @njit
+def k_forget_accumulate(s, ia, iy, irr, ine, h, r, lam, a):
+    """One block of three equations ``h x = r`` into a least squares with forgetting factor ``lam``,
+    kept in ``s``: the information matrix ``s[ia:ia + 9] = lam A + h^T h`` (also written to ``a``),
+    ``s[iy:iy + 3] = lam y + h^T r``, ``s[irr] = lam sum |r|^2 + |r|^2``, ``s[ine] = lam n + 1``
+    (the fit's residual noise). Shared by the compiled sensor models that fit three numbers."""
+    for i in range(3):
+        for j in range(3):
+            a[i, j] = lam * s[ia + 3 * i + j] + (h[0, i] * h[0, j] + h[1, i] * h[1, j] + h[2, i] * h[2, j])
+            s[ia + 3 * i + j] = a[i, j]
+    for i in range(3):
+        s[iy + i] = lam * s[iy + i] + (h[0, i] * r[0] + h[1, i] * r[1] + h[2, i] * r[2])
+    s[irr] = lam * s[irr] + (r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    s[ine] = lam * s[ine] + 1.0
+
+
+@njit
 def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count):
     c9 = np.empty(9)
     quat_to_dcm(s[_DQ:_DQ + 4], c9)
@@ -431,14 +447,7 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count):
     s[_BAD] = 0.0
     lam = math.exp(-s[_T] / forget)
     a = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            a[i, j] = lam * s[_A + 3 * i + j] + (h[0, i] * h[0, j] + h[1, i] * h[1, j] + h[2, i] * h[2, j])
-            s[_A + 3 * i + j] = a[i, j]
-    for i in range(3):
-        s[_Y + i] = lam * s[_Y + i] + (h[0, i] * r[0] + h[1, i] * r[1] + h[2, i] * r[2])
-    s[_RR] = lam * s[_RR] + (r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
-    s[_NE] = lam * s[_NE] + 1.0
+    k_forget_accumulate(s, _A, _Y, _RR, _NE, h, r, lam, a)
     s[_N] = n + 1.0
     inv = np.empty((3, 3))
     if not _k_inverse3(a, inv):
