@@ -16,8 +16,7 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
-from _common import data_dir
+from _common import data_dir, group_and_loo_tables
 
 import fusionkit as fk
 from fusionkit.benchmarking.datasets import discover
@@ -63,21 +62,7 @@ def main() -> None:
     for r in rows:
         print(f"| {r['trial']} | {r['d_mag']:+.2f} ({r['d_mag_std']:.2f}) | "
               + " | ".join(f"{r['errors'][k]:.3f}" for k in labels) + " |")
-    groups = sorted({g for r in rows for g in r["groups"]})
-    print("\n| group (trials) | " + " | ".join(labels) + " |")
-    print("|---|" + "---:|" * len(labels))
-    for g in ["all"] + groups:
-        sel = [r for r in rows if g == "all" or g in r["groups"]]
-        print(f"| {g} ({len(sel)}) | " + " | ".join(f"{np.mean([r['errors'][k] for r in sel]):.3f}" for k in labels)
-              + " |")
-    base = "no hold (old default)"
-    print(f"\nleave-one-out (the mean without the trial each variant helps most against '{base}'):")
-    for k in labels:
-        gain = [r["errors"][base] - r["errors"][k] for r in rows]
-        best = int(np.argmax(gain))
-        rest = [r for i, r in enumerate(rows) if i != best]
-        print(f"  {k}: {np.mean([r['errors'][k] for r in rest]):.3f} against {np.mean([r['errors'][base] for r in rest]):.3f}"
-              f" without {rows[best]['trial']}")
+    group_and_loo_tables(rows, labels, "no hold (old default)")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
 

@@ -16,6 +16,9 @@ composition). Orientation is split into three factors, each corrected by one sen
    magnetic disturbance can only reach heading (roll and pitch are those of a magnetometer-free
    run, tested to 1e-12).
 
+In front (``mag_calibration``): the ``mag-calibration`` sensor model, the magnetometer's hard and
+soft iron learned from the gyroscope, applied only where it behaves as body-fixed iron.
+
 Around them: the ``rest`` detector (flag REST) and the bias at rest (corrector
 ``rest-bias-lowpass``: the gyro bias follows the low-passed gyro before the sample's propagation,
 ``rest_bias``, ``rest_bias_tau``); the acceleration gate (``acc_gate``: the ``acceleration``
@@ -90,6 +93,11 @@ class RecommendedConfig(FilterConfig):
         False, unit="-", description="the `lever-arm` sensor model in front: learns where the accelerometer sits from "
         "the rotation centre and removes the rotation's tangential and centripetal accelerations once confident "
         "(off by default: on BROAD it gains only together with output_lead, see recommended.md)")
+    mag_calibration: bool = param(
+        True, unit="-", description="the `mag-calibration` sensor model in front: learns the magnetometer's hard "
+        "and soft iron (a magnet or iron carried with the sensor) from how the field turns against the gyroscope, "
+        "applied only while confident and consistent with body-fixed iron (docs/algorithms/models.md); False: the "
+        "raw magnetometer")
     acc_delay: float | None = param(
         None, unit="s", description="how long before the end of the gyro's step the accelerometer sample describes: "
         "it is paired with the orientation R(q_gyr (x) exp(-(w - bias) d)). None: half the sample interval, the middle "
@@ -149,7 +157,8 @@ class RecommendedFilter(Pipeline):
             max_gap=c.max_gap, body=c.body,
             estimator=PluginSpec(name="poisson-quat", params={"step": "exact"}),
             detectors=detectors, correctors=correctors,
-            models=[PluginSpec(name="lever-arm")] if c.lever_arm else [],
+            models=([PluginSpec(name="mag-calibration")] if c.mag_calibration and c.use_mag else [])
+            + ([PluginSpec(name="lever-arm")] if c.lever_arm else []),
             alignment=AlignmentConfig(mode="none", initial_quat=initial_attitude(c.frame)),
         )
 

@@ -77,6 +77,11 @@ STATE = 33
 _NP = 8
 _SA, _SY, _SBEST, _SAPP = 33, 33 + 64, 33 + 72, 33 + 80
 STATE_SOFT = 33 + 88
+# the consistency gate, after the fit's state (at STATE or STATE_SOFT): the ring's next slot and
+# fill, then the raw field and the accelerometer's direction at the last _GK segment ends
+_GK = 32
+_GI, _GC, _GBUF = 0, 1, 2
+GATE = 2 + 6 * _GK
 
 
 class MagCalibrationConfig(PluginConfig):
@@ -98,6 +103,14 @@ class MagCalibrationConfig(PluginConfig):
     soft_iron: bool = param(
         True, unit="-", description="estimate the soft-iron distortion (a symmetric matrix) with the offset; "
         "False: the offset alone, which needs less rotation to become confident")
+    consistency: bool = param(
+        True, unit="-", description="apply a confident estimate only where it is consistent with body-fixed iron: "
+        "over the last 32 segment ends it divides the variance of the field's relative norm by min_reduction and "
+        "does not raise the variance of its angle to the accelerometer's (the dip); otherwise the samples pass "
+        "unchanged. False: the confidence alone (the model before this gate)")
+    min_reduction: float = param(
+        2.0, unit="-", description="the factor by which the calibration must reduce the field norm's variance: an F "
+        "test at the 32 segment ends' degrees of freedom (F(31, 31) at 97%)", gt=1)
 
 
 class MagCalibrationModel(SensorModel):
@@ -110,14 +123,15 @@ class MagCalibrationModel(SensorModel):
                               "when confident")
 
     def initial_state(self, dt: float) -> np.ndarray:
-        s = np.zeros(STATE_SOFT if self.config.soft_iron else STATE)
+        s = np.zeros((STATE_SOFT if self.config.soft_iron else STATE) + GATE)
         s[_DQ] = 1.0
         return s
 
     def params(self) -> np.ndarray:
         c = self.config
         return np.array([c.segment_angle, c.segment_time, c.forget_time, c.max_std, float(c.min_segments),
-                         c.outlier_sigma, float(c.outlier_count), float(c.soft_iron)])
+                         c.outlier_sigma, float(c.outlier_count), float(c.soft_iron), float(c.consistency),
+                         c.min_reduction])
 
     def kernel(self) -> SensorModelKernel:
         return SensorModelKernel(mag_calibration_apply, self.params())
@@ -139,6 +153,8 @@ class MagCalibrationModel(SensorModel):
             dq = s[_DQ:_DQ + 4]
             angle = 2.0 * math.atan2(math.sqrt(dq[1] ** 2 + dq[2] ** 2 + dq[3] ** 2), abs(dq[0]))
             if angle >= c.segment_angle or s[_T] >= c.segment_time:
+                acc = sample.acc if sample.acc is not None and np.isfinite(sample.acc).all() else np.zeros(3)
+                _ring_push(s, STATE_SOFT if c.soft_iron else STATE, m, acc)
                 if c.soft_iron:
                     self._segment_soft(s, quat_to_matrix(dq).T, m)
                 else:
@@ -168,6 +184,7 @@ class MagCalibrationModel(SensorModel):
                 s[_A:_A + 9] = 0.0
                 s[_Y:_Y + 3] = 0.0
                 s[_N] = s[_VAR] = s[_CONF] = s[_BAD] = s[_RR] = s[_NE] = 0.0
+                s[STATE + _GC] = 0.0
             return
         s[_BAD] = 0.0
         lam = math.exp(-s[_T] / c.forget_time)
@@ -187,6 +204,10 @@ class MagCalibrationModel(SensorModel):
         lmin = _min_eig_sym3(a)
         field = float(np.linalg.norm(m - best))
         if s[_N] >= c.min_segments and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= c.max_std * field:
+            if c.consistency and not _consistent(s, STATE, np.eye(3), best, c.min_reduction):
+                s[_B:_B + 3] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
+                s[_CONF] = 0.0
+                return
             s[_B:_B + 3] = best
             s[_CONF] = 1.0
 
@@ -204,6 +225,7 @@ class MagCalibrationModel(SensorModel):
                 s[_SA:_SA + _NP * _NP] = 0.0
                 s[_SY:_SY + _NP] = 0.0
                 s[_N] = s[_VAR] = s[_CONF] = s[_BAD] = s[_RR] = s[_NE] = 0.0
+                s[STATE_SOFT + _GC] = 0.0
             return
         s[_BAD] = 0.0
         lam = math.exp(-s[_T] / c.forget_time)
@@ -224,6 +246,11 @@ class MagCalibrationModel(SensorModel):
         field = float(np.linalg.norm(w @ m - best[5:8]))
         std = np.sqrt(s[_VAR] * np.diag(inv))
         if s[_N] >= c.min_segments and std[5:8].max() <= c.max_std * field and std[:5].max() <= c.max_std:
+            if c.consistency and not _consistent(s, STATE_SOFT, w, best[5:8], c.min_reduction):
+                s[_SAPP:_SAPP + _NP] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
+                s[_B:_B + 3] = 0.0
+                s[_CONF] = 0.0
+                return
             s[_SAPP:_SAPP + _NP] = best
             s[_B:_B + 3] = np.linalg.solve(w, best[5:8])  # the offset in the raw field's units, b = W^-1 c
             s[_CONF] = 1.0
@@ -232,6 +259,65 @@ class MagCalibrationModel(SensorModel):
 def _distortion(t):
     """``E`` from its five entries: symmetric and traceless."""
     return np.array([[t[0], t[2], t[3]], [t[2], t[1], t[4]], [t[3], t[4], -t[0] - t[1]]])
+
+
+def _ring_push(s, g, m, a):
+    """A segment's end into the gate's ring (at ``s[g:]``): the raw field ``m`` and the
+    accelerometer ``a`` (zeros when invalid). The same statements in the reference and, compiled,
+    in the kernel."""
+    i = int(s[g + _GI])
+    k = g + _GBUF + 6 * i
+    for j in range(3):
+        s[k + j] = m[j]
+        s[k + 3 + j] = a[j]
+    s[g + _GI] = float((i + 1) % _GK)
+    s[g + _GC] = min(s[g + _GC] + 1.0, float(_GK))
+
+
+def _consistent(s, g, w, c, min_reduction) -> bool:
+    """Whether the calibration ``W m - c`` behaves as body-fixed iron over the ring's segment ends:
+    it divides the variance of the field's relative norm (``|m| / mean |m|``) by ``min_reduction``
+    and does not raise the variance of the sine of the dip (the field's angle to the horizontal
+    plane the accelerometer gives). A field fixed in the earth frame but not uniform where the
+    sensor moves changes with position, which no body-frame calibration makes constant. The same
+    statements in the reference and, compiled, in the kernel."""
+    n = int(s[g + _GC])
+    if n < 3:
+        return False
+    r1 = r2 = c1 = c2 = 0.0
+    nd = 0
+    rd1 = rd2 = cd1 = cd2 = 0.0
+    for i in range(n):
+        k = g + _GBUF + 6 * i
+        m0, m1, m2 = s[k], s[k + 1], s[k + 2]
+        a0, a1, a2 = s[k + 3], s[k + 4], s[k + 5]
+        x0 = w[0, 0] * m0 + w[0, 1] * m1 + w[0, 2] * m2 - c[0]
+        x1 = w[1, 0] * m0 + w[1, 1] * m1 + w[1, 2] * m2 - c[1]
+        x2 = w[2, 0] * m0 + w[2, 1] * m1 + w[2, 2] * m2 - c[2]
+        nr = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        nc = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+        r1 += nr
+        r2 += nr * nr
+        c1 += nc
+        c2 += nc * nc
+        na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        if na > 0.0 and nr > 0.0 and nc > 0.0:
+            dr = (m0 * a0 + m1 * a1 + m2 * a2) / (nr * na)
+            dc = (x0 * a0 + x1 * a1 + x2 * a2) / (nc * na)
+            nd += 1
+            rd1 += dr
+            rd2 += dr * dr
+            cd1 += dc
+            cd2 += dc * dc
+    if not (r1 > 0.0 and c1 > 0.0):
+        return False
+    var_raw = max(r2 / n - (r1 / n) ** 2, 0.0) / (r1 / n) ** 2
+    var_cal = max(c2 / n - (c1 / n) ** 2, 0.0) / (c1 / n) ** 2
+    if not min_reduction * var_cal <= var_raw:
+        return False
+    if nd >= 3:
+        return max(cd2 / nd - (cd1 / nd) ** 2, 0.0) <= max(rd2 / nd - (rd1 / nd) ** 2, 0.0)
+    return True
 
 
 def _basis(j, v0, v1, v2):
@@ -342,6 +428,8 @@ _k_min_eig = njit(_min_eig_sym3)
 _k_inverse3 = njit(_inverse3)
 _k_invert = njit(_invert)
 _k_basis = njit(_basis)
+_k_ring_push = njit(_ring_push)
+_k_consistent = njit(_consistent)
 
 
 @njit
@@ -363,6 +451,7 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
     """Kernel of :class:`MagCalibrationModel` (``SensorModelKernel.apply``)."""
     seg_angle, seg_time, forget, max_std, min_seg, out_sigma, out_count = p[0], p[1], p[2], p[3], p[4], p[5], p[6]
     soft = p[7] != 0.0
+    gate, min_red = p[8] != 0.0, p[9]
     if not gyr_ok:
         s[_ANCHOR] = 0.0
     elif s[_ANCHOR] != 0.0:
@@ -379,10 +468,14 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
         w, x, y, z = s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3]
         angle = 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
         if angle >= seg_angle or s[_T] >= seg_time:
+            acc = np.zeros(3)
+            if acc_ok:
+                acc[0], acc[1], acc[2] = v[3], v[4], v[5]
+            _k_ring_push(s, STATE_SOFT if soft else STATE, np.array((m0, m1, m2)), acc)
             if soft:
-                _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count)
+                _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red)
             else:
-                _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count)
+                _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red)
             s[_ANCHOR] = 0.0
     if gyr_ok and s[_ANCHOR] == 0.0:
         s[_MA], s[_MA + 1], s[_MA + 2] = m0, m1, m2
@@ -416,7 +509,7 @@ def k_forget_accumulate(s, ia, iy, irr, ine, h, r, lam, a):
 
 
 @njit
-def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count):
+def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red):
     c9 = np.empty(9)
     quat_to_dcm(s[_DQ:_DQ + 4], c9)
     ct = np.empty((3, 3))  # R(dq)^T, as quat_to_matrix(dq).T
@@ -443,6 +536,7 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count):
                 s[_A + i] = 0.0
             s[_Y], s[_Y + 1], s[_Y + 2] = 0.0, 0.0, 0.0
             s[_N] = s[_VAR] = s[_CONF] = s[_BAD] = s[_RR] = s[_NE] = 0.0
+            s[STATE + _GC] = 0.0
         return
     s[_BAD] = 0.0
     lam = math.exp(-s[_T] / forget)
@@ -461,12 +555,16 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count):
     f0, f1, f2 = m0 - s[_BEST], m1 - s[_BEST + 1], m2 - s[_BEST + 2]
     field = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
     if s[_N] >= min_seg and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= max_std * field:
+        if gate and not _k_consistent(s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red):
+            s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
+            s[_CONF] = 0.0
+            return
         s[_B], s[_B + 1], s[_B + 2] = s[_BEST], s[_BEST + 1], s[_BEST + 2]
         s[_CONF] = 1.0
 
 
 @njit
-def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count):
+def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red):
     c9 = np.empty(9)
     quat_to_dcm(s[_DQ:_DQ + 4], c9)
     ct = np.empty((3, 3))  # R(dq)^T
@@ -495,6 +593,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
             for i in range(_NP):
                 s[_SY + i] = 0.0
             s[_N] = s[_VAR] = s[_CONF] = s[_BAD] = s[_RR] = s[_NE] = 0.0
+            s[STATE_SOFT + _GC] = 0.0
         return
     s[_BAD] = 0.0
     lam = math.exp(-s[_T] / forget)
@@ -534,6 +633,12 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
         else:
             std_c = max(std_c, sd)
     if s[_N] >= min_seg and std_c <= max_std * field and std_e <= max_std:
+        if gate and not _k_consistent(s, STATE_SOFT, w, t[5:8], min_red):
+            for i in range(_NP):
+                s[_SAPP + i] = 0.0
+            s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
+            s[_CONF] = 0.0
+            return
         for i in range(_NP):
             s[_SAPP + i] = t[i]
         winv = np.empty((3, 3))
