@@ -47,6 +47,16 @@ magnetometer late by ``d`` seconds adds an error of ``|w| d`` per segment, which
 rotations in both directions). The readable reference is :meth:`MagCalibrationModel.apply`;
 :func:`mag_calibration_apply` is its kernel.
 
+Consistency (``consistency=True``): a field fixed in the earth frame but not uniform where the
+sensor moves (near a magnet on the desk) changes with position; the segments then fit only in
+part, the residual noise absorbs the misfit, and the estimate can still become confident. A
+body-fixed calibration has two observable consequences such a field does not share: the
+calibrated field's norm stays constant as the body turns, and so does its angle to gravity (the
+dip, against the accelerometer). So a confident estimate is applied only if, over the raw samples
+at the last 32 segment ends, it divides the variance of the field's relative norm by
+``min_reduction`` (an F test of two variances) and does not raise the dip's; otherwise the
+samples pass unchanged (:func:`_consistent`). ``consistency=False``: the confidence alone.
+
 Where this sits among the classic calibrations: an ellipsoid fit (the field's norm constant, the
 offset and distortion its centre and shape) needs no gyroscope but takes any change of the field's
 magnitude, a magnet on the desk included, for part of the ellipsoid; the gyro-aided relation
