@@ -1,15 +1,23 @@
-"""Time to the first result in a new process, cold and warm, and per-sample ``update()`` against
-VQF's own per-sample ``update()`` in the same run.
+"""Time to the first result in a new process, cold and warm, where it goes, and per-sample
+``update()`` against VQF's own per-sample ``update()`` in the same run.
 
-    python benchmarks/first_result.py [--filters gradient-descent,recommended,...] [--repeat 3]
+    python benchmarks/first_result.py [--filters gradient-descent,recommended,...] [--repeat 3] [--no-streaming]
 
-First result: a fresh ``python`` process imports fusionkit, builds a 1,000-sample recording and
-runs the filter. *Cold*: empty numba and fusionkit caches (``NUMBA_CACHE_DIR`` and
-``FUSIONKIT_CACHE_DIR`` point at a new folder: every kernel and generated pipeline loop compiles).
-*Warm*: the same folders again (everything loads from disk). The best of ``--repeat`` warm runs
-is reported, and the import alone for reference. Python's bytecode cache is part of the warm
-state as on a user's machine: the children write it under the same folder
-(``PYTHONPYCACHEPREFIX``), also where the calling environment sets ``PYTHONDONTWRITEBYTECODE``.
+First result: a fresh ``python`` process imports fusionkit, makes the filter, builds a
+1,000-sample recording and runs the filter. *Cold*: empty numba and fusionkit caches
+(``NUMBA_CACHE_DIR`` and ``FUSIONKIT_CACHE_DIR`` point at a new folder: every kernel and
+generated pipeline loop compiles). *Warm*: the same folders again (everything loads from disk).
+Python's bytecode cache is part of the warm state as on a user's machine: the children write it
+under the same folder (``PYTHONPYCACHEPREFIX``), also where the calling environment sets
+``PYTHONDONTWRITEBYTECODE``.
+
+The warm runs are alternated between the filters (one process each per round, ``--repeat``
+rounds) so that all see the same machine load; the best (least CPU) one per filter is reported
+with its breakdown: *import* (``import numpy, fusionkit``: numba and pydantic with it), *make*
+(``fk.make``: the plugin modules and their configs), *recording*, *load* (the first ``run()``
+less a second one on the same recording: the generated loop's module and numba's load of its
+machine code) and *run* (the second ``run()``). Wall and CPU time of the child up to its result
+(not its interpreter start or exit).
 
 Streaming: ``f.update(gyr, acc, mag, dt)`` per sample of a 20,000-sample recording (after one
 warm-up sample), against ``vqf.VQF.update`` + ``getQuat9D`` on the same samples, alternated in
@@ -19,6 +27,7 @@ chunks so that both see the same machine load.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -30,27 +39,47 @@ import numpy as np
 from _common import machine
 
 CHILD = r"""
-import time, sys
-t0 = time.perf_counter()
+import json, sys, time
+T = [(time.perf_counter(), time.process_time())]
 import numpy as np, fusionkit as fk
-t1 = time.perf_counter()
+T.append((time.perf_counter(), time.process_time()))
+f = fk.make(sys.argv[1])
+T.append((time.perf_counter(), time.process_time()))
 rng = np.random.default_rng(0)
 n = 1000
 rec = fk.Recording(gyr=0.1 * rng.standard_normal((n, 3)), acc=[0, 0, 9.81] + 0.05 * rng.standard_normal((n, 3)),
                    mag=[0, 19, -47] + 0.3 * rng.standard_normal((n, 3)), rate=100.0)
-res = fk.make(sys.argv[1]).run(rec)
-t2 = time.perf_counter()
-print(t1 - t0, t2 - t0, res.diagnostics.get("backend", "?"))
+T.append((time.perf_counter(), time.process_time()))
+res = f.run(rec)
+T.append((time.perf_counter(), time.process_time()))
+f.run(rec)
+T.append((time.perf_counter(), time.process_time()))
+wall = [b[0] - a[0] for a, b in zip(T, T[1:])]
+cpu = [b[1] - a[1] for a, b in zip(T, T[1:])]
+print(json.dumps({"wall": wall, "cpu": cpu, "backend": res.diagnostics.get("backend", "?")}))
 """
 
+PHASES = ("import", "make", "recording", "load", "run")
 
-def first_result(name: str, cache: str) -> tuple[float, float, str]:
+
+class FirstResult:
+    """One child's times: ``total`` / ``cpu`` up to the first result, ``phases`` (wall) as in
+    :data:`PHASES`."""
+
+    def __init__(self, out: dict) -> None:
+        w, c = out["wall"], out["cpu"]
+        self.total, self.cpu = sum(w[:4]), sum(c[:4])
+        self.phases = dict(zip(PHASES, [w[0], w[1], w[2], w[3] - w[4], w[4]]))
+        self.backend = out["backend"]
+
+
+def first_result(name: str, cache: str) -> FirstResult:
     env = {**os.environ, "NUMBA_CACHE_DIR": cache, "FUSIONKIT_CACHE_DIR": cache,
            "PYTHONPYCACHEPREFIX": os.path.join(cache, "pyc")}
     env.pop("PYTHONDONTWRITEBYTECODE", None)
-    out = subprocess.run([sys.executable, "-c", CHILD, name], env=env, capture_output=True, text=True, check=True)
-    imp, total, backend = out.stdout.split()
-    return float(imp), float(total), backend
+    out = subprocess.run([sys.executable, "-W", "ignore", "-c", CHILD, name], env=env, capture_output=True,
+                         text=True, check=True)
+    return FirstResult(json.loads(out.stdout.strip().splitlines()[-1]))
 
 
 def streaming(name: str, n: int = 20000) -> tuple[float, float]:
@@ -82,17 +111,27 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--filters", default="gradient-descent,poisson,recommended,channel-dcm,gst")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--no-streaming", action="store_true", help="only the first result")
     args = ap.parse_args()
     names = args.filters.split(",")
-    print(f"machine: {machine()}\n")
-    print("| filter | import (s) | first result, cold (s) | first result, warm (s) | backend |")
-    print("|---|---|---|---|---|")
-    for name in names:
-        with tempfile.TemporaryDirectory() as cache:
-            _, cold, backend = first_result(name, cache)
-            warm = [first_result(name, cache) for _ in range(args.repeat)]
-        imp = min(w[0] for w in warm)
-        print(f"| {name} | {imp:.2f} | {cold:.2f} | {min(w[1] for w in warm):.2f} | {backend} |", flush=True)
+    print(f"machine: {machine()}; load average before: {os.getloadavg()[0]:.2f}\n")
+    with tempfile.TemporaryDirectory() as root:
+        caches = {n: os.path.join(root, n) for n in names}
+        cold = {n: first_result(n, caches[n]) for n in names}
+        warm = {n: [] for n in names}
+        for _ in range(args.repeat):  # alternated: every filter sees the same load
+            for n in names:
+                warm[n].append(first_result(n, caches[n]))
+    print("| filter | first result, cold (s) | warm (s) | warm CPU (s) | " + " | ".join(PHASES) + " | backend |")
+    print("|---|---:|---:|---:|" + "---:|" * len(PHASES) + "---|")
+    for n in names:
+        best = min(warm[n], key=lambda r: r.cpu)
+        print(f"| {n} | {cold[n].total:.2f} | {best.total:.2f} | {best.cpu:.2f} | "
+              + " | ".join(f"{best.phases[p]:.3f}" for p in PHASES) + f" | {best.backend} |", flush=True)
+    print(f"\nwarm: the run with the least CPU of {args.repeat}; phases in wall seconds of that run; "
+          f"load average after: {os.getloadavg()[0]:.2f}")
+    if args.no_streaming:
+        return
     print("\n| filter | update() us/sample | VQF update()+getQuat9D us/sample | ratio |")
     print("|---|---|---|---|")
     for name in names:

@@ -112,9 +112,44 @@ def njit(func=None, *, cache: bool = True, inline: str = "never"):
     def wrap(f):
         if not HAVE_NUMBA:
             return f
-        return _nb.njit(cache=cache, fastmath=False, nogil=True, inline=inline)(f)
+        return _light_load(_nb.njit(cache=cache, fastmath=False, nogil=True, inline=inline)(f))
 
     return wrap(func) if func is not None else wrap
+
+
+# -- loading from numba's disk cache without its compiler's start -------------------------------
+
+
+def _light_load(dispatcher):
+    """``dispatcher`` (returned), its disk cache loading through :func:`_load_overload_light`."""
+    cache = getattr(dispatcher, "_cache", None)
+    if cache is not None and hasattr(cache, "_load_overload"):  # numba's Cache: cache=True, JIT enabled
+        import functools
+
+        cache.load_overload = functools.partial(_load_overload_light, cache)
+    return dispatcher
+
+
+def _load_overload_light(cache, sig, target_context):
+    """numba's ``Cache.load_overload`` without its ``target_context.refresh()``.
+
+    That refresh is numba's one-time start of its compiler in a process: it imports and installs
+    every typing and lowering registry (numba's implementations of the builtins, numpy, cffi,
+    unicode, typed containers ...), a third of a new process's first result. Loading machine code
+    from the cache needs none of it: the code is compiled and linked already; what it calls at run
+    time is numba's runtime (NRT, started here) and the C helpers numba registers when it makes
+    its context. A cache miss returns None and the dispatcher compiles, and the compiler does the
+    full refresh itself (as does numba's own load for any other function); a failure here falls
+    back to numba's own load.
+    """
+    try:
+        from numba.core.runtime import nrt
+
+        nrt.rtsys.initialize(target_context)
+        with cache._guard_against_spurious_io_errors():
+            return cache._load_overload(sig, target_context)
+    except Exception:  # an unexpected numba: its own path
+        return type(cache).load_overload(cache, sig, target_context)
 
 
 _INLINED: dict = {}

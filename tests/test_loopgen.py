@@ -42,6 +42,7 @@ def cached_loop(tmp_path_factory, rec):
 
 
 def test_a_new_process_loads_the_loop_from_disk(cached_loop):
+    """From disk, without numba's one-time compiler start (``_numba._load_overload_light``)."""
     where, name = cached_loop
     written = where / "loops" / f"loop_{name[len('_fusionkit_loop_'):]}.py"
     assert written.exists()
@@ -49,8 +50,15 @@ def test_a_new_process_loads_the_loop_from_disk(cached_loop):
         import numpy as np, fusionkit as fk
         from fusionkit import _loopgen
         rec = fk.Recording(gyr=np.zeros((50, 3)), acc=np.tile([0, 0, 9.81], (50, 1)), mag=np.ones((50, 3)), rate=100.0)
-        fk.compose({CONFIG!r}).run(rec, backend="numba")
+        f = fk.compose({CONFIG!r})
+        fast = f.run(rec, backend="numba")
         (mod,) = _loopgen._BUILT.values()
+        # loaded without numba's compiler start (its typing and lowering registries), same numbers
+        from numba.core.registry import cpu_target
+        assert not cpu_target.target_context._registries
+        assert np.abs(fast.quat - f.run(rec, backend="reference").quat).max() < 1e-9
+        from numba import njit  # and numba still compiles what the process asks of it afterwards
+        assert njit(lambda x: np.sum(x) * 2.0)(np.ones(3)) == 6.0
         print(mod.__name__, sum(mod.loop.stats.cache_hits.values()), sum(mod.loop.stats.cache_misses.values()))
     """)
     env = {**os.environ, "FUSIONKIT_CACHE_DIR": str(where)}

@@ -60,6 +60,7 @@ Two paths: the readable reference on filterpy's ``ExtendedKalmanFilter`` (``self
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, ClassVar, Literal
 
@@ -133,12 +134,17 @@ class EkfFilter(StepFilter):
 
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
-        from filterpy.kalman import ExtendedKalmanFilter
-
-        self.kf = ExtendedKalmanFilter(dim_x=6, dim_z=3)
         self.magnetic = MagneticDetector(self.config.magnetic)
         self._t4, self._u4, self._r9 = np.empty(4), np.empty(4), np.empty(9)  # per-sample buffers
         self.nis: list[tuple[float, float]] | None = None  # (acc NIS, heading NIS) per sample when recording
+
+    @functools.cached_property
+    def kf(self):
+        """filterpy's ``ExtendedKalmanFilter`` of the reference path, made on its first use:
+        importing filterpy imports scipy.stats, seconds that the compiled path does not need."""
+        from filterpy.kalman import ExtendedKalmanFilter
+
+        return ExtendedKalmanFilter(dim_x=6, dim_z=3)
 
     def new_state(self) -> np.ndarray:
         x = np.zeros(_SIZE)
