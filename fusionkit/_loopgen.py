@@ -280,7 +280,7 @@ def source(lay: Layout, cache: bool, imports: dict[int, tuple[str, str]] | None,
     hot = _hot(lay)
     head += ["", "# the loop calls these inline (fusionkit._numba.inline_copy); step() calls the kernels"]
     head += [f"{_INLINE}{n} = inline_copy({n})" for n in hot]
-    loop = ["", "", f"@njit(cache={cache})",
+    loop = ["", "", f"@njit(cache={cache}, forward_copies=True)",
             "def loop(gyr, acc, mag, dt, has_mag, S, P, O, out_q, out_f, out_c, start, stop, gn):",
             *_views(lay), "    q = np.empty(4)", "    last = gn.shape[0] - 1", "    n0 = n1 = n2 = n3 = n4 = n5 = 0.0",
             "    ms = 1 if has_mag else 0  # without a magnetometer: its row 0 each sample (never judged valid)",

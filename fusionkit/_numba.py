@@ -103,16 +103,18 @@ if HAVE_NUMBA and "numba.np.arraymath" not in sys.modules and "scipy.linalg" not
     sys.meta_path.insert(0, _LightBlasCheck())
 
 
-def njit(func=None, *, cache: bool = True, inline: str = "never"):
+def njit(func=None, *, cache: bool = True, inline: str = "never", forward_copies: bool = False):
     """``numba.njit(cache=cache, fastmath=False, nogil=True, inline=inline)`` or the identity
     without numba. ``inline="always"`` inlines the function into its callers at numba's IR level
     (no call, no reference counting of the array arguments): for the small glue functions the
-    pipeline chains its plugins' kernels with."""
+    pipeline chains its plugins' kernels with. ``forward_copies``: compile with
+    :func:`loop_compiler` (for a function that calls ``inline="always"`` kernels in a loop)."""
 
     def wrap(f):
         if not HAVE_NUMBA:
             return f
-        return _light_load(_nb.njit(cache=cache, fastmath=False, nogil=True, inline=inline)(f))
+        extra = {"pipeline_class": loop_compiler()} if forward_copies else {}
+        return _light_load(_nb.njit(cache=cache, fastmath=False, nogil=True, inline=inline, **extra)(f))
 
     return wrap(func) if func is not None else wrap
 
@@ -150,6 +152,83 @@ def _load_overload_light(cache, sig, target_context):
             return cache._load_overload(sig, target_context)
     except Exception:  # an unexpected numba: its own path
         return type(cache).load_overload(cache, sig, target_context)
+
+
+# -- a loop that calls inlined kernels keeps their array arguments without reference counting ---
+#
+# numba inlines an ``inline="always"`` call at its IR level by binding each parameter to the
+# caller's variable, ``x.1 = x``. Lowered, that copy of an array is a reference count increment
+# and, where ``x.1`` dies, a decrement: calls into numba's runtime that its pruning pass removes
+# only when the kernel has one exit. A kernel with an early ``return`` or a loop keeps them, each
+# sample, and each call there makes the compiler save and reload every floating-point value live
+# across it. The pass below (run right after the inlining) reads every such copy of a variable
+# that is assigned once, before any loop (the function's entry block), as that variable itself:
+# the same array object in every place, so the values computed are the same, without the copies.
+
+_LOOP_COMPILER: list = []
+
+
+def loop_compiler():
+    """numba's nopython pipeline with :class:`ForwardCopies` after its inlining pass (built once)."""
+    if not _LOOP_COMPILER:
+        from numba.core import ir
+        from numba.core.analysis import compute_cfg_from_blocks
+        from numba.core.compiler import CompilerBase, DefaultPassBuilder
+        from numba.core.compiler_machinery import FunctionPass, register_pass
+        from numba.core.ir_utils import replace_vars
+        from numba.core.untyped_passes import InlineInlinables
+
+        @register_pass(mutates_CFG=False, analysis_only=False)
+        class ForwardCopies(FunctionPass):
+            """Replace ``a = b`` (``a`` assigned once, ``b`` assigned once in the entry block,
+            which no loop returns to) by reading ``b`` wherever ``a`` is read; chains resolved."""
+
+            _name = "fusionkit_forward_copies"
+
+            def __init__(self):
+                FunctionPass.__init__(self)
+
+            def run_pass(self, state):
+                blocks = state.func_ir.blocks
+                entry = min(blocks)
+                if list(compute_cfg_from_blocks(blocks).predecessors(entry)):
+                    return False
+                ndef: dict = {}
+                for blk in blocks.values():
+                    for st in blk.body:
+                        if isinstance(st, ir.Assign):
+                            ndef[st.target.name] = ndef.get(st.target.name, 0) + 1
+                fixed = {st.target.name: st.target for st in blocks[entry].body
+                         if isinstance(st, ir.Assign) and ndef[st.target.name] == 1}
+                copies = {st.target.name: st.value.name for blk in blocks.values() for st in blk.body
+                          if isinstance(st, ir.Assign) and isinstance(st.value, ir.Var)
+                          and ndef[st.target.name] == 1 and st.target.name != st.value.name}
+                repl = {}
+                for a in copies:
+                    r, seen = a, set()
+                    while r in copies and r not in seen:
+                        seen.add(r)
+                        r = copies[r]
+                    if r in fixed and r != a:
+                        repl[a] = fixed[r]
+                if not repl:
+                    return False
+                for blk in blocks.values():
+                    blk.body = [st for st in blk.body if not (
+                        (isinstance(st, ir.Assign) and st.target.name in repl)
+                        or (isinstance(st, ir.Del) and st.value in repl))]
+                replace_vars(blocks, repl)
+                return True
+
+        class LoopCompiler(CompilerBase):
+            def define_pipelines(self):
+                pm = DefaultPassBuilder.define_nopython_pipeline(self.state)
+                pm.add_pass_after(ForwardCopies, InlineInlinables)
+                pm.finalize()
+                return [pm]
+
+        _LOOP_COMPILER.append(LoopCompiler)
+    return _LOOP_COMPILER[0]
 
 
 _INLINED: dict = {}
