@@ -21,8 +21,9 @@ from .motion import Rest, Rotate, Translate
 from .noise import Noise
 from .sensors import simulate
 
-__all__ = ["demo_recordings", "hard_iron_turning", "carried_magnet", "magnet_nearby", "late_gyro", "late_mag", "lowpass_gyro",
-           "scaled_gyro", "drifting_bias_long", "vibrating", "tapped", "lossy", "hand_held", "SCENARIOS", "scenario"]
+__all__ = ["demo_recordings", "hard_iron_turning", "carried_magnet", "magnet_nearby", "late_gyro", "late_mag",
+           "lowpass_gyro", "scaled_gyro", "drifting_bias_long", "vibrating", "tapped", "lossy", "hand_held",
+           "SCENARIOS", "scenario"]
 
 _DEG = math.pi / 180.0
 
@@ -191,8 +192,8 @@ def hand_held(lever_arm=(0.15, 0.03, -0.05), rate: float = 200.0, noise: Noise |
 
 #: scenario name -> function (called with its defaults by :func:`scenario` and ``sim:NAME``)
 SCENARIOS = {n: f for n, f in (
-    ("hard-iron-turning", hard_iron_turning), ("carried-magnet", carried_magnet), ("magnet-nearby", magnet_nearby), ("late-gyro", late_gyro),
-    ("late-mag", late_mag),
+    ("hard-iron-turning", hard_iron_turning), ("carried-magnet", carried_magnet), ("magnet-nearby", magnet_nearby),
+    ("late-gyro", late_gyro), ("late-mag", late_mag),
     ("lowpass-gyro", lowpass_gyro), ("scaled-gyro", scaled_gyro), ("drifting-bias-long", drifting_bias_long),
     ("vibrating", vibrating), ("tapped", tapped), ("lossy", lossy), ("hand-held", hand_held))}
 
