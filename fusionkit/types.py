@@ -286,7 +286,10 @@ class Recording:
     def _check_units(self) -> None:
         """Refuse data in g or deg/s (:func:`fusionkit.validation.check_units`: the medians in one
         pass, and whether the gyroscope explains the magnetometer's and accelerometer's turning)."""
-        check_units(self.gyr, self.acc, self.mag, self.dt)
+        if self.rate is not None:  # a constant interval: no (N,) array of it
+            check_units(self.gyr, self.acc, self.mag, dt=1.0 / self.rate)
+        else:
+            check_units(self.gyr, self.acc, self.mag, t=self.t)
 
     def __len__(self) -> int:
         return self.gyr.shape[0]
@@ -329,8 +332,15 @@ class Recording:
 
     @property
     def nominal_dt(self) -> float:
-        """The typical sample interval in s (``1/rate``, or the median of ``dt``)."""
-        return 1.0 / self.rate if self.rate is not None else float(np.median(self.dt))
+        """The typical sample interval in s (``1/rate``, or the median of ``dt``: computed once
+        per ``t`` array, since a run asks for it several times and a median of a long recording
+        costs more than the recording's checks)."""
+        if self.rate is not None:
+            return 1.0 / self.rate
+        cached = self.__dict__.get("_nominal_dt")
+        if cached is None or cached[0] is not self.t:
+            cached = self.__dict__["_nominal_dt"] = (self.t, float(np.median(self.dt)))
+        return cached[1]
 
     @property
     def time(self) -> np.ndarray:

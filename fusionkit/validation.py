@@ -139,6 +139,8 @@ def check_time(t, n: int, name: str = "t", other: str = "gyr") -> np.ndarray:
     t = np.asarray(t, dtype=np.float64).reshape(-1)
     if t.shape[0] != n:
         raise InputError(f"{name} has {t.shape[0]} samples but {other} has {n}; lengths must match")
+    if n > 1 and math.isfinite(t[0]) and math.isfinite(t[-1]) and bool((t[1:] > t[:-1]).all()):
+        return t  # increasing between finite ends: all finite (one pass; NaN compares False)
     if not np.isfinite(t).all():
         i = int(np.argmin(np.isfinite(t)))
         raise InputError(f"{name}[{i}] is not finite ({t[i]})")
@@ -197,45 +199,69 @@ def unit_scan(gyr, acc, thr):
     norms of the accelerometer rows (finite and nonzero), ``thr[2]`` on the absolute components of
     the gyroscope rows that are finite. ``sign`` (+1 / -1) is the side of the median when the
     samples seen already decide it whatever the rest are (more than half of every possible total
-    on one side: :func:`_decided`); each sensor's pass stops there, and its counts are partial.
-    ``sign`` 0: the counts are complete, for :func:`median_vs`. (Typical data is decided halfway.)"""
+    on one side: :func:`_decided`); each sensor's pass stops there, and its counts are partial
+    (``max_lt`` / ``min_gt`` are then not gathered: -inf / inf). ``sign`` 0: the counts are
+    complete, for :func:`median_vs`. (Typical data is decided halfway.)
+
+    The counting runs without a branch per sample (integer sums of comparisons, which LLVM
+    vectorises: the pass reads memory at the speed of a sum); the extremes beside each threshold,
+    a float reduction that does not vectorise, are gathered in a second pass only when the whole
+    recording left a median undecided."""
     out = np.zeros((3, 6))
-    t0, t1 = thr[0], thr[1]
-    n = lo0 = eq0 = lo1 = eq1 = 0
-    mx0 = mx1 = -np.inf
-    mn0 = mn1 = np.inf
+    out[:, 3], out[:, 4] = -np.inf, np.inf
+    t0, t1, t2 = thr[0], thr[1], thr[2]
     rows = acc.shape[0]
+    n = lo0 = eq0 = lo1 = eq1 = 0
     s0 = s1 = 0
     for b in range(0, rows, _BLOCK):
-        for k in range(b, min(rows, b + _BLOCK)):  # scalars, not the output array: no store per sample
+        e = min(rows, b + _BLOCK)
+        for k in range(b, e):
             v = math.sqrt(acc[k, 0] * acc[k, 0] + acc[k, 1] * acc[k, 1] + acc[k, 2] * acc[k, 2])
-            if math.isfinite(v) and v > 0.0:
-                n += 1
-                lo0, eq0, mx0, mn0 = _count(v, t0, lo0, eq0, mx0, mn0)
-                lo1, eq1, mx1, mn1 = _count(v, t1, lo1, eq1, mx1, mn1)
-        rest = max(0, rows - b - _BLOCK)  # rows not seen: at most one value each
+            pos = v > 0.0  # NaN compares False: not counted
+            n += pos & (v < np.inf)
+            lo0 += pos & (v < t0)
+            eq0 += v == t0
+            lo1 += pos & (v < t1)
+            eq1 += v == t1
+        rest = rows - e  # rows not seen: at most one value each
         s0, s1 = _decided(n, lo0, eq0, rest), _decided(n, lo1, eq1, rest)
         if s0 != 0 and s1 != 0:
             break
-    out[0, 0], out[0, 1], out[0, 2], out[0, 3], out[0, 4], out[0, 5] = n, lo0, eq0, mx0, mn0, s0
-    out[1, 0], out[1, 1], out[1, 2], out[1, 3], out[1, 4], out[1, 5] = n, lo1, eq1, mx1, mn1, s1
-    t2 = thr[2]
-    n = lo0 = eq0 = 0
-    mx0, mn0 = -np.inf, np.inf
+    if s0 == 0 or s1 == 0:  # the counts are complete: the extremes for median_vs
+        for k in range(rows):
+            v = math.sqrt(acc[k, 0] * acc[k, 0] + acc[k, 1] * acc[k, 1] + acc[k, 2] * acc[k, 2])
+            if math.isfinite(v) and v > 0.0:
+                for i in range(2):
+                    if v < thr[i]:
+                        out[i, 3] = max(out[i, 3], v)
+                    elif v > thr[i]:
+                        out[i, 4] = min(out[i, 4], v)
+    out[0, 0], out[0, 1], out[0, 2], out[0, 5] = n, lo0, eq0, s0
+    out[1, 0], out[1, 1], out[1, 2], out[1, 5] = n, lo1, eq1, s1
     rows = gyr.shape[0]
+    n = lo0 = eq0 = 0
     s0 = 0
     for b in range(0, rows, _BLOCK):
-        for k in range(b, min(rows, b + _BLOCK)):
-            g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
-            if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2):
-                n += 3
-                lo0, eq0, mx0, mn0 = _count(abs(g0), t2, lo0, eq0, mx0, mn0)
-                lo0, eq0, mx0, mn0 = _count(abs(g1), t2, lo0, eq0, mx0, mn0)
-                lo0, eq0, mx0, mn0 = _count(abs(g2), t2, lo0, eq0, mx0, mn0)
-        s0 = _decided(n, lo0, eq0, 3 * max(0, rows - b - _BLOCK))
+        e = min(rows, b + _BLOCK)
+        for k in range(b, e):
+            g0, g1, g2 = abs(gyr[k, 0]), abs(gyr[k, 1]), abs(gyr[k, 2])
+            ok = (g0 < np.inf) & (g1 < np.inf) & (g2 < np.inf)  # NaN compares False
+            n += 3 * ok
+            lo0 += ok * ((g0 < t2) + (g1 < t2) + (g2 < t2))
+            eq0 += ok * ((g0 == t2) + (g1 == t2) + (g2 == t2))
+        s0 = _decided(n, lo0, eq0, 3 * (rows - e))
         if s0 != 0:
             break
-    out[2, 0], out[2, 1], out[2, 2], out[2, 3], out[2, 4], out[2, 5] = n, lo0, eq0, mx0, mn0, s0
+    if s0 == 0:
+        for k in range(rows):
+            g0, g1, g2 = abs(gyr[k, 0]), abs(gyr[k, 1]), abs(gyr[k, 2])
+            if g0 < np.inf and g1 < np.inf and g2 < np.inf:
+                for v in (g0, g1, g2):
+                    if v < t2:
+                        out[2, 3] = max(out[2, 3], v)
+                    elif v > t2:
+                        out[2, 4] = min(out[2, 4], v)
+    out[2, 0], out[2, 1], out[2, 2], out[2, 5] = n, lo0, eq0, s0
     return out
 
 
@@ -254,16 +280,6 @@ def _decided(n, lo, eq, rest):
     if lo >= need:
         return -1
     return 0
-
-
-@njit(inline="always")
-def _count(v, t, lo, eq, mx, mn):
-    """``v`` counted against ``t``: below (and the largest so far), at, or above (the smallest)."""
-    if v < t:
-        return lo + 1, eq, max(mx, v), mn
-    if v == t:
-        return lo, eq + 1, mx, mn
-    return lo, eq, mx, min(mn, v)
 
 
 def _unit_medians(gyr: np.ndarray, acc: np.ndarray):
@@ -292,10 +308,11 @@ def _gyr_abs(gyr):
 
 
 def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,
-                dt: np.ndarray | None = None) -> None:
+                dt: np.ndarray | float | None = None, t: np.ndarray | None = None) -> None:
     """Refuse an accelerometer in g and a gyroscope in deg/s (see above), naming the argument
     that converts them; the medians are computed for the message only when one is refused. With
-    ``dt``, also a gyroscope whose turning the magnetometer and accelerometer contradict
+    the clock (``dt``: the (N,) intervals or one constant interval; or ``t``: the timestamps),
+    also a gyroscope whose turning the magnetometer and accelerometer contradict
     (:func:`check_turning`: a deg/s gyro on a recording that never turns a turn per second)."""
     acc_lo, acc_hi, gyr_hi = _unit_medians(gyr, acc)
     if acc_lo is not None and acc_lo > 0 and acc_hi < 0:
@@ -308,19 +325,21 @@ def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,
             f"gyr looks like it is in deg/s (median |component| {np.median(_gyr_abs(gyr)):.3g} > 2 pi rad/s); "
             "fusionkit expects rad/s: pass gyr_unit='deg/s' to convert"
         )
-    if dt is not None:
-        check_turning(gyr, acc, mag, dt)
+    if dt is not None or t is not None:
+        check_turning(gyr, acc, mag, dt, t=t)
 
 DEG = np.pi / 180.0
 
 
-def check_turning(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, dt: np.ndarray) -> None:
+def check_turning(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, dt: np.ndarray | float | None = None,
+                  *, t: np.ndarray | None = None) -> None:
     """:class:`InputError` when the magnetometer (or, nearly still, the accelerometer) turns as the
     gyroscope scaled by pi/180 predicts, not as given: a gyro in deg/s that never exceeds the
-    magnitude bound of :func:`check_units` (:func:`turning_scale`)."""
+    magnitude bound of :func:`check_units` (:func:`turning_scale`). The clock is ``dt`` (the
+    (N,) intervals, or one constant interval) or ``t`` (the timestamps)."""
     if gyr.shape[0] < 4:
         return
-    turns = window_turns(gyr, dt)
+    turns = window_turns(gyr, dt, t=t)
     for name, vec in (("mag", mag), ("acc", acc)):
         if vec is None:
             continue
@@ -346,25 +365,83 @@ def _fast_turn_rare(gyr: np.ndarray) -> bool:
     return bool(w.size) and float(np.percentile(w, 99)) < 2 * np.pi
 
 
-def window_turns(gyr: np.ndarray, dt: np.ndarray, window: float = 0.05, max_windows: int = 3000):
+# The turning check reads at most ``max_windows`` short windows of the recording. On numpy (small
+# recordings, and the reference) that is a few dozen array operations on (windows, lag, 3)
+# gathers; a long recording takes the compiled twins below (:func:`_window_integrals`,
+# :func:`_turning_sums`), which compute the same sums window by window (tests: same decisions).
+_CLOCK_RATE, _CLOCK_DT, _CLOCK_T = 0, 1, 2
+
+
+def _clock(dt, t):
+    """``(mode, array)`` of a recording's clock: a constant interval (``dt`` a number: no array
+    the size of the recording), the intervals ``dt`` or the timestamps ``t``."""
+    if t is not None:
+        return _CLOCK_T, np.ascontiguousarray(t, dtype=np.float64)
+    if dt is None:
+        raise InputError("the turning check needs the clock: dt or t")
+    if np.ndim(dt) == 0:
+        return _CLOCK_RATE, np.full(1, float(dt))
+    return _CLOCK_DT, np.ascontiguousarray(dt, dtype=np.float64)
+
+
+def _intervals_at(mode: int, clock: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """``dt[idx]`` (``dt[k] = t[k] - t[k-1]``, ``dt[0] = dt[1]``) without the (N,) array of
+    intervals."""
+    if mode == _CLOCK_RATE:
+        return np.full(idx.shape, clock[0])
+    if mode == _CLOCK_DT:
+        return clock[idx]
+    k = np.maximum(idx, 1)
+    return clock[k] - clock[k - 1]
+
+
+def window_turns(gyr: np.ndarray, dt: np.ndarray | float | None = None, window: float = 0.05,
+                 max_windows: int = 3000, *, t: np.ndarray | None = None):
     """The gyro's rotation vectors over windows of about ``window`` s: ``(i0, i1, th, duration)``,
     ``th[j]`` the integral of ``w dt`` over ``(t[i0[j]], t[i1[j]]]`` (NaN over a non-finite
     sample or a timestamp gap). Consecutive windows, or ``max_windows`` of them spread evenly over
-    a long recording: enough for the fit, and nothing the size of the recording is allocated."""
+    a long recording: enough for the fit, and nothing the size of the recording is allocated.
+    The clock is ``dt`` (the (N,) intervals, or one constant interval) or ``t`` (timestamps)."""
     n = gyr.shape[0]
-    h = float(np.median(dt[:: max(1, n // 1000)]))
+    mode, clock = _clock(dt, t)
+    h = float(np.median(_intervals_at(mode, clock, np.arange(0, n, max(1, n // 1000)))))
     lag = max(1, int(round(window / h)))
     i0 = np.arange(0, max(0, n - lag), lag)
     if i0.size > max_windows:
         i0 = i0[np.linspace(0, i0.size - 1, max_windows).astype(np.int64)]
     i1 = i0 + lag
+    if HAVE_NUMBA and n >= SCAN_MIN_SAMPLES:
+        return i0, i1, _window_integrals(gyr, mode, clock, i0, lag, h), lag * h
     idx = i0[:, None] + 1 + np.arange(lag)[None, :]  # the samples whose rates span each window
     with np.errstate(over="ignore", invalid="ignore"):
-        d = dt[idx]
+        d = _intervals_at(mode, clock, idx)
         th = np.einsum("wk,wkc->wc", d, gyr[idx]) if i0.size else np.zeros((0, 3))
         span = d.sum(axis=1)
     th[np.abs(span - lag * h) > 0.5 * lag * h] = np.nan  # a window over a timestamp gap is left out
     return i0, i1, th, lag * h
+
+
+@njit
+def _window_integrals(gyr, mode, clock, i0, lag, h):
+    """:func:`window_turns`'s ``th``, window by window (no gathered copies)."""
+    th = np.empty((i0.shape[0], 3))
+    for j in range(i0.shape[0]):
+        s0 = s1 = s2 = span = 0.0
+        for k in range(i0[j] + 1, i0[j] + 1 + lag):
+            if mode == 0:
+                d = clock[0]
+            elif mode == 1:
+                d = clock[k]
+            else:
+                d = clock[k] - clock[k - 1]
+            s0 += d * gyr[k, 0]
+            s1 += d * gyr[k, 1]
+            s2 += d * gyr[k, 2]
+            span += d
+        if abs(span - lag * h) > 0.5 * lag * h:  # a window over a timestamp gap is left out
+            s0 = s1 = s2 = np.nan
+        th[j, 0], th[j, 1], th[j, 2] = s0, s1, s2
+    return th
 
 
 def turning_scale(turns, vec: np.ndarray, min_rate: float = 0.1, quasi_static: bool = False) -> float | None:
@@ -379,23 +456,55 @@ def turning_scale(turns, vec: np.ndarray, min_rate: float = 0.1, quasi_static: b
     i0, i1, th, duration = turns
     if i0.size < 10:
         return None
-    with np.errstate(over="ignore", invalid="ignore"):
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         v0, v1 = vec[i0], vec[i1]
         n0, n1 = np.linalg.norm(v0, axis=1), np.linalg.norm(v1, axis=1)
         ok = np.isfinite(th).all(axis=1) & np.isfinite(n0) & np.isfinite(n1) & (n0 > 0) & (n1 > 0)
         if quasi_static and ok.any():
             m = np.median(n0[ok])
             ok &= (np.abs(n0 - m) < 0.1 * m) & (np.abs(n1 - m) < 0.1 * m)
-        u0 = v0[ok] / n0[ok, None]
-        du = v1[ok] / n1[ok, None] - u0
-        p = -np.cross(th[ok], u0)
-        use = np.linalg.norm(p, axis=1) > min_rate * duration
-        if use.sum() < 10:
+        sums = _turning_sums if HAVE_NUMBA and vec.shape[0] >= SCAN_MIN_SAMPLES else _turning_sums_numpy
+        count, e_rad, e_deg, s_dp, s_pp = sums(th, v0, v1, n0, n1, ok, min_rate * duration)
+        if count < 10:
             return None
-        p, du = p[use], du[use]
-        e_rad = np.sum((du - p) ** 2)
-        e_deg = np.sum((du - DEG * p) ** 2)
-        c = float(np.sum(du * p) / np.sum(p * p))
+        c = float(np.float64(s_dp) / np.float64(s_pp))
     if not (np.isfinite(c) and (e_deg < 0.25 * e_rad or e_rad < 0.25 * e_deg)):
         return None
     return c
+
+
+def _turning_sums_numpy(th, v0, v1, n0, n1, ok, min_turn):
+    """``(count, e_rad, e_deg, sum du.p, sum p.p)`` of :func:`turning_scale` over the windows
+    ``ok`` whose predicted turn ``|p|`` exceeds ``min_turn`` (``v0``, ``v1``: the vector at the
+    windows' ends, ``n0``, ``n1`` its norms)."""
+    u0 = v0[ok] / n0[ok, None]
+    du = v1[ok] / n1[ok, None] - u0
+    p = -np.cross(th[ok], u0)
+    use = np.linalg.norm(p, axis=1) > min_turn
+    p, du = p[use], du[use]
+    return (int(use.sum()), float(np.sum((du - p) ** 2)), float(np.sum((du - DEG * p) ** 2)),
+            float(np.sum(du * p)), float(np.sum(p * p)))
+
+
+@njit
+def _turning_sums(th, v0, v1, n0, n1, ok, min_turn):
+    """:func:`_turning_sums_numpy`, window by window (plain loops: nothing that makes numba's
+    cache load import its array-math module)."""
+    count = 0
+    e_rad = e_deg = s_dp = s_pp = 0.0
+    for j in range(ok.shape[0]):
+        if not ok[j]:
+            continue
+        u0, u1, u2 = v0[j, 0] / n0[j], v0[j, 1] / n0[j], v0[j, 2] / n0[j]
+        d0, d1, d2 = v1[j, 0] / n1[j] - u0, v1[j, 1] / n1[j] - u1, v1[j, 2] / n1[j] - u2
+        t0, t1, t2 = th[j, 0], th[j, 1], th[j, 2]
+        p0, p1, p2 = -(t1 * u2 - t2 * u1), -(t2 * u0 - t0 * u2), -(t0 * u1 - t1 * u0)
+        pp = p0 * p0 + p1 * p1 + p2 * p2
+        if not math.sqrt(pp) > min_turn:
+            continue
+        count += 1
+        e_rad += (d0 - p0) ** 2 + (d1 - p1) ** 2 + (d2 - p2) ** 2
+        e_deg += (d0 - DEG * p0) ** 2 + (d1 - DEG * p1) ** 2 + (d2 - DEG * p2) ** 2
+        s_dp += d0 * p0 + d1 * p1 + d2 * p2
+        s_pp += pp
+    return count, e_rad, e_deg, s_dp, s_pp
