@@ -129,8 +129,9 @@ def mark_gaps(flags: np.ndarray, gaps: np.ndarray, gyr: np.ndarray, diagnostics:
     """Flags of the gap samples (from :func:`hold_gaps`): GAP instead of the GYR_INVALID the held
     gyro caused (kept when the original sample was invalid too); ``diagnostics["gaps"]`` counts
     them and a warning says so."""
-    diagnostics["gaps"] = int(gaps.sum())
-    if not gaps.any():
+    count = int(np.count_nonzero(gaps))  # not gaps.sum(): that adds a million booleans as integers
+    diagnostics["gaps"] = count
+    if not count:
         return
     idx = np.flatnonzero(gaps)
     g = np.abs(gyr[idx])
