@@ -119,8 +119,8 @@ def check_finite_flagged(arrays: dict, policy: str, flags: np.ndarray, invalid: 
     A run of clean data then reads its input once, in the filter's loop, not twice."""
     if policy != "raise":
         return
-    bits, step = flags.dtype.type(invalid), 1 << 16  # in blocks: no temporary the size of the run
-    if any(np.bitwise_and(flags[i:i + step], bits).any() for i in range(0, flags.shape[0], step)):
+    # some sample has an ``invalid`` bit iff the OR of all flags has one: one reduction, no temporary
+    if flags.size and int(np.bitwise_or.reduce(flags)) & int(invalid):
         check_finite_all(arrays, policy)
 
 

@@ -163,3 +163,24 @@ def test_nominal_dt_of_timestamps_is_computed_once_per_t(monkeypatch):
     assert len(calls) == 2  # one median, and run()'s own intervals
     rec.t = t * 2.0
     assert rec.nominal_dt == pytest.approx(2.0 * expect, rel=1e-12)
+
+
+def test_post_run_finite_check_scans_only_when_a_flag_says_invalid(monkeypatch):
+    """One OR-reduction of the flags decides whether the input is scanned: a single invalid bit
+    anywhere (the last sample too) leads to the scan that raises naming the sample."""
+    n = 70_000
+    gyr = np.zeros((n, 3))
+    invalid = int(types.Flag.GYR_INVALID | types.Flag.ACC_INVALID)
+    flags = np.full(n, int(types.Flag.MOTION | types.Flag.REST), np.uint32)  # other bits: no scan
+    scans = []
+    real = validation.check_finite_all
+    monkeypatch.setattr(validation, "check_finite_all", lambda *a: (scans.append(1), real(*a)))
+    validation.check_finite_flagged({"gyr": gyr}, "raise", flags, invalid)
+    validation.check_finite_flagged({"gyr": gyr}, "raise", flags[:0], invalid)
+    assert scans == []
+    gyr[-1, 2] = np.nan
+    flags[-1] |= np.uint32(types.Flag.GYR_INVALID)
+    validation.check_finite_flagged({"gyr": gyr}, "skip", flags, invalid)  # nothing to raise
+    with pytest.raises(InputError, match=rf"gyr\[{n - 1}\] is not finite"):
+        validation.check_finite_flagged({"gyr": gyr}, "raise", flags, invalid)
+    assert scans == [1]
