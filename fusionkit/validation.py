@@ -456,47 +456,64 @@ def turning_scale(turns, vec: np.ndarray, min_rate: float = 0.1, quasi_static: b
     i0, i1, th, duration = turns
     if i0.size < 10:
         return None
+    sums = _turning_sums if HAVE_NUMBA and vec.shape[0] >= SCAN_MIN_SAMPLES else _turning_sums_numpy
+    count, e_rad, e_deg, s_dp, s_pp = sums(th, vec, i0, i1, min_rate * duration, quasi_static)
+    if count < 10:
+        return None
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        v0, v1 = vec[i0], vec[i1]
-        n0, n1 = np.linalg.norm(v0, axis=1), np.linalg.norm(v1, axis=1)
-        ok = np.isfinite(th).all(axis=1) & np.isfinite(n0) & np.isfinite(n1) & (n0 > 0) & (n1 > 0)
-        if quasi_static and ok.any():
-            m = np.median(n0[ok])
-            ok &= (np.abs(n0 - m) < 0.1 * m) & (np.abs(n1 - m) < 0.1 * m)
-        sums = _turning_sums if HAVE_NUMBA and vec.shape[0] >= SCAN_MIN_SAMPLES else _turning_sums_numpy
-        count, e_rad, e_deg, s_dp, s_pp = sums(th, v0, v1, n0, n1, ok, min_rate * duration)
-        if count < 10:
-            return None
         c = float(np.float64(s_dp) / np.float64(s_pp))
     if not (np.isfinite(c) and (e_deg < 0.25 * e_rad or e_rad < 0.25 * e_deg)):
         return None
     return c
 
 
-def _turning_sums_numpy(th, v0, v1, n0, n1, ok, min_turn):
+def _turning_sums_numpy(th, vec, i0, i1, min_turn, quasi_static):
     """``(count, e_rad, e_deg, sum du.p, sum p.p)`` of :func:`turning_scale` over the windows
-    ``ok`` whose predicted turn ``|p|`` exceeds ``min_turn`` (``v0``, ``v1``: the vector at the
-    windows' ends, ``n0``, ``n1`` its norms)."""
-    u0 = v0[ok] / n0[ok, None]
-    du = v1[ok] / n1[ok, None] - u0
-    p = -np.cross(th[ok], u0)
-    use = np.linalg.norm(p, axis=1) > min_turn
-    p, du = p[use], du[use]
-    return (int(use.sum()), float(np.sum((du - p) ** 2)), float(np.sum((du - DEG * p) ** 2)),
-            float(np.sum(du * p)), float(np.sum(p * p)))
+    whose ends are usable and whose predicted turn ``|p|`` exceeds ``min_turn``."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        v0, v1 = vec[i0], vec[i1]
+        n0, n1 = np.linalg.norm(v0, axis=1), np.linalg.norm(v1, axis=1)
+        ok = np.isfinite(th).all(axis=1) & np.isfinite(n0) & np.isfinite(n1) & (n0 > 0) & (n1 > 0)
+        if quasi_static and ok.any():
+            m = np.median(n0[ok])
+            ok &= (np.abs(n0 - m) < 0.1 * m) & (np.abs(n1 - m) < 0.1 * m)
+        u0 = v0[ok] / n0[ok, None]
+        du = v1[ok] / n1[ok, None] - u0
+        p = -np.cross(th[ok], u0)
+        use = np.linalg.norm(p, axis=1) > min_turn
+        p, du = p[use], du[use]
+        return (int(use.sum()), float(np.sum((du - p) ** 2)), float(np.sum((du - DEG * p) ** 2)),
+                float(np.sum(du * p)), float(np.sum(p * p)))
 
 
 @njit
-def _turning_sums(th, v0, v1, n0, n1, ok, min_turn):
-    """:func:`_turning_sums_numpy`, window by window (plain loops: nothing that makes numba's
-    cache load import its array-math module)."""
+def _turning_sums(th, vec, i0, i1, min_turn, quasi_static):
+    """:func:`_turning_sums_numpy`, window by window (the median by sorting: np.median would make
+    numba's cache load import its array-math module, a tenth of a second in a new process)."""
+    w = i0.shape[0]
+    n0, n1 = np.empty(w), np.empty(w)
+    ok = np.zeros(w, np.bool_)
+    good = 0
+    for j in range(w):
+        a, b = i0[j], i1[j]
+        n0[j] = math.sqrt(vec[a, 0] * vec[a, 0] + vec[a, 1] * vec[a, 1] + vec[a, 2] * vec[a, 2])
+        n1[j] = math.sqrt(vec[b, 0] * vec[b, 0] + vec[b, 1] * vec[b, 1] + vec[b, 2] * vec[b, 2])
+        ok[j] = (math.isfinite(th[j, 0]) and math.isfinite(th[j, 1]) and math.isfinite(th[j, 2])
+                 and math.isfinite(n0[j]) and math.isfinite(n1[j]) and n0[j] > 0.0 and n1[j] > 0.0)
+        good += ok[j]
+    if quasi_static and good > 0:
+        s = np.sort(n0[ok])
+        m = s[good // 2] if good % 2 else (s[good // 2 - 1] + s[good // 2]) / 2.0  # as np.median
+        for j in range(w):
+            ok[j] = ok[j] and abs(n0[j] - m) < 0.1 * m and abs(n1[j] - m) < 0.1 * m
     count = 0
     e_rad = e_deg = s_dp = s_pp = 0.0
-    for j in range(ok.shape[0]):
+    for j in range(w):
         if not ok[j]:
             continue
-        u0, u1, u2 = v0[j, 0] / n0[j], v0[j, 1] / n0[j], v0[j, 2] / n0[j]
-        d0, d1, d2 = v1[j, 0] / n1[j] - u0, v1[j, 1] / n1[j] - u1, v1[j, 2] / n1[j] - u2
+        a, b = i0[j], i1[j]
+        u0, u1, u2 = vec[a, 0] / n0[j], vec[a, 1] / n0[j], vec[a, 2] / n0[j]
+        d0, d1, d2 = vec[b, 0] / n1[j] - u0, vec[b, 1] / n1[j] - u1, vec[b, 2] / n1[j] - u2
         t0, t1, t2 = th[j, 0], th[j, 1], th[j, 2]
         p0, p1, p2 = -(t1 * u2 - t2 * u1), -(t2 * u0 - t0 * u2), -(t0 * u1 - t1 * u0)
         pp = p0 * p0 + p1 * p1 + p2 * p2
