@@ -395,7 +395,9 @@ class OfflineFilter(Filter):
         choice = np.zeros(len(rec), dtype=np.int8)
         if np.array_equal(fwd, rec.mag, equal_nan=True) and np.array_equal(bwd, rec.mag, equal_nan=True):
             return rec, choice, end
-        mag, choice = select_calibration(rec.gyr, rec.dt, [rec.mag, fwd, bwd], self.CALIBRATION_SPAN)
+        c = model.config
+        mag, choice = select_calibration(rec.gyr, rec.dt, [rec.mag, fwd, bwd], self.CALIBRATION_SPAN,
+                                         c.segment_angle / c.segment_time)
         out = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
         out.mag = mag
         return out, choice, end
@@ -519,18 +521,22 @@ def _calibration_kernel(s, gyr, acc, mag, dt, ok, p, out):
             out[k, i] = v[6 + i] if ok[k, 2] else mag[k, i]
 
 
-def select_calibration(gyr: np.ndarray, dt: np.ndarray, streams: list[np.ndarray],
-                       span: float = math.pi) -> tuple[np.ndarray, np.ndarray]:
+def select_calibration(gyr: np.ndarray, dt: np.ndarray, streams: list[np.ndarray], span: float = math.pi,
+                       min_rate: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Per sample, the magnetometer stream (of ``streams``, ``(N, 3)`` each; the first is the raw
-    one) whose field norm varies least, relative to its mean, while the body turns through ``span``
-    rad either side of the sample: ``(the chosen samples, the index of the stream per sample)``.
+    one) whose field norm varies least, relative to its mean, over ``span`` rad of the way along
+    the recording either side of the sample: ``(the chosen samples, the index of the stream per
+    sample)``.
 
-    The samples are weighted by the rotation during them (``|gyr| dt``), so a rest counts for
-    nothing and takes the choice of the turns around it (a body at rest cannot show whether its
-    iron is calibrated). Ties, and samples without any rotation around them, go to the first
-    stream. Symmetric in time: the window is measured from the middle of each sample's rotation.
-    Invalid samples (a non-finite field or gyro) weigh nothing and are passed on as they are."""
-    g = np.linalg.norm(np.where(np.isfinite(gyr), gyr, 0.0), axis=1) * dt
+    The way is the rotation, ``max(|gyr|, min_rate) dt`` per sample, and each sample weighs its
+    share of it: a turn shows a wrong offset as a swing of the norm, a rest shows only a change of
+    the field itself (iron put on or taken off). With ``min_rate`` the calibration model's own
+    ``segment_angle / segment_time`` (it closes a segment after either), a rest counts as the
+    model counts it. ``min_rate = 0``: a rest weighs nothing and takes the choice of the turns
+    around it. Ties, and samples with no way around them, go to the first stream. Symmetric in
+    time: the window is measured from the middle of each sample's share. Invalid samples (a
+    non-finite field or gyro) weigh nothing and are passed on as they are."""
+    g = np.maximum(np.linalg.norm(np.where(np.isfinite(gyr), gyr, 0.0), axis=1), min_rate) * dt
     path = np.cumsum(g) - 0.5 * g  # the rotation turned up to the middle of each sample
     lo = np.searchsorted(path, path - span, side="left")
     hi = np.searchsorted(path, path + span, side="right")

@@ -355,6 +355,28 @@ def test_select_calibration_takes_the_stream_whose_norm_stays_constant_while_tur
     assert (choice == 0).all()
 
 
+def test_select_calibration_splits_a_rest_at_the_iron_it_saw_change():
+    """Turns, a 60 s rest during which a magnet is put on (at 30 s), turns: the candidate
+    calibrated all along (a backward model carries the magnet's calibration into the rest, where
+    nothing contradicts it) is wrong before the magnet came. Counting a rest as the model counts
+    it (``min_rate = segment_angle / segment_time``), the rest after the magnet came is
+    calibrated and the rest before it raw up to pi of way (18 s) from the change; with a rest
+    weighing nothing the whole rest takes one choice."""
+    dt = 0.01
+    gyr = np.zeros((9000, 3))
+    gyr[:1500, 0] = gyr[7500:, 1] = 1.0
+    q = strapdown([1.0, 0.0, 0.0, 0.0], gyr, np.full(len(gyr), dt))
+    earth = quat_rotate(quat_conj(q), np.array([0.0, 20.0, -40.0]))  # the field seen from the body
+    magnet = np.array([0.0, 0.0, 15.0])
+    raw = earth + np.where(np.arange(len(gyr)) >= 4500, 1.0, 0.0)[:, None] * magnet
+    calibrated = raw - magnet
+    _, choice = offline.select_calibration(gyr, np.full(len(gyr), dt), [raw, calibrated], math.pi, 0.35 / 2.0)
+    assert (choice[:1500] == 0).all() and (choice[4500:] == 1).all()
+    assert (choice[1500:2700] == 0).all()  # the rest farther from the change than pi of way (18 s) stays raw
+    _, choice = offline.select_calibration(gyr, np.full(len(gyr), dt), [raw, calibrated], math.pi)
+    assert (choice[1500:7500] == choice[1500]).all()
+
+
 def test_calibration_state_and_options():
     """``state=`` continues the forward calibration model too, and the final state fits the online
     filter (with the model) again; ``calibration`` is checked."""
