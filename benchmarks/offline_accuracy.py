@@ -9,7 +9,9 @@ throughput (samples/s, compilation excluded).
 ``--equal-weights`` adds a column with the two passes fused half and half (the information
 weights switched off); ``--no-mask`` a column without the disturbance mask decided by both passes
 (``disturbance_gap=None``: each pass's own rejection only); ``--gap S`` sets ``disturbance_gap``
-of the offline mode (default: ``OfflineFilter.DISTURBANCE_GAP``).
+of the offline mode (default: ``OfflineFilter.DISTURBANCE_GAP``); ``--per-pass`` a column with each
+pass running its own magnetometer calibration model (``calibration="per-pass"``, the mode before the
+calibration was decided with the whole recording) and one without the model (``mag_calibration=False``).
 """
 
 from __future__ import annotations
@@ -57,6 +59,7 @@ def main() -> None:
     ap.add_argument("--equal-weights", action="store_true")
     ap.add_argument("--no-mask", action="store_true", help="add the offline mode without the disturbance mask")
     ap.add_argument("--gap", type=float, default=OfflineFilter.DISTURBANCE_GAP, help="disturbance_gap [s]")
+    ap.add_argument("--per-pass", action="store_true", help="add the per-pass calibration and no calibration")
     args = ap.parse_args()
     files = sorted(Path(args.data).glob("*.hdf5"))
     if args.trials:
@@ -78,6 +81,11 @@ def main() -> None:
             runs["offline, equal weights"] = _EqualWeights(fk.make("recommended", **kw), disturbance_gap=args.gap)
         if args.no_mask and not six:
             runs["offline, no mask"] = OfflineFilter(fk.make("recommended", **kw), disturbance_gap=None)
+        if args.per_pass and not six:
+            runs["offline, per-pass calibration"] = OfflineFilter(fk.make("recommended", **kw), disturbance_gap=args.gap,
+                                                                  calibration="per-pass")
+            runs["offline, no calibration"] = OfflineFilter(fk.make("recommended", **dict(kw, mag_calibration=False)),
+                                                            disturbance_gap=args.gap)
         key = "inclination" if six else "total"
         err = {n: [] for n in runs}
         secs = {n: 0.0 for n in runs}
@@ -100,6 +108,8 @@ def main() -> None:
             pairs.append(("offline, equal weights", "recommended offline", "the information weights'"))
         if "offline, no mask" in runs:
             pairs.append(("offline, no mask", "recommended offline", "the disturbance mask's"))
+        if "offline, per-pass calibration" in runs:
+            pairs.append(("offline, per-pass calibration", "recommended offline", "the recording's calibration's"))
         for base, new, what in pairs:
             gain = np.array(err[base]) - np.array(err[new])
             best = int(np.argmax(gain))

@@ -45,6 +45,25 @@ the samples of a disturbance whose field happens to pass its norm and dip test; 
 disturbance around them is known. Costs two more passes where a sample is left out that a pass
 had used.
 
+**The magnetometer's calibration decided with the whole recording** (``calibration``,
+default ``"recording"``). A filter with the ``mag-calibration`` sensor model in front
+(``recommended``'s ``mag_calibration``) learns a carried magnet's hard and soft iron online, and a
+pass applies what it has learned so far: the forward pass nothing before it has seen enough
+rotation, the backward pass nothing at the recording's end; and where the iron changes (a magnet
+put on or taken off during the recording), each pass keeps applying, or mixes into its estimate,
+the iron of the stretch it came from until its segments contradict it. Each pass's calibration is
+right only on one side of such a change, and a pass that applies the other side's calibration
+pulls its heading away by the difference. So the offline mode runs the calibration model alone
+forward and backward over the recording (:func:`calibration_passes`; cheap next to the filter's
+passes), which gives three candidate magnetometer streams: raw, calibrated by the forward model,
+calibrated by the backward model. Per sample it takes the stream whose field norm is most nearly
+constant while the body turns through ``CALIBRATION_SPAN`` (half a turn) either side of the sample
+(:func:`select_calibration`): body-fixed iron, correctly removed, leaves the earth's field, whose
+norm does not depend on the orientation, while a wrong offset ``e`` makes the norm swing by up to
+``2|e|`` over one turn (the same test as the model's consistency gate, with samples from both
+sides). Both passes then run on that stream, without the model. ``calibration="per-pass"``: each
+pass with its own model, as online (the mode before this).
+
 Flags: REST where either pass detects rest (the future confirms a rest the past could not yet
 see), MAG_DISTURBED where the magnetometer was left out (the mask above) or both passes reject it
 (VQF's offline rule), the other bits where either pass sets them.
@@ -61,16 +80,23 @@ from typing import ClassVar
 
 import numpy as np
 
+from ._kernels import validity_all
 from ._numba import resolve_backend, njit
 from .config import FilterConfig
 from .conventions import change_frame
 from .errors import ConfigError, InputError, PluginError
+from .models.mag_calibration import mag_calibration_apply
 from .protocols import Filter
 from .rotations import quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec
-from .types import Flag, Recording, Result
+from .types import Flag, Recording, Result, hold_gaps, sample_validity
 
 __all__ = ["OfflineFilter", "reverse_recording", "reversed_config", "information", "fuse_reference",
-           "supports_offline", "disturbance_mask"]
+           "supports_offline", "disturbance_mask", "calibration_passes", "select_calibration"]
+
+#: the sensor model whose magnetometer calibration the offline mode decides with the whole recording
+_MAG_CALIBRATION = "mag-calibration"
+#: how the offline mode treats that model (``OfflineFilter(calibration=...)``)
+_CALIBRATIONS = ("recording", "per-pass")
 
 #: the bits that mean a pass did not use its accelerometer / magnetometer on a sample
 _ACC_UNUSED = int(Flag.ACC_INVALID | Flag.ACC_SATURATED | Flag.ACC_REJECTED)
@@ -242,8 +268,13 @@ class OfflineFilter(Filter):
 
     #: default of ``disturbance_gap`` (s): see :func:`disturbance_mask`
     DISTURBANCE_GAP: ClassVar[float] = 1.0
+    #: rotation (rad) either side of a sample over which :func:`select_calibration` compares the
+    #: candidate streams' field norms: half a turn each side, one turn in all, over which a wrong
+    #: offset swings the norm through its whole range
+    CALIBRATION_SPAN: ClassVar[float] = math.pi
 
-    def __init__(self, inner: Filter, disturbance_gap: float | None = DISTURBANCE_GAP) -> None:
+    def __init__(self, inner: Filter, disturbance_gap: float | None = DISTURBANCE_GAP,
+                 calibration: str = "recording") -> None:
         why = supports_offline(inner)
         if why is not None:
             raise PluginError(f"filter {inner.name!r} does not support offline=True: {why}")
@@ -251,8 +282,11 @@ class OfflineFilter(Filter):
                                                 and math.isfinite(disturbance_gap) and disturbance_gap >= 0.0):
             raise ConfigError(f"disturbance_gap must be None or a finite number of seconds >= 0, "
                               f"got {disturbance_gap!r}")
+        if calibration not in _CALIBRATIONS:
+            raise ConfigError(f"calibration must be one of {', '.join(map(repr, _CALIBRATIONS))}, got {calibration!r}")
         self.inner = inner
         self.disturbance_gap = None if disturbance_gap is None else float(disturbance_gap)
+        self.calibration = calibration
         self.config = inner.config
         self.name = f"{inner.name} (offline)"
 
@@ -274,7 +308,10 @@ class OfflineFilter(Filter):
         state (an online run can continue from it); ``diagnostics["backward_weight"]`` holds the
         per-sample weights of the backward pass (``inclination``, ``heading``);
         ``diagnostics["mag_disturbed"]`` the magnetometer samples left out (:func:`disturbance_mask`;
-        None without a magnetometer or with ``disturbance_gap=None``); ``backend`` is the passes',
+        None without a magnetometer or with ``disturbance_gap=None``);
+        ``diagnostics["mag_calibration"]`` per sample the magnetometer stream both passes used (0 raw,
+        1 calibrated by the forward model, 2 by the backward one; None where the filter has no
+        calibration model or ``calibration="per-pass"``); ``backend`` is the passes',
         ``fusion_backend`` the fusion's."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
@@ -283,6 +320,16 @@ class OfflineFilter(Filter):
         lead = float(getattr(inner.config, "output_lead", 0.0) or 0.0)
         if lead > 0.0:  # the passes without it; the fused trajectory is read ahead instead (_read_ahead)
             inner = type(inner)(inner.config.model_copy(update={"output_lead": 0.0}))
+        choice = None
+        if self.calibration == "recording" and len(rec) >= 2 and self.dimension(rec) == "9D":
+            split = _split_calibration(inner)
+            if split is not None:  # the calibration decided with the whole recording, the passes without the model
+                inner, model, index = split
+                model_state = None
+                if state is not None:  # the forward pass continues the given state, its model too
+                    state = copy.deepcopy(state)
+                    model_state = state["mod"].pop(index)
+                rec, choice, model_end = self._calibrated(rec, model, inner.config, used, model_state)
         fwd = inner.run(rec, backend=backend, progress=progress, state=state)
         n = len(rec)
         if n < 2:  # nothing after the sample: the forward pass is all there is
@@ -329,11 +376,31 @@ class OfflineFilter(Filter):
         if lead > 0.0:
             q = _read_ahead(q, rec.time, lead)
         flags = _fused_flags(fwd.flags, bwd.flags[::-1])
+        if choice is not None and isinstance(fwd.diagnostics.get("state"), dict):
+            fwd.diagnostics["state"]["mod"].insert(index, model_end)  # it fits the filter with the model again
         diag = dict(fwd.diagnostics)
         diag.update({"filter": self.name, "fusion_backend": used, "offline": True, "config": self.config.model_dump(),
                      "backward_weight": {"inclination": w_i, "heading": w_h}, "mag_disturbed": disturbed,
+                     "mag_calibration": choice,
                      "backward_diagnostics": {k: v for k, v in bwd.diagnostics.items() if k != "config"}})
         return Result(q, flags, frame, diag)
+
+    def _calibrated(self, rec, model, config, used, model_state):
+        """``rec`` with the magnetometer stream :func:`select_calibration` chooses from the model's
+        forward and backward passes (``rec`` itself where neither applied a calibration), the
+        choice per sample, and the forward model's final state."""
+        gyr_range, acc_range = getattr(config, "gyr_range", None), getattr(config, "acc_range", None)
+        fwd, bwd, end = calibration_passes(model, rec, getattr(config, "max_gap", None), gyr_range, acc_range,
+                                           used, model_state)
+        choice = np.zeros(len(rec), dtype=np.int8)
+        if np.array_equal(fwd, rec.mag, equal_nan=True) and np.array_equal(bwd, rec.mag, equal_nan=True):
+            return rec, choice, end
+        c = model.config
+        mag, choice = select_calibration(rec.gyr, rec.dt, [rec.mag, fwd, bwd], self.CALIBRATION_SPAN,
+                                         c.segment_angle / c.segment_time)
+        out = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
+        out.mag = mag
+        return out, choice, end
 
     @staticmethod
     def _without(rec, disturbed, inner, back, backend, progress, state):
@@ -373,6 +440,122 @@ class OfflineFilter(Filter):
 
     def set_state(self, state) -> None:
         raise PluginError(f"{self.name} is an offline filter: it has no streaming state; pass state= to run()")
+
+
+def _split_calibration(filt):
+    """``(filt without its mag-calibration model, the model, its index among the filter's models)``,
+    or None when the filter has no such model. The filter is rebuilt from its config: with
+    ``mag_calibration=False`` (``recommended``) or without the model in ``models`` (a pipeline)."""
+    models = getattr(filt, "models", None) or []
+    index = next((i for i, m in enumerate(models) if m.name == _MAG_CALIBRATION), None)
+    if index is None:
+        return None
+    c = filt.config
+    if getattr(c, "mag_calibration", None) is True:
+        bare = type(filt)(c.model_copy(update={"mag_calibration": False}))
+    elif isinstance(getattr(c, "models", None), list):
+        bare = type(filt)(c.model_copy(update={"models": [m for m in c.models if m.name != _MAG_CALIBRATION]}))
+    else:
+        return None
+    if len(getattr(bare, "models", [])) != len(models) - 1:
+        return None
+    return bare, models[index], index
+
+
+def calibration_passes(model, rec: Recording, max_gap: float | None = None, gyr_range: float | None = None,
+                       acc_range: float | None = None, backend: str = "numba",
+                       state: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The magnetometer as a calibration ``model`` (``mag-calibration``) run alone over ``rec``
+    calibrates it, forward and backward in time: ``(forward, backward, final forward state)``, the
+    backward stream in the recording's order. Each sample is judged valid as the pipeline judges it
+    (``gyr_range``, ``acc_range``; a timestamp gap beyond ``max_gap`` holds the gyro); an invalid
+    magnetometer sample is passed on unchanged. The model does not read the orientation (it gets
+    the identity). ``state``: the forward model's initial state (default: a fresh one).
+    ``backend``: ``"numba"`` (:func:`mag_calibration_apply <fusionkit.models.mag_calibration.mag_calibration_apply>`)
+    or ``"reference"`` (:meth:`~fusionkit.models.mag_calibration.MagCalibrationModel.apply`)."""
+    out = []
+    end = None
+    for k, r in enumerate((rec, reverse_recording(rec))):
+        s = model.initial_state(rec.nominal_dt) if k or state is None else np.array(state, dtype=float)
+        gyr, dt, _ = hold_gaps(r.gyr, r.dt, r.nominal_dt, max_gap)
+        m = np.empty_like(r.mag)
+        if resolve_backend(backend, True) == "numba":
+            ok = np.zeros((len(r), 3), dtype=np.bool_)
+            validity_all(gyr, r.acc, r.mag, True, math.inf if gyr_range is None else float(gyr_range),
+                         math.inf if acc_range is None else float(acc_range), ok, np.zeros(len(r), np.uint32))
+            _calibration_kernel(s, gyr, r.acc, r.mag, dt, ok, model.params(), m)
+        else:
+            _calibration_reference(model, s, gyr, r.acc, r.mag, dt, gyr_range, acc_range, m)
+        out.append(m if k == 0 else m[::-1])
+        if k == 0:
+            end = s
+    return out[0], out[1], end
+
+
+def _calibration_reference(model, s, gyr, acc, mag, dt, gyr_range, acc_range, out) -> None:
+    """The readable twin of :func:`_calibration_kernel`: the model's reference ``apply`` per sample."""
+    from .protocols import Sample
+
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    nan3 = np.full(3, np.nan)
+    for k in range(gyr.shape[0]):
+        g_ok, a_ok, m_ok, _ = sample_validity(gyr[k], acc[k], mag[k], gyr_range, acc_range)
+        smp, _ = model.apply(s, Sample(gyr[k].copy() if g_ok else nan3, acc[k] if a_ok else None,
+                                       mag[k] if m_ok else None, float(dt[k])), q)
+        out[k] = smp.mag if m_ok else mag[k]
+
+
+@njit
+def _calibration_kernel(s, gyr, acc, mag, dt, ok, p, out):
+    """The ``mag-calibration`` kernel alone over a recording; ``out`` the magnetometer it gives."""
+    q = np.zeros(4)
+    q[0] = 1.0
+    v = np.empty(9)
+    for k in range(gyr.shape[0]):
+        for i in range(3):
+            v[i] = gyr[k, i] if ok[k, 0] else np.nan
+            v[3 + i] = acc[k, i]
+            v[6 + i] = mag[k, i]
+        mag_calibration_apply(s, v, ok[k, 0], ok[k, 1], ok[k, 2], q, dt[k], p)
+        for i in range(3):
+            out[k, i] = v[6 + i] if ok[k, 2] else mag[k, i]
+
+
+def select_calibration(gyr: np.ndarray, dt: np.ndarray, streams: list[np.ndarray], span: float = math.pi,
+                       min_rate: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample, the magnetometer stream (of ``streams``, ``(N, 3)`` each; the first is the raw
+    one) whose field norm varies least, relative to its mean, over ``span`` rad of the way along
+    the recording either side of the sample: ``(the chosen samples, the index of the stream per
+    sample)``.
+
+    The way is the rotation, ``max(|gyr|, min_rate) dt`` per sample, and each sample weighs its
+    share of it: a turn shows a wrong offset as a swing of the norm, a rest shows only a change of
+    the field itself (iron put on or taken off). With ``min_rate`` the calibration model's own
+    ``segment_angle / segment_time`` (it closes a segment after either), a rest counts as the
+    model counts it. ``min_rate = 0``: a rest weighs nothing and takes the choice of the turns
+    around it. Ties, and samples with no way around them, go to the first stream. Symmetric in
+    time: the window is measured from the middle of each sample's share. Invalid samples (a
+    non-finite field or gyro) weigh nothing and are passed on as they are."""
+    g = np.maximum(np.linalg.norm(np.where(np.isfinite(gyr), gyr, 0.0), axis=1), min_rate) * dt
+    path = np.cumsum(g) - 0.5 * g  # the rotation turned up to the middle of each sample
+    lo = np.searchsorted(path, path - span, side="left")
+    hi = np.searchsorted(path, path + span, side="right")
+    variances = []
+    for m in streams:
+        norm = np.linalg.norm(m, axis=1)
+        fine = np.isfinite(norm)
+        w = np.where(fine, g, 0.0)
+        x = np.where(fine, norm, 0.0)
+        c0, c1, c2 = (np.concatenate(([0.0], np.cumsum(v))) for v in (w, w * x, w * x * x))
+        n = c0[hi] - c0[lo]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = (c1[hi] - c1[lo]) / n
+            var = np.maximum((c2[hi] - c2[lo]) / n - mean * mean, 0.0) / (mean * mean)
+        variances.append(np.where(n > 0.0, var, np.inf))
+    v = np.array(variances)
+    choice = np.where(np.isfinite(v).any(axis=0), np.argmin(np.where(np.isfinite(v), v, np.inf), axis=0), 0)
+    out = np.take_along_axis(np.stack(streams), choice[None, :, None], axis=0)[0]
+    return out, choice.astype(np.int8)
 
 
 def _read_ahead(q: np.ndarray, t: np.ndarray, lead: float) -> np.ndarray:
