@@ -2,6 +2,7 @@
 fixed ``calibration`` model."""
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -225,3 +226,24 @@ def test_mag_calibration_kernel_equals_reference(soft_iron):
     assert np.abs(fast.quat - ref.quat).max() < 1e-9
     assert np.abs(fast.diagnostics["state"]["mod"][0] - ref.diagnostics["state"]["mod"][0]).max() < 1e-9
     assert ref.diagnostics["state"]["mod"][0][26] == 1.0  # it did get confident (the kernel had work to do)
+
+
+def test_mag_calibration_segment_test_is_the_rotation_angle():
+    """The per-sample segment test (no arctangent): ``_turned`` says ``2 atan2(|v|, |w|) >= angle``
+    for rotations of any norm, and an angle beyond pi is never reached."""
+    from fusionkit.models.mag_calibration import _k_turned, _turned
+
+    rng = np.random.default_rng(3)
+    checked = 0
+    for _ in range(2000):
+        q = rng.normal(size=4) * rng.uniform(0.5, 2.0)
+        angle = rng.uniform(0.0, 4.0)
+        turned = 2.0 * math.atan2(math.sqrt(q[1] ** 2 + q[2] ** 2 + q[3] ** 2), abs(q[0]))
+        if abs(turned - angle) < 1e-9:
+            continue
+        c = math.cos(0.5 * angle)
+        assert _turned(*q, c) == (turned >= angle)
+        assert _k_turned(*q, c) == (turned >= angle)
+        checked += 1
+    assert checked > 1900
+    assert not _turned(0.0, 1.0, 0.0, 0.0, math.cos(0.5 * 3.5))  # half a turn is not 3.5 rad

@@ -70,7 +70,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .._kernels import qmul_into, quat_to_dcm, rotvec_quat
+from .._kernels import qmul_into, quat_to_dcm, rotvec_quat_entries
 from .._numba import njit
 from ..config import PluginConfig, param
 from ..protocols import Sample, SensorModel, SensorModelKernel
@@ -141,7 +141,7 @@ class MagCalibrationModel(SensorModel):
         c = self.config
         return np.array([c.segment_angle, c.segment_time, c.forget_time, c.max_std, float(c.min_segments),
                          c.outlier_sigma, float(c.outlier_count), float(c.soft_iron), float(c.consistency),
-                         c.min_reduction])
+                         c.min_reduction, math.cos(0.5 * c.segment_angle)])
 
     def kernel(self) -> SensorModelKernel:
         return SensorModelKernel(mag_calibration_apply, self.params())
@@ -161,8 +161,7 @@ class MagCalibrationModel(SensorModel):
         m = np.asarray(sample.mag, dtype=float)
         if gyr_ok and s[_ANCHOR]:
             dq = s[_DQ:_DQ + 4]
-            angle = 2.0 * math.atan2(math.sqrt(dq[1] ** 2 + dq[2] ** 2 + dq[3] ** 2), abs(dq[0]))
-            if angle >= c.segment_angle or s[_T] >= c.segment_time:
+            if _turned(dq[0], dq[1], dq[2], dq[3], math.cos(0.5 * c.segment_angle)) or s[_T] >= c.segment_time:
                 acc = sample.acc if sample.acc is not None and np.isfinite(sample.acc).all() else np.zeros(3)
                 _ring_push(s, STATE_SOFT if c.soft_iron else STATE, m, acc)
                 if c.soft_iron:
@@ -269,6 +268,13 @@ class MagCalibrationModel(SensorModel):
 def _distortion(t):
     """``E`` from its five entries: symmetric and traceless."""
     return np.array([[t[0], t[2], t[3]], [t[2], t[1], t[4]], [t[3], t[4], -t[0] - t[1]]])
+
+
+def _turned(w, x, y, z, c) -> bool:
+    """Whether the rotation ``(w, x, y, z)`` (any norm) turns by ``angle`` or more, given
+    ``c = cos(angle / 2)``: ``2 atan2(|(x, y, z)|, |w|) >= angle`` as ``w^2 <= c^2 |q|^2`` (no
+    trigonometry or square root per sample; an ``angle`` beyond pi, ``c < 0``, is never reached)."""
+    return c >= 0.0 and w * w <= c * c * (w * w + x * x + y * y + z * z)
 
 
 def _ring_push(s, g, m, a):
@@ -439,6 +445,7 @@ _k_inverse3 = njit(_inverse3)
 _k_invert = njit(_invert)
 _k_basis = njit(_basis)
 _k_ring_push = njit(_ring_push)
+_k_turned = njit(_turned)
 _k_consistent = njit(_consistent)
 
 
@@ -459,15 +466,14 @@ def _k_soft_rows(ct, ma, mk, h):
 @njit
 def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
     """Kernel of :class:`MagCalibrationModel` (``SensorModelKernel.apply``)."""
-    seg_angle, seg_time, forget, max_std, min_seg, out_sigma, out_count = p[0], p[1], p[2], p[3], p[4], p[5], p[6]
+    seg_time, forget, max_std, min_seg, out_sigma, out_count = p[1], p[2], p[3], p[4], p[5], p[6]
     soft = p[7] != 0.0
     gate, min_red = p[8] != 0.0, p[9]
     if not gyr_ok:
         s[_ANCHOR] = 0.0
     elif s[_ANCHOR] != 0.0:
-        e = np.empty(4)
-        rotvec_quat(v[0] * dt, v[1] * dt, v[2] * dt, e)
-        qmul_into(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], e[0], e[1], e[2], e[3], s[_DQ:_DQ + 4])
+        e0, e1, e2, e3 = rotvec_quat_entries(v[0] * dt, v[1] * dt, v[2] * dt)
+        qmul_into(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], e0, e1, e2, e3, s[_DQ:_DQ + 4])
         s[_T] += dt
     if not mag_ok:
         if s[_T] > 2.0 * seg_time:
@@ -475,9 +481,7 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
         return 0
     m0, m1, m2 = v[6], v[7], v[8]
     if gyr_ok and s[_ANCHOR] != 0.0:
-        w, x, y, z = s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3]
-        angle = 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
-        if angle >= seg_angle or s[_T] >= seg_time:
+        if _k_turned(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], p[10]) or s[_T] >= seg_time:
             acc = np.zeros(3)
             if acc_ok:
                 acc[0], acc[1], acc[2] = v[3], v[4], v[5]
