@@ -36,6 +36,7 @@ class Flag(enum.IntFlag):
     GNSS_GAP = 1 << 10  #: no usable GNSS on this sample
     GAP = 1 << 11  #: the interval before this sample is a timestamp gap: the state is held across it, not integrated
     GNSS_REJECTED = 1 << 12  #: a GNSS measurement on this sample failed the innovation gate and was not used
+    MAG_RECALIBRATED = 1 << 13  #: a sensor model started, replaced or stopped the magnetometer calibration it applies
 
 
 def flag_names(value: int) -> list[str]:

@@ -16,6 +16,16 @@ Around it, each a separate idea:
   consistent for ``magnetic.new_time`` s while the sensor turns becomes the reference. The turning
   rate is the gyroscope low-passed with ``rate_tau`` (the ``rest`` detector's low-pass, kept on the
   same samples);
+- **following the calibration** (``follow_calibration``): where a sensor model starts, replaces
+  or stops the magnetometer's calibration (flag MAG_RECALIBRATED, ``mag-calibration``), the field
+  from there on is another one than the reference was learned from (a carried magnet's offset
+  removed: another norm and dip), so the reference is learned again over ``magnetic.init_time`` s
+  (:func:`fusionkit.detectors.magnetic.follow_field`), as at the start, unless the reference
+  describes that first sample of it (a calibrated field has the same norm and dip at every
+  orientation, so one sample tells; a small calibration changes nothing). It assumes the learning
+  seconds undisturbed, and the new-field test recovers where they were not. The heading keeps its
+  filter meanwhile (no fast-start mean: it has a heading to follow from). False: the reference
+  learned before is kept (calibrated samples of a large offset then look disturbed);
 - **fast start**: while the reference is learned (the first ``magnetic.init_time`` s), ``delta``
   is the mean heading of the samples so far; ``init_time = 0``: it starts from the first sample;
 - **vertical bias** (``mag_bias``, with ``motion_bias_tau``): the correction as a rate about the
@@ -57,7 +67,8 @@ import numpy as np
 from .._numba import njit
 from ..config import PluginConfig, param
 from ..detectors.magnetic import (MAG_COUNT, MAG_DISTURBED, MAG_LEARNING, MAG_SIZE, MAG_USE, MagneticConfig,
-                                  MagneticDetector, field_norm_dip, magnetic_step)
+                                  MagneticDetector, field_norm_dip, follow_field, k_follow_field,
+                                  magnetic_step)
 from ..models.time_offset import _ANC, _DQ, _GA, _LINK, _NORM, _T, _U, CONF, EST, OFFSET, _enter, _k_enter
 from ..models.time_offset import _BLOCK as _EST_SIZE
 from ..protocols import CorrectorKernel, FactorCorrector
@@ -79,7 +90,9 @@ _PM, _PMOK, _QH = MAG_SIZE + 17, MAG_SIZE + 20, MAG_SIZE + 21
 # orientation the segment's first sample was paired with, _NORM the forgetting-weighted segment count
 _EB = MAG_SIZE + 25
 _E2 = _EB + _EST_SIZE  # the forgetting-weighted sum of the segments' squared residuals |r - d x|^2
-_SIZE = _E2 + 1
+# 1 while the reference is learned again after a recalibration (the heading keeps its filter meanwhile)
+_RELEARN = _E2 + 1
+_SIZE = _E2 + 2
 #: where the delay estimate's block sits in the corrector's state (``+ EST``, ``+ STD``, ``+ OFFSET``,
 #: ``+ CONF``, ``+ NSEG`` of fusionkit.models.time_offset: the gyro's delay against the magnetometer, s)
 MAG_DELAY = _EB
@@ -93,6 +106,7 @@ _RESIDUAL_GATE = 3.0
 #: where the magnetic reference (norm, dip) sits in the corrector's state
 MAG_REFERENCE = _MAG
 _REST, _ACC_REJECTED, _MAG_DISTURBED = int(Flag.REST), int(Flag.ACC_REJECTED), int(Flag.MAG_DISTURBED)
+_MAG_RECALIBRATED = int(Flag.MAG_RECALIBRATED)
 _kwrap = njit(wrap_angle)
 
 
@@ -122,6 +136,11 @@ class MagHeadingConfig(PluginConfig):
                                  "is below this many sample intervals", gt=0)
     delay_forget_time: float = param(60.0, unit="s", description="time constant with which the estimate forgets",
                                      gt=0)
+    follow_calibration: bool = param(
+        True, unit="-", description="when a sensor model changes the magnetometer's calibration (flag "
+        "MAG_RECALIBRATED), learn the magnetic reference again from the calibrated field over magnetic.init_time s "
+        "(the heading keeps its filter meanwhile); False: keep the reference learned from the field before (the "
+        "method before issue 14)")
 
 
 class MagHeading(FactorCorrector):
@@ -164,7 +183,8 @@ class MagHeading(FactorCorrector):
             else:
                 qm = x[_QH:_QH + 4].copy()  # the held reading: as old as its fresh sample
             x[_PM:_PM + 3] = m
-            out, code = self._heading(x, quat_to_matrix(qm) @ m, quat, bias, dt, bool(flags & _REST))
+            out, code = self._heading(x, quat_to_matrix(qm) @ m, quat, bias, dt, bool(flags & _REST),
+                                      c.follow_calibration and bool(flags & _MAG_RECALIBRATED))
             if c.mag_delay_estimate and fresh:
                 self._estimate(x, qc, m, g - bias, dt, code == MAG_USE and bool(np.isfinite(rate).all()))
         x[_PMOK] = float(sample.mag is not None)
@@ -198,16 +218,22 @@ class MagHeading(FactorCorrector):
             x[b + _DQ:b + _DQ + 4] = qc
             x[b + _T] = 0.0
 
-    def _heading(self, x, m, q6, bias, dt, rest) -> tuple[int, int]:
+    def _heading(self, x, m, q6, bias, dt, rest, recalibrated) -> tuple[int, int]:
         """One magnetometer sample (``m`` in the levelled frame): the reference's verdict and the
-        heading step; the flag bits and the verdict (MAG_USE, MAG_DISTURBED, MAG_LEARNING)."""
+        heading step; the flag bits and the verdict (MAG_USE, MAG_DISTURBED, MAG_LEARNING).
+        ``recalibrated``: the first sample of a new calibration, to follow."""
         c = self.config
         east, north, up = x[_AX:_AX + 3], x[_AX + 3:_AX + 6], x[_AX + 6:_AX + 9]
         norm, dip = field_norm_dip(m, up)
+        mc = c.magnetic
+        if recalibrated and follow_field(x[_MAG:_MAG + MAG_SIZE], norm, dip, mc.norm_threshold, mc.dip_threshold):
+            x[_RELEARN] = 1.0  # learned again; the heading keeps its filter meanwhile
         target = 0.5 * math.pi - math.atan2(m @ north, m @ east)  # turns the field's azimuth to north
         code = self.magnetic.reference_step(x[_MAG:_MAG + MAG_SIZE], norm, dip, float(np.linalg.norm(x[_LW:_LW + 3])),
                                             dt)
-        if code == MAG_LEARNING:  # the heading is the mean over the reference's learning time
+        if code != MAG_LEARNING:
+            x[_RELEARN] = 0.0
+        elif not x[_RELEARN]:  # the heading is the mean over the reference's learning time
             n = x[_MAG + MAG_COUNT]
             x[_DELTA] = wrap_angle(target if n == 1.0 else x[_DELTA] + wrap_angle(target - x[_DELTA]) / n)
             return 0, code
@@ -223,7 +249,8 @@ class MagHeading(FactorCorrector):
         c = self.config
         p = np.array([c.tau, float(c.rejection), c.mag_delay if c.mag_delay is not None else math.nan,
                       c.rate_tau, float(c.mag_bias), c.motion_bias_tau, c.bias_max, *self.magnetic.params(),
-                      float(c.mag_hold), float(c.mag_delay_estimate), c.delay_max_std, c.delay_forget_time])
+                      float(c.mag_hold), float(c.mag_delay_estimate), c.delay_max_std, c.delay_forget_time,
+                      float(c.follow_calibration)])
         return CorrectorKernel(mag_heading_kernel, p, mode="factor")
 
 
@@ -303,7 +330,7 @@ def _k_estimate(s, c0, c1, c2, c3, m0, m1, m2, w0, w1, w2, dt, use, max_std, for
 def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
     """The kernel of :meth:`MagHeading.compose`: ``p = (tau, rejection, mag_delay (NaN: None), rate_tau,
     mag_bias, motion_bias_tau, bias_max, *magnetic params (6), mag_hold, mag_delay_estimate, delay_max_std,
-    delay_forget_time)``."""
+    delay_forget_time, follow_calibration)``."""
     if s[_DT] != dt:
         s[_DT], s[_KM], s[_KW] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[3])
     if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and (acc_ok or (flags & _ACC_REJECTED) != 0):
@@ -333,8 +360,12 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         target = 0.5 * math.pi - math.atan2(v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5],
                                             v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2])
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
+        if p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0 and k_follow_field(s, norm, dip, p[8], p[9]):
+            s[_RELEARN] = 1.0  # (the reference's state sits at the start of the corrector's)
         code = magnetic_step(s, norm, dip, rate, dt, p[7], p[8], p[9], p[10], p[11], p[12])
-        if code == MAG_LEARNING:
+        if code != MAG_LEARNING:
+            s[_RELEARN] = 0.0
+        if code == MAG_LEARNING and s[_RELEARN] == 0.0:
             n = s[MAG_COUNT]
             s[_DELTA] = _kwrap(target if n == 1.0 else s[_DELTA] + _kwrap(target - s[_DELTA]) / n)
         elif code == MAG_DISTURBED and p[1] != 0.0:

@@ -38,7 +38,7 @@ from ..protocols import Detector, DetectorKernel, Sample
 from ..types import Flag
 
 __all__ = ["MagneticDetector", "MagneticConfig", "magnetic_step", "MAG_SIZE", "MAG_COUNT", "MAG_USE", "MAG_DISTURBED",
-           "MAG_LEARNING", "field_norm_dip"]
+           "MAG_LEARNING", "field_norm_dip", "follow_field", "k_follow_field"]
 
 # state: reference norm, reference dip, samples learned, seconds learned, candidate norm, candidate dip,
 # seconds the candidate has been consistent while turning
@@ -90,6 +90,25 @@ def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, 
     if s[_CT] >= new_time:
         s[_RN], s[_RD], s[_CT] = s[_CN], s[_CD], 0.0
     return MAG_DISTURBED
+
+
+def follow_field(s, norm, dip, norm_th, dip_th) -> bool:
+    """The field the detector judges changed for a known reason (a sensor model changed the
+    magnetometer's calibration) and this sample of it has ``norm`` and ``dip``: unless the
+    reference describes it (within the thresholds, as a usable sample; or none is learned yet),
+    the reference learned before describes another field, so it is learned again from the next
+    samples (the next ``init_time`` s, as at the start). Whether it restarts. One sample is
+    enough to judge: a calibrated field's norm and dip are the same at every orientation. The
+    same statements in the reference and, compiled, in the kernel."""
+    if s[_N] == 0.0 or (abs(norm - s[_RN]) <= norm_th * s[_RN] and abs(dip - s[_RD]) <= dip_th):
+        return False
+    s[_N] = 0.0
+    s[_T] = 0.0
+    s[_CT] = 0.0
+    return True
+
+
+k_follow_field = njit(follow_field)
 
 
 def field_norm_dip(mag, up) -> tuple[float, float]:

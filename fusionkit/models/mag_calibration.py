@@ -57,6 +57,15 @@ at the last 32 segment ends, it divides the variance of the field's relative nor
 ``min_reduction`` (an F test of two variances) and does not raise the dip's; otherwise the
 samples pass unchanged (:func:`_consistent`). ``consistency=False``: the confidence alone.
 
+What the correctors are told (flag MAG_RECALIBRATED): where a closed segment changes the field
+the correctors see by more than the fit's refinement (a new estimate applied: the confidence
+became 1, the first one or the first after the offset was learned again or the gate refused it;
+or the applied one stopped: the gate refused it), that sample carries the flag. A reader that
+judges the field against something it learned from it (``mag-heading``'s disturbance reference,
+``follow_calibration``) learns that again. Refinements of an applied estimate carry no flag: they
+change the field by about the estimate's standard deviation, which a slowly following reference
+absorbs.
+
 Where this sits among the classic calibrations: an ellipsoid fit (the field's norm constant, the
 offset and distortion its centre and shape) needs no gyroscope but takes any change of the field's
 magnitude, a magnet on the desk included, for part of the ellipsoid; the gyro-aided relation
@@ -75,6 +84,7 @@ from .._numba import njit
 from ..config import PluginConfig, param
 from ..protocols import Sample, SensorModel, SensorModelKernel
 from ..rotations import quat_from_rotvec, quat_mul, quat_to_matrix
+from ..types import Flag
 
 __all__ = ["MagCalibrationConfig", "MagCalibrationModel", "mag_calibration_apply", "STATE"]
 
@@ -92,6 +102,7 @@ STATE_SOFT = 33 + 88
 _GK = 32
 _GI, _GC, _GBUF = 0, 1, 2
 GATE = 2 + 6 * _GK
+_RECALIBRATED = int(Flag.MAG_RECALIBRATED)
 
 
 class MagCalibrationConfig(PluginConfig):
@@ -159,15 +170,18 @@ class MagCalibrationModel(SensorModel):
                 s[_ANCHOR] = 0.0
             return sample, 0
         m = np.asarray(sample.mag, dtype=float)
+        flags = 0
         if gyr_ok and s[_ANCHOR]:
             dq = s[_DQ:_DQ + 4]
             if _turned(dq[0], dq[1], dq[2], dq[3], math.cos(0.5 * c.segment_angle)) or s[_T] >= c.segment_time:
                 acc = sample.acc if sample.acc is not None and np.isfinite(sample.acc).all() else np.zeros(3)
                 _ring_push(s, STATE_SOFT if c.soft_iron else STATE, m, acc)
+                conf, applied = s[_CONF], _applied(s, c.soft_iron)
                 if c.soft_iron:
                     self._segment_soft(s, quat_to_matrix(dq).T, m)
                 else:
                     self._segment(s, quat_to_matrix(dq).T, m)
+                flags = _changed(conf, applied, s[_CONF], _applied(s, c.soft_iron))
                 s[_ANCHOR] = 0.0
         if gyr_ok and not s[_ANCHOR]:  # this sample starts the next segment
             s[_MA:_MA + 3] = m
@@ -176,8 +190,8 @@ class MagCalibrationModel(SensorModel):
             s[_ANCHOR] = 1.0
         if c.soft_iron:
             t = s[_SAPP:_SAPP + _NP]
-            return sample._replace(mag=(np.eye(3) + _distortion(t)) @ m - t[5:8]), 0
-        return sample._replace(mag=m - s[_B:_B + 3]), 0
+            return sample._replace(mag=(np.eye(3) + _distortion(t)) @ m - t[5:8]), flags
+        return sample._replace(mag=m - s[_B:_B + 3]), flags
 
     def _segment(self, s, ct, m) -> None:
         """One closed segment: ``(I - C^T) b = m_k - C^T m_a`` into the forgetting least squares."""
@@ -263,6 +277,28 @@ class MagCalibrationModel(SensorModel):
             s[_SAPP:_SAPP + _NP] = best
             s[_B:_B + 3] = np.linalg.solve(w, best[5:8])  # the offset in the raw field's units, b = W^-1 c
             s[_CONF] = 1.0
+
+
+def _applied(s, soft) -> bool:
+    """Whether a calibration is applied (its entries not all zero). The same statements in the
+    reference and, compiled, in the kernel."""
+    i, n = (_SAPP, _NP) if soft else (_B, 3)
+    for j in range(n):
+        if s[i + j] != 0.0:
+            return True
+    return False
+
+
+def _changed(conf, applied, conf_now, applied_now) -> int:
+    """The flag bits of a closed segment, from the confidence and whether a calibration is applied
+    before (``conf``, ``applied``) and after it (``conf_now``, ``applied_now``): MAG_RECALIBRATED where the field the correctors see changes by more than
+    the fit's refinement: a new estimate is applied (the confidence became 1: the first one, or the
+    first one after the offset was learned again or the gate refused it) or the applied one stopped
+    (the gate refused it: the samples pass unchanged). The same statements in the reference and,
+    compiled, in the kernel."""
+    if (conf == 0.0 and conf_now == 1.0) or (applied and not applied_now):
+        return _RECALIBRATED
+    return 0
 
 
 def _distortion(t):
@@ -447,6 +483,8 @@ _k_basis = njit(_basis)
 _k_ring_push = njit(_ring_push)
 _k_turned = njit(_turned)
 _k_consistent = njit(_consistent)
+_k_applied = njit(_applied)
+_k_changed = njit(_changed)
 
 
 @njit
@@ -480,16 +518,19 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
             s[_ANCHOR] = 0.0
         return 0
     m0, m1, m2 = v[6], v[7], v[8]
+    flags = 0
     if gyr_ok and s[_ANCHOR] != 0.0:
         if _k_turned(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], p[10]) or s[_T] >= seg_time:
             acc = np.zeros(3)
             if acc_ok:
                 acc[0], acc[1], acc[2] = v[3], v[4], v[5]
             _k_ring_push(s, STATE_SOFT if soft else STATE, np.array((m0, m1, m2)), acc)
+            conf, applied = s[_CONF], _k_applied(s, soft)
             if soft:
                 _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red)
             else:
                 _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red)
+            flags = _k_changed(conf, applied, s[_CONF], _k_applied(s, soft))
             s[_ANCHOR] = 0.0
     if gyr_ok and s[_ANCHOR] == 0.0:
         s[_MA], s[_MA + 1], s[_MA + 2] = m0, m1, m2
@@ -501,9 +542,9 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
         v[6] = (1.0 + t[0]) * m0 + t[2] * m1 + t[3] * m2 - t[5]
         v[7] = t[2] * m0 + (1.0 + t[1]) * m1 + t[4] * m2 - t[6]
         v[8] = t[3] * m0 + t[4] * m1 + (1.0 - t[0] - t[1]) * m2 - t[7]
-        return 0
+        return flags
     v[6], v[7], v[8] = m0 - s[_B], m1 - s[_B + 1], m2 - s[_B + 2]
-    return 0
+    return flags
 
 
 @njit
