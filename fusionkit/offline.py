@@ -57,7 +57,8 @@ pulls its heading away by the difference. So the offline mode runs the calibrati
 forward and backward over the recording (:func:`calibration_passes`; cheap next to the filter's
 passes), which gives three candidate magnetometer streams: raw, calibrated by the forward model,
 calibrated by the backward model. Per sample it takes the stream whose field norm is most nearly
-constant while the body turns through ``CALIBRATION_SPAN`` (half a turn) either side of the sample
+constant over ``CALIBRATION_SPAN`` (half a turn) of the way either side of the sample: the
+rotation, and at rest the time at the model's own ``segment_angle / segment_time``
 (:func:`select_calibration`): body-fixed iron, correctly removed, leaves the earth's field, whose
 norm does not depend on the orientation, while a wrong offset ``e`` makes the norm swing by up to
 ``2|e|`` over one turn (the same test as the model's consistency gate, with samples from both
@@ -268,9 +269,9 @@ class OfflineFilter(Filter):
 
     #: default of ``disturbance_gap`` (s): see :func:`disturbance_mask`
     DISTURBANCE_GAP: ClassVar[float] = 1.0
-    #: rotation (rad) either side of a sample over which :func:`select_calibration` compares the
-    #: candidate streams' field norms: half a turn each side, one turn in all, over which a wrong
-    #: offset swings the norm through its whole range
+    #: the way (rad: rotation, or at rest time at the model's segment rate) either side of a sample
+    #: over which :func:`select_calibration` compares the candidate streams' field norms: half a
+    #: turn each side, one turn in all, over which a wrong offset swings the norm through its range
     CALIBRATION_SPAN: ClassVar[float] = math.pi
 
     def __init__(self, inner: Filter, disturbance_gap: float | None = DISTURBANCE_GAP,
