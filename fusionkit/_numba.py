@@ -103,18 +103,24 @@ if HAVE_NUMBA and "numba.np.arraymath" not in sys.modules and "scipy.linalg" not
     sys.meta_path.insert(0, _LightBlasCheck())
 
 
-def njit(func=None, *, cache: bool = True, inline: str = "never", forward_copies: bool = False):
+def njit(func=None, *, cache: bool = True, inline: str = "never", forward_copies: bool = False,
+         cold: bool = False):
     """``numba.njit(cache=cache, fastmath=False, nogil=True, inline=inline)`` or the identity
     without numba. ``inline="always"`` inlines the function into its callers at numba's IR level
     (no call, no reference counting of the array arguments): for the small glue functions the
     pipeline chains its plugins' kernels with. ``forward_copies``: compile with
-    :func:`loop_compiler` (for a function that calls ``inline="always"`` kernels in a loop)."""
+    :func:`loop_compiler` (for a function that calls ``inline="always"`` kernels in a loop).
+    ``cold``: a rare path (work done once per segment or once per run, not every sample) that
+    :func:`inline_copy` keeps as a call (see there)."""
 
     def wrap(f):
         if not HAVE_NUMBA:
             return f
         extra = {"pipeline_class": loop_compiler()} if forward_copies else {}
-        return _light_load(_nb.njit(cache=cache, fastmath=False, nogil=True, inline=inline, **extra)(f))
+        d = _light_load(_nb.njit(cache=cache, fastmath=False, nogil=True, inline=inline, **extra)(f))
+        if cold:
+            _COLD.add(d)
+        return d
 
     return wrap(func) if func is not None else wrap
 
@@ -231,7 +237,86 @@ def loop_compiler():
     return _LOOP_COMPILER[0]
 
 
+# -- numba's inliner copies the inlined function's IR block by block -------------------------
+#
+# ``InlineWorker.inline_ir`` (numba.core.inline_closurecall) deep-copies the callee's IR twice per
+# call site, each block with its own ``copy.deepcopy``. Every block refers to the function's one
+# scope, which holds every variable of the function, so each block's copy copies the whole scope
+# again: a copy quadratic in the function's size (for a generated loop, most of numba's inlining
+# time). The shim below gives the blocks of one IR one shared memo inside ``inline_ir``, which is
+# ``copy.deepcopy(blocks)`` of the whole: the blocks of a copy share one copied scope, as the
+# blocks of the function they come from do. Installed at the first compile of a process (it
+# imports numba's inliner, which numba's compiler imports anyway).
+
+
+def _install_linear_inline_copy() -> None:
+    from numba.core import inline_closurecall as icc
+    from numba.core import ir
+
+    if isinstance(icc.copy, _BlockCopy) or not hasattr(icc.InlineWorker, "inline_ir"):
+        return
+    shim = _BlockCopy(icc.copy, ir.Block)
+    inner = icc.InlineWorker.inline_ir
+
+    def inline_ir(self, *args, **kwargs):
+        shim.memos = {}
+        try:
+            return inner(self, *args, **kwargs)
+        finally:
+            shim.memos = None
+
+    icc.copy = shim
+    icc.InlineWorker.inline_ir = inline_ir
+
+
+class _BlockCopy:
+    """The ``copy`` module as numba's inliner sees it: ``deepcopy`` of a block inside
+    ``inline_ir`` shares one memo with the other blocks of its scope."""
+
+    def __init__(self, real, block_type):
+        self._real, self._block, self.memos = real, block_type, None
+
+    def __getattr__(self, name):
+        return getattr(self._real, name)
+
+    def deepcopy(self, x, memo=None):
+        if memo is None and self.memos is not None and isinstance(x, self._block):
+            entry = self.memos.get(id(x.scope))
+            if entry is None:  # the scope kept with its memo, so its id is not reused meanwhile
+                entry = self.memos[id(x.scope)] = (x.scope, {})
+            memo = entry[1]
+        return self._real.deepcopy(x, memo)
+
+
+if HAVE_NUMBA:
+    from numba.core import event as _event
+
+    class _FirstCompile(_event.Listener):
+        done = False
+
+        def on_start(self, event):
+            if not self.done:  # (kept registered: removing it while numba broadcasts would skip the next one)
+                self.done = True
+                try:
+                    _install_linear_inline_copy()
+                except Exception:  # an unexpected numba: its own copies
+                    pass
+
+        def on_end(self, event):
+            pass
+
+    _event.register("numba:compile", _FirstCompile())
+
+
 _INLINED: dict = {}
+
+# Functions marked ``njit(cold=True)``: rare paths that an inlined kernel keeps calling. Inlining
+# copies a function's whole call tree into every loop that composes its kernel, and numba's
+# compile time grows with the copied code, not with how often it runs: a per-segment least-squares
+# fit or a once-per-run alignment end would be compiled again into every composition, for no run
+# time (a call where the work is hundreds of operations, once in many samples, costs nothing
+# measurable). Kept as calls, they are compiled once, to numba's disk cache, and shared.
+_COLD: set = set()
 
 
 def inline_copy(func):
@@ -240,8 +325,9 @@ def inline_copy(func):
     call tree becomes one function body, with no call, no argument marshalling and no reference
     counting of the arrays between a caller and its kernels. The pipeline's generated loop calls
     its plugins' kernels through these (:mod:`fusionkit._loopgen`); ``func`` itself is unchanged.
-    Anything that is not a numba dispatcher is returned as it is."""
-    if not HAVE_NUMBA or not isinstance(func, _nb.core.registry.CPUDispatcher):
+    Anything that is not a numba dispatcher is returned as it is, and so is a function marked
+    ``njit(cold=True)``: its callers' twins call it (compiled once, cached on disk)."""
+    if not HAVE_NUMBA or not isinstance(func, _nb.core.registry.CPUDispatcher) or func in _COLD:
         return func
     if func in _INLINED:
         return _INLINED[func]

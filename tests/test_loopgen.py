@@ -186,3 +186,39 @@ def test_update_backend_switched_mid_stream_takes_the_reference_path(name, rec):
     out += [f.update(rec.gyr[k], rec.acc[k], rec.mag[k], dt=float(rec.dt[k])) for k in range(300, len(rec))]
     assert len(calls) == len(rec) - 300
     assert np.abs(np.array(out) - ref).max() < 1e-9
+
+
+
+@njit(cache=False, cold=True)
+def _rare(s):
+    s[1] += 2.0 * s[0]
+
+
+@njit(cache=False)
+def _hot(s):
+    s[0] += 1.0
+    if s[0] >= 3.0:
+        _rare(s)
+    return s[1]
+
+
+def test_a_cold_helper_stays_a_call_in_the_inlined_twin():
+    """``njit(cold=True)`` (a per-segment path): the twins the loop inlines call it, compiled once,
+    instead of copying it into every composition; what is computed is the same."""
+    from fusionkit._numba import _COLD, inline_copy
+
+    assert _rare in _COLD and _hot not in _COLD
+    assert inline_copy(_rare) is _rare
+    twin = inline_copy(_hot)
+    assert twin is not _hot and twin.py_func.__globals__["_rare"] is _rare
+
+    @njit(cache=False)
+    def drive(s):
+        for _ in range(4):
+            twin(s)
+
+    a, b = np.zeros(2), np.zeros(2)
+    drive(a)
+    for _ in range(4):
+        _hot(b)
+    assert a[1] == b[1] == 2.0 * 3.0 + 2.0 * 4.0

@@ -298,15 +298,20 @@ def _gradient_correct(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_o
             s[_QPREV + i] = q[i]
         s[_HAVE], s[_ITERS] = 1.0, 1.0
         return 0
-    e0, e1, e2, e3, res = _gradient_at(q[0], q[1], q[2], q[3], s, ax, ay, az, has_m, mx, my, mz)
-    s[_PERSIST] = s[_PERSIST] + dt if res > raise_above else 0.0
-    may_raise = s[_PERSIST] >= raise_after
-    static = abs(na / gravity - 1.0) <= static_gate
-    cap = iterations if iterations > 0 else max_iterations
-    if variable and not (may_raise and static):
-        cap = 1
-    i = 0
-    while i < cap:
+    i, cap, may_raise = 0, 0, False
+    while True:  # one call site of _gradient_at for the first gradient and each next one (one inlined copy)
+        e0, e1, e2, e3, res = _gradient_at(q[0], q[1], q[2], q[3], s, ax, ay, az, has_m, mx, my, mz)
+        if i == 0:
+            s[_PERSIST] = s[_PERSIST] + dt if res > raise_above else 0.0
+            may_raise = s[_PERSIST] >= raise_after
+            static = abs(na / gravity - 1.0) <= static_gate
+            cap = iterations if iterations > 0 else max_iterations
+            if variable and not (may_raise and static):
+                cap = 1
+            if cap <= 0:
+                break
+        elif res < epsilon:
+            break
         n = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3)
         if n == 0.0:
             break
@@ -322,9 +327,6 @@ def _gradient_correct(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_o
             q[j] *= r
         i += 1
         if i == cap:  # the loop ends anyway: no stop test, no next gradient
-            break
-        e0, e1, e2, e3, res = _gradient_at(q[0], q[1], q[2], q[3], s, ax, ay, az, has_m, mx, my, mz)
-        if res < epsilon:
             break
     for j in range(4):
         s[_QPREV + j] = q[j]

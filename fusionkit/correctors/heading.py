@@ -289,7 +289,7 @@ _k_segment_time = njit(_segment_time)
 _k_gate = njit(_gate)
 
 
-@njit
+@njit(cold=True)  # once per segment
 def _k_fit(x, b, xx, xr, rr, lam, max_std):
     if not _k_gate(x, b, xx, xr, rr, lam):
         return False

@@ -480,7 +480,7 @@ _k_min_eig = njit(_min_eig_sym3)
 _k_inverse3 = njit(_inverse3)
 _k_invert = njit(_invert)
 _k_basis = njit(_basis)
-_k_ring_push = njit(_ring_push)
+_k_ring_push = njit(_ring_push, cold=True)  # once per segment (as are _k_segment and _k_segment_soft)
 _k_turned = njit(_turned)
 _k_consistent = njit(_consistent)
 _k_applied = njit(_applied)
@@ -563,7 +563,7 @@ def k_forget_accumulate(s, ia, iy, irr, ine, h, r, lam, a):
     s[ine] = lam * s[ine] + 1.0
 
 
-@njit
+@njit(cold=True)
 def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red):
     c9 = np.empty(9)
     quat_to_dcm(s[_DQ:_DQ + 4], c9)
@@ -618,7 +618,7 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
         s[_CONF] = 1.0
 
 
-@njit
+@njit(cold=True)
 def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red):
     c9 = np.empty(9)
     quat_to_dcm(s[_DQ:_DQ + 4], c9)

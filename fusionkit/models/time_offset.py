@@ -250,7 +250,7 @@ def _enter(s, b, xx, xr, lam, max_std, min_seg, max_offset) -> None:
         s[b + CONF] = 1.0
 
 
-_k_enter = njit(_enter)
+_k_enter = njit(_enter, cold=True)  # once per segment
 
 
 @njit
