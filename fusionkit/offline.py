@@ -554,7 +554,7 @@ def select_calibration(gyr: np.ndarray, dt: np.ndarray, streams: list[np.ndarray
             var = np.maximum((c2[hi] - c2[lo]) / n - mean * mean, 0.0) / (mean * mean)
         variances.append(np.where(n > 0.0, var, np.inf))
     v = np.array(variances)
-    choice = np.where(np.isfinite(v).any(axis=0), np.argmin(np.where(np.isfinite(v), v, np.inf), axis=0), 0)
+    choice = np.argmin(np.where(np.isfinite(v), v, np.inf), axis=0)  # a column of inf (no way around): 0, the raw
     out = np.take_along_axis(np.stack(streams), choice[None, :, None], axis=0)[0]
     return out, choice.astype(np.int8)
 

@@ -428,9 +428,9 @@ def _window_integrals(gyr, mode, clock, i0, lag, h):
     for j in range(i0.shape[0]):
         s0 = s1 = s2 = span = 0.0
         for k in range(i0[j] + 1, i0[j] + 1 + lag):
-            if mode == 0:
+            if mode == _CLOCK_RATE:
                 d = clock[0]
-            elif mode == 1:
+            elif mode == _CLOCK_DT:
                 d = clock[k]
             else:
                 d = clock[k] - clock[k - 1]
