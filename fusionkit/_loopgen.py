@@ -21,7 +21,8 @@ Two functions come out of one template, so they cannot drift apart:
   recording (without a magnetometer, ``has_mag`` False, ``mag`` may be one row: it is read there
   and never judged valid), and
 - ``step(g0, g1, g2, a0, a1, a2, m0, m1, m2, h, has_mag, S, P, O, q, n0..n5) -> (flags, crit)``
-  for one sample, used by ``Pipeline.update()`` (``q`` receives the quaternion).
+  for one sample, used by ``Pipeline.update()`` (``q`` receives the quaternion): ``loop`` over
+  a one-sample recording, so it reuses the loop's compiled code instead of compiling its own.
 
 ``S`` is every state end to end (estimator, each kernel's, the pipeline's run state), ``P``
 every parameter vector end to end, ``O`` their bounds (:func:`pack`).
@@ -243,8 +244,8 @@ def _views(lay: Layout) -> list[str]:
 # A call from the loop to a separately compiled kernel passes every array as its parts and keeps
 # the state in memory across the call; the kernels inlined (numba's IR inlining of
 # :func:`fusionkit._numba.inline_copy` twins, the kernels' own helpers included) make one body
-# that LLVM optimises as a whole. Only ``loop`` does: ``step`` (one sample per Python call) and
-# the rare paths (the alignment and its end) keep the calls, which costs less compile time.
+# that LLVM optimises as a whole. Only ``loop`` does (``step`` calls ``loop``): the rare paths
+# (the alignment and its end) keep the calls, which costs less compile time.
 
 _INLINE = "i_"
 
@@ -293,10 +294,29 @@ def source(lay: Layout, cache: bool, imports: dict[int, tuple[str, str]] | None,
             *_inlined(_body(lay, names, "        "), hot),
             "        out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]",
             "        out_f[k] = flags", "        out_c[k] = crit"]
-    step = ["", "", f"@njit(cache={cache})",
-            f"def step({_SAMPLE}, h, has_mag, S, P, O, q, {_GN}):",
-            *_views(lay), *_body(lay, names, "    "), "    return flags, crit", ""]
+    step = _step(cache)
     return "\n".join(head + loop + step + _step_sample(cache))
+
+
+def _step(cache: bool) -> list[str]:
+    """``step``: ``loop`` run over a one-sample recording made of its arguments.
+
+    The same compiled code serves ``run()`` and ``update()``, so a stream's results are the
+    loop's by construction, and a composition pays one compile, not a second one for a separately
+    typed and lowered one-sample body (building the one-sample arrays is a small part of a call)."""
+    return ["", "", f"@njit(cache={cache})",
+            f"def step({_SAMPLE}, h, has_mag, S, P, O, q, {_GN}):",
+            "    w = np.empty((3, 1, 3))",
+            "    w[0, 0, 0], w[0, 0, 1], w[0, 0, 2] = g0, g1, g2",
+            "    w[1, 0, 0], w[1, 0, 1], w[1, 0, 2] = a0, a1, a2",
+            "    w[2, 0, 0], w[2, 0, 1], w[2, 0, 2] = m0, m1, m2",
+            "    dt = np.empty(1)", "    dt[0] = h",
+            "    gn = np.empty((1, 6))",
+            "    gn[0, 0], gn[0, 1], gn[0, 2], gn[0, 3], gn[0, 4], gn[0, 5] = n0, n1, n2, n3, n4, n5",
+            "    out_q = np.empty((1, 4))", "    fc = np.zeros(2, np.uint32)",
+            "    loop(w[0], w[1], w[2], dt, has_mag, S, P, O, out_q, fc[0:1], fc[1:2], np.int64(0), np.int64(1), gn)",
+            "    q[0], q[1], q[2], q[3] = out_q[0, 0], out_q[0, 1], out_q[0, 2], out_q[0, 3]",
+            "    return fc[0], fc[1]", ""]
 
 
 def _step_sample(cache: bool) -> list[str]:
