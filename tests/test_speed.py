@@ -40,7 +40,9 @@ def test_inline_copy_makes_inline_twins_of_the_whole_call_tree():
     assert inline_copy(len) is len  # not a numba function: returned as it is
 
 
-def test_the_loop_calls_its_kernels_inline_and_step_calls_them():
+def test_the_loop_calls_its_kernels_inline_and_step_calls_the_loop():
+    """The loop inlines every per-sample kernel; ``step`` (``update()``'s) runs that loop over one
+    sample instead of a second body of its own (one compile per composition)."""
     f = fk.make("gradient-descent")
     ek, mks, dks, cks = f._kernels()
     for unit in (False, True):  # a unit-quaternion state is the output itself: no to_quat
@@ -54,7 +56,8 @@ def test_the_loop_calls_its_kernels_inline_and_step_calls_them():
                 assert "e_to_quat(" not in loop + step and "q[0], q[1], q[2], q[3] = x[0]" in loop
                 continue
             assert f"i_{name}(" in loop and f"{name} = inline_copy({name})" in text
-            assert f" {name}(" in step and f"i_{name}(" not in step
+            assert f"{name}(" not in step  # no second body: the loop's compiled code serves update()
+        assert " loop(" in step and "np.int64(0), np.int64(1)" in step  # int64 bounds: run()'s signature
 
 
 def test_a_non_finite_sample_still_raises_and_a_gap_does_not(rec):
