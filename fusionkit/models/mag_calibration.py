@@ -102,6 +102,7 @@ STATE_SOFT = 33 + 88
 _GK = 32
 _GI, _GC, _GBUF = 0, 1, 2
 GATE = 2 + 6 * _GK
+_SEG_BUF = 191  # the compiled soft-iron segment's working arrays (_k_segment_soft)
 _RECALIBRATED = int(Flag.MAG_RECALIBRATED)
 
 
@@ -421,14 +422,16 @@ def _invert(a, inv) -> bool:
                 a[col, j], a[piv, j] = a[piv, j], a[col, j]
                 inv[col, j], inv[piv, j] = inv[piv, j], inv[col, j]
         d = a[col, col]
-        for j in range(n):
+        for j in range(col, n):  # (the columns before col are zero in every row but their own)
             a[col, j] /= d
+        for j in range(n):
             inv[col, j] /= d
         for i in range(n):
             if i != col and a[i, col] != 0.0:
                 f = a[i, col]
-                for j in range(n):
+                for j in range(col, n):
                     a[i, j] -= f * a[col, j]
+                for j in range(n):
                     inv[i, j] -= f * inv[col, j]
     return True
 
@@ -521,10 +524,8 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
     flags = 0
     if gyr_ok and s[_ANCHOR] != 0.0:
         if _k_turned(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], p[10]) or s[_T] >= seg_time:
-            acc = np.zeros(3)
-            if acc_ok:
-                acc[0], acc[1], acc[2] = v[3], v[4], v[5]
-            _k_ring_push(s, STATE_SOFT if soft else STATE, np.array((m0, m1, m2)), acc)
+            acc = (v[3], v[4], v[5]) if acc_ok else (0.0, 0.0, 0.0)
+            _k_ring_push(s, STATE_SOFT if soft else STATE, (m0, m1, m2), acc)
             conf, applied = s[_CONF], _k_applied(s, soft)
             if soft:
                 _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red)
@@ -620,17 +621,20 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
 
 @njit(cold=True)
 def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red):
-    c9 = np.empty(9)
+    # one allocation for every working array (views into it): a segment closes every few samples
+    # while the body turns, and each small array allocated and freed cost about as much as the arithmetic
+    buf = np.empty(_SEG_BUF)
+    c9 = buf[0:9]
     quat_to_dcm(s[_DQ:_DQ + 4], c9)
-    ct = np.empty((3, 3))  # R(dq)^T
+    ct = buf[9:18].reshape((3, 3))  # R(dq)^T
     for i in range(3):
         for j in range(3):
             ct[i, j] = c9[3 * j + i]
-    ma = np.array((s[_MA], s[_MA + 1], s[_MA + 2]))
-    mk = np.array((m0, m1, m2))
-    h = np.empty((3, _NP))
+    ma = (s[_MA], s[_MA + 1], s[_MA + 2])
+    mk = (m0, m1, m2)
+    h = buf[18:18 + 3 * _NP].reshape((3, _NP))
     _k_soft_rows(ct, ma, mk, h)
-    r = np.empty(3)
+    r = buf[42:45]
     for i in range(3):
         r[i] = mk[i] - (ct[i, 0] * ma[0] + ct[i, 1] * ma[1] + ct[i, 2] * ma[2])
     e2 = 0.0
@@ -652,7 +656,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
         return
     s[_BAD] = 0.0
     lam = math.exp(-s[_T] / forget)
-    a = np.empty((_NP, _NP))
+    a = buf[45:45 + _NP * _NP].reshape((_NP, _NP))
     for i in range(_NP):
         for j in range(_NP):
             a[i, j] = lam * s[_SA + _NP * i + j] + (h[0, i] * h[0, j] + h[1, i] * h[1, j] + h[2, i] * h[2, j])
@@ -662,7 +666,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     s[_RR] = lam * s[_RR] + (r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
     s[_NE] = lam * s[_NE] + 1.0
     s[_N] = n + 1.0
-    inv = np.empty((_NP, _NP))
+    inv = buf[109:109 + _NP * _NP].reshape((_NP, _NP))
     if not _k_invert(a, inv):
         return
     yb = 0.0
@@ -675,7 +679,10 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     if 3.0 * s[_NE] > _NP:
         s[_VAR] = max(s[_RR] - yb, 0.0) / (3.0 * s[_NE] - _NP)
     t = s[_SBEST:_SBEST + _NP]
-    w = np.array(((1.0 + t[0], t[2], t[3]), (t[2], 1.0 + t[1], t[4]), (t[3], t[4], 1.0 - t[0] - t[1])))
+    w = buf[173:182].reshape((3, 3))
+    w[0, 0], w[0, 1], w[0, 2] = 1.0 + t[0], t[2], t[3]
+    w[1, 0], w[1, 1], w[1, 2] = t[2], 1.0 + t[1], t[4]
+    w[2, 0], w[2, 1], w[2, 2] = t[3], t[4], 1.0 - t[0] - t[1]
     f0 = w[0, 0] * m0 + w[0, 1] * m1 + w[0, 2] * m2 - t[5]
     f1 = w[1, 0] * m0 + w[1, 1] * m1 + w[1, 2] * m2 - t[6]
     f2 = w[2, 0] * m0 + w[2, 1] * m1 + w[2, 2] * m2 - t[7]
@@ -696,7 +703,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
             return
         for i in range(_NP):
             s[_SAPP + i] = t[i]
-        winv = np.empty((3, 3))
+        winv = buf[182:191].reshape((3, 3))
         if _k_inverse3(w, winv):
             for i in range(3):
                 s[_B + i] = winv[i, 0] * t[5] + winv[i, 1] * t[6] + winv[i, 2] * t[7]
