@@ -101,7 +101,8 @@ STATE_SOFT = 33 + 88
 # fill, then the raw field and the accelerometer's direction at the last _GK segment ends
 _GK = 32
 _GI, _GC, _GBUF = 0, 1, 2
-GATE = 2 + 6 * _GK
+_GE = 9  # per segment end: the raw field, the accelerometer, |m|, |a| and the raw dip's sine
+GATE = 2 + _GE * _GK
 _SEG_BUF = 191  # the compiled soft-iron segment's working arrays (_k_segment_soft)
 _RECALIBRATED = int(Flag.MAG_RECALIBRATED)
 
@@ -319,10 +320,15 @@ def _ring_push(s, g, m, a):
     accelerometer ``a`` (zeros when invalid). The same statements in the reference and, compiled,
     in the kernel."""
     i = int(s[g + _GI])
-    k = g + _GBUF + 6 * i
+    k = g + _GBUF + _GE * i
     for j in range(3):
         s[k + j] = m[j]
         s[k + 3 + j] = a[j]
+    # what the gate computes of the raw field at every check, once: its norm, the accelerometer's, the dip's sine
+    nr = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
+    na = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    s[k + 6], s[k + 7] = nr, na
+    s[k + 8] = (m[0] * a[0] + m[1] * a[1] + m[2] * a[2]) / (nr * na) if na > 0.0 and nr > 0.0 else 0.0
     s[g + _GI] = float((i + 1) % _GK)
     s[g + _GC] = min(s[g + _GC] + 1.0, float(_GK))
 
@@ -341,21 +347,21 @@ def _consistent(s, g, w, c, min_reduction) -> bool:
     nd = 0
     rd1 = rd2 = cd1 = cd2 = 0.0
     for i in range(n):
-        k = g + _GBUF + 6 * i
+        k = g + _GBUF + _GE * i
         m0, m1, m2 = s[k], s[k + 1], s[k + 2]
         a0, a1, a2 = s[k + 3], s[k + 4], s[k + 5]
         x0 = w[0, 0] * m0 + w[0, 1] * m1 + w[0, 2] * m2 - c[0]
         x1 = w[1, 0] * m0 + w[1, 1] * m1 + w[1, 2] * m2 - c[1]
         x2 = w[2, 0] * m0 + w[2, 1] * m1 + w[2, 2] * m2 - c[2]
-        nr = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        nr = s[k + 6]
         nc = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
         r1 += nr
         r2 += nr * nr
         c1 += nc
         c2 += nc * nc
-        na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        na = s[k + 7]
         if na > 0.0 and nr > 0.0 and nc > 0.0:
-            dr = (m0 * a0 + m1 * a1 + m2 * a2) / (nr * na)
+            dr = s[k + 8]
             dc = (x0 * a0 + x1 * a1 + x2 * a2) / (nc * na)
             nd += 1
             rd1 += dr
