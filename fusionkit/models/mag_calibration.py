@@ -428,16 +428,14 @@ def _invert(a, inv) -> bool:
                 a[col, j], a[piv, j] = a[piv, j], a[col, j]
                 inv[col, j], inv[piv, j] = inv[piv, j], inv[col, j]
         d = a[col, col]
-        for j in range(col, n):  # (the columns before col are zero in every row but their own)
-            a[col, j] /= d
         for j in range(n):
+            a[col, j] /= d
             inv[col, j] /= d
         for i in range(n):
             if i != col and a[i, col] != 0.0:
                 f = a[i, col]
-                for j in range(col, n):
-                    a[i, j] -= f * a[col, j]
                 for j in range(n):
+                    a[i, j] -= f * a[col, j]
                     inv[i, j] -= f * inv[col, j]
     return True
 
