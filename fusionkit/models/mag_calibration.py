@@ -101,7 +101,9 @@ STATE_SOFT = 33 + 88
 # fill, then the raw field and the accelerometer's direction at the last _GK segment ends
 _GK = 32
 _GI, _GC, _GBUF = 0, 1, 2
-GATE = 2 + 6 * _GK
+_GE = 9  # per segment end: the raw field, the accelerometer, |m|, |a| and the raw dip's sine
+GATE = 2 + _GE * _GK
+_SEG_BUF = 191  # the compiled soft-iron segment's working arrays (_k_segment_soft)
 _RECALIBRATED = int(Flag.MAG_RECALIBRATED)
 
 
@@ -318,10 +320,15 @@ def _ring_push(s, g, m, a):
     accelerometer ``a`` (zeros when invalid). The same statements in the reference and, compiled,
     in the kernel."""
     i = int(s[g + _GI])
-    k = g + _GBUF + 6 * i
+    k = g + _GBUF + _GE * i
     for j in range(3):
         s[k + j] = m[j]
         s[k + 3 + j] = a[j]
+    # what the gate computes of the raw field at every check, once: its norm, the accelerometer's, the dip's sine
+    nr = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
+    na = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    s[k + 6], s[k + 7] = nr, na
+    s[k + 8] = (m[0] * a[0] + m[1] * a[1] + m[2] * a[2]) / (nr * na) if na > 0.0 and nr > 0.0 else 0.0
     s[g + _GI] = float((i + 1) % _GK)
     s[g + _GC] = min(s[g + _GC] + 1.0, float(_GK))
 
@@ -340,21 +347,21 @@ def _consistent(s, g, w, c, min_reduction) -> bool:
     nd = 0
     rd1 = rd2 = cd1 = cd2 = 0.0
     for i in range(n):
-        k = g + _GBUF + 6 * i
+        k = g + _GBUF + _GE * i
         m0, m1, m2 = s[k], s[k + 1], s[k + 2]
         a0, a1, a2 = s[k + 3], s[k + 4], s[k + 5]
         x0 = w[0, 0] * m0 + w[0, 1] * m1 + w[0, 2] * m2 - c[0]
         x1 = w[1, 0] * m0 + w[1, 1] * m1 + w[1, 2] * m2 - c[1]
         x2 = w[2, 0] * m0 + w[2, 1] * m1 + w[2, 2] * m2 - c[2]
-        nr = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        nr = s[k + 6]
         nc = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
         r1 += nr
         r2 += nr * nr
         c1 += nc
         c2 += nc * nc
-        na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        na = s[k + 7]
         if na > 0.0 and nr > 0.0 and nc > 0.0:
-            dr = (m0 * a0 + m1 * a1 + m2 * a2) / (nr * na)
+            dr = s[k + 8]
             dc = (x0 * a0 + x1 * a1 + x2 * a2) / (nc * na)
             nd += 1
             rd1 += dr
@@ -521,10 +528,8 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
     flags = 0
     if gyr_ok and s[_ANCHOR] != 0.0:
         if _k_turned(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], p[10]) or s[_T] >= seg_time:
-            acc = np.zeros(3)
-            if acc_ok:
-                acc[0], acc[1], acc[2] = v[3], v[4], v[5]
-            _k_ring_push(s, STATE_SOFT if soft else STATE, np.array((m0, m1, m2)), acc)
+            acc = (v[3], v[4], v[5]) if acc_ok else (0.0, 0.0, 0.0)
+            _k_ring_push(s, STATE_SOFT if soft else STATE, (m0, m1, m2), acc)
             conf, applied = s[_CONF], _k_applied(s, soft)
             if soft:
                 _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red)
@@ -620,17 +625,20 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
 
 @njit(cold=True)
 def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red):
-    c9 = np.empty(9)
+    # one allocation for every working array (views into it): a segment closes every few samples
+    # while the body turns, and each small array allocated and freed cost about as much as the arithmetic
+    buf = np.empty(_SEG_BUF)
+    c9 = buf[0:9]
     quat_to_dcm(s[_DQ:_DQ + 4], c9)
-    ct = np.empty((3, 3))  # R(dq)^T
+    ct = buf[9:18].reshape((3, 3))  # R(dq)^T
     for i in range(3):
         for j in range(3):
             ct[i, j] = c9[3 * j + i]
-    ma = np.array((s[_MA], s[_MA + 1], s[_MA + 2]))
-    mk = np.array((m0, m1, m2))
-    h = np.empty((3, _NP))
+    ma = (s[_MA], s[_MA + 1], s[_MA + 2])
+    mk = (m0, m1, m2)
+    h = buf[18:18 + 3 * _NP].reshape((3, _NP))
     _k_soft_rows(ct, ma, mk, h)
-    r = np.empty(3)
+    r = buf[42:45]
     for i in range(3):
         r[i] = mk[i] - (ct[i, 0] * ma[0] + ct[i, 1] * ma[1] + ct[i, 2] * ma[2])
     e2 = 0.0
@@ -652,7 +660,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
         return
     s[_BAD] = 0.0
     lam = math.exp(-s[_T] / forget)
-    a = np.empty((_NP, _NP))
+    a = buf[45:45 + _NP * _NP].reshape((_NP, _NP))
     for i in range(_NP):
         for j in range(_NP):
             a[i, j] = lam * s[_SA + _NP * i + j] + (h[0, i] * h[0, j] + h[1, i] * h[1, j] + h[2, i] * h[2, j])
@@ -662,7 +670,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     s[_RR] = lam * s[_RR] + (r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
     s[_NE] = lam * s[_NE] + 1.0
     s[_N] = n + 1.0
-    inv = np.empty((_NP, _NP))
+    inv = buf[109:109 + _NP * _NP].reshape((_NP, _NP))
     if not _k_invert(a, inv):
         return
     yb = 0.0
@@ -675,7 +683,10 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     if 3.0 * s[_NE] > _NP:
         s[_VAR] = max(s[_RR] - yb, 0.0) / (3.0 * s[_NE] - _NP)
     t = s[_SBEST:_SBEST + _NP]
-    w = np.array(((1.0 + t[0], t[2], t[3]), (t[2], 1.0 + t[1], t[4]), (t[3], t[4], 1.0 - t[0] - t[1])))
+    w = buf[173:182].reshape((3, 3))
+    w[0, 0], w[0, 1], w[0, 2] = 1.0 + t[0], t[2], t[3]
+    w[1, 0], w[1, 1], w[1, 2] = t[2], 1.0 + t[1], t[4]
+    w[2, 0], w[2, 1], w[2, 2] = t[3], t[4], 1.0 - t[0] - t[1]
     f0 = w[0, 0] * m0 + w[0, 1] * m1 + w[0, 2] * m2 - t[5]
     f1 = w[1, 0] * m0 + w[1, 1] * m1 + w[1, 2] * m2 - t[6]
     f2 = w[2, 0] * m0 + w[2, 1] * m1 + w[2, 2] * m2 - t[7]
@@ -696,7 +707,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
             return
         for i in range(_NP):
             s[_SAPP + i] = t[i]
-        winv = np.empty((3, 3))
+        winv = buf[182:191].reshape((3, 3))
         if _k_inverse3(w, winv):
             for i in range(3):
                 s[_B + i] = winv[i, 0] * t[5] + winv[i, 1] * t[6] + winv[i, 2] * t[7]
