@@ -281,8 +281,9 @@ class OfflineFilter(Filter):
     CALIBRATION_SPAN: ClassVar[float] = math.pi
     #: the magnetometer is re-timed (:func:`retime_mag`) when the delay estimated over the recording
     #: is this many of its standard deviations away from the filter's pairing: a two-sided test at
-    #: the 5% level that the sensor does not keep the pairing the filter assumes
-    MAG_DELAY_SIGMAS: ClassVar[float] = 2.0
+    #: the 0.3% level that the sensor does not keep the pairing the filter assumes (a recording
+    #: with little angular acceleration, e.g. at rest, informs the estimate little and keeps it)
+    MAG_DELAY_SIGMAS: ClassVar[float] = 3.0
 
     def __init__(self, inner: Filter, disturbance_gap: float | None = DISTURBANCE_GAP,
                  calibration: str = "recording", mag_timing: str = "recording") -> None:
@@ -423,7 +424,8 @@ class OfflineFilter(Filter):
     def _retimed(cls, rec, config, used):
         """``rec`` with its magnetometer on the filter's pairing (:func:`retime_mag`) where the
         delay estimated over the whole recording (:func:`mag_delay_recording`) differs from that
-        pairing by more than ``MAG_DELAY_SIGMAS`` standard deviations, else ``rec`` itself; and
+        pairing by more than ``MAG_DELAY_SIGMAS`` standard deviations (clamped, as the ``time-offset`` model
+        clamps it, to its ``max_offset``), else ``rec`` itself; and
         ``{"delay", "std", "applied"}`` (s)."""
         gyr_range, acc_range = getattr(config, "gyr_range", None), getattr(config, "acc_range", None)
         pairing = getattr(config, "mag_delay", None)
@@ -433,7 +435,8 @@ class OfflineFilter(Filter):
         if not applied:
             return rec, info
         out = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
-        out.mag = retime_mag(rec.gyr, rec.mag, rec.time, rec.dt, delay, pairing)
+        limit = TimeOffsetModel.Config().max_offset  # the model's bound on a sensor's delay, as it applies it
+        out.mag = retime_mag(rec.gyr, rec.mag, rec.time, rec.dt, min(max(delay, -limit), limit), pairing)
         return out, info
 
     @staticmethod
