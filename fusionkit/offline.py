@@ -436,7 +436,7 @@ class OfflineFilter(Filter):
             return rec, info
         out = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
         limit = TimeOffsetModel.Config().max_offset  # the model's bound on a sensor's delay, as it applies it
-        out.mag = retime_mag(rec.gyr, rec.mag, rec.time, rec.dt, min(max(delay, -limit), limit), pairing)
+        out.mag = retime_mag(rec.gyr, rec.mag, rec.time, rec.dt, min(max(delay, -limit), limit), pairing, used)
         return out, info
 
     @staticmethod
@@ -612,7 +612,7 @@ def _delay_kernel(s, gyr, acc, mag, dt, ok, p):
 
 
 def retime_mag(gyr: np.ndarray, mag: np.ndarray, time: np.ndarray, dt: np.ndarray, delay: float,
-               pairing: float | None = None) -> np.ndarray:
+               pairing: float | None = None, backend: str = "numba") -> np.ndarray:
     """The magnetometer on the filter's pairing: every valid sample ``k`` replaced by the reading
     nearest to its instant, turned by the gyroscope over the time between (``u(t) = exp(-[theta]x)
     u(t')``, ``theta`` the gyro's integral from ``t'`` to ``t``: a direction fixed in the earth turns
@@ -626,9 +626,22 @@ def retime_mag(gyr: np.ndarray, mag: np.ndarray, time: np.ndarray, dt: np.ndarra
     direction of time, so the backward pass gets a stream as well paired as the forward one (a
     delay of several samples, or a held copy, is otherwise a *lead* in reversed time, which no
     causal pairing can express). The gyro's rate is constant over its step (an invalid rate: 0).
-    Invalid magnetometer samples are passed on as they are."""
-    mag = np.asarray(mag, dtype=float)
-    n = mag.shape[0]
+    Invalid magnetometer samples are passed on as they are. ``backend``: ``"numba"``
+    (:func:`_retime_kernel`) or ``"reference"`` (array operations, the same numbers to 1e-9)."""
+    mag = np.ascontiguousarray(mag, dtype=float)
+    gyr = np.ascontiguousarray(gyr, dtype=float)
+    time = np.ascontiguousarray(time, dtype=float)
+    dt = np.ascontiguousarray(dt, dtype=float)
+    if resolve_backend(backend, True) == "numba":
+        out = mag.copy()
+        _retime_kernel(gyr, mag, time, dt, float(delay), pairing is None, 0.0 if pairing is None else float(pairing),
+                       out)
+        return out
+    return _retime_reference(gyr, mag, time, dt, delay, pairing)
+
+
+def _retime_reference(gyr, mag, time, dt, delay, pairing):
+    """The readable twin of :func:`_retime_kernel` (:func:`retime_mag`'s arithmetic in arrays)."""
     norm = np.linalg.norm(mag, axis=1)
     valid = np.isfinite(norm) & (norm > 0.0)
     fresh = valid.copy()
@@ -650,6 +663,83 @@ def retime_mag(gyr: np.ndarray, mag: np.ndarray, time: np.ndarray, dt: np.ndarra
                       for a in range(3)], axis=1)
     turned = _rotate_back(theta, mag[j[pick]])
     return np.where(valid[:, None], turned, mag)
+
+
+@njit
+def _step_at(x, ends, i):
+    """``(step, fraction)`` of time ``x`` among the steps' ``ends``, searching from step ``i`` (``x``
+    grows from call to call): the gyro's integral there is linear between the step's ends, and held
+    beyond the first and the last."""
+    m = ends.shape[0]
+    if x <= ends[0]:
+        return 0, 0.0
+    if x >= ends[m - 1]:
+        return m - 2, 1.0
+    while i < m - 2 and ends[i + 1] < x:
+        i += 1
+    while i > 0 and ends[i] > x:
+        i -= 1
+    return i, (x - ends[i]) / (ends[i + 1] - ends[i])
+
+
+@njit
+def _retime_kernel(gyr, mag, time, dt, delay, middle, pairing, out):
+    """:func:`retime_mag` compiled: one sweep for the readings, one for the samples (both in time order)."""
+    n = mag.shape[0]
+    valid = np.zeros(n, dtype=np.bool_)
+    fresh = np.empty(n, dtype=np.int64)
+    nf = 0
+    for k in range(n):
+        s = mag[k, 0] * mag[k, 0] + mag[k, 1] * mag[k, 1] + mag[k, 2] * mag[k, 2]
+        valid[k] = math.isfinite(s) and math.sqrt(s) > 0.0
+        if valid[k] and not (k > 0 and valid[k - 1] and mag[k, 0] == mag[k - 1, 0] and mag[k, 1] == mag[k - 1, 1]
+                             and mag[k, 2] == mag[k - 1, 2]):
+            fresh[nf] = k
+            nf += 1
+    if nf == 0:
+        return
+    inst = np.empty(n)
+    for k in range(n):
+        inst[k] = time[k] - (0.5 * dt[k] if middle else pairing)
+    described = np.empty(nf)
+    for r in range(nf):
+        described[r] = inst[fresh[r]] - delay
+    ends = np.empty(n + 1)
+    ends[0] = time[0] - dt[0]
+    cum = np.zeros((n + 1, 3))
+    for k in range(n):
+        ends[k + 1] = time[k]
+        for a in range(3):
+            g = gyr[k, a]
+            cum[k + 1, a] = cum[k, a] + (g if math.isfinite(g) else 0.0) * dt[k]
+    i = 0  # the first reading described at or after the sample's instant (searchsorted, left)
+    si, sr = 0, 0  # the steps the integrals were last found in
+    th = np.empty(3)
+    for k in range(n):
+        if not valid[k]:
+            continue
+        x = inst[k]
+        while i < nf and described[i] < x:
+            i += 1
+        c = min(max(i, 1), max(nf - 1, 1))
+        i0, i1 = min(c - 1, nf - 1), min(c, nf - 1)
+        p = i0 if abs(described[i0] - x) <= abs(described[i1] - x) else i1
+        si, f1 = _step_at(x, ends, si)
+        sr, f0 = _step_at(described[p], ends, sr)
+        for a in range(3):
+            th[a] = (cum[si, a] + f1 * (cum[si + 1, a] - cum[si, a])) - (cum[sr, a] + f0 * (cum[sr + 1, a] - cum[sr, a]))
+        ang = math.sqrt(th[0] * th[0] + th[1] * th[1] + th[2] * th[2])
+        v0, v1, v2 = mag[fresh[p], 0], mag[fresh[p], 1], mag[fresh[p], 2]
+        if ang < 1e-300:
+            out[k, 0], out[k, 1], out[k, 2] = v0, v1, v2
+            continue
+        u0, u1, u2 = th[0] / ang, th[1] / ang, th[2] / ang
+        co, sn = math.cos(ang), math.sin(ang)
+        d = (u0 * v0 + u1 * v1 + u2 * v2) * (1.0 - co)
+        # exp(-[theta]x) v = v cos - (u x v) sin + u (u.v)(1 - cos)
+        out[k, 0] = v0 * co - (u1 * v2 - u2 * v1) * sn + u0 * d
+        out[k, 1] = v1 * co - (u2 * v0 - u0 * v2) * sn + u1 * d
+        out[k, 2] = v2 * co - (u0 * v1 - u1 * v0) * sn + u2 * d
 
 
 def _rotate_back(theta: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -104,3 +104,17 @@ def test_mag_timing_is_not_applied_without_the_information():
 def test_mag_timing_option_is_checked():
     with pytest.raises(ConfigError, match="mag_timing"):
         OfflineFilter(fk.make("recommended"), mag_timing="late")
+
+
+@pytest.mark.parametrize("pairing", [None, 0.002])
+def test_retime_kernel_equals_reference(pairing):
+    rec = sim.scenario("lossy", rate=RATE)  # dropped rows and gaps: uneven steps
+    mag = sim.scenario("late-mag", mag_rate=70.0).mag[:len(rec)].copy()  # held copies
+    gyr = rec.gyr.copy()
+    gyr[50] = np.nan
+    mag[200:203] = np.nan
+    for delay in (0.0, 0.012, -0.007):
+        a = retime_mag(gyr, mag, rec.time, rec.dt, delay, pairing, backend="numba")
+        b = retime_mag(gyr, mag, rec.time, rec.dt, delay, pairing, backend="reference")
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+        assert np.isnan(a[200:203]).all()
