@@ -65,12 +65,26 @@ norm does not depend on the orientation, while a wrong offset ``e`` makes the no
 sides). Both passes then run on that stream, without the model. ``calibration="per-pass"``: each
 pass with its own model, as online (the mode before this).
 
+**The magnetometer's timing decided with the whole recording** (``mag_timing``, default
+``"recording"``). A magnetometer several samples late against the gyroscope (a sensor's filter,
+its read-out, a lower rate held) reads the field turned by the rotation over its delay: the
+heading error this leaves does not average out over back-and-forth turns about tilted axes
+(second order in the rate), and it is the same in both passes, so no fusion removes it; and in
+reversed time the delay is a lead, which no causal pairing expresses. The offline mode estimates
+the delay over the whole recording from the IMU alone (:func:`mag_delay_recording`, the
+``time-offset`` model's estimator without forgetting) and, where it differs from the filter's
+pairing by more than ``MAG_DELAY_SIGMAS`` standard deviations, gives both passes a stream with
+every sample replaced by the reading nearest its instant, turned by the gyroscope over the time
+between (:func:`retime_mag`). It runs after the calibration (the iron does not turn with the
+earth's field). The output stays on the gyroscope's clock. ``mag_timing="as-is"``: the stream as
+recorded (the mode before).
+
 Flags: REST where either pass detects rest (the future confirms a rest the past could not yet
 see), MAG_DISTURBED where the magnetometer was left out (the mask above) or both passes reject it
 (VQF's offline rule), the other bits where either pass sets them.
 
 The readable reference is :func:`fuse_reference`; :func:`_fuse_kernel` (numba) does the same
-arithmetic (tests hold them to 1e-9).
+arithmetic (tests hold them to 1e-9); likewise the re-timing (:func:`retime_mag`'s two backends).
 """
 
 from __future__ import annotations
@@ -326,7 +340,10 @@ class OfflineFilter(Filter):
         None without a magnetometer or with ``disturbance_gap=None``);
         ``diagnostics["mag_calibration"]`` per sample the magnetometer stream both passes used (0 raw,
         1 calibrated by the forward model, 2 by the backward one; None where the filter has no
-        calibration model or ``calibration="per-pass"``); ``backend`` is the passes',
+        calibration model or ``calibration="per-pass"``); ``diagnostics["mag_timing"]`` the
+        magnetometer's delay estimated over the recording, its standard deviation (s) and whether the
+        stream was re-timed (``{"delay", "std", "applied"}``; None in 6D or with
+        ``mag_timing="as-is"``); ``backend`` is the passes',
         ``fusion_backend`` the fusion's."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
