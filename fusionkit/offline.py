@@ -639,10 +639,11 @@ def retime_mag(gyr: np.ndarray, mag: np.ndarray, time: np.ndarray, dt: np.ndarra
     before the end of its step, None the middle. A reading is a valid sample that differs from the
     one before it (an equal one is a lower-rate sensor's held copy, :mod:`fusionkit.correctors.heading`'s
     ``mag_hold``), and it describes its own instant minus ``delay`` (s; :func:`mag_delay_recording`).
-    The nearest reading may come before or after a sample: the result does not depend on the
-    direction of time, so the backward pass gets a stream as well paired as the forward one (a
-    delay of several samples, or a held copy, is otherwise a *lead* in reversed time, which no
-    causal pairing can express). The gyro's rate is constant over its step (an invalid rate: 0).
+    The nearest reading may come before or after a sample, so for a stream without held copies
+    the result does not depend on the direction of time (a held copy is causal: it repeats a
+    past reading); the backward pass gets a stream as well paired as the forward one (a delay of
+    several samples, or a held copy, is otherwise a *lead* in reversed time, which no causal
+    pairing can express). The gyro's rate is constant over its step (a non-finite rate: 0).
     Invalid magnetometer samples are passed on as they are. ``backend``: ``"numba"``
     (:func:`_retime_kernel`) or ``"reference"`` (array operations, the same numbers to 1e-9)."""
     mag = np.ascontiguousarray(mag, dtype=float)
