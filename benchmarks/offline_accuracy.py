@@ -11,7 +11,9 @@ weights switched off); ``--no-mask`` a column without the disturbance mask decid
 (``disturbance_gap=None``: each pass's own rejection only); ``--gap S`` sets ``disturbance_gap``
 of the offline mode (default: ``OfflineFilter.DISTURBANCE_GAP``); ``--per-pass`` a column with each
 pass running its own magnetometer calibration model (``calibration="per-pass"``, the mode before the
-calibration was decided with the whole recording) and one without the model (``mag_calibration=False``).
+calibration was decided with the whole recording) and one without the model (``mag_calibration=False``);
+``--as-is-timing`` a column with the magnetometer as it is recorded (``mag_timing="as-is"``, the mode
+before its timing was decided with the whole recording).
 """
 
 from __future__ import annotations
@@ -60,6 +62,7 @@ def main() -> None:
     ap.add_argument("--no-mask", action="store_true", help="add the offline mode without the disturbance mask")
     ap.add_argument("--gap", type=float, default=OfflineFilter.DISTURBANCE_GAP, help="disturbance_gap [s]")
     ap.add_argument("--per-pass", action="store_true", help="add the per-pass calibration and no calibration")
+    ap.add_argument("--as-is-timing", action="store_true", help="add the magnetometer's timing as recorded")
     args = ap.parse_args()
     files = sorted(Path(args.data).glob("*.hdf5"))
     if args.trials:
@@ -86,6 +89,9 @@ def main() -> None:
                                                                   calibration="per-pass")
             runs["offline, no calibration"] = OfflineFilter(fk.make("recommended", **dict(kw, mag_calibration=False)),
                                                             disturbance_gap=args.gap)
+        if args.as_is_timing and not six:
+            runs["offline, timing as-is"] = OfflineFilter(fk.make("recommended", **kw), disturbance_gap=args.gap,
+                                                          mag_timing="as-is")
         key = "inclination" if six else "total"
         err = {n: [] for n in runs}
         secs = {n: 0.0 for n in runs}
@@ -110,6 +116,8 @@ def main() -> None:
             pairs.append(("offline, no mask", "recommended offline", "the disturbance mask's"))
         if "offline, per-pass calibration" in runs:
             pairs.append(("offline, per-pass calibration", "recommended offline", "the recording's calibration's"))
+        if "offline, timing as-is" in runs:
+            pairs.append(("offline, timing as-is", "recommended offline", "the recording's timing's"))
         for base, new, what in pairs:
             gain = np.array(err[base]) - np.array(err[new])
             best = int(np.argmax(gain))

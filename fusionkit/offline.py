@@ -65,12 +65,26 @@ norm does not depend on the orientation, while a wrong offset ``e`` makes the no
 sides). Both passes then run on that stream, without the model. ``calibration="per-pass"``: each
 pass with its own model, as online (the mode before this).
 
+**The magnetometer's timing decided with the whole recording** (``mag_timing``, default
+``"recording"``). A magnetometer several samples late against the gyroscope (a sensor's filter,
+its read-out, a lower rate held) reads the field turned by the rotation over its delay: the
+heading error this leaves does not average out over back-and-forth turns about tilted axes
+(second order in the rate), and it is the same in both passes, so no fusion removes it; and in
+reversed time the delay is a lead, which no causal pairing expresses. The offline mode estimates
+the delay over the whole recording from the IMU alone (:func:`mag_delay_recording`, the
+``time-offset`` model's estimator without forgetting) and, where it differs from the filter's
+pairing by more than ``MAG_DELAY_SIGMAS`` standard deviations, gives both passes a stream with
+every sample replaced by the reading nearest its instant, turned by the gyroscope over the time
+between (:func:`retime_mag`). It runs after the calibration (the iron does not turn with the
+earth's field). The output stays on the gyroscope's clock. ``mag_timing="as-is"``: the stream as
+recorded (the mode before).
+
 Flags: REST where either pass detects rest (the future confirms a rest the past could not yet
 see), MAG_DISTURBED where the magnetometer was left out (the mask above) or both passes reject it
 (VQF's offline rule), the other bits where either pass sets them.
 
 The readable reference is :func:`fuse_reference`; :func:`_fuse_kernel` (numba) does the same
-arithmetic (tests hold them to 1e-9).
+arithmetic (tests hold them to 1e-9); likewise the re-timing (:func:`retime_mag`'s two backends).
 """
 
 from __future__ import annotations
@@ -87,17 +101,23 @@ from .config import FilterConfig
 from .conventions import change_frame
 from .errors import ConfigError, InputError, PluginError
 from .models.mag_calibration import mag_calibration_apply
+from .models.time_offset import EST, MAG, NSEG, STD, TimeOffsetModel, time_offset_apply
 from .protocols import Filter
 from .rotations import quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec
 from .types import Flag, Recording, Result, hold_gaps, sample_validity
 
 __all__ = ["OfflineFilter", "reverse_recording", "reversed_config", "information", "fuse_reference",
-           "supports_offline", "disturbance_mask", "calibration_passes", "select_calibration"]
+           "supports_offline", "disturbance_mask", "calibration_passes", "select_calibration", "mag_delay_recording",
+           "retime_mag"]
 
 #: the sensor model whose magnetometer calibration the offline mode decides with the whole recording
 _MAG_CALIBRATION = "mag-calibration"
 #: how the offline mode treats that model (``OfflineFilter(calibration=...)``)
 _CALIBRATIONS = ("recording", "per-pass")
+#: how the offline mode treats the magnetometer's timing (``OfflineFilter(mag_timing=...)``)
+_MAG_TIMINGS = ("recording", "as-is")
+#: the delay estimate's forgetting time (s): none within any recording
+_NO_FORGETTING = 1e12
 
 #: the bits that mean a pass did not use its accelerometer / magnetometer on a sample
 _ACC_UNUSED = int(Flag.ACC_INVALID | Flag.ACC_SATURATED | Flag.ACC_REJECTED)
@@ -273,9 +293,14 @@ class OfflineFilter(Filter):
     #: over which :func:`select_calibration` compares the candidate streams' field norms: half a
     #: turn each side, one turn in all, over which a wrong offset swings the norm through its range
     CALIBRATION_SPAN: ClassVar[float] = math.pi
+    #: the magnetometer is re-timed (:func:`retime_mag`) when the delay estimated over the recording
+    #: is this many of its standard deviations away from the filter's pairing: a two-sided test at
+    #: the 0.3% level that the sensor does not keep the pairing the filter assumes (a recording
+    #: with little angular acceleration, e.g. at rest, informs the estimate little and keeps it)
+    MAG_DELAY_SIGMAS: ClassVar[float] = 3.0
 
     def __init__(self, inner: Filter, disturbance_gap: float | None = DISTURBANCE_GAP,
-                 calibration: str = "recording") -> None:
+                 calibration: str = "recording", mag_timing: str = "recording") -> None:
         why = supports_offline(inner)
         if why is not None:
             raise PluginError(f"filter {inner.name!r} does not support offline=True: {why}")
@@ -285,7 +310,10 @@ class OfflineFilter(Filter):
                               f"got {disturbance_gap!r}")
         if calibration not in _CALIBRATIONS:
             raise ConfigError(f"calibration must be one of {', '.join(map(repr, _CALIBRATIONS))}, got {calibration!r}")
+        if mag_timing not in _MAG_TIMINGS:
+            raise ConfigError(f"mag_timing must be one of {', '.join(map(repr, _MAG_TIMINGS))}, got {mag_timing!r}")
         self.inner = inner
+        self.mag_timing = mag_timing
         self.disturbance_gap = None if disturbance_gap is None else float(disturbance_gap)
         self.calibration = calibration
         self.config = inner.config
@@ -312,7 +340,10 @@ class OfflineFilter(Filter):
         None without a magnetometer or with ``disturbance_gap=None``);
         ``diagnostics["mag_calibration"]`` per sample the magnetometer stream both passes used (0 raw,
         1 calibrated by the forward model, 2 by the backward one; None where the filter has no
-        calibration model or ``calibration="per-pass"``); ``backend`` is the passes',
+        calibration model or ``calibration="per-pass"``); ``diagnostics["mag_timing"]`` the
+        magnetometer's delay estimated over the recording, its standard deviation (s) and whether the
+        stream was re-timed (``{"delay", "std", "applied"}``; None in 6D or with
+        ``mag_timing="as-is"``); ``backend`` is the passes',
         ``fusion_backend`` the fusion's."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
@@ -331,6 +362,9 @@ class OfflineFilter(Filter):
                     state = copy.deepcopy(state)
                     model_state = state["mod"].pop(index)
                 rec, choice, model_end = self._calibrated(rec, model, inner.config, used, model_state)
+        timing = None
+        if self.mag_timing == "recording" and len(rec) >= 2 and self.dimension(rec) == "9D":
+            rec, timing = self._retimed(rec, inner.config, used)
         fwd = inner.run(rec, backend=backend, progress=progress, state=state)
         n = len(rec)
         if n < 2:  # nothing after the sample: the forward pass is all there is
@@ -382,7 +416,7 @@ class OfflineFilter(Filter):
         diag = dict(fwd.diagnostics)
         diag.update({"filter": self.name, "fusion_backend": used, "offline": True, "config": self.config.model_dump(),
                      "backward_weight": {"inclination": w_i, "heading": w_h}, "mag_disturbed": disturbed,
-                     "mag_calibration": choice,
+                     "mag_calibration": choice, "mag_timing": timing,
                      "backward_diagnostics": {k: v for k, v in bwd.diagnostics.items() if k != "config"}})
         return Result(q, flags, frame, diag)
 
@@ -402,6 +436,25 @@ class OfflineFilter(Filter):
         out = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
         out.mag = mag
         return out, choice, end
+
+    @classmethod
+    def _retimed(cls, rec, config, used):
+        """``rec`` with its magnetometer on the filter's pairing (:func:`retime_mag`) where the
+        delay estimated over the whole recording (:func:`mag_delay_recording`) differs from that
+        pairing by more than ``MAG_DELAY_SIGMAS`` standard deviations (clamped, as the ``time-offset`` model
+        clamps it, to its ``max_offset``), else ``rec`` itself; and
+        ``{"delay", "std", "applied"}`` (s)."""
+        gyr_range, acc_range = getattr(config, "gyr_range", None), getattr(config, "acc_range", None)
+        pairing = getattr(config, "mag_delay", None)
+        delay, std = mag_delay_recording(rec, gyr_range, acc_range, pairing, used)
+        applied = bool(math.isfinite(delay) and math.isfinite(std) and abs(delay) > cls.MAG_DELAY_SIGMAS * std)
+        info = {"delay": delay, "std": std, "applied": applied}
+        if not applied:
+            return rec, info
+        out = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
+        limit = TimeOffsetModel.Config().max_offset  # the model's bound on a sensor's delay, as it applies it
+        out.mag = retime_mag(rec.gyr, rec.mag, rec.time, rec.dt, min(max(delay, -limit), limit), pairing, used)
+        return out, info
 
     @staticmethod
     def _without(rec, disturbed, inner, back, backend, progress, state):
@@ -520,6 +573,200 @@ def _calibration_kernel(s, gyr, acc, mag, dt, ok, p, out):
         mag_calibration_apply(s, v, ok[k, 0], ok[k, 1], ok[k, 2], q, dt[k], p)
         for i in range(3):
             out[k, i] = v[6 + i] if ok[k, 2] else mag[k, i]
+
+
+def mag_delay_recording(rec: Recording, gyr_range: float | None = None, acc_range: float | None = None,
+                        pairing: float | None = None, backend: str = "numba") -> tuple[float, float]:
+    """The magnetometer's delay against the gyroscope over the whole recording, from the IMU alone:
+    ``(delay, std)`` in s, ``delay`` the time by which a magnetometer sample describes the body
+    *before* the instant the filter pairs it with (``pairing``: the filter's ``mag_delay``, None the
+    middle of the gyro's step), NaN without enough segments.
+
+    The estimator is the ``time-offset`` model's (:mod:`fusionkit.models.time_offset`: a field
+    direction that the gyro's turn between two fresh samples does not explain is proportional to
+    the angular acceleration times the delay; held samples neither start nor close a segment, a
+    segment across which the field's norm changes is a disturbance and does not enter), run once
+    over the recording without forgetting: offline every segment of the recording informs the
+    one delay of the hardware. ``backend``: ``"numba"`` (its kernel) or ``"reference"`` (the
+    model's ``apply``, the same numbers)."""
+    from .protocols import Sample
+
+    model = TimeOffsetModel(forget_time=_NO_FORGETTING)
+    s = model.initial_state(rec.nominal_dt)
+    dt = np.ascontiguousarray(rec.dt, dtype=float)
+    if resolve_backend(backend, True) == "numba":
+        ok = np.zeros((len(rec), 3), dtype=np.bool_)
+        validity_all(rec.gyr, rec.acc, rec.mag, True, math.inf if gyr_range is None else float(gyr_range),
+                     math.inf if acc_range is None else float(acc_range), ok, np.zeros(len(rec), np.uint32))
+        _delay_kernel(s, rec.gyr, rec.acc, rec.mag, dt, ok, model.params())
+    else:
+        nan3 = np.full(3, np.nan)
+        q = np.array([1.0, 0.0, 0.0, 0.0])
+        for k in range(len(rec)):
+            g_ok, a_ok, m_ok, _ = sample_validity(rec.gyr[k], rec.acc[k], rec.mag[k], gyr_range, acc_range)
+            model.apply(s, Sample(rec.gyr[k].copy() if g_ok else nan3, rec.acc[k] if a_ok else None,
+                                  rec.mag[k] if m_ok else None, float(dt[k])), q)
+    if s[MAG + NSEG] < model.config.min_segments or not s[MAG + STD] > 0.0:
+        return math.nan, math.nan
+    # the model's estimate is the gyro's delay against the magnetometer, both taken at the middle of
+    # the step (negative: the magnetometer is the later); the filter pairs it pairing before the end
+    middle = 0.5 * rec.nominal_dt
+    return -float(s[MAG + EST]) + (middle - pairing if pairing is not None else 0.0), float(s[MAG + STD])
+
+
+@njit
+def _delay_kernel(s, gyr, acc, mag, dt, ok, p):
+    """The ``time-offset`` kernel alone over a recording (its estimate is all that is kept)."""
+    q = np.zeros(4)
+    q[0] = 1.0
+    v = np.empty(9)
+    for k in range(gyr.shape[0]):
+        for i in range(3):
+            v[i] = gyr[k, i] if ok[k, 0] else np.nan
+            v[3 + i] = acc[k, i]
+            v[6 + i] = mag[k, i]
+        time_offset_apply(s, v, ok[k, 0], ok[k, 1], ok[k, 2], q, dt[k], p)
+
+
+def retime_mag(gyr: np.ndarray, mag: np.ndarray, time: np.ndarray, dt: np.ndarray, delay: float,
+               pairing: float | None = None, backend: str = "numba") -> np.ndarray:
+    """The magnetometer on the filter's pairing: every valid sample ``k`` replaced by the reading
+    nearest to its instant, turned by the gyroscope over the time between (``u(t) = exp(-[theta]x)
+    u(t')``, ``theta`` the gyro's integral from ``t'`` to ``t``: a direction fixed in the earth turns
+    against the body rate).
+
+    A sample's instant is where the filter pairs it: ``pairing`` (the filter's ``mag_delay``)
+    before the end of its step, None the middle. A reading is a valid sample that differs from the
+    one before it (an equal one is a lower-rate sensor's held copy, :mod:`fusionkit.correctors.heading`'s
+    ``mag_hold``), and it describes its own instant minus ``delay`` (s; :func:`mag_delay_recording`).
+    The nearest reading may come before or after a sample, so for a stream without held copies
+    the result does not depend on the direction of time (a held copy is causal: it repeats a
+    past reading); the backward pass gets a stream as well paired as the forward one (a delay of
+    several samples, or a held copy, is otherwise a *lead* in reversed time, which no causal
+    pairing can express). The gyro's rate is constant over its step (a non-finite rate: 0).
+    Invalid magnetometer samples are passed on as they are. ``backend``: ``"numba"``
+    (:func:`_retime_kernel`) or ``"reference"`` (array operations, the same numbers to 1e-9)."""
+    mag = np.ascontiguousarray(mag, dtype=float)
+    gyr = np.ascontiguousarray(gyr, dtype=float)
+    time = np.ascontiguousarray(time, dtype=float)
+    dt = np.ascontiguousarray(dt, dtype=float)
+    if resolve_backend(backend, True) == "numba":
+        out = mag.copy()
+        _retime_kernel(gyr, mag, time, dt, float(delay), pairing is None, 0.0 if pairing is None else float(pairing),
+                       out)
+        return out
+    return _retime_reference(gyr, mag, time, dt, delay, pairing)
+
+
+def _retime_reference(gyr, mag, time, dt, delay, pairing):
+    """The readable twin of :func:`_retime_kernel` (:func:`retime_mag`'s arithmetic in arrays)."""
+    norm = np.linalg.norm(mag, axis=1)
+    valid = np.isfinite(norm) & (norm > 0.0)
+    fresh = valid.copy()
+    fresh[1:] &= ~(valid[:-1] & np.all(mag[1:] == mag[:-1], axis=1))
+    j = np.flatnonzero(fresh)
+    if j.size == 0:
+        return mag.copy()
+    inst = time - (0.5 * dt if pairing is None else pairing)  # each sample's instant
+    described = inst[j] - delay  # each reading's
+    i = np.clip(np.searchsorted(described, inst), 1, max(j.size - 1, 1))
+    i0 = np.minimum(i - 1, j.size - 1)
+    i1 = np.minimum(i, j.size - 1)
+    pick = np.where(np.abs(described[i0] - inst) <= np.abs(described[i1] - inst), i0, i1)
+    # the gyro's integral at the steps' ends, linear within each step
+    ends = np.concatenate(([time[0] - dt[0]], time))
+    rate = np.where(np.isfinite(gyr), gyr, 0.0)
+    cum = np.vstack((np.zeros((1, 3)), np.cumsum(rate * dt[:, None], axis=0)))
+    theta = np.stack([np.interp(inst, ends, cum[:, a]) - np.interp(described[pick], ends, cum[:, a])
+                      for a in range(3)], axis=1)
+    turned = _rotate_back(theta, mag[j[pick]])
+    return np.where(valid[:, None], turned, mag)
+
+
+@njit
+def _step_at(x, ends, i):
+    """``(step, fraction)`` of time ``x`` among the steps' ``ends``, searching from step ``i`` (``x``
+    grows from call to call): the gyro's integral there is linear between the step's ends, and held
+    beyond the first and the last."""
+    m = ends.shape[0]
+    if x <= ends[0]:
+        return 0, 0.0
+    if x >= ends[m - 1]:
+        return m - 2, 1.0
+    while i < m - 2 and ends[i + 1] < x:
+        i += 1
+    while i > 0 and ends[i] > x:
+        i -= 1
+    return i, (x - ends[i]) / (ends[i + 1] - ends[i])
+
+
+@njit
+def _retime_kernel(gyr, mag, time, dt, delay, middle, pairing, out):
+    """:func:`retime_mag` compiled: one sweep for the readings, one for the samples (both in time order)."""
+    n = mag.shape[0]
+    valid = np.zeros(n, dtype=np.bool_)
+    fresh = np.empty(n, dtype=np.int64)
+    nf = 0
+    for k in range(n):
+        s = mag[k, 0] * mag[k, 0] + mag[k, 1] * mag[k, 1] + mag[k, 2] * mag[k, 2]
+        valid[k] = math.isfinite(s) and math.sqrt(s) > 0.0
+        if valid[k] and not (k > 0 and valid[k - 1] and mag[k, 0] == mag[k - 1, 0] and mag[k, 1] == mag[k - 1, 1]
+                             and mag[k, 2] == mag[k - 1, 2]):
+            fresh[nf] = k
+            nf += 1
+    if nf == 0:
+        return
+    inst = np.empty(n)
+    for k in range(n):
+        inst[k] = time[k] - (0.5 * dt[k] if middle else pairing)
+    described = np.empty(nf)
+    for r in range(nf):
+        described[r] = inst[fresh[r]] - delay
+    ends = np.empty(n + 1)
+    ends[0] = time[0] - dt[0]
+    cum = np.zeros((n + 1, 3))
+    for k in range(n):
+        ends[k + 1] = time[k]
+        for a in range(3):
+            g = gyr[k, a]
+            cum[k + 1, a] = cum[k, a] + (g if math.isfinite(g) else 0.0) * dt[k]
+    i = 0  # the first reading described at or after the sample's instant (searchsorted, left)
+    si, sr = 0, 0  # the steps the integrals were last found in
+    th = np.empty(3)
+    for k in range(n):
+        if not valid[k]:
+            continue
+        x = inst[k]
+        while i < nf and described[i] < x:
+            i += 1
+        c = min(max(i, 1), max(nf - 1, 1))
+        i0, i1 = min(c - 1, nf - 1), min(c, nf - 1)
+        p = i0 if abs(described[i0] - x) <= abs(described[i1] - x) else i1
+        si, f1 = _step_at(x, ends, si)
+        sr, f0 = _step_at(described[p], ends, sr)
+        for a in range(3):
+            th[a] = (cum[si, a] + f1 * (cum[si + 1, a] - cum[si, a])) - (cum[sr, a] + f0 * (cum[sr + 1, a] - cum[sr, a]))
+        ang = math.sqrt(th[0] * th[0] + th[1] * th[1] + th[2] * th[2])
+        v0, v1, v2 = mag[fresh[p], 0], mag[fresh[p], 1], mag[fresh[p], 2]
+        if ang < 1e-300:
+            out[k, 0], out[k, 1], out[k, 2] = v0, v1, v2
+            continue
+        u0, u1, u2 = th[0] / ang, th[1] / ang, th[2] / ang
+        co, sn = math.cos(ang), math.sin(ang)
+        d = (u0 * v0 + u1 * v1 + u2 * v2) * (1.0 - co)
+        # exp(-[theta]x) v = v cos - (u x v) sin + u (u.v)(1 - cos)
+        out[k, 0] = v0 * co - (u1 * v2 - u2 * v1) * sn + u0 * d
+        out[k, 1] = v1 * co - (u2 * v0 - u0 * v2) * sn + u1 * d
+        out[k, 2] = v2 * co - (u0 * v1 - u1 * v0) * sn + u2 * d
+
+
+def _rotate_back(theta: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``exp(-[theta]x) v`` per row (Rodrigues)."""
+    a = np.linalg.norm(theta, axis=1, keepdims=True)
+    small = a < 1e-300
+    u = theta / np.where(small, 1.0, a)
+    c, s = np.cos(a), np.sin(a)
+    return v * c - np.cross(u, v) * s + u * np.sum(u * v, axis=1, keepdims=True) * (1.0 - c)
 
 
 def select_calibration(gyr: np.ndarray, dt: np.ndarray, streams: list[np.ndarray], span: float = math.pi,

@@ -1,0 +1,137 @@
+"""The offline mode's magnetometer timing decided with the whole recording (fusionkit.offline:
+mag_delay_recording, retime_mag, OfflineFilter(mag_timing=...)): a late magnetometer offsets the
+heading of both passes alike, which no fusion removes; re-timing the stream removes it."""
+
+import copy
+
+import numpy as np
+import pytest
+
+import fusionkit as fk
+from fusionkit import sim
+from fusionkit.benchmarking.metrics import rms_errors
+from fusionkit.errors import ConfigError
+from fusionkit.offline import OfflineFilter, mag_delay_recording, retime_mag
+from fusionkit.sim.motion import Rest, Rotate
+
+RATE = 200.0
+
+
+def tilted_turns(delay_samples=0.0, mag_rate=None, noise=None, seed=0, turns=30):
+    """Fast turns (300 deg/s) back and forth about a body axis between two horizontal ones,
+    with the magnetometer ``delay_samples`` late (and read at ``mag_rate`` and held)."""
+    segs = [Rest(6.0)] + [Rotate((1, 1, 0), (1 if i % 2 == 0 else -1) * np.pi, 0.6) for i in range(turns)] + [Rest(6.0)]
+    errors = sim.SensorErrors(mag_delay=delay_samples / RATE, mag_rate=mag_rate)
+    return sim.simulate(segs, rate=RATE, noise=sim.Noise.mems() if noise is None else noise, seed=seed,
+                        errors=errors, gnss_rate=None)
+
+
+def moving(rec):
+    m = np.zeros(len(rec), bool)
+    m[int(6 * RATE):-int(6 * RATE)] = True
+    return m
+
+
+def test_late_magnetometer_offsets_both_passes_and_retiming_removes_it():
+    late, on_time = tilted_turns(3.0), tilted_turns(0.0)
+    inner = fk.make("recommended")
+    head = {}
+    for name, rec in (("late", late), ("on time", on_time)):
+        for timing in ("as-is", "recording"):
+            res = OfflineFilter(inner, mag_timing=timing).run(rec)
+            head[name, timing] = rms_errors(res, rec, mask=moving(rec))["heading"]
+            if name == "late" and timing == "recording":
+                t = res.diagnostics["mag_timing"]
+                assert t["applied"] and abs(t["delay"] * RATE - 3.0) < 0.1, t
+    # the delay's heading offset (second order in the rate, the same in both passes) stays in the fusion as-is
+    assert head["late", "as-is"] > 3.0 * head["on time", "as-is"]
+    # re-timed, the late magnetometer is as good as one on time
+    assert head["late", "recording"] < head["on time", "as-is"] + 0.03
+    assert head["on time", "recording"] == head["on time", "as-is"]  # on time: not applied, the same result
+
+
+def test_retime_mag_puts_a_late_held_magnetometer_on_time():
+    quiet = sim.Noise()  # noiseless: the comparison is the timing alone
+    late = tilted_turns(2.5, mag_rate=70.0, noise=quiet, turns=6)
+    truth = tilted_turns(0.0, noise=quiet, turns=6)
+    out = retime_mag(late.gyr, late.mag, late.time, late.dt, 2.5 / RATE)
+    m = moving(late)
+
+    def angle(a, b):
+        c = np.sum(a * b, axis=1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
+        return np.degrees(np.arccos(np.clip(c, -1, 1)))[m]
+
+    before, after = angle(late.mag, truth.mag), angle(out, truth.mag)
+    assert before.max() > 5.0  # up to 5.4 samples old at 300 deg/s
+    assert after.max() < 0.1 * before.max() and np.sqrt(np.mean(after**2)) < 0.05 * np.sqrt(np.mean(before**2))
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), np.linalg.norm(late.mag, axis=1), rtol=1e-4)  # turned only
+
+
+def test_retime_mag_passes_invalid_samples_and_keeps_a_fresh_stream_on_time():
+    rec = tilted_turns(0.0, turns=4)
+    mag = rec.mag.copy()
+    mag[100:105] = np.nan
+    mag[300] = 0.0
+    out = retime_mag(rec.gyr, mag, rec.time, rec.dt, 0.0)
+    assert np.isnan(out[100:105]).all() and (out[300] == 0.0).all()
+    ok = np.isfinite(mag).all(axis=1) & (np.linalg.norm(mag, axis=1) > 0)
+    np.testing.assert_allclose(out[ok], mag[ok], atol=1e-12)  # no delay, every sample fresh: itself
+
+
+def test_mag_delay_recording_kernel_equals_reference():
+    rec = tilted_turns(1.5, mag_rate=120.0, turns=8)
+    a = mag_delay_recording(rec, backend="numba")
+    b = mag_delay_recording(rec, backend="reference")
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+    assert abs(a[0] * RATE - 1.5) < 0.2
+    # a declared pairing moves the estimate: the delay is counted from where the filter pairs the sample
+    c = mag_delay_recording(rec, pairing=0.0)
+    assert abs((c[0] - a[0]) - 0.5 / RATE) < 1e-12
+
+
+def test_mag_timing_is_not_applied_without_the_information():
+    rest = sim.simulate([Rest(20.0)], rate=RATE, noise=sim.Noise.mems(), seed=3, gnss_rate=None)
+    d, s = mag_delay_recording(rest)
+    assert np.isnan(mag_delay_recording(sim.simulate([Rest(0.1)], rate=RATE, gnss_rate=None))[0])  # no segments
+    assert s * RATE > 5.0 and abs(d) < OfflineFilter.MAG_DELAY_SIGMAS * s  # at rest only noise informs it
+    res = OfflineFilter(fk.make("recommended")).run(rest)
+    assert res.diagnostics["mag_timing"]["applied"] is False
+    six = copy.copy(rest)
+    six.mag = None
+    assert OfflineFilter(fk.make("recommended")).run(six).diagnostics["mag_timing"] is None
+
+
+def test_mag_timing_option_is_checked():
+    with pytest.raises(ConfigError, match="mag_timing"):
+        OfflineFilter(fk.make("recommended"), mag_timing="late")
+
+
+@pytest.mark.parametrize("pairing", [None, 0.002])
+def test_retime_kernel_equals_reference(pairing):
+    rec = sim.scenario("lossy", rate=RATE)  # dropped rows and gaps: uneven steps
+    mag = sim.scenario("late-mag", mag_rate=70.0).mag[:len(rec)].copy()  # held copies
+    gyr = rec.gyr.copy()
+    gyr[50] = np.nan
+    mag[200:203] = np.nan
+    for delay in (0.0, 0.012, -0.007):
+        a = retime_mag(gyr, mag, rec.time, rec.dt, delay, pairing, backend="numba")
+        b = retime_mag(gyr, mag, rec.time, rec.dt, delay, pairing, backend="reference")
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+        assert np.isnan(a[200:203]).all()
+
+
+def test_retimed_result_does_not_depend_on_the_direction_of_time():
+    """Played backwards, a late magnetometer is an early one: the estimate changes sign, the
+    re-timed stream is the same, and so (re-indexed) is the fused result."""
+    from fusionkit.offline import reverse_recording
+
+    rec = tilted_turns(3.0, turns=12)
+    n = len(rec)
+    f = fk.make("recommended", offline=True)
+    a, b = f.run(rec), f.run(reverse_recording(rec))
+    ta, tb = a.diagnostics["mag_timing"], b.diagnostics["mag_timing"]
+    assert ta["applied"] and tb["applied"]
+    assert abs(ta["delay"] + tb["delay"]) < 0.05 / RATE  # the same delay, seen from the other side
+    back = b.quat[n - 2::-1]
+    angle = 2 * np.degrees(np.arccos(np.clip(np.abs(np.sum(a.quat[:-1] * back, axis=1)), 0, 1)))
+    assert angle.max() < 1e-3
