@@ -17,9 +17,13 @@ Options, each a separate idea:
   mean of the samples so far (from the first sample on, no start transient); off: the low-pass
   starts in the steady state of the first sample;
 - **bias in motion** (``motion_bias_tau``): the correction, turned into a rate, is the gyro's drift
-  on the horizontal axes; the pipeline's gyro bias integrates it (seen in the body) with this time
-  constant (slow: linear accelerations must average out), limited to ``bias_max``; not on REST
-  samples (the ``rest-bias-lowpass`` corrector learns there);
+  on the horizontal axes. ``bias_filter="kalman"`` (default) learns the pipeline's gyro bias from it
+  as VQF does: the drift the inclination low-pass sees is the earth-frame bias error *low-passed*,
+  so the measurement matrix is the low-passed rotation ``LP(R)``, and a covariance ``P`` weighs it
+  (``motion_bias_tau`` is the forgetting time in which ``P`` regains ``bias_sigma_motion^2``; a REST
+  sample shrinks ``P`` as a measurement of noise ``bias_sigma_rest``, None: not). ``"lowpass"`` (the
+  behaviour before): the pipeline's bias integrates the rate, seen in the body with the sample's
+  own R, with this time constant; not on REST samples. Both limit the bias to ``bias_max``;
 - **sensor pairing** (``acc_delay``): the gyro's step k covers ``(t[k-1], t[k]]``; an accelerometer
   sampled like the gyro describes its middle, so by default (None) the sample is rotated into I
   with ``q_gyr (x) exp(-w dt / 2)``; 0 pairs it with the end of the step; a larger value serves an
@@ -38,7 +42,7 @@ does the same arithmetic (tests: 1e-9 on every sample).
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -47,7 +51,7 @@ from ..config import PluginConfig, param
 from ..protocols import CorrectorKernel, FactorCorrector
 from ..rotations import quat_mul, quat_to_matrix
 from ..types import Flag
-from ._factor import bias_step, frame_axes, k_bias_step, k_paired, k_qmul, k_rot, paired
+from ._factor import bias_step, frame_axes, k_bias_step, k_clamp3, k_paired, k_qmul, k_rot, paired
 
 __all__ = ["InertialTiltConfig", "InertialTilt", "inertial_tilt_kernel", "lowpass_coefficients"]
 
@@ -55,7 +59,10 @@ __all__ = ["InertialTiltConfig", "InertialTilt", "inertial_tilt_kernel", "lowpas
 # the low-passed vector, the frame's up and east axes, and the coefficients for the last dt
 _QA, _Z1, _Z2, _MEAN, _NMEAN, _TACC, _READY, _Y = 0, 4, 7, 10, 13, 14, 15, 16
 _UP, _EAST, _DT, _B = 19, 22, 25, 26  # _B: b0, b1, b2, a1, a2
-_SIZE = 31
+# the bias filter (bias_filter "kalman"): the low-passed rotation matrix's and R bias's delay lines, the
+# covariance P (3 x 3), and whether the low-passes started
+_RZ1, _RZ2, _BZ1, _BZ2, _P, _KREADY = 31, 40, 49, 52, 55, 64
+_SIZE = 65
 _REST = int(Flag.REST)
 
 
@@ -71,6 +78,121 @@ def lowpass_coefficients(tau: float, dt: float) -> tuple[float, float, float, fl
 _lp_coeffs = njit(lowpass_coefficients)
 
 
+def _kf_noise(dt, forget, sigma_init, sigma_motion, sigma_rest, vertical):
+    """The bias filter's noise for one sample of ``dt`` (VQF's parametrisation): the process noise
+    ``v`` (variance ``sigma_motion^2`` gained in ``forget`` s), the measurement noises whose
+    steady-state covariance is ``sigma_motion^2`` (horizontal), the vertical's (divided by
+    ``vertical``), the rest's (``sigma_rest^2``; 0: none) and the covariance's ceiling."""
+    v = sigma_motion * sigma_motion * dt / forget
+    pm, pr = sigma_motion * sigma_motion, sigma_rest * sigma_rest
+    wm = pm * pm / v + pm
+    return v, wm, wm / vertical, pr * pr / v + pr, sigma_init * sigma_init
+
+
+_k_kf_noise = njit(inline="always")(_kf_noise)
+
+
+@njit(inline="always")
+def _mm(a, b):
+    """``a @ b`` of two 3 x 3 matrices as row-major 9-tuples."""
+    return (a[0] * b[0] + a[1] * b[3] + a[2] * b[6], a[0] * b[1] + a[1] * b[4] + a[2] * b[7],
+            a[0] * b[2] + a[1] * b[5] + a[2] * b[8], a[3] * b[0] + a[4] * b[3] + a[5] * b[6],
+            a[3] * b[1] + a[4] * b[4] + a[5] * b[7], a[3] * b[2] + a[4] * b[5] + a[5] * b[8],
+            a[6] * b[0] + a[7] * b[3] + a[8] * b[6], a[6] * b[1] + a[7] * b[4] + a[8] * b[7],
+            a[6] * b[2] + a[7] * b[5] + a[8] * b[8])
+
+
+@njit(inline="always")
+def _mt(a):
+    """The transpose of a 9-tuple matrix."""
+    return (a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8])
+
+
+@njit(inline="always")
+def _minv(a):
+    """The inverse of a 9-tuple matrix (cofactors)."""
+    c0, c1, c2 = a[4] * a[8] - a[5] * a[7], a[5] * a[6] - a[3] * a[8], a[3] * a[7] - a[4] * a[6]
+    d = 1.0 / (a[0] * c0 + a[1] * c1 + a[2] * c2)
+    return (c0 * d, (a[2] * a[7] - a[1] * a[8]) * d, (a[1] * a[5] - a[2] * a[4]) * d,
+            c1 * d, (a[0] * a[8] - a[2] * a[6]) * d, (a[2] * a[3] - a[0] * a[5]) * d,
+            c2 * d, (a[1] * a[6] - a[0] * a[7]) * d, (a[0] * a[4] - a[1] * a[3]) * d)
+
+
+@njit(inline="always")
+def _qmat(w, x, y, z):
+    """``R(q)`` as a row-major 9-tuple."""
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
+
+
+@njit(inline="always")
+def _lp_step(s, i, n, x, b0, b1, b2, c1, c2):
+    """One step of the second-order low-pass whose delay lines are ``s[i]`` and ``s[i + n]``."""
+    y = b0 * x + s[i]
+    s[i] = b1 * x - c1 * y + s[i + n]
+    s[i + n] = b2 * x - c2 * y
+    return y
+
+
+@njit(inline="always")
+def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
+    """:meth:`InertialTilt._kalman` (``e``: the output quaternion, ``r``: the correction rate)."""
+    rot = _qmat(e0, e1, e2, e3)
+    rb0 = rot[0] * b[0] + rot[1] * b[1] + rot[2] * b[2]
+    rb1 = rot[3] * b[0] + rot[4] * b[1] + rot[5] * b[2]
+    rb2 = rot[6] * b[0] + rot[7] * b[1] + rot[8] * b[2]
+    b0, b1, b2, c1, c2 = s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4]
+    if s[_KREADY] == 0.0:
+        for i in range(9):
+            s[_RZ1 + i], s[_RZ2 + i] = rot[i] * (1.0 - b0), rot[i] * (b2 - c2)
+        s[_BZ1], s[_BZ1 + 1], s[_BZ1 + 2] = rb0 * (1.0 - b0), rb1 * (1.0 - b0), rb2 * (1.0 - b0)
+        s[_BZ2], s[_BZ2 + 1], s[_BZ2 + 2] = rb0 * (b2 - c2), rb1 * (b2 - c2), rb2 * (b2 - c2)
+        s[_KREADY] = 1.0
+    z = _RZ1
+    h = (_lp_step(s, z, 9, rot[0], b0, b1, b2, c1, c2), _lp_step(s, z + 1, 9, rot[1], b0, b1, b2, c1, c2),
+         _lp_step(s, z + 2, 9, rot[2], b0, b1, b2, c1, c2), _lp_step(s, z + 3, 9, rot[3], b0, b1, b2, c1, c2),
+         _lp_step(s, z + 4, 9, rot[4], b0, b1, b2, c1, c2), _lp_step(s, z + 5, 9, rot[5], b0, b1, b2, c1, c2),
+         _lp_step(s, z + 6, 9, rot[6], b0, b1, b2, c1, c2), _lp_step(s, z + 7, 9, rot[7], b0, b1, b2, c1, c2),
+         _lp_step(s, z + 8, 9, rot[8], b0, b1, b2, c1, c2))
+    hb0 = _lp_step(s, _BZ1, 3, rb0, b0, b1, b2, c1, c2)
+    hb1 = _lp_step(s, _BZ1 + 1, 3, rb1, b0, b1, b2, c1, c2)
+    hb2 = _lp_step(s, _BZ1 + 2, 3, rb2, b0, b1, b2, c1, c2)
+    v, wm, wv, wr, p0 = _k_kf_noise(dt, p[3], p[6], p[7], p[8], p[9])
+    for i in range(3):
+        if s[_P + 4 * i] < p0:
+            s[_P + 4 * i] += v
+    pp = (s[_P], s[_P + 1], s[_P + 2], s[_P + 3], s[_P + 4], s[_P + 5], s[_P + 6], s[_P + 7], s[_P + 8])
+    if rest:
+        if p[8] > 0.0:  # P -= P (P + wr I)^-1 P
+            m = _mm(_mm(pp, _minv((pp[0] + wr, pp[1], pp[2], pp[3], pp[4] + wr, pp[5], pp[6], pp[7],
+                                   pp[8] + wr))), pp)
+            for i in range(9):
+                s[_P + i] = pp[i] - m[i]
+        return
+    u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
+    hu = u0 * hb0 + u1 * hb1 + u2 * hb2
+    f0 = -r0 + hb0 - u0 * hu - (h[0] * b[0] + h[1] * b[1] + h[2] * b[2])
+    f1 = -r1 + hb1 - u1 * hu - (h[3] * b[0] + h[4] * b[1] + h[5] * b[2])
+    f2 = -r2 + hb2 - u2 * hu - (h[6] * b[0] + h[7] * b[1] + h[8] * b[2])
+    ne = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+    if ne > p[4]:
+        f0, f1, f2 = f0 * (p[4] / ne), f1 * (p[4] / ne), f2 * (p[4] / ne)
+    pht = _mm(pp, _mt(h))
+    sm = _mm(h, pht)
+    dw = wv - wm
+    k = _mm(pht, _minv((sm[0] + wm + dw * u0 * u0, sm[1] + dw * u0 * u1, sm[2] + dw * u0 * u2,
+                        sm[3] + dw * u1 * u0, sm[4] + wm + dw * u1 * u1, sm[5] + dw * u1 * u2,
+                        sm[6] + dw * u2 * u0, sm[7] + dw * u2 * u1, sm[8] + wm + dw * u2 * u2)))
+    b[0] += k[0] * f0 + k[1] * f1 + k[2] * f2
+    b[1] += k[3] * f0 + k[4] * f1 + k[5] * f2
+    b[2] += k[6] * f0 + k[7] * f1 + k[8] * f2
+    m = _mm(_mm(k, h), pp)
+    for i in range(9):
+        s[_P + i] = pp[i] - m[i]
+    k_clamp3(b, p[4])
+
+
 class InertialTiltConfig(PluginConfig):
     tau: float = param(2.0, unit="s", description="time constant of the inclination low-pass (in the almost-inertial "
                        "frame)", gt=0)
@@ -84,6 +206,24 @@ class InertialTiltConfig(PluginConfig):
         None, unit="s", description="how long before the end of the gyro's step the accelerometer sample describes. "
         "None: half the sample interval (the middle of the step); 0: the end of the step; larger: an accelerometer "
         "later than the gyroscope")
+    bias_filter: Literal["kalman", "lowpass"] = param(
+        "kalman", unit="-", description="how the correction teaches the bias in motion. kalman: VQF's model, the "
+        "correction rate is the low-passed earth-frame bias error, LP(R) b (the low-pass the inclination sees), "
+        "weighed by the bias's covariance (a Kalman filter that knows what the rests taught); lowpass: the "
+        "correction mapped to the body with the sample's own R, a fixed time constant (the behaviour before)")
+    bias_sigma_init: float = param(math.radians(0.5), unit="rad/s", description="kalman: the bias's standard "
+                                   "deviation at the start and the most it grows to", gt=0)
+    bias_sigma_motion: float = param(math.radians(0.1), unit="rad/s", description="kalman: the steady-state "
+                                     "standard deviation of a bias learned in motion (with motion_bias_tau: the "
+                                     "measurement noise)", gt=0)
+    bias_sigma_rest: float | None = param(
+        None, unit="rad/s", description="kalman: the standard deviation to which a rest (REST samples) tells the bias "
+        "in motion: they shrink the covariance as that measurement does (VQF's biasSigmaRest, 0.03 deg/s: a rest "
+        "pins the bias). None: not at all (a rest sees the zero-rate bias only; in motion the scale factor's and "
+        "misalignment's error, proportional to the rate, adds to it)", gt=0)
+    bias_vertical_forgetting: float = param(
+        1e-4, unit="-", description="kalman: the weight, relative to the horizontal axes, of the pseudo-measurement "
+        "'no drift about the vertical' (unobservable from the accelerometer)", gt=0)
 
 
 class InertialTilt(FactorCorrector):
@@ -100,12 +240,14 @@ class InertialTilt(FactorCorrector):
         s[_QA] = 1.0
         axes = frame_axes(frame)
         s[_UP:_UP + 3], s[_EAST:_EAST + 3] = axes[6:9], axes[0:3]
+        s[_P:_P + 9] = np.eye(3).ravel() * self.config.bias_sigma_init ** 2
         return s
 
     def restart(self, state: np.ndarray) -> None:
         """The low-pass starts again (the fast start's running mean, or the next sample)."""
         state[_READY] = state[_NMEAN] = state[_TACC] = 0.0
         state[_MEAN:_MEAN + 3] = 0.0
+        state[_KREADY] = 0.0  # the bias filter's low-passes start again with the inclination's
 
     def compose(self, state, quat, sample, bias, rate, flags):
         if sample.acc is not None:
@@ -142,7 +284,11 @@ class InertialTilt(FactorCorrector):
         n = np.linalg.norm(qc)
         qc = qc / n if n > 1e-12 else np.array([0.0, *x[_EAST:_EAST + 3]])
         x[_QA:_QA + 4] = quat_mul(qc, x[_QA:_QA + 4])
-        if c.motion_bias_tau is not None and not rest and x[_READY]:
+        if c.motion_bias_tau is not None and c.bias_filter == "kalman" and x[_READY]:
+            s = float(np.linalg.norm(qc[1:]))
+            r = qc[1:] * (2.0 * math.atan2(s, qc[0]) / (s * dt)) if s > 0.0 else np.zeros(3)
+            self._kalman(x, quat_to_matrix(quat_mul(x[_QA:_QA + 4], quat)), r, bias, dt, rest)
+        elif c.motion_bias_tau is not None and not rest and x[_READY]:
             # the correction as a rate in the levelled frame is the gyro drift; seen in the body,
             # it is the (horizontal part of the) bias error
             s = float(np.linalg.norm(qc[1:]))
@@ -150,17 +296,66 @@ class InertialTilt(FactorCorrector):
                 r_level = qc[1:] * (2.0 * math.atan2(s, qc[0]) / (s * dt))
                 bias_step(bias, r_level, quat_mul(x[_QA:_QA + 4], quat), dt, c.motion_bias_tau, c.bias_max)
 
+    def _kalman(self, x, rot, r, bias, dt, rest) -> None:
+        """The bias in motion as VQF learns it (``bias_filter="kalman"``). The gyro strapdown drifts
+        at ``R (b_true - b)`` in the earth frame; the inclination low-pass sees that drift low-passed,
+        so the correction rate ``r`` measures ``LP(R) b_true = -r + LP(R b)`` (the frame's vertical:
+        no drift, a weak pseudo-measurement). A fast rotation averages ``LP(R)`` out: the measurement
+        then says little, and the gain shrinks with it (mapping ``r`` with the sample's own R would
+        put it on the wrong body axes). ``P`` grows by ``sigma_motion^2 dt / motion_bias_tau`` per
+        sample up to ``sigma_init^2``; a REST sample is the rest corrector's measurement of the whole
+        bias (noise ``bias_sigma_rest``): it shrinks ``P`` (the bias itself is the rest corrector's)."""
+        c = self.config
+        b0, b1, b2, a1, a2 = x[_B:_B + 5]
+        rb = rot @ bias
+        z1, z2, w1, w2 = x[_RZ1:_RZ1 + 9], x[_RZ2:_RZ2 + 9], x[_BZ1:_BZ1 + 3], x[_BZ2:_BZ2 + 3]
+        rv = rot.ravel()
+        if not x[_KREADY]:  # start in the steady state of this sample
+            z1[:], z2[:], w1[:], w2[:] = rv * (1.0 - b0), rv * (b2 - a2), rb * (1.0 - b0), rb * (b2 - a2)
+            x[_KREADY] = 1.0
+        h = b0 * rv + z1
+        z1[:] = b1 * rv - a1 * h + z2
+        z2[:] = b2 * rv - a2 * h
+        hb = b0 * rb + w1
+        w1[:] = b1 * rb - a1 * hb + w2
+        w2[:] = b2 * rb - a2 * hb
+        h = h.reshape(3, 3)
+        v, wm, wv, wr, p0 = _kf_noise(dt, c.motion_bias_tau, c.bias_sigma_init, c.bias_sigma_motion,
+                                      c.bias_sigma_rest or 0.0, c.bias_vertical_forgetting)
+        p = x[_P:_P + 9].reshape(3, 3)
+        for i in range(3):
+            if p[i, i] < p0:
+                p[i, i] += v
+        if rest:
+            if c.bias_sigma_rest is not None:
+                p -= p @ np.linalg.inv(p + wr * np.eye(3)) @ p
+            return
+        up = x[_UP:_UP + 3]
+        e = -r + hb - up * (up @ hb) - h @ bias
+        ne = float(np.linalg.norm(e))
+        if ne > c.bias_max:
+            e *= c.bias_max / ne
+        k = p @ h.T @ np.linalg.inv(h @ p @ h.T + wm * np.eye(3) + (wv - wm) * np.outer(up, up))
+        bias += k @ e
+        p -= k @ h @ p
+        nb = float(np.linalg.norm(bias))
+        if nb > c.bias_max:
+            bias *= c.bias_max / nb
+
     def kernel(self, estimator) -> CorrectorKernel:
         c = self.config
         p = np.array([c.tau, float(c.fast_start), c.acc_delay if c.acc_delay is not None else math.nan,
-                      c.motion_bias_tau if c.motion_bias_tau is not None else 0.0, c.bias_max])
+                      c.motion_bias_tau if c.motion_bias_tau is not None else 0.0, c.bias_max,
+                      float(c.bias_filter == "kalman"), c.bias_sigma_init, c.bias_sigma_motion,
+                      c.bias_sigma_rest if c.bias_sigma_rest is not None else 0.0, c.bias_vertical_forgetting])
         return CorrectorKernel(inertial_tilt_kernel, p, mode="factor")
 
 
 @njit(inline="always")
 def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
     """The kernel of :meth:`InertialTilt.compose`: ``p = (tau, fast_start, acc_delay (NaN: None),
-    motion_bias_tau (0: off), bias_max)``."""
+    motion_bias_tau (0: off), bias_max, kalman (1) or lowpass (0), bias_sigma_init, bias_sigma_motion,
+    bias_sigma_rest (0: None), bias_vertical_forgetting)``."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
         v0, v1, v2 = k_rot(p0, p1, p2, p3, a0, a1, a2)
@@ -199,7 +394,11 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
         t0, t1, t2, t3 = k_qmul(c0, c1, c2, c3, s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3])
         s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3] = t0, t1, t2, t3
         e0, e1, e2, e3 = k_qmul(t0, t1, t2, t3, q[0], q[1], q[2], q[3])  # the output (and the bias step's q6)
-        if p[3] > 0.0 and (flags & _REST) == 0 and s[_READY] != 0.0:
+        if p[3] > 0.0 and p[5] != 0.0 and s[_READY] != 0.0:
+            sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
+            f = 2.0 * math.atan2(sn, c0) / (sn * dt) if sn > 0.0 else 0.0
+            _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, (flags & _REST) != 0, dt, p)
+        elif p[3] > 0.0 and (flags & _REST) == 0 and s[_READY] != 0.0:
             sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
             if sn > 0.0:
                 f = 2.0 * math.atan2(sn, c0) / (sn * dt)

@@ -10,7 +10,8 @@ composition). Orientation is split into three factors, each corrected by one sen
    ``(w - bias) dt``) from the body to an "almost inertial" frame I. Nothing corrects it.
 2. ``q_tilt``: the inclination factor (corrector ``inertial-tilt``): the specific force low-passed
    in I (second-order Butterworth, ``tau_acc``), made vertical each sample by the smallest rotation;
-   it also learns the horizontal gyro bias in motion (``motion_bias_tau``).
+   it also learns the gyro bias in motion (``bias_filter``: VQF's Kalman model, the correction as
+   the low-passed earth-frame bias error; ``motion_bias_tau`` its forgetting time).
 3. ``delta``: heading only, about the vertical (corrector ``mag-heading``, time constant
    ``tau_mag``), with the magnetic disturbance rejection (``mag_rejection``, ``magnetic``): a
    magnetic disturbance can only reach heading (roll and pitch are those of a magnetometer-free
@@ -44,7 +45,7 @@ from __future__ import annotations
 
 import copy
 import math
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 from ..config import AlignmentConfig, FilterConfig, PipelineConfig, PluginSpec, param
 from ..correctors._factor import initial_attitude
@@ -74,6 +75,19 @@ class RecommendedConfig(FilterConfig):
     motion_bias_tau: float | None = param(
         100.0, unit="s", description="time constant of the bias estimation in motion; None: off", gt=0)
     bias_max: float = param(math.radians(2.0), unit="rad/s", description="largest bias estimated in motion", gt=0)
+    bias_filter: Literal["kalman", "lowpass"] = param(
+        "kalman", unit="-", description="how the inclination correction teaches the bias in motion (inertial-tilt's "
+        "bias_filter): kalman, VQF's model (the correction measures the low-passed earth-frame bias error, weighed "
+        "by the bias's covariance, which the rests shrink); lowpass: mapped with the sample's own rotation at the "
+        "fixed rate 1/motion_bias_tau (the behaviour before issue 14's stop 17)")
+    bias_sigma_motion: float = param(
+        math.radians(0.1), unit="rad/s", description="kalman: the steady-state standard deviation of a bias learned "
+        "in motion (VQF's biasSigmaMotion)", gt=0)
+    bias_sigma_rest: float | None = param(
+        None, unit="rad/s", description="kalman: how well a rest tells the bias in motion (the rest's bias learned "
+        "with this standard deviation shrinks the covariance, VQF's biasSigmaRest 0.03 deg/s). None: not at all, the "
+        "rest measures the zero-rate bias only, the error in motion adds the scale factor's and misalignment's, "
+        "proportional to the rate (recommended.md)", gt=0)
     mag_bias: bool = param(
         False, unit="-", description="the in-motion bias also learns from the heading correction (vertical axis); "
         "lets the magnetometer reach roll and pitch through the bias (costs 0.08 deg on BROAD)")
@@ -141,7 +155,8 @@ class RecommendedFilter(Pipeline):
                 "tau": c.rest_bias_tau, "lowpass_tau": c.rest.tau}))
         correctors.append(PluginSpec(name="inertial-tilt", params={
             "tau": c.tau_acc, "fast_start": c.fast_start, "motion_bias_tau": c.motion_bias_tau,
-            "bias_max": c.bias_max, "acc_delay": c.acc_delay}))
+            "bias_max": c.bias_max, "acc_delay": c.acc_delay, "bias_filter": c.bias_filter,
+            "bias_sigma_motion": c.bias_sigma_motion, "bias_sigma_rest": c.bias_sigma_rest if c.rest_bias else None}))
         if c.use_mag:
             magnetic = c.magnetic if c.fast_start else c.magnetic.model_copy(update={"init_time": 0.0})
             correctors.append(PluginSpec(name="mag-heading", params={
