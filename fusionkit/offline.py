@@ -534,20 +534,29 @@ def calibration_passes(model, rec: Recording, max_gap: float | None = None, gyr_
         gyr, dt, _ = hold_gaps(r.gyr, r.dt, r.nominal_dt, max_gap)
         m = np.empty_like(r.mag)
         if resolve_backend(backend, True) == "numba":
-            ok = np.zeros((len(r), 3), dtype=np.bool_)
-            validity_all(gyr, r.acc, r.mag, True, math.inf if gyr_range is None else float(gyr_range),
-                         math.inf if acc_range is None else float(acc_range), ok, np.zeros(len(r), np.uint32))
-            _calibration_kernel(s, gyr, r.acc, r.mag, dt, ok, model.params(), m)
+            _calibration_kernel(s, gyr, r.acc, r.mag, dt, _validity(gyr, r.acc, r.mag, gyr_range, acc_range),
+                                model.params(), m)
         else:
-            _calibration_reference(model, s, gyr, r.acc, r.mag, dt, gyr_range, acc_range, m)
+            _model_reference(model, s, gyr, r.acc, r.mag, dt, gyr_range, acc_range, m)
         out.append(m if k == 0 else m[::-1])
         if k == 0:
             end = s
     return out[0], out[1], end
 
 
-def _calibration_reference(model, s, gyr, acc, mag, dt, gyr_range, acc_range, out) -> None:
-    """The readable twin of :func:`_calibration_kernel`: the model's reference ``apply`` per sample."""
+def _validity(gyr, acc, mag, gyr_range, acc_range) -> np.ndarray:
+    """Per sample, whether the gyroscope, accelerometer and magnetometer are valid, as the pipeline
+    judges them (``validity_all``): what a model's kernel run alone over a recording is given."""
+    ok = np.zeros((gyr.shape[0], 3), dtype=np.bool_)
+    validity_all(gyr, acc, mag, True, math.inf if gyr_range is None else float(gyr_range),
+                 math.inf if acc_range is None else float(acc_range), ok, np.zeros(gyr.shape[0], np.uint32))
+    return ok
+
+
+def _model_reference(model, s, gyr, acc, mag, dt, gyr_range, acc_range, out=None) -> None:
+    """The readable twin of :func:`_calibration_kernel` and :func:`_delay_kernel`: the sensor
+    ``model``'s reference ``apply`` per sample, on the identity orientation (``out``: the
+    magnetometer it gives, an invalid sample passed on unchanged; None: not kept)."""
     from .protocols import Sample
 
     q = np.array([1.0, 0.0, 0.0, 0.0])
@@ -556,7 +565,17 @@ def _calibration_reference(model, s, gyr, acc, mag, dt, gyr_range, acc_range, ou
         g_ok, a_ok, m_ok, _ = sample_validity(gyr[k], acc[k], mag[k], gyr_range, acc_range)
         smp, _ = model.apply(s, Sample(gyr[k].copy() if g_ok else nan3, acc[k] if a_ok else None,
                                        mag[k] if m_ok else None, float(dt[k])), q)
-        out[k] = smp.mag if m_ok else mag[k]
+        if out is not None:
+            out[k] = smp.mag if m_ok else mag[k]
+
+
+@njit(inline="always")
+def _sample_vector(v, gyr, acc, mag, ok, k):
+    """Sample ``k`` as a model kernel reads it: ``v = (gyr, acc, mag)``, the gyro NaN where invalid."""
+    for i in range(3):
+        v[i] = gyr[k, i] if ok[k, 0] else np.nan
+        v[3 + i] = acc[k, i]
+        v[6 + i] = mag[k, i]
 
 
 @njit
@@ -566,10 +585,7 @@ def _calibration_kernel(s, gyr, acc, mag, dt, ok, p, out):
     q[0] = 1.0
     v = np.empty(9)
     for k in range(gyr.shape[0]):
-        for i in range(3):
-            v[i] = gyr[k, i] if ok[k, 0] else np.nan
-            v[3 + i] = acc[k, i]
-            v[6 + i] = mag[k, i]
+        _sample_vector(v, gyr, acc, mag, ok, k)
         mag_calibration_apply(s, v, ok[k, 0], ok[k, 1], ok[k, 2], q, dt[k], p)
         for i in range(3):
             out[k, i] = v[6 + i] if ok[k, 2] else mag[k, i]
@@ -589,23 +605,14 @@ def mag_delay_recording(rec: Recording, gyr_range: float | None = None, acc_rang
     over the recording without forgetting: offline every segment of the recording informs the
     one delay of the hardware. ``backend``: ``"numba"`` (its kernel) or ``"reference"`` (the
     model's ``apply``, the same numbers)."""
-    from .protocols import Sample
-
     model = TimeOffsetModel(forget_time=_NO_FORGETTING)
     s = model.initial_state(rec.nominal_dt)
     dt = np.ascontiguousarray(rec.dt, dtype=float)
     if resolve_backend(backend, True) == "numba":
-        ok = np.zeros((len(rec), 3), dtype=np.bool_)
-        validity_all(rec.gyr, rec.acc, rec.mag, True, math.inf if gyr_range is None else float(gyr_range),
-                     math.inf if acc_range is None else float(acc_range), ok, np.zeros(len(rec), np.uint32))
-        _delay_kernel(s, rec.gyr, rec.acc, rec.mag, dt, ok, model.params())
+        _delay_kernel(s, rec.gyr, rec.acc, rec.mag, dt, _validity(rec.gyr, rec.acc, rec.mag, gyr_range, acc_range),
+                      model.params())
     else:
-        nan3 = np.full(3, np.nan)
-        q = np.array([1.0, 0.0, 0.0, 0.0])
-        for k in range(len(rec)):
-            g_ok, a_ok, m_ok, _ = sample_validity(rec.gyr[k], rec.acc[k], rec.mag[k], gyr_range, acc_range)
-            model.apply(s, Sample(rec.gyr[k].copy() if g_ok else nan3, rec.acc[k] if a_ok else None,
-                                  rec.mag[k] if m_ok else None, float(dt[k])), q)
+        _model_reference(model, s, rec.gyr, rec.acc, rec.mag, dt, gyr_range, acc_range)
     if s[MAG + NSEG] < model.config.min_segments or not s[MAG + STD] > 0.0:
         return math.nan, math.nan
     # the model's estimate is the gyro's delay against the magnetometer, both taken at the middle of
@@ -621,10 +628,7 @@ def _delay_kernel(s, gyr, acc, mag, dt, ok, p):
     q[0] = 1.0
     v = np.empty(9)
     for k in range(gyr.shape[0]):
-        for i in range(3):
-            v[i] = gyr[k, i] if ok[k, 0] else np.nan
-            v[3 + i] = acc[k, i]
-            v[6 + i] = mag[k, i]
+        _sample_vector(v, gyr, acc, mag, ok, k)
         time_offset_apply(s, v, ok[k, 0], ok[k, 1], ok[k, 2], q, dt[k], p)
 
 
