@@ -13,7 +13,10 @@ of the offline mode (default: ``OfflineFilter.DISTURBANCE_GAP``); ``--per-pass``
 pass running its own magnetometer calibration model (``calibration="per-pass"``, the mode before the
 calibration was decided with the whole recording) and one without the model (``mag_calibration=False``);
 ``--as-is-timing`` a column with the magnetometer as it is recorded (``mag_timing="as-is"``, the mode
-before its timing was decided with the whole recording).
+before its timing was decided with the whole recording); ``--groups`` adds, per mode, the mean
+of each BROAD group (``trials.json`` in the data folder: rotation, translation, slow, fast,
+magnets ...) for every column: which kinds of motion the offline mode wins or loses against
+``vqf-offline``.
 """
 
 from __future__ import annotations
@@ -52,6 +55,22 @@ class _EqualWeights(OfflineFilter):
             off._weights = saved
 
 
+def _groups(path: Path, recs, err: dict, key: str) -> None:
+    """The mean of every column per BROAD group (``trials.json``'s ``groups`` of each trial)."""
+    if not path.exists():
+        print(f"(no {path}: no groups)")
+        return
+    trials = json.loads(path.read_text())["trials"]
+    member = [set(trials.get(r.name, {}).get("groups", [])) for r in recs]
+    groups = sorted(dict.fromkeys(g for m in member for g in m), key=lambda g: g != "all_trials")  # all first
+    names = list(err)
+    print(f"\nper group: mean {key} RMSE [deg]\n| group (trials) | " + " | ".join(names) + " |")
+    print("|---|" + "---:|" * len(names))
+    for g in groups:
+        idx = [i for i, m in enumerate(member) if g in m]
+        print(f"| {g} ({len(idx)}) | " + " | ".join(f"{np.mean([err[n][i] for i in idx]):.3f}" for n in names) + " |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", default=str(data_dir() / "broad"))
@@ -63,6 +82,7 @@ def main() -> None:
     ap.add_argument("--gap", type=float, default=OfflineFilter.DISTURBANCE_GAP, help="disturbance_gap [s]")
     ap.add_argument("--per-pass", action="store_true", help="add the per-pass calibration and no calibration")
     ap.add_argument("--as-is-timing", action="store_true", help="add the magnetometer's timing as recorded")
+    ap.add_argument("--groups", action="store_true", help="add the mean per BROAD group (trials.json)")
     args = ap.parse_args()
     files = sorted(Path(args.data).glob("*.hdf5"))
     if args.trials:
@@ -126,6 +146,8 @@ def main() -> None:
                   + " | ".join(f"{np.mean([err[n][i] for i in rest]):.3f}" for n in names) + " |")
         total = sum(len(r) for r in recs)
         print("| samples/s (end to end) | " + " | ".join(f"{total / secs[n]:,.0f}" for n in names) + " |")
+        if args.groups:
+            _groups(Path(args.data) / "trials.json", recs, err, key)
 
 
 if __name__ == "__main__":
