@@ -59,7 +59,8 @@ def test_reference_equals_numba_every_option(rec):
     bad.mag[700] = np.nan
     # options that change only parameter values share a run (one reference run each costs more than
     # the compiled one); options that add or drop a plugin keep their own (their own composition)
-    for params in [{}, {"fast_start": False, "acc_delay": 0.02, "mag_delay": 0.02, "bias_filter": "lowpass"},
+    for params in [{}, {"fast_start": False, "acc_delay": 0.02, "mag_delay": 0.02, "bias_filter": "lowpass",
+                        "rest_bias_gain": "fixed"},
                    {"acc_gate": 1.0}, {"motion_bias_tau": None, "rest_bias": False},
                    {"mag_rejection": False, "frame": "NED", "acc_delay": 0.0, "mag_delay": 0.0},
                    {"use_mag": False, "gyr_range": 1.0}, {"output_lead": 0.02}, {"acc_delay": -0.01, "use_mag": False},
