@@ -33,7 +33,9 @@ the fixed gain's). A rest then begins with the gain ``P / (P + sigma_rest^2)`` (
 never measured: the low-pass has settled over the detector's ``min_time``), which falls as the
 running mean's ``1 / n`` to the fixed gain within ``tau``: a short rest teaches a turn-on bias,
 and a rest after a long motion weighs its first samples by how far the bias can have wandered.
-``gain="fixed"``: the low-pass above.
+It is VQF's rest update (``vqf.cpp``: the low-passed gyro against the bias, weighed by ``biasP``;
+with the bias in motion off, a scalar ``P`` and ``k = P / (P + biasRestW)``), with the process noise
+taken from ``tau``. ``gain="fixed"``: the low-pass above (the behaviour before).
 
 The low-pass (time constant ``lowpass_tau``, the ``rest`` detector's ``tau``) is the one the rest
 detector keeps, on the same samples (valid gyr and acc): at rest it is the gyro output without

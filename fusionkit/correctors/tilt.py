@@ -82,7 +82,8 @@ def _kf_noise(dt, forget, sigma_init, sigma_motion, sigma_rest, vertical):
     """The bias filter's noise for one sample of ``dt`` (VQF's parametrisation): the process noise
     ``v`` (variance ``sigma_motion^2`` gained in ``forget`` s), the measurement noises whose
     steady-state covariance is ``sigma_motion^2`` (horizontal), the vertical's (divided by
-    ``vertical``), the rest's (``sigma_rest^2``; 0: none) and the covariance's ceiling."""
+    ``vertical``), the rest's (``sigma_rest^2``; 0: none) and the covariance's ceiling. Computed
+    once per distinct ``dt``, with the low-pass coefficients (state ``_N``)."""
     v = sigma_motion * sigma_motion * dt / forget
     pm, pr = sigma_motion * sigma_motion, sigma_rest * sigma_rest
     wm = pm * pm / v + pm
