@@ -105,7 +105,9 @@ def test_offline_beats_online_near_a_magnet():
     rec = sim.scenario("magnet-nearby")
     on = rms_errors(fk.make("recommended").run(rec), rec)["total"]
     res = fk.make("recommended", offline=True).run(rec)
-    assert rms_errors(res, rec)["total"] < 0.4 < 0.6 < on  # measured 0.31 vs 0.67
+    # measured 0.38 vs 0.47 (with the rest learner's fixed gain, which leaves the short rest's bias half learnt
+    # in both passes: 0.32 vs 0.68)
+    assert rms_errors(res, rec)["total"] < 0.4 < on
     # the field is left out wherever either pass rejected it (and between such samples <= 1 s apart);
     # those samples are flagged disturbed, not invalid
     f = fk.make("recommended")

@@ -24,6 +24,19 @@ propagation subtracts, shared with the alignment's and with the bias learned in 
 
 ``bias += (1 - exp(-dt / tau)) (lowpass(w) - bias)``.
 
+``gain="kalman"`` weighs each rest sample by what is known of the bias instead (a scalar Kalman
+filter per axis, the same variance ``P`` for all three): the low-passed gyro measures the bias
+with the standard deviation ``sigma_rest``; ``P`` starts at ``sigma_init^2`` (a gyro not yet seen
+at rest) and grows, up to that, by the process noise ``Q = k^2 sigma_rest^2 / (1 - k)`` per sample
+(``k = 1 - exp(-dt / tau)``: the random walk for which the steady-state gain of a long rest is
+the fixed gain's). A rest then begins with the gain ``P / (P + sigma_rest^2)`` (about 1 for a bias
+never measured: the low-pass has settled over the detector's ``min_time``), which falls as the
+running mean's ``1 / n`` to the fixed gain within ``tau``: a short rest teaches a turn-on bias,
+and a rest after a long motion weighs its first samples by how far the bias can have wandered.
+It is VQF's rest update (``vqf.cpp``: the low-passed gyro against the bias, weighed by ``biasP``;
+with the bias in motion off, a scalar ``P`` and ``k = P / (P + biasRestW)``), with the process noise
+taken from ``tau``. ``gain="fixed"``: the low-pass above (the behaviour before).
+
 The low-pass (time constant ``lowpass_tau``, the ``rest`` detector's ``tau``) is the one the rest
 detector keeps, on the same samples (valid gyr and acc): at rest it is the gyro output without
 its noise. ``max_bias`` None: no limit (the low-pass at rest is below the rest detector's
@@ -33,7 +46,7 @@ its noise. ``max_bias`` None: no limit (the low-pass at rest is below the rest d
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -100,10 +113,20 @@ class RestBiasLowpassConfig(PluginConfig):
     lowpass_tau: float = param(0.5, unit="s", description="time constant of the gyro low-pass it learns from (the "
                                "rest detector's tau)", gt=0)
     max_bias: float | None = param(None, unit="rad/s", description="largest bias it leaves; None: no limit", gt=0)
+    gain: Literal["fixed", "kalman"] = param(
+        "fixed", unit="-", description="fixed: the bias follows the low-passed gyro with time constant tau; kalman: "
+        "each rest sample weighed by the bias's variance (a short rest learns a bias never measured at once; the "
+        "same time constant tau once the rest is long)")
+    sigma_init: float = param(math.radians(0.5), unit="rad/s", description="kalman: the standard deviation of a "
+                              "bias not yet measured (a MEMS gyro's turn-on bias), the most the variance grows to",
+                              gt=0)
+    sigma_rest: float = param(math.radians(0.03), unit="rad/s", description="kalman: the standard deviation with "
+                              "which one sample of the low-passed gyro at rest measures the bias", gt=0)
 
 
-# state: the low-passed gyro, its sample count, and the coefficients for the last dt
-_LW, _SEEN, _DT, _KB, _KL = 0, 3, 4, 5, 6
+# state: the low-passed gyro, its sample count, the coefficients for the last dt (the fixed gain, the
+# low-pass's, the Kalman filter's process noise), the bias's variance (kalman)
+_LW, _SEEN, _DT, _KB, _KL, _Q, _P = 0, 3, 4, 5, 6, 7, 8
 
 
 class RestBiasLowpass(BiasCorrector):
@@ -116,17 +139,27 @@ class RestBiasLowpass(BiasCorrector):
     summary: ClassVar[str] = "at rest, the gyro bias follows the low-passed gyro (before the propagation)"
 
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
-        return np.zeros(7)
+        s = np.zeros(9)
+        s[_P] = self.config.sigma_init ** 2
+        return s
 
     def update_bias(self, state, bias, sample, flags) -> int:
         c, s, dt = self.config, state, sample.dt
         if s[_DT] != dt:  # the coefficients, once per distinct dt
             s[_DT], s[_KB], s[_KL] = dt, 1.0 - math.exp(-dt / c.tau), 1.0 - math.exp(-dt / c.lowpass_tau)
+            s[_Q] = s[_KB] ** 2 * c.sigma_rest ** 2 / (1.0 - s[_KB])
+        kalman = c.gain == "kalman"
+        if kalman and s[_P] < c.sigma_init ** 2:  # the bias wanders (VQF's P += V below the initial P)
+            s[_P] += s[_Q]
         g = sample.gyr
         if np.isfinite(g).all() and (sample.acc is not None or flags & _ACC_REJECTED):  # the rest detector's samples
             gyro_lowpass(s, _LW, _SEEN, g, s[_KL])
             if flags & _REST:
-                bias += s[_KB] * (s[_LW:_LW + 3] - bias)
+                k = s[_KB]
+                if kalman:  # the Kalman gain, and the variance the measurement leaves
+                    k = s[_P] / (s[_P] + c.sigma_rest ** 2)
+                    s[_P] -= k * s[_P]
+                bias += k * (s[_LW:_LW + 3] - bias)
                 n = float(np.linalg.norm(bias))
                 if c.max_bias is not None and n > c.max_bias:
                     bias *= c.max_bias / n
@@ -134,19 +167,28 @@ class RestBiasLowpass(BiasCorrector):
 
     def kernel(self, estimator) -> CorrectorKernel:
         c = self.config
-        p = np.array([c.tau, c.lowpass_tau, c.max_bias if c.max_bias is not None else math.inf])
+        p = np.array([c.tau, c.lowpass_tau, c.max_bias if c.max_bias is not None else math.inf,
+                      float(c.gain == "kalman"), c.sigma_init ** 2, c.sigma_rest ** 2])
         return CorrectorKernel(rest_bias_lowpass_kernel, p, mode="bias")
 
 
 @njit(inline="always")
 def rest_bias_lowpass_kernel(s, b, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
-    """The kernel of :meth:`RestBiasLowpass.update_bias`: ``p = (tau, lowpass_tau, max_bias (inf: none))``."""
+    """The kernel of :meth:`RestBiasLowpass.update_bias`: ``p = (tau, lowpass_tau, max_bias (inf: none),
+    kalman (1) or fixed (0), sigma_init^2, sigma_rest^2)``."""
     if s[_DT] != dt:
         s[_DT], s[_KB], s[_KL] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[1])
+        s[_Q] = s[_KB] ** 2 * p[5] / (1.0 - s[_KB])
+    kalman = p[3] != 0.0
+    if kalman and s[_P] < p[4]:
+        s[_P] += s[_Q]
     if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and (acc_ok or (flags & _ACC_REJECTED) != 0):
         k_gyro_lowpass(s, _LW, _SEEN, g0, g1, g2, s[_KL])
         if (flags & _REST) != 0:
             k = s[_KB]
+            if kalman:
+                k = s[_P] / (s[_P] + p[5])
+                s[_P] -= k * s[_P]
             b[0] += k * (s[_LW] - b[0])
             b[1] += k * (s[_LW + 1] - b[1])
             b[2] += k * (s[_LW + 2] - b[2])

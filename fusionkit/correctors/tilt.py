@@ -60,9 +60,9 @@ __all__ = ["InertialTiltConfig", "InertialTilt", "inertial_tilt_kernel", "lowpas
 _QA, _Z1, _Z2, _MEAN, _NMEAN, _TACC, _READY, _Y = 0, 4, 7, 10, 13, 14, 15, 16
 _UP, _EAST, _DT, _B = 19, 22, 25, 26  # _B: b0, b1, b2, a1, a2
 # the bias filter (bias_filter "kalman"): the low-passed rotation matrix's and R bias's delay lines, the
-# covariance P (3 x 3), and whether the low-passes started
-_RZ1, _RZ2, _BZ1, _BZ2, _P, _KREADY = 31, 40, 49, 52, 55, 64
-_SIZE = 65
+# covariance P (3 x 3), whether the low-passes started, and its noise terms for the last dt (_kf_noise)
+_RZ1, _RZ2, _BZ1, _BZ2, _P, _KREADY, _N = 31, 40, 49, 52, 55, 64, 65
+_SIZE = 70
 _REST = int(Flag.REST)
 
 
@@ -82,7 +82,8 @@ def _kf_noise(dt, forget, sigma_init, sigma_motion, sigma_rest, vertical):
     """The bias filter's noise for one sample of ``dt`` (VQF's parametrisation): the process noise
     ``v`` (variance ``sigma_motion^2`` gained in ``forget`` s), the measurement noises whose
     steady-state covariance is ``sigma_motion^2`` (horizontal), the vertical's (divided by
-    ``vertical``), the rest's (``sigma_rest^2``; 0: none) and the covariance's ceiling."""
+    ``vertical``), the rest's (``sigma_rest^2``; 0: none) and the covariance's ceiling. Computed
+    once per distinct ``dt``, with the low-pass coefficients (state ``_N``)."""
     v = sigma_motion * sigma_motion * dt / forget
     pm, pr = sigma_motion * sigma_motion, sigma_rest * sigma_rest
     wm = pm * pm / v + pm
@@ -158,7 +159,7 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
     hb0 = _lp_step(s, _BZ1, 3, rb0, b0, b1, b2, c1, c2)
     hb1 = _lp_step(s, _BZ1 + 1, 3, rb1, b0, b1, b2, c1, c2)
     hb2 = _lp_step(s, _BZ1 + 2, 3, rb2, b0, b1, b2, c1, c2)
-    v, wm, wv, wr, p0 = _k_kf_noise(dt, p[3], p[6], p[7], p[8], p[9])
+    v, wm, wv, wr, p0 = s[_N], s[_N + 1], s[_N + 2], s[_N + 3], s[_N + 4]
     for i in range(3):
         if s[_P + 4 * i] < p0:
             s[_P + 4 * i] += v
@@ -265,8 +266,11 @@ class InertialTilt(FactorCorrector):
             x[_MEAN:_MEAN + 3] += (a_i - x[_MEAN:_MEAN + 3]) / x[_NMEAN]
             y[:] = x[_MEAN:_MEAN + 3]
         else:
-            if x[_DT] != dt:
+            if x[_DT] != dt:  # the coefficients (and the bias filter's noise), once per distinct dt
                 x[_DT], x[_B:_B + 5] = dt, lowpass_coefficients(c.tau, dt)
+                if c.motion_bias_tau is not None and c.bias_filter == "kalman":
+                    x[_N:_N + 5] = _kf_noise(dt, c.motion_bias_tau, c.bias_sigma_init, c.bias_sigma_motion,
+                                             c.bias_sigma_rest or 0.0, c.bias_vertical_forgetting)
             b0, b1, b2, a1, a2 = x[_B:_B + 5]
             z1, z2 = x[_Z1:_Z1 + 3], x[_Z2:_Z2 + 3]
             if not x[_READY]:  # start in the steady state of the mean (or of the first sample)
@@ -320,8 +324,7 @@ class InertialTilt(FactorCorrector):
         w1[:] = b1 * rb - a1 * hb + w2
         w2[:] = b2 * rb - a2 * hb
         h = h.reshape(3, 3)
-        v, wm, wv, wr, p0 = _kf_noise(dt, c.motion_bias_tau, c.bias_sigma_init, c.bias_sigma_motion,
-                                      c.bias_sigma_rest or 0.0, c.bias_vertical_forgetting)
+        v, wm, wv, wr, p0 = x[_N:_N + 5]
         p = x[_P:_P + 9].reshape(3, 3)
         for i in range(3):
             if p[i, i] < p0:
@@ -370,6 +373,8 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
             if s[_DT] != dt:
                 s[_DT] = dt
                 s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4] = _lp_coeffs(p[0], dt)
+                if p[3] > 0.0 and p[5] != 0.0:
+                    s[_N], s[_N + 1], s[_N + 2], s[_N + 3], s[_N + 4] = _k_kf_noise(dt, p[3], p[6], p[7], p[8], p[9])
             b0, b1, b2, c1, c2 = s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4]
             if s[_READY] == 0.0:  # start in the steady state of the mean (or of the first sample)
                 t0, t1, t2 = (s[_MEAN], s[_MEAN + 1], s[_MEAN + 2]) if s[_NMEAN] > 0 else (v0, v1, v2)

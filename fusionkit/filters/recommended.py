@@ -22,7 +22,8 @@ soft iron learned from the gyroscope, applied only where it behaves as body-fixe
 
 Around them: the ``rest`` detector (flag REST) and the bias at rest (corrector
 ``rest-bias-lowpass``: the gyro bias follows the low-passed gyro before the sample's propagation,
-``rest_bias``, ``rest_bias_tau``); the acceleration gate (``acc_gate``: the ``acceleration``
+``rest_bias``, ``rest_bias_tau``; ``rest_bias_gain``: each rest sample weighed by the bias's variance,
+so a short rest teaches a turn-on bias never measured); the acceleration gate (``acc_gate``: the ``acceleration``
 detector with no hold and no recovery, off by default: it costs accuracy on BROAD, leaving out the
 large samples makes the linear accelerations' average nonzero, which is exactly what the I-frame
 low-pass relies on); the fast start (``fast_start``: running means for the first ``tau_acc`` s and
@@ -72,6 +73,11 @@ class RecommendedConfig(FilterConfig):
     rest: RestConfig = param(RestConfig(), unit="-", description="the rest detector")
     rest_bias: bool = param(True, unit="-", description="re-estimate the gyro bias at rest")
     rest_bias_tau: float = param(1.0, unit="s", description="time constant of the bias at rest", gt=0)
+    rest_bias_gain: Literal["fixed", "kalman"] = param(
+        "kalman", unit="-", description="how a rest sample teaches the bias (rest-bias-lowpass's gain): kalman, "
+        "weighed by the bias's variance (a rest's first samples teach a bias never measured at once, then the "
+        "fixed gain of rest_bias_tau); fixed: the time constant rest_bias_tau from the rest's start (the behaviour "
+        "before issue 14's stop 18)")
     motion_bias_tau: float | None = param(
         100.0, unit="s", description="time constant of the bias estimation in motion; None: off", gt=0)
     bias_max: float = param(math.radians(2.0), unit="rad/s", description="largest bias estimated in motion", gt=0)
@@ -80,6 +86,10 @@ class RecommendedConfig(FilterConfig):
         "bias_filter): kalman, VQF's model (the correction measures the low-passed earth-frame bias error, weighed "
         "by the bias's covariance, which the rests shrink); lowpass: mapped with the sample's own rotation at the "
         "fixed rate 1/motion_bias_tau (the behaviour before issue 14's stop 17)")
+    bias_sigma_init: float = param(
+        math.radians(0.5), unit="rad/s", description="the standard deviation of a bias not yet measured (a MEMS "
+        "gyro's turn-on bias; VQF's biasSigmaInit): the variance the bias at rest (rest_bias_gain kalman) and the "
+        "bias in motion (bias_filter kalman) start from and grow back to", gt=0)
     bias_sigma_motion: float = param(
         math.radians(0.1), unit="rad/s", description="kalman: the steady-state standard deviation of a bias learned "
         "in motion (VQF's biasSigmaMotion)", gt=0)
@@ -152,10 +162,12 @@ class RecommendedFilter(Pipeline):
             # no limit needed: at rest the low-passed gyro is below rest.max_rate, and the bias in motion
             # below bias_max
             correctors.append(PluginSpec(name="rest-bias-lowpass", params={
-                "tau": c.rest_bias_tau, "lowpass_tau": c.rest.tau}))
+                "tau": c.rest_bias_tau, "lowpass_tau": c.rest.tau, "gain": c.rest_bias_gain,
+                "sigma_init": c.bias_sigma_init}))
         correctors.append(PluginSpec(name="inertial-tilt", params={
             "tau": c.tau_acc, "fast_start": c.fast_start, "motion_bias_tau": c.motion_bias_tau,
             "bias_max": c.bias_max, "acc_delay": c.acc_delay, "bias_filter": c.bias_filter,
+            "bias_sigma_init": c.bias_sigma_init,
             "bias_sigma_motion": c.bias_sigma_motion, "bias_sigma_rest": c.bias_sigma_rest if c.rest_bias else None}))
         if c.use_mag:
             magnetic = c.magnetic if c.fast_start else c.magnetic.model_copy(update={"init_time": 0.0})
