@@ -45,7 +45,7 @@ from ._sources import fusionkit_hash, source_hash
 from .gnss_rows import NO_GNSS
 from .navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, PHASE, SEEN
 
-__all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack"]
+__all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack", "STEP_WORK"]
 
 
 @dataclass(frozen=True)
@@ -117,6 +117,8 @@ def _ref(func: Callable) -> tuple[str, str] | None:
 
 
 _GN = "n0, n1, n2, n3, n4, n5"
+#: entries past the states in a stream's ``S`` that ``step`` takes its one-sample arrays from
+STEP_WORK = 20
 _SAMPLE = "g0, g1, g2, a0, a1, a2, m0, m1, m2"
 
 
@@ -294,26 +296,31 @@ def source(lay: Layout, cache: bool, imports: dict[int, tuple[str, str]] | None,
             *_inlined(_body(lay, names, "        "), hot),
             "        out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]",
             "        out_f[k] = flags", "        out_c[k] = crit"]
-    step = _step(cache)
+    step = _step(cache, len(lay.kernels))
     return "\n".join(head + loop + step + _step_sample(cache))
 
 
-def _step(cache: bool) -> list[str]:
+def _step(cache: bool, n: int) -> list[str]:
     """``step``: ``loop`` run over a one-sample recording made of its arguments.
 
     The same compiled code serves ``run()`` and ``update()``, so a stream's results are the
     loop's by construction, and a composition pays one compile, not a second one for a separately
-    typed and lowered one-sample body (building the one-sample arrays is a small part of a call)."""
+    typed and lowered one-sample body. The one-sample arrays are views of ``S``'s tail past the
+    states (:data:`STEP_WORK` entries, which :meth:`Pipeline.update`'s stream appends): no
+    allocation per call but the two flags (an ``S`` without the tail gets fresh arrays)."""
+    end = 2 * n + 3  # the run state's end in O: the last state's
     return ["", "", f"@njit(cache={cache})",
             f"def step({_SAMPLE}, h, has_mag, S, P, O, q, {_GN}):",
-            "    w = np.empty((3, 1, 3))",
+            f"    e = O[{end}]",
+            f"    W = S[e:e + {STEP_WORK}] if S.shape[0] - e >= {STEP_WORK} else np.empty({STEP_WORK})",
+            "    w = W[0:9].reshape((3, 1, 3))",
             "    w[0, 0, 0], w[0, 0, 1], w[0, 0, 2] = g0, g1, g2",
             "    w[1, 0, 0], w[1, 0, 1], w[1, 0, 2] = a0, a1, a2",
             "    w[2, 0, 0], w[2, 0, 1], w[2, 0, 2] = m0, m1, m2",
-            "    dt = np.empty(1)", "    dt[0] = h",
-            "    gn = np.empty((1, 6))",
+            "    dt = W[9:10]", "    dt[0] = h",
+            "    gn = W[10:16].reshape((1, 6))",
             "    gn[0, 0], gn[0, 1], gn[0, 2], gn[0, 3], gn[0, 4], gn[0, 5] = n0, n1, n2, n3, n4, n5",
-            "    out_q = np.empty((1, 4))", "    fc = np.zeros(2, np.uint32)",
+            "    out_q = W[16:20].reshape((1, 4))", "    fc = np.zeros(2, np.uint32)",
             "    loop(w[0], w[1], w[2], dt, has_mag, S, P, O, out_q, fc[0:1], fc[1:2], np.int64(0), np.int64(1), gn)",
             "    q[0], q[1], q[2], q[3] = out_q[0, 0], out_q[0, 1], out_q[0, 2], out_q[0, 3]",
             "    return fc[0], fc[1]", ""]

@@ -496,6 +496,7 @@ class Pipeline(Filter):
                 self._packed = False
             else:  # every detector: whether a sample has a magnetometer is known per call only
                 mod, S, P, O, states = self._compiled(self._stream, kernels, list(range(len(self.detectors))))
+                S = np.concatenate([S, np.zeros(_loopgen.STEP_WORK)])  # the step's one-sample arrays, reused
                 self._packed = (mod.step, S, P, O, np.empty(4), states, mod.step_sample)
         return self._packed or None
 

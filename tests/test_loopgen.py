@@ -172,6 +172,23 @@ def test_update_runs_compiled_and_state_round_trips(name, rec):
     assert np.abs(np.array(first + second) - ref).max() < 1e-9
 
 
+def test_step_reuses_its_workspace_and_takes_a_state_without_it(rec):
+    """The compiled step takes its one-sample arrays from the stream's tail past the states
+    (``STEP_WORK`` entries, written there, never into a state), and an ``S`` without that tail
+    (fresh arrays) gives the same numbers."""
+    f = fk.compose(CONFIG)
+    for k in range(5):
+        f.update(rec.gyr[k], rec.acc[k], rec.mag[k], dt=float(rec.dt[k]))
+    step, S, P, O, q, states, _ = f._packed
+    end = int(O[2 * len(states) - 1])  # the last state's end
+    assert S.size == end + _loopgen.STEP_WORK
+    bare, q2 = S[:end].copy(), np.empty(4)
+    args = (*rec.gyr[5], *rec.acc[5], *rec.mag[5], float(rec.dt[5]), True)
+    assert step(*args, S, P, O, q, *_loopgen.NO_GNSS) == step(*args, bare, P, O, q2, *_loopgen.NO_GNSS)
+    assert np.array_equal(q, q2) and np.array_equal(S[:end], bare)
+    assert np.array_equal(S[end:end + 3], rec.gyr[5])  # the sample went through the tail
+
+
 @pytest.mark.parametrize("name", ["gradient-descent", "recommended"])
 def test_update_backend_switched_mid_stream_takes_the_reference_path(name, rec):
     """After the compiled stream's fast path has run, update_backend='reference' is obeyed (the

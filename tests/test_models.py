@@ -247,3 +247,22 @@ def test_mag_calibration_segment_test_is_the_rotation_angle():
         checked += 1
     assert checked > 1900
     assert not _turned(0.0, 1.0, 0.0, 0.0, math.cos(0.5 * 3.5))  # half a turn is not 3.5 rad
+
+
+def test_mag_calibration_spd_inverse():
+    """The segment's 8x8 inverse (Cholesky): numpy's inverse to 1e-12 on information matrices of
+    any conditioning it accepts, the reference and the compiled twin bit-identical; a singular
+    (rank-deficient) matrix is refused."""
+    from fusionkit.models.mag_calibration import _invert_spd, _k_invert_spd
+
+    rng = np.random.default_rng(5)
+    for rows in (8, 12, 40):
+        h = rng.normal(size=(rows, 8)) * rng.uniform(0.01, 10.0, size=8)
+        a = h.T @ h
+        inv, inv_k = np.empty((8, 8)), np.empty((8, 8))
+        assert _invert_spd(a.copy(), np.empty((8, 8)), inv) and _k_invert_spd(a.copy(), np.empty((8, 8)), inv_k)
+        assert np.array_equal(inv, inv_k)
+        ref = np.linalg.inv(a)
+        assert np.abs(inv - ref).max() < 1e-12 * np.linalg.cond(a) * np.abs(ref).max()
+    h = rng.normal(size=(5, 8))  # rank 5: three directions unknown
+    assert not _invert_spd(h.T @ h, np.empty((8, 8)), np.empty((8, 8)))

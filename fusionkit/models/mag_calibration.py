@@ -103,7 +103,7 @@ _GK = 32
 _GI, _GC, _GBUF = 0, 1, 2
 _GE = 9  # per segment end: the raw field, the accelerometer, |m|, |a| and the raw dip's sine
 GATE = 2 + _GE * _GK
-_SEG_BUF = 191  # the compiled soft-iron segment's working arrays (_k_segment_soft)
+_SEG_BUF = 255  # the compiled soft-iron segment's working arrays (_k_segment_soft)
 _RECALIBRATED = int(Flag.MAG_RECALIBRATED)
 
 
@@ -261,7 +261,7 @@ class MagCalibrationModel(SensorModel):
         s[_NE] = lam * s[_NE] + 1.0
         s[_N] = n + 1.0
         inv = np.empty((_NP, _NP))
-        if not _invert(a.copy(), inv):
+        if not _invert_spd(a.copy(), np.empty((_NP, _NP)), inv):
             return
         best = inv @ s[_SY:_SY + _NP]
         s[_SBEST:_SBEST + _NP] = best
@@ -406,37 +406,44 @@ def _soft_rows(ct, ma, mk, h):
             h[i, 5 + j] = (1.0 if i == j else 0.0) - ct[i, j]
 
 
-def _invert(a, inv) -> bool:
-    """``inv = a^-1`` by Gauss-Jordan elimination with partial pivoting (``a`` is overwritten);
-    False for a matrix singular to working precision. The same statements in the reference and,
+def _invert_spd(a, m, inv) -> bool:
+    """``inv = a^-1`` of a symmetric positive definite ``a`` (the information matrix) by its
+    Cholesky factor ``a = L L^T``: ``M = L^-1``, ``a^-1 = M^T M`` (about a third of Gauss-Jordan's
+    operations, no pivoting: ``a``'s lower triangle is overwritten with ``L``, ``m`` is scratch);
+    False for a matrix not positive definite to working precision (a pivot of ``L L^T`` at or
+    below ``1e-12`` of ``a``'s largest diagonal entry). The same statements in the reference and,
     compiled, in the kernel."""
     n = a.shape[0]
     scale = 0.0
     for i in range(n):
         scale = max(scale, abs(a[i, i]))
-        for j in range(n):
-            inv[i, j] = 1.0 if i == j else 0.0
-    for col in range(n):
-        piv = col
-        for i in range(col + 1, n):
-            if abs(a[i, col]) > abs(a[piv, col]):
-                piv = i
-        if not abs(a[piv, col]) > 1e-12 * scale:
+    for j in range(n):
+        d = a[j, j]
+        for k in range(j):
+            d -= a[j, k] * a[j, k]
+        if not d > 1e-12 * scale:
             return False
-        if piv != col:
-            for j in range(n):
-                a[col, j], a[piv, j] = a[piv, j], a[col, j]
-                inv[col, j], inv[piv, j] = inv[piv, j], inv[col, j]
-        d = a[col, col]
-        for j in range(n):
-            a[col, j] /= d
-            inv[col, j] /= d
-        for i in range(n):
-            if i != col and a[i, col] != 0.0:
-                f = a[i, col]
-                for j in range(n):
-                    a[i, j] -= f * a[col, j]
-                    inv[i, j] -= f * inv[col, j]
+        d = math.sqrt(d)
+        a[j, j] = d
+        for i in range(j + 1, n):
+            x = a[i, j]
+            for k in range(j):
+                x -= a[i, k] * a[j, k]
+            a[i, j] = x / d
+    for j in range(n):  # M = L^-1, lower triangular, column by column
+        m[j, j] = 1.0 / a[j, j]
+        for i in range(j + 1, n):
+            x = 0.0
+            for k in range(j, i):
+                x -= a[i, k] * m[k, j]
+            m[i, j] = x / a[i, i]
+    for i in range(n):  # a^-1 = M^T M, symmetric
+        for j in range(i + 1):
+            x = 0.0
+            for k in range(i, n):
+                x += m[k, i] * m[k, j]
+            inv[i, j] = x
+            inv[j, i] = x
     return True
 
 
@@ -485,7 +492,7 @@ def _min_eig_sym3(a) -> float:
 
 _k_min_eig = njit(_min_eig_sym3)
 _k_inverse3 = njit(_inverse3)
-_k_invert = njit(_invert)
+_k_invert_spd = njit(_invert_spd)
 _k_basis = njit(_basis)
 _k_ring_push = njit(_ring_push, cold=True)  # once per segment (as are _k_segment and _k_segment_soft)
 _k_turned = njit(_turned)
@@ -671,7 +678,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     s[_NE] = lam * s[_NE] + 1.0
     s[_N] = n + 1.0
     inv = buf[109:109 + _NP * _NP].reshape((_NP, _NP))
-    if not _k_invert(a, inv):
+    if not _k_invert_spd(a, buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), inv):
         return
     yb = 0.0
     for i in range(_NP):
