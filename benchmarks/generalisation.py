@@ -239,7 +239,9 @@ def switches(cond: dict) -> dict:
         return c
     return {
         "turn-on bias 0": edit(noise__gyr_bias=(0.0, 0.0, 0.0)),
-        "initial rest 30 s": edit(top__initial_rest=30.0),
+        "initial rest 30 s": edit(top__initial_rest=30.0, errors__patches=tuple(  # the disturbance stays in the motion
+            FieldPatch(p.field, p.start + 30.0 - cond["initial_rest"], p.stop + 30.0 - cond["initial_rest"])
+            for p in cond["errors"]["patches"]) if cond["errors"].get("patches") else None),
         "bias random walk 0": edit(errors__gyr_bias_rw=None),
         "gyro scale/misalignment 0": edit(errors__gyr_scale=None, errors__gyr_misalignment=None),
         "acc bias/scale 0": edit(noise__acc_bias=(0.0, 0.0, 0.0), errors__acc_scale=None),
