@@ -10,6 +10,8 @@ names (also ``sim:NAME`` on the command line) to the functions, called with thei
 
 from __future__ import annotations
 
+import contextvars
+import dataclasses
 import math
 
 import numpy as np
@@ -23,7 +25,7 @@ from .sensors import simulate
 
 __all__ = ["demo_recordings", "hard_iron_turning", "carried_magnet", "magnet_nearby", "late_gyro", "late_mag",
            "lowpass_gyro", "scaled_gyro", "drifting_bias_long", "vibrating", "tapped", "lossy", "hand_held",
-           "SCENARIOS", "scenario"]
+           "SCENARIOS", "scenario", "perturbed"]
 
 _DEG = math.pi / 180.0
 
@@ -54,7 +56,14 @@ def _tumbling(turns: int, angle: float, duration: float, pause: float = 0.0) -> 
     return segs + [Rest(2.0)]
 
 
+#: set by :func:`perturbed` while it calls a scenario: (first rest in s or None, extra error fields)
+_PERTURB: contextvars.ContextVar = contextvars.ContextVar("_PERTURB", default=None)
+
+
 def _run(name: str, segs, errors: SensorErrors, rate: float, noise: Noise | None, seed: int, **kw) -> Recording:
+    perturb = _PERTURB.get()
+    if perturb is not None:
+        segs, errors = _perturbed(segs, errors, *perturb)
     rec = simulate(segs, rate=rate, noise=Noise.mems() if noise is None else noise, seed=seed, name=name,
                    errors=errors, **kw)
     rec.meta["scenario"] = name
@@ -196,6 +205,39 @@ SCENARIOS = {n: f for n, f in (
     ("late-gyro", late_gyro), ("late-mag", late_mag),
     ("lowpass-gyro", lowpass_gyro), ("scaled-gyro", scaled_gyro), ("drifting-bias-long", drifting_bias_long),
     ("vibrating", vibrating), ("tapped", tapped), ("lossy", lossy), ("hand-held", hand_held))}
+
+
+def _perturbed(segs, errors: SensorErrors, initial_rest, extra: dict):
+    segs = list(segs)
+    if initial_rest is not None:
+        if isinstance(segs[0], Rest):
+            segs[0] = Rest(initial_rest)
+        else:
+            segs.insert(0, Rest(initial_rest))
+    unknown = set(extra) - {f.name for f in dataclasses.fields(SensorErrors)}
+    if unknown:
+        raise InputError(f"unknown SensorErrors fields {sorted(unknown)}")
+    own = set(errors.active)
+    return segs, dataclasses.replace(errors, **{k: v for k, v in extra.items() if k not in own})
+
+
+def perturbed(name: str, initial_rest: float | None = None, errors: dict | None = None, **params) -> Recording:
+    """The scenario ``name`` (``params`` as for :func:`scenario`, ``noise`` and ``seed`` among
+    them) with more of a real sensor's errors on top of the one it isolates: its first rest lasts
+    ``initial_rest`` s (a rest of that length is put first when it starts moving), and ``errors``
+    (:class:`~fusionkit.sim.SensorErrors` field -> value) switches on further errors. The
+    scenario's own error wins where both set a field, so the scenario keeps what it tests. What
+    a held-out, physics-randomised comparison draws its recordings from
+    (``benchmarks/generalisation.py``); ``meta["perturbed"]`` records the additions."""
+    if initial_rest is not None and not (math.isfinite(initial_rest) and initial_rest > 0):
+        raise InputError(f"initial_rest must be > 0 s, got {initial_rest}")
+    token = _PERTURB.set((initial_rest, dict(errors or {})))
+    try:
+        rec = scenario(name, **params)
+    finally:
+        _PERTURB.reset(token)
+    rec.meta["perturbed"] = {"initial_rest": initial_rest, "errors": dict(errors or {})}
+    return rec
 
 
 def scenario(name: str, **params) -> Recording:
