@@ -7,6 +7,7 @@ Without numba the decorator returns the plain Python function, and ``HAVE_NUMBA`
 
 from __future__ import annotations
 
+import os
 import sys
 
 from .errors import ConfigError
@@ -135,7 +136,91 @@ def _light_load(dispatcher):
         import functools
 
         cache.load_overload = functools.partial(_load_overload_light, cache)
+        _lock_compiles(dispatcher, cache)
     return dispatcher
+
+
+# -- one compile of a function at a time across processes ----------------------------------------
+#
+# Two processes that need the same uncompiled function at once (pytest's workers starting on the
+# same filter, two scripts after an upgrade) would each compile it, and the disk cache would serve
+# only the one that comes later. A compile of a cached function takes a lock file beside its cache
+# entry (``<function>.lock``): a process that finds the lock held waits, then finds the other's
+# result in the disk cache (numba's dispatcher looks there first) and loads it. A function that is
+# compiled already in the process takes no lock; a lock that cannot be made (no ``fcntl``, a
+# read-only cache) or is held for longer than :data:`LOCK_WAIT` seconds (a process stopped while
+# compiling still holds it only until it exits) is not waited for: the process compiles as it would
+# without it.
+
+LOCK_WAIT = 600.0
+_HELD: dict = {}  # lock path -> [file descriptor, depth]: a compile that reaches its own function again
+
+
+def _lock_compiles(dispatcher, cache) -> None:
+    """Make ``dispatcher.compile`` hold the function's lock file while it loads or compiles a
+    signature the process has not got yet."""
+    try:
+        import fcntl  # noqa: F401  (POSIX only)
+
+        path = os.path.join(cache._cache_path, cache._impl.filename_base + ".lock")
+    except (ImportError, AttributeError, TypeError):
+        return
+    inner = dispatcher.compile
+
+    def compile(sig):
+        from numba.core import sigutils
+
+        if tuple(sigutils.normalize_signature(sig)[0]) in dispatcher.overloads:
+            return inner(sig)
+        held = _acquire(path)
+        try:
+            return inner(sig)
+        finally:
+            if held:
+                _release(path)
+
+    dispatcher.compile = compile
+
+
+def _acquire(path: str) -> bool:
+    """Take the lock file ``path`` (re-entrant within the process); False when it is not taken."""
+    import fcntl
+    import time
+
+    entry = _HELD.get(path)
+    if entry is not None:
+        entry[1] += 1
+        return True
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError:
+        return False
+    end = time.monotonic() + LOCK_WAIT
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            break
+        except BlockingIOError:
+            if time.monotonic() > end:
+                os.close(fd)
+                return False
+            time.sleep(0.05)
+        except OSError:  # a file system without locks
+            os.close(fd)
+            return False
+    _HELD[path] = [fd, 1]
+    return True
+
+
+def _release(path: str) -> None:
+    import fcntl
+
+    entry = _HELD[path]
+    entry[1] -= 1
+    if entry[1] == 0:
+        del _HELD[path]
+        fcntl.flock(entry[0], fcntl.LOCK_UN)
+        os.close(entry[0])
 
 
 def _load_overload_light(cache, sig, target_context):

@@ -51,8 +51,15 @@ def _resolve(plugin) -> type[Plugin]:
     return plugin
 
 
-def check_plugin(plugin, params: dict[str, Any] | None = None, rec: Recording | None = None) -> None:
-    """Check a plugin class (or registered name) against its kind's contract."""
+def check_plugin(plugin, params: dict[str, Any] | None = None, rec: Recording | None = None,
+                 within: Any = None) -> None:
+    """Check a plugin class (or registered name) against its kind's contract.
+
+    ``within`` (correctors and sensor models): the pipeline config (a dict or ``PipelineConfig``,
+    e.g. a preset's ``pipeline_config()``) to check the plugin in, instead of the smallest pipeline
+    it runs in; its entry of the plugin's name takes ``params``. Each pipeline composition is a
+    compile of its own (seconds): a test suite that compiles a preset anyway checks the plugins the
+    preset composes in it at no compile of their own."""
     cls = _resolve(plugin)
     params = params or {}
     _check_common(cls, params)
@@ -64,9 +71,20 @@ def check_plugin(plugin, params: dict[str, Any] | None = None, rec: Recording | 
     elif issubclass(cls, Detector):
         _check_detector(cls(**params), rec)
     elif issubclass(cls, Corrector):
-        _check_corrector(cls, params, rec)
+        _check_corrector(cls, params, rec, within)
     elif issubclass(cls, SensorModel):
-        _check_model(cls, params, rec)
+        _check_model(cls, params, rec, within)
+
+
+def _within(within, key: str, name: str, params: dict[str, Any]) -> dict[str, Any]:
+    """``within`` as a pipeline config dict, its ``key`` entry named ``name`` given ``params``."""
+    from .pipeline import Pipeline
+
+    cfg = Pipeline.Config.model_validate(within).model_dump() if isinstance(within, dict) else within.model_dump()
+    found = [e for e in cfg[key] if e["name"] == name]
+    assert len(found) == 1, f"{name}: the pipeline to check it in has {len(found)} {key} of that name, not one"
+    found[0]["params"] = dict(params)
+    return cfg
 
 
 def _check_common(cls, params) -> None:
@@ -208,15 +226,18 @@ def _check_detector(det: Detector, rec: Recording) -> None:
     assert isinstance(bits, (int, np.integer)), f"{det.name}: step() must return an int bitmask"
 
 
-def _check_model(cls, params, rec) -> None:
+def _check_model(cls, params, rec, within=None) -> None:
     """A sensor model in a pipeline: the kernel equals the reference on every sample, states too."""
     from .pipeline import Pipeline
 
-    p = Pipeline({"estimator": "poisson-quat", "models": [{"name": cls.name, "params": params}],
-                  "correctors": ["gradient-descent"], "alignment": {"mode": "fixed", "duration": 1.0}})
+    if within is not None:
+        p = Pipeline(_within(within, "models", cls.name, params))
+    else:
+        p = Pipeline({"estimator": "poisson-quat", "models": [{"name": cls.name, "params": params}],
+                      "correctors": ["gradient-descent"], "alignment": {"mode": "fixed", "duration": 1.0}})
     res = p.run(rec, backend="reference")
     _assert_unit_quats(cls.name + " in a pipeline", res.quat, len(rec))
-    if p.models[0].kernel() is not None and HAVE_NUMBA:
+    if all(m.kernel() is not None for m in p.models) and HAVE_NUMBA:
         fast = p.run(rec, backend="numba")
         d = np.abs(fast.quat - res.quat).max()
         assert d < TOL, f"{cls.name}: kernel and reference differ by {d:.2e} in a pipeline"
@@ -225,10 +246,14 @@ def _check_model(cls, params, rec) -> None:
             assert np.allclose(a, b, rtol=0, atol=TOL, equal_nan=True), f"{cls.name}: kernel and reference states differ"
 
 
-def _check_corrector(cls, params, rec) -> None:
+def _check_corrector(cls, params, rec, within=None) -> None:
     from .pipeline import Pipeline
     from .registry import default_registry
 
+    if within is not None:
+        p = Pipeline(_within(within, "correctors", cls.name, params))
+        _check_corrector_in(cls, p, rec)
+        return
     detectors = []
     if cls.requires_flag:  # a registered detector that sets the flag it acts on
         reg = default_registry()
@@ -243,9 +268,16 @@ def _check_corrector(cls, params, rec) -> None:
         estimator = found[0]
     p = Pipeline({"estimator": estimator, "correctors": [{"name": cls.name, "params": params}],
                   "detectors": detectors, "alignment": {"mode": "fixed", "duration": 1.0}})
+    _check_corrector_in(cls, p, rec)
+
+
+def _check_corrector_in(cls, p, rec) -> None:
+    """The pipeline ``p``, which composes corrector ``cls``: finite unit output, and its compiled
+    loop (when every plugin has a kernel) equals the reference on every sample, states too."""
     res = p.run(rec, backend="reference")
     _assert_unit_quats(cls.name + " in a pipeline", res.quat, len(rec))
-    kernel = p.correctors[0].kernel(p.estimator)
+    (c,) = [c for c in p.correctors if c.name == cls.name]
+    kernel = c.kernel(p.estimator)
     if kernel is not None and HAVE_NUMBA:
         assert kernel.mode == cls.mode, f"{cls.name}: its kernel's mode {kernel.mode!r} is not its mode {cls.mode!r}"
         fast = p.run(rec, backend="numba")

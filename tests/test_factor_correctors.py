@@ -14,6 +14,7 @@ from fusionkit.benchmarking.metrics import broad_errors
 from fusionkit.testing import check_plugin
 from fusionkit.types import Flag
 
+from test_contract import WITHIN
 from test_recommended import BIAS, DEG
 from test_recommended import motion as _motion
 
@@ -45,7 +46,7 @@ def incl(res, rec):
 
 @pytest.mark.parametrize("name", ["inertial-tilt", "mag-heading", "output-lead", "rest-bias-lowpass"])
 def test_kernel_equals_reference(name):
-    check_plugin(name)
+    check_plugin(name, within=WITHIN.get(("corrector", name)))  # in recommended's composition where it is one
 
 
 def test_the_estimator_integrates_the_gyroscope_alone(rec_b):
