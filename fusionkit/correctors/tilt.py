@@ -94,32 +94,6 @@ _k_kf_noise = njit(inline="always")(_kf_noise)
 
 
 @njit(inline="always")
-def _mm(a, b):
-    """``a @ b`` of two 3 x 3 matrices as row-major 9-tuples."""
-    return (a[0] * b[0] + a[1] * b[3] + a[2] * b[6], a[0] * b[1] + a[1] * b[4] + a[2] * b[7],
-            a[0] * b[2] + a[1] * b[5] + a[2] * b[8], a[3] * b[0] + a[4] * b[3] + a[5] * b[6],
-            a[3] * b[1] + a[4] * b[4] + a[5] * b[7], a[3] * b[2] + a[4] * b[5] + a[5] * b[8],
-            a[6] * b[0] + a[7] * b[3] + a[8] * b[6], a[6] * b[1] + a[7] * b[4] + a[8] * b[7],
-            a[6] * b[2] + a[7] * b[5] + a[8] * b[8])
-
-
-@njit(inline="always")
-def _mt(a):
-    """The transpose of a 9-tuple matrix."""
-    return (a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8])
-
-
-@njit(inline="always")
-def _minv(a):
-    """The inverse of a 9-tuple matrix (cofactors)."""
-    c0, c1, c2 = a[4] * a[8] - a[5] * a[7], a[5] * a[6] - a[3] * a[8], a[3] * a[7] - a[4] * a[6]
-    d = 1.0 / (a[0] * c0 + a[1] * c1 + a[2] * c2)
-    return (c0 * d, (a[2] * a[7] - a[1] * a[8]) * d, (a[1] * a[5] - a[2] * a[4]) * d,
-            c1 * d, (a[0] * a[8] - a[2] * a[6]) * d, (a[2] * a[3] - a[0] * a[5]) * d,
-            c2 * d, (a[1] * a[6] - a[0] * a[7]) * d, (a[0] * a[4] - a[1] * a[3]) * d)
-
-
-@njit(inline="always")
 def _qmat(w, x, y, z):
     """``R(q)`` as a row-major 9-tuple."""
     return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
