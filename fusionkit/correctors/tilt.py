@@ -94,32 +94,6 @@ _k_kf_noise = njit(inline="always")(_kf_noise)
 
 
 @njit(inline="always")
-def _mm(a, b):
-    """``a @ b`` of two 3 x 3 matrices as row-major 9-tuples."""
-    return (a[0] * b[0] + a[1] * b[3] + a[2] * b[6], a[0] * b[1] + a[1] * b[4] + a[2] * b[7],
-            a[0] * b[2] + a[1] * b[5] + a[2] * b[8], a[3] * b[0] + a[4] * b[3] + a[5] * b[6],
-            a[3] * b[1] + a[4] * b[4] + a[5] * b[7], a[3] * b[2] + a[4] * b[5] + a[5] * b[8],
-            a[6] * b[0] + a[7] * b[3] + a[8] * b[6], a[6] * b[1] + a[7] * b[4] + a[8] * b[7],
-            a[6] * b[2] + a[7] * b[5] + a[8] * b[8])
-
-
-@njit(inline="always")
-def _mt(a):
-    """The transpose of a 9-tuple matrix."""
-    return (a[0], a[3], a[6], a[1], a[4], a[7], a[2], a[5], a[8])
-
-
-@njit(inline="always")
-def _minv(a):
-    """The inverse of a 9-tuple matrix (cofactors)."""
-    c0, c1, c2 = a[4] * a[8] - a[5] * a[7], a[5] * a[6] - a[3] * a[8], a[3] * a[7] - a[4] * a[6]
-    d = 1.0 / (a[0] * c0 + a[1] * c1 + a[2] * c2)
-    return (c0 * d, (a[2] * a[7] - a[1] * a[8]) * d, (a[1] * a[5] - a[2] * a[4]) * d,
-            c1 * d, (a[0] * a[8] - a[2] * a[6]) * d, (a[2] * a[3] - a[0] * a[5]) * d,
-            c2 * d, (a[1] * a[6] - a[0] * a[7]) * d, (a[0] * a[4] - a[1] * a[3]) * d)
-
-
-@njit(inline="always")
 def _qmat(w, x, y, z):
     """``R(q)`` as a row-major 9-tuple."""
     return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
@@ -134,6 +108,41 @@ def _lp_step(s, i, n, x, b0, b1, b2, c1, c2):
     s[i] = b1 * x - c1 * y + s[i + n]
     s[i + n] = b2 * x - c2 * y
     return y
+
+
+@njit(inline="always")
+def _sym_store(s, i, q00, q01, q02, q11, q12, q22):
+    """Store the symmetric matrix of 6 entries as a row-major 3 x 3 at ``s[i:i + 9]``."""
+    s[i], s[i + 1], s[i + 2] = q00, q01, q02
+    s[i + 3], s[i + 4], s[i + 5] = q01, q11, q12
+    s[i + 6], s[i + 7], s[i + 8] = q02, q12, q22
+
+
+@njit(inline="always")
+def _sym_downdate(q00, q01, q02, q11, q12, q22, a00, a01, a02, a10, a11, a12, a20, a21, a22,
+                  s00, s01, s02, s11, s12, s22, b=None, f0=0.0, f1=0.0, f2=0.0):
+    """``Q - A S^-1 A^T`` for symmetric ``Q`` and ``S`` (6 entries each) and a 3 x 3 ``A``; with ``b``,
+    also ``b += A S^-1 f`` (the Kalman update with gain ``K = A S^-1``)."""
+    c00, c01, c02 = s11 * s22 - s12 * s12, s02 * s12 - s01 * s22, s01 * s12 - s02 * s11
+    d = 1.0 / (s00 * c00 + s01 * c01 + s02 * c02)
+    c00, c01, c02 = c00 * d, c01 * d, c02 * d
+    c11, c12, c22 = (s00 * s22 - s02 * s02) * d, (s01 * s02 - s00 * s12) * d, (s00 * s11 - s01 * s01) * d
+    k00 = a00 * c00 + a01 * c01 + a02 * c02
+    k01 = a00 * c01 + a01 * c11 + a02 * c12
+    k02 = a00 * c02 + a01 * c12 + a02 * c22
+    k10 = a10 * c00 + a11 * c01 + a12 * c02
+    k11 = a10 * c01 + a11 * c11 + a12 * c12
+    k12 = a10 * c02 + a11 * c12 + a12 * c22
+    k20 = a20 * c00 + a21 * c01 + a22 * c02
+    k21 = a20 * c01 + a21 * c11 + a22 * c12
+    k22 = a20 * c02 + a21 * c12 + a22 * c22
+    if b is not None:
+        b[0] += k00 * f0 + k01 * f1 + k02 * f2
+        b[1] += k10 * f0 + k11 * f1 + k12 * f2
+        b[2] += k20 * f0 + k21 * f1 + k22 * f2
+    return (q00 - (k00 * a00 + k01 * a01 + k02 * a02), q01 - (k00 * a10 + k01 * a11 + k02 * a12),
+            q02 - (k00 * a20 + k01 * a21 + k02 * a22), q11 - (k10 * a10 + k11 * a11 + k12 * a12),
+            q12 - (k10 * a20 + k11 * a21 + k12 * a22), q22 - (k20 * a20 + k21 * a21 + k22 * a22))
 
 
 @njit(inline="always")
@@ -160,16 +169,17 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
     hb1 = _lp_step(s, _BZ1 + 1, 3, rb1, b0, b1, b2, c1, c2)
     hb2 = _lp_step(s, _BZ1 + 2, 3, rb2, b0, b1, b2, c1, c2)
     v, wm, wv, wr, p0 = s[_N], s[_N + 1], s[_N + 2], s[_N + 3], s[_N + 4]
-    for i in range(3):
-        if s[_P + 4 * i] < p0:
-            s[_P + 4 * i] += v
-    pp = (s[_P], s[_P + 1], s[_P + 2], s[_P + 3], s[_P + 4], s[_P + 5], s[_P + 6], s[_P + 7], s[_P + 8])
+    # P is symmetric and stays so (every update below is P - A S^-1 A^T): its 6 distinct entries
+    q00, q01, q02, q11, q12, q22 = s[_P], s[_P + 1], s[_P + 2], s[_P + 4], s[_P + 5], s[_P + 8]
+    q00 = q00 + v if q00 < p0 else q00
+    q11 = q11 + v if q11 < p0 else q11
+    q22 = q22 + v if q22 < p0 else q22
     if rest:
         if p[8] > 0.0:  # P -= P (P + wr I)^-1 P
-            m = _mm(_mm(pp, _minv((pp[0] + wr, pp[1], pp[2], pp[3], pp[4] + wr, pp[5], pp[6], pp[7],
-                                   pp[8] + wr))), pp)
-            for i in range(9):
-                s[_P + i] = pp[i] - m[i]
+            q00, q01, q02, q11, q12, q22 = _sym_downdate(q00, q01, q02, q11, q12, q22,
+                                                         q00, q01, q02, q01, q11, q12, q02, q12, q22,
+                                                         q00 + wr, q01, q02, q11 + wr, q12, q22 + wr)
+        _sym_store(s, _P, q00, q01, q02, q11, q12, q22)
         return
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
     hu = u0 * hb0 + u1 * hb1 + u2 * hb2
@@ -178,19 +188,26 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
     f2 = -r2 + hb2 - u2 * hu - (h[6] * b[0] + h[7] * b[1] + h[8] * b[2])
     ne = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
     if ne > p[4]:
-        f0, f1, f2 = f0 * (p[4] / ne), f1 * (p[4] / ne), f2 * (p[4] / ne)
-    pht = _mm(pp, _mt(h))
-    sm = _mm(h, pht)
+        g = p[4] / ne
+        f0, f1, f2 = f0 * g, f1 * g, f2 * g
+    # A = P H^T, S = H A + W (symmetric), K = A S^-1; P -= K A^T
+    a00 = q00 * h[0] + q01 * h[1] + q02 * h[2]
+    a10 = q01 * h[0] + q11 * h[1] + q12 * h[2]
+    a20 = q02 * h[0] + q12 * h[1] + q22 * h[2]
+    a01 = q00 * h[3] + q01 * h[4] + q02 * h[5]
+    a11 = q01 * h[3] + q11 * h[4] + q12 * h[5]
+    a21 = q02 * h[3] + q12 * h[4] + q22 * h[5]
+    a02 = q00 * h[6] + q01 * h[7] + q02 * h[8]
+    a12 = q01 * h[6] + q11 * h[7] + q12 * h[8]
+    a22 = q02 * h[6] + q12 * h[7] + q22 * h[8]
     dw = wv - wm
-    k = _mm(pht, _minv((sm[0] + wm + dw * u0 * u0, sm[1] + dw * u0 * u1, sm[2] + dw * u0 * u2,
-                        sm[3] + dw * u1 * u0, sm[4] + wm + dw * u1 * u1, sm[5] + dw * u1 * u2,
-                        sm[6] + dw * u2 * u0, sm[7] + dw * u2 * u1, sm[8] + wm + dw * u2 * u2)))
-    b[0] += k[0] * f0 + k[1] * f1 + k[2] * f2
-    b[1] += k[3] * f0 + k[4] * f1 + k[5] * f2
-    b[2] += k[6] * f0 + k[7] * f1 + k[8] * f2
-    m = _mm(_mm(k, h), pp)
-    for i in range(9):
-        s[_P + i] = pp[i] - m[i]
+    q00, q01, q02, q11, q12, q22 = _sym_downdate(
+        q00, q01, q02, q11, q12, q22, a00, a01, a02, a10, a11, a12, a20, a21, a22,
+        h[0] * a00 + h[1] * a10 + h[2] * a20 + wm + dw * u0 * u0, h[0] * a01 + h[1] * a11 + h[2] * a21 + dw * u0 * u1,
+        h[0] * a02 + h[1] * a12 + h[2] * a22 + dw * u0 * u2, h[3] * a01 + h[4] * a11 + h[5] * a21 + wm + dw * u1 * u1,
+        h[3] * a02 + h[4] * a12 + h[5] * a22 + dw * u1 * u2, h[6] * a02 + h[7] * a12 + h[8] * a22 + wm + dw * u2 * u2,
+        b, f0, f1, f2)
+    _sym_store(s, _P, q00, q01, q02, q11, q12, q22)
     k_clamp3(b, p[4])
 
 
