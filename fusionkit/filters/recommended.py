@@ -65,6 +65,13 @@ _NO_RECOVERY = 1e9
 class RecommendedConfig(FilterConfig):
     tau_acc: float = param(
         2.0, unit="s", description="time constant of the inclination low-pass (in the almost-inertial frame)", gt=0)
+    tau_adapt: bool = param(
+        False, unit="-", description="inertial-tilt's adaptive time constant: per sample sqrt(sigma_v / (g d)), the "
+        "linear acceleration let through against the gyro drift accumulated (tau_acc: the velocity's leak; "
+        "recommended.md). False: tau_acc throughout")
+    gyro_rate_error: float = param(
+        0.015, unit="-", description="tau_adapt: the gyro's error proportional to the rate (scale factor, "
+        "misalignment; consumer MEMS data sheets: 1-3 %)", ge=0)
     tau_mag: float = param(15.0, unit="s", description="time constant of the heading correction", gt=0)
     use_mag: bool = param(True, unit="-", description="use the magnetometer when the recording has one (9D)")
     fast_start: bool = param(
@@ -168,7 +175,8 @@ class RecommendedFilter(Pipeline):
             "tau": c.tau_acc, "fast_start": c.fast_start, "motion_bias_tau": c.motion_bias_tau,
             "bias_max": c.bias_max, "acc_delay": c.acc_delay, "bias_filter": c.bias_filter,
             "bias_sigma_init": c.bias_sigma_init,
-            "bias_sigma_motion": c.bias_sigma_motion, "bias_sigma_rest": c.bias_sigma_rest if c.rest_bias else None}))
+            "bias_sigma_motion": c.bias_sigma_motion, "bias_sigma_rest": c.bias_sigma_rest if c.rest_bias else None,
+            "tau_adapt": c.tau_adapt, "gyro_rate_error": c.gyro_rate_error}))
         if c.use_mag:
             magnetic = c.magnetic if c.fast_start else c.magnetic.model_copy(update={"init_time": 0.0})
             correctors.append(PluginSpec(name="mag-heading", params={
