@@ -29,13 +29,22 @@ Options, each a separate idea:
   with ``q_gyr (x) exp(-w dt / 2)``; 0 pairs it with the end of the step; a larger value serves an
   accelerometer later than the gyroscope (``q_gyr (x) exp(-(w - bias) d)``).
 
+- **adaptive time constant** (``tau_adapt``, off here, on in ``recommended``): per sample the
+  ``tau`` where the linear acceleration let through, ``sigma_v / (g tau)``, and the gyro error
+  accumulated, ``d tau``, have the least sum of squares: ``tau = sqrt(sigma_v / (g d))`` within
+  ``[tau_min, tau_max]`` (:func:`_adapt_step`: ``sigma_v`` measured from the specific force in I,
+  ``d`` from the bias's uncertainty and ``gyro_rate_error`` times the net turn rate); ``tau`` is
+  then the time constant of a still sensor. The low-passes' delay lines are scaled to each new
+  coefficient set (docs/algorithms/recommended.md, "The adaptive time constant").
+
 After a timestamp gap or a saturated gyro (``restarts``) the low-pass starts again: the gravity
 seen in I before is stale. A sample without a valid accelerometer reading (or one the
 ``acceleration`` detector rejected) leaves the factor as it is.
 
 Assumes: the linear accelerations average out over ``tau`` in I (true of motion that starts and
 ends at rest, not of a sustained acceleration like a car's), and the gyro drifts slowly against
-``tau``. The readable reference is :meth:`InertialTilt.compose`; :func:`inertial_tilt_kernel`
+``tau`` (with ``tau_adapt``: at most at the bias's uncertainty plus ``gyro_rate_error`` of the net
+turn rate; a gyro late against the accelerometer is not in that model). The readable reference is :meth:`InertialTilt.compose`; :func:`inertial_tilt_kernel`
 does the same arithmetic (tests: 1e-9 on every sample).
 """
 
