@@ -159,7 +159,7 @@ def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, s
     db = math.sqrt(max(ph, 0.0) * vr / (max(ph, 0.0) + vr))
     d = math.sqrt(db * db + kappa * kappa * x[_SW2])
     sv = max(math.sqrt(x[_SV2]), g * db * tau0 * tau0)
-    x[_TAU] = min(max(math.sqrt(sv / (g * d)), tau_min), tau_max)
+    x[_TAU] = min(max(math.sqrt(sv / (g * d)), tau_min), tau_max) if d > 0.0 else tau_max
     return x[_TAU]
 
 
