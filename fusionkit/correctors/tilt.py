@@ -44,8 +44,9 @@ seen in I before is stale. A sample without a valid accelerometer reading (or on
 Assumes: the linear accelerations average out over ``tau`` in I (true of motion that starts and
 ends at rest, not of a sustained acceleration like a car's), and the gyro drifts slowly against
 ``tau`` (with ``tau_adapt``: at most at the bias's uncertainty plus ``gyro_rate_error`` of the net
-turn rate; a gyro late against the accelerometer is not in that model). The readable reference is :meth:`InertialTilt.compose`; :func:`inertial_tilt_kernel`
-does the same arithmetic (tests: 1e-9 on every sample).
+turn rate; a gyro late against the accelerometer is not in that model). The readable reference is
+:meth:`InertialTilt.compose`; :func:`inertial_tilt_kernel` does the same arithmetic (tests: 1e-9 on
+every sample).
 """
 
 from __future__ import annotations
