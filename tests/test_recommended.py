@@ -196,8 +196,9 @@ def translation(seed=1, n=40):
         segs += [sim.Translate((d[0], d[1], 0.0), 0.6, 1.2), sim.Translate((-d[0], -d[1], 0.0), 0.6, 1.2)]
         if i % 4 == 3:
             segs.append(sim.Rotate((0, 1, 0.2), (-1) ** i * 15 * DEG, 1.0))
-    return sim.simulate(segs, rate=100.0, noise=sim.Noise(gyr_noise=0.002, gyr_bias=(0.004, -0.003, 0.002),
-                        acc_noise=0.02), seed=seed, gnss_rate=None, errors=sim.SensorErrors(gyr_scale=(0.01, -0.01, 0.01)))
+    noise = sim.Noise(gyr_noise=0.002, gyr_bias=(0.004, -0.003, 0.002), acc_noise=0.02)
+    return sim.simulate(segs, rate=100.0, noise=noise, seed=seed, gnss_rate=None,
+                        errors=sim.SensorErrors(gyr_scale=(0.01, -0.01, 0.01)))
 
 
 def test_adaptive_time_constant_under_translation():
