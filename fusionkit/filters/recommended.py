@@ -66,6 +66,11 @@ class RecommendedConfig(FilterConfig):
     tau_acc: float = param(
         2.0, unit="s", description="time constant of the inclination low-pass (in the almost-inertial frame)", gt=0)
     tau_mag: float = param(15.0, unit="s", description="time constant of the heading correction", gt=0)
+    heading_gain: Literal["fixed", "kalman"] = param(
+        "fixed", unit="-", description="how the heading follows the magnetometer (mag-heading's gain): fixed, the "
+        "time constant tau_mag; kalman, weighed by the heading's variance, which grows with the gyro's noise and "
+        "the vertical bias error (bias_sigma_motion) and while the magnetometer is rejected, and shrinks with each "
+        "magnetometer heading (its noise and residual field errors against the horizontal field)")
     use_mag: bool = param(True, unit="-", description="use the magnetometer when the recording has one (9D)")
     fast_start: bool = param(
         True, unit="-", description="running means instead of the low-passes at the start (first tau_acc s, "
@@ -172,7 +177,8 @@ class RecommendedFilter(Pipeline):
         if c.use_mag:
             magnetic = c.magnetic if c.fast_start else c.magnetic.model_copy(update={"init_time": 0.0})
             correctors.append(PluginSpec(name="mag-heading", params={
-                "tau": c.tau_mag, "rejection": c.mag_rejection, "magnetic": magnetic.model_dump(),
+                "tau": c.tau_mag, "gain": c.heading_gain, "bias_sigma": c.bias_sigma_motion,
+                "rejection": c.mag_rejection, "magnetic": magnetic.model_dump(),
                 "rate_tau": c.rest.tau, "mag_bias": c.mag_bias and c.motion_bias_tau is not None,
                 "motion_bias_tau": c.motion_bias_tau if c.motion_bias_tau is not None else 100.0,
                 "bias_max": c.bias_max, "mag_delay": c.mag_delay, "mag_hold": c.mag_hold,
