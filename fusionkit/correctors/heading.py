@@ -4,10 +4,31 @@ It keeps the factor ``Rz(delta)``, a rotation about the vertical by the heading 
 ``delta``, and composes the output ``Rz(delta) (x) q`` from the orientation ``q`` the factors before
 it give (``recommended``: ``q_tilt (x) q_gyr``, levelled). The field, seen in that levelled frame,
 gives a heading (the angle that turns its horizontal part to north); ``delta`` follows it with time
-constant ``tau``. A rotation about the vertical cannot change roll and pitch: a magnetic
-disturbance reaches heading only (source 002's channel separation; tested to 1e-12).
+constant ``tau`` (``gain="fixed"``) or with a gain from the heading's variance (``gain="kalman"``).
+A rotation about the vertical cannot change roll and pitch: a magnetic disturbance reaches heading
+only (source 002's channel separation; tested to 1e-12).
 
 Around it, each a separate idea:
+
+- **the gain from the heading's variance** (``gain="kalman"``): a scalar Kalman filter on
+  ``delta``. Its variance ``P`` grows every sample with what drifts the heading: the gyro's white
+  noise (``gyro_noise``) and the vertical bias and scale errors (``bias_sigma``, ``scale_sigma``),
+  which are *considered*, not estimated (a Schmidt-Kalman filter: their covariances with the
+  heading make a constant bias drift its standard deviation linearly in time). It grows so
+  while the magnetometer is rejected (no measurement), and a magnetometer heading shrinks it
+  with the gain ``P / (P + r)``. ``r``: the magnetometer's noise (``mag_noise``) and the field
+  errors a calibration leaves (``field_error``, or the sample's own departure from the magnetic
+  reference in norm and dip where that is larger: a disturbance under the rejection's thresholds)
+  as fractions of the field's strength, divided by the horizontal part ``cos(dip)^2``; the field
+  errors change over ``field_error_time`` and count as the white noise of the same low-frequency
+  power (``2 e^2 field_error_time / dt``). While the reference is learned at the start, the
+  heading's mean is what this filter gives from no prior (``P = r / n``). So after a rejection
+  or at the start the gain is high, and in a long clean stretch it settles where drift and
+  measurement balance (about ``(r dt / (2 bias_sigma^2))^(1/3)`` s; 11-14 s at the defaults and a
+  dip of 60-70 deg). It assumes the field errors uncorrelated beyond ``field_error_time`` and
+  the bias error no larger than ``bias_sigma``; it fails where an undetected field error lasts
+  longer (a calibration that learned a disturbance as iron) right after a rejection, which
+  it then follows faster than the fixed gain (docs/algorithms/recommended.md);
 
 - **magnetic disturbance rejection** (``rejection``; settings in ``magnetic``): the ``magnetic``
   detector's reference (:func:`fusionkit.detectors.magnetic.magnetic_step`) judged on the norm and
