@@ -154,6 +154,14 @@ def test_fixed_gain_ignores_the_kalman_parameters(rec):
     assert s[H._PHH] == s[H._PHB] == s[H._PHS] == 0.0
 
 
+def test_recommended_reports_the_heading_std(rec):
+    """The run's diagnostics carry the heading's standard deviation at its end (gain kalman only):
+    after the clean stretch it is the steady state's, a few degrees at most."""
+    res = fk.make("recommended").run(rec)
+    assert 0.1 * DEG < res.diagnostics["heading_std"] < 5.0 * DEG
+    assert "heading_std" not in fk.make("recommended", heading_gain="fixed").run(rec).diagnostics
+
+
 def test_recommended_passes_the_gain_and_the_bias_sigma():
     f = fk.make("recommended", heading_gain="kalman", bias_sigma_motion=0.2 * DEG)
     (h,) = [c for c in f.correctors if c.name == "mag-heading"]

@@ -98,7 +98,7 @@ from ..types import Flag
 from ._factor import (bias_step, frame_axes, gyro_lowpass, k_bias_step, k_gyro_lowpass, k_paired, k_qmul, k_rot,
                       paired)
 
-__all__ = ["MagHeadingConfig", "MagHeading", "mag_heading_kernel", "MAG_REFERENCE", "MAG_DELAY"]
+__all__ = ["MagHeadingConfig", "MagHeading", "mag_heading_kernel", "MAG_REFERENCE", "MAG_DELAY", "HEADING_VARIANCE"]
 
 # state: the magnetic reference's state, delta, the low-passed gyro and its sample count, the frame's
 # east, north, up axes, and the coefficients for the last dt (k of the heading, k of the gyro low-pass)
@@ -116,6 +116,8 @@ _RELEARN = _E2 + 1
 # gain "kalman": the heading's variance and its covariances with the vertical gyro bias error and scale error
 _PHH, _PHB, _PHS = _E2 + 2, _E2 + 3, _E2 + 4
 _SIZE = _E2 + 5
+#: where the heading's variance (gain kalman, rad^2) sits in the corrector's state
+HEADING_VARIANCE = _PHH
 #: the most the heading's variance grows to: a heading uniform on the circle (pi^2 / 3)
 _P_MAX = math.pi * math.pi / 3.0
 #: where the delay estimate's block sits in the corrector's state (``+ EST``, ``+ STD``, ``+ OFFSET``,

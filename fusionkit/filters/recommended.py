@@ -51,7 +51,7 @@ from typing import Any, ClassVar, Literal
 
 from ..config import AlignmentConfig, FilterConfig, PipelineConfig, PluginSpec, param
 from ..correctors._factor import initial_attitude
-from ..correctors.heading import MAG_REFERENCE
+from ..correctors.heading import HEADING_VARIANCE, MAG_REFERENCE
 from ..correctors.tilt import lowpass_coefficients
 from ..detectors.magnetic import MagneticConfig
 from ..detectors.rest import RestConfig
@@ -220,4 +220,6 @@ class RecommendedFilter(Pipeline):
         if heading:
             s = st["cor"][heading[0]]
             d["mag_reference"] = (float(s[MAG_REFERENCE]), float(s[MAG_REFERENCE + 1]))
+            if self.config.heading_gain == "kalman":  # the heading's standard deviation at the end, rad
+                d["heading_std"] = math.sqrt(float(s[HEADING_VARIANCE]))
         return d
