@@ -47,15 +47,23 @@ magnetometer late by ``d`` seconds adds an error of ``|w| d`` per segment, which
 rotations in both directions). The readable reference is :meth:`MagCalibrationModel.apply`;
 :func:`mag_calibration_apply` is its kernel.
 
-Consistency (``consistency=True``): a field fixed in the earth frame but not uniform where the
-sensor moves (near a magnet on the desk) changes with position; the segments then fit only in
-part, the residual noise absorbs the misfit, and the estimate can still become confident. A
-body-fixed calibration has two observable consequences such a field does not share: the
-calibrated field's norm stays constant as the body turns, and so does its angle to gravity (the
-dip, against the accelerometer). So a confident estimate is applied only if, over the raw samples
-at the last 32 segment ends, it divides the variance of the field's relative norm by
-``min_reduction`` (an F test of two variances) and does not raise the dip's; otherwise the
-samples pass unchanged (:func:`_consistent`). ``consistency=False``: the confidence alone.
+Consistency (``consistency=True``): a confident estimate is not yet body-fixed iron. Near a magnet
+on the desk the field is not uniform where the sensor moves, the segments fit only in part, the
+residual noise absorbs the misfit and the estimate can still become confident; and the few
+segments that enter or leave an earth-fixed field can pull it. What tells them apart
+(``consistency_test="earth"``, :func:`_gate`): body-fixed iron makes the raw field change in the
+earth frame at every turn, and the calibrated field not; an earth-fixed field is already
+constant in the earth frame, except across the few segments that enter or leave it. Over each
+of the last 32 segments the gyro's turn ``C`` gives the earth-frame field's change seen from the
+body, ``u_k - C^T u_a``, raw (``u = m``) and calibrated (``u = W m - c``); their medians
+(:func:`_earth_change`, robust to those few segments) decide. A calibration that makes the change
+larger is refused (the samples pass unchanged); one applied is kept while it does not; a new one is
+applied where it divides the change by ``min_reduction`` or, for iron too weak to stand out of the
+segments' noise that way, where the norm test below passes. ``consistency_test="norm"``, the test
+of before: over the raw samples at the last 32 segment ends, the calibration divides the variance
+of the field's relative norm by ``min_reduction`` (an F test of two variances) and does not raise
+the dip's (against the accelerometer) (:func:`_consistent`); an earth-fixed field's step in the
+norm makes it switch the calibration off and on. ``consistency=False``: the confidence alone.
 
 What the correctors are told (flag MAG_RECALIBRATED): where a closed segment changes the field
 the correctors see by more than the fit's refinement (a new estimate applied: the confidence
@@ -75,7 +83,7 @@ above is blind to a field that turns with the earth, which is the property that 
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -101,7 +109,8 @@ STATE_SOFT = 33 + 88
 # fill, then the raw field and the accelerometer's direction at the last _GK segment ends
 _GK = 32
 _GI, _GC, _GBUF = 0, 1, 2
-_GE = 9  # per segment end: the raw field, the accelerometer, |m|, |a| and the raw dip's sine
+_GE = 16  # per segment end: the raw field, the accelerometer, |m|, |a|, the raw dip's sine, the segment's
+# first raw field and its turn (the quaternion body a -> body k) for the earth-frame test
 GATE = 2 + _GE * _GK
 _SEG_BUF = 255  # the compiled soft-iron segment's working arrays (_k_segment_soft)
 _RECALIBRATED = int(Flag.MAG_RECALIBRATED)
@@ -131,6 +140,13 @@ class MagCalibrationConfig(PluginConfig):
         "over the last 32 segment ends it divides the variance of the field's relative norm by min_reduction and "
         "does not raise the variance of its angle to the accelerometer's (the dip); otherwise the samples pass "
         "unchanged. False: the confidence alone (the model before this gate)")
+    consistency_test: Literal["earth", "norm"] = param(
+        "earth", unit="-", description="what consistency=True tests. earth: the calibration makes the field more "
+        "constant in the earth frame across each of the last 32 segments (the gyro's turn over one segment): the "
+        "median over them of the squared change of the calibrated field, turned into one frame, is below the raw "
+        "field's by min_reduction; an earth-fixed field (a steel structure, a magnet on the desk) changes only the "
+        "segments that enter or leave it. norm: the field's norm and dip at the last 32 segment ends (the gate of "
+        "before; an earth-fixed field's step in the norm makes it refuse iron it would otherwise accept)")
     min_reduction: float = param(
         2.0, unit="-", description="the factor by which the calibration must reduce the field norm's variance: an F "
         "test at the 32 segment ends' degrees of freedom (F(31, 31) at 97%)", gt=1)
@@ -153,7 +169,7 @@ class MagCalibrationModel(SensorModel):
     def params(self) -> np.ndarray:
         c = self.config
         return np.array([c.segment_angle, c.segment_time, c.forget_time, c.max_std, float(c.min_segments),
-                         c.outlier_sigma, float(c.outlier_count), float(c.soft_iron), float(c.consistency),
+                         c.outlier_sigma, float(c.outlier_count), float(c.soft_iron), _gate_code(c),
                          c.min_reduction, math.cos(0.5 * c.segment_angle)])
 
     def kernel(self) -> SensorModelKernel:
@@ -177,7 +193,7 @@ class MagCalibrationModel(SensorModel):
             dq = s[_DQ:_DQ + 4]
             if _turned(dq[0], dq[1], dq[2], dq[3], math.cos(0.5 * c.segment_angle)) or s[_T] >= c.segment_time:
                 acc = sample.acc if sample.acc is not None and np.isfinite(sample.acc).all() else np.zeros(3)
-                _ring_push(s, STATE_SOFT if c.soft_iron else STATE, m, acc)
+                _ring_push(s, STATE_SOFT if c.soft_iron else STATE, m, acc, s[_MA:_MA + 3], dq)
                 conf, applied = s[_CONF], _applied(s, c.soft_iron)
                 if c.soft_iron:
                     self._segment_soft(s, quat_to_matrix(dq).T, m)
@@ -229,7 +245,8 @@ class MagCalibrationModel(SensorModel):
         lmin = _min_eig_sym3(a)
         field = float(np.linalg.norm(m - best))
         if s[_N] >= c.min_segments and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= c.max_std * field:
-            if c.consistency and not _consistent(s, STATE, np.eye(3), best, c.min_reduction):
+            if c.consistency and not _gate(_gate_code(c), s, STATE, np.eye(3), best, c.min_reduction,
+                                            s[_CONF] == 1.0):
                 s[_B:_B + 3] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
                 s[_CONF] = 0.0
                 return
@@ -271,7 +288,8 @@ class MagCalibrationModel(SensorModel):
         field = float(np.linalg.norm(w @ m - best[5:8]))
         std = np.sqrt(s[_VAR] * np.diag(inv))
         if s[_N] >= c.min_segments and std[5:8].max() <= c.max_std * field and std[:5].max() <= c.max_std:
-            if c.consistency and not _consistent(s, STATE_SOFT, w, best[5:8], c.min_reduction):
+            if c.consistency and not _gate(_gate_code(c), s, STATE_SOFT, w, best[5:8], c.min_reduction,
+                                            s[_CONF] == 1.0):
                 s[_SAPP:_SAPP + _NP] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
                 s[_B:_B + 3] = 0.0
                 s[_CONF] = 0.0
@@ -315,15 +333,18 @@ def _turned(w, x, y, z, c) -> bool:
     return c >= 0.0 and w * w <= c * c * (w * w + x * x + y * y + z * z)
 
 
-def _ring_push(s, g, m, a):
+def _ring_push(s, g, m, a, ma, dq):
     """A segment's end into the gate's ring (at ``s[g:]``): the raw field ``m`` and the
-    accelerometer ``a`` (zeros when invalid). The same statements in the reference and, compiled,
-    in the kernel."""
+    accelerometer ``a`` (zeros when invalid), the segment's first raw field ``ma`` and its turn
+    ``dq`` (body a -> body k). The same statements in the reference and, compiled, in the kernel."""
     i = int(s[g + _GI])
     k = g + _GBUF + _GE * i
     for j in range(3):
         s[k + j] = m[j]
         s[k + 3 + j] = a[j]
+        s[k + 9 + j] = ma[j]
+    for j in range(4):
+        s[k + 12 + j] = dq[j]
     # what the gate computes of the raw field at every check, once: its norm, the accelerometer's, the dip's sine
     nr = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
     na = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
@@ -377,6 +398,66 @@ def _consistent(s, g, w, c, min_reduction) -> bool:
     if nd >= 3:
         return max(cd2 / nd - (cd1 / nd) ** 2, 0.0) <= max(rd2 / nd - (rd1 / nd) ** 2, 0.0)
     return True
+
+
+def _gate_code(c) -> float:
+    """The gate's test as the kernel's parameter: 0 none (``consistency=False``), 1 norm, 2 earth."""
+    return 0.0 if not c.consistency else 1.0 if c.consistency_test == "norm" else 2.0
+
+
+def _gate(code, s, g, w, c, min_reduction, applied) -> bool:
+    """Whether the calibration ``W m - c`` passes the gate ``code`` (:func:`_gate_code`); ``applied``:
+    whether the calibration before this segment was applied and confident (earth: see
+    :func:`_earth_change`)."""
+    if code == 1.0:
+        return _consistent(s, g, w, c, min_reduction)
+    raw, cal = _earth_change(s, g, w, c)
+    if not cal <= raw:  # less constant in the earth frame than the raw field: not body-fixed iron
+        return False
+    return applied or min_reduction * cal <= raw or _consistent(s, g, w, c, min_reduction)
+
+
+def _earth_change(s, g, w, c):
+    """The medians over the ring's segments of the squared change of the field in the earth frame
+    across the segment, raw and calibrated by ``W m - c``. Over one segment (body a -> body k,
+    the gyro's turn ``C``) a field constant in the earth frame seen from the body satisfies
+    ``u_k = C^T u_a``: the change ``e = u_k - C^T u_a`` is the earth-frame field's change
+    across the segment, seen from body k. Body-fixed iron makes the raw field's change nonzero at
+    every turn and the calibrated one's zero; an earth-fixed field (uniform, or one the body
+    turns in without moving far) is constant in the earth frame, so the raw change is already
+    zero except in the few segments that enter or leave it, which the median ignores, and a
+    calibration fitted to what it does to those segments makes the others' change larger. (0, 0)
+    with fewer than 3 segments. The same statements in the reference and, compiled, in the
+    kernel."""
+    n = int(s[g + _GC])
+    if n < 3:
+        return 0.0, 0.0
+    raw = np.empty(n)
+    cal = np.empty(n)
+    for i in range(n):
+        k = g + _GBUF + _GE * i
+        qw, qx, qy, qz = s[k + 12], s[k + 13], s[k + 14], s[k + 15]
+        # C = R(dq), row major; the change uses C^T
+        r00, r01, r02 = 1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy)
+        r10, r11, r12 = 2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx)
+        r20, r21, r22 = 2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)
+        mk0, mk1, mk2 = s[k], s[k + 1], s[k + 2]
+        ma0, ma1, ma2 = s[k + 9], s[k + 10], s[k + 11]
+        d0 = mk0 - (r00 * ma0 + r10 * ma1 + r20 * ma2)
+        d1 = mk1 - (r01 * ma0 + r11 * ma1 + r21 * ma2)
+        d2 = mk2 - (r02 * ma0 + r12 * ma1 + r22 * ma2)
+        raw[i] = d0 * d0 + d1 * d1 + d2 * d2
+        uk0 = w[0, 0] * mk0 + w[0, 1] * mk1 + w[0, 2] * mk2 - c[0]
+        uk1 = w[1, 0] * mk0 + w[1, 1] * mk1 + w[1, 2] * mk2 - c[1]
+        uk2 = w[2, 0] * mk0 + w[2, 1] * mk1 + w[2, 2] * mk2 - c[2]
+        ua0 = w[0, 0] * ma0 + w[0, 1] * ma1 + w[0, 2] * ma2 - c[0]
+        ua1 = w[1, 0] * ma0 + w[1, 1] * ma1 + w[1, 2] * ma2 - c[1]
+        ua2 = w[2, 0] * ma0 + w[2, 1] * ma1 + w[2, 2] * ma2 - c[2]
+        e0 = uk0 - (r00 * ua0 + r10 * ua1 + r20 * ua2)
+        e1 = uk1 - (r01 * ua0 + r11 * ua1 + r21 * ua2)
+        e2 = uk2 - (r02 * ua0 + r12 * ua1 + r22 * ua2)
+        cal[i] = e0 * e0 + e1 * e1 + e2 * e2
+    return np.median(raw), np.median(cal)
 
 
 def _basis(j, v0, v1, v2):
@@ -497,6 +578,18 @@ _k_basis = njit(_basis)
 _k_ring_push = njit(_ring_push, cold=True)  # once per segment (as are _k_segment and _k_segment_soft)
 _k_turned = njit(_turned)
 _k_consistent = njit(_consistent)
+_k_earth_change = njit(_earth_change)
+
+
+@njit
+def _k_gate(code, s, g, w, c, min_reduction, applied):
+    """:func:`_gate`, compiled."""
+    if code == 1.0:
+        return _k_consistent(s, g, w, c, min_reduction)
+    raw, cal = _k_earth_change(s, g, w, c)
+    if not cal <= raw:
+        return False
+    return applied or min_reduction * cal <= raw or _k_consistent(s, g, w, c, min_reduction)
 _k_applied = njit(_applied)
 _k_changed = njit(_changed)
 
@@ -520,7 +613,7 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
     """Kernel of :class:`MagCalibrationModel` (``SensorModelKernel.apply``)."""
     seg_time, forget, max_std, min_seg, out_sigma, out_count = p[1], p[2], p[3], p[4], p[5], p[6]
     soft = p[7] != 0.0
-    gate, min_red = p[8] != 0.0, p[9]
+    gate, min_red = p[8], p[9]
     if not gyr_ok:
         s[_ANCHOR] = 0.0
     elif s[_ANCHOR] != 0.0:
@@ -536,7 +629,7 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
     if gyr_ok and s[_ANCHOR] != 0.0:
         if _k_turned(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], p[10]) or s[_T] >= seg_time:
             acc = (v[3], v[4], v[5]) if acc_ok else (0.0, 0.0, 0.0)
-            _k_ring_push(s, STATE_SOFT if soft else STATE, (m0, m1, m2), acc)
+            _k_ring_push(s, STATE_SOFT if soft else STATE, (m0, m1, m2), acc, s[_MA:_MA + 3], s[_DQ:_DQ + 4])
             conf, applied = s[_CONF], _k_applied(s, soft)
             if soft:
                 _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red)
@@ -622,7 +715,8 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
     f0, f1, f2 = m0 - s[_BEST], m1 - s[_BEST + 1], m2 - s[_BEST + 2]
     field = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
     if s[_N] >= min_seg and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= max_std * field:
-        if gate and not _k_consistent(s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red):
+        if gate != 0.0 and not _k_gate(gate, s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red,
+                                               s[_CONF] == 1.0):
             s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
             s[_CONF] = 0.0
             return
@@ -706,7 +800,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
         else:
             std_c = max(std_c, sd)
     if s[_N] >= min_seg and std_c <= max_std * field and std_e <= max_std:
-        if gate and not _k_consistent(s, STATE_SOFT, w, t[5:8], min_red):
+        if gate != 0.0 and not _k_gate(gate, s, STATE_SOFT, w, t[5:8], min_red, s[_CONF] == 1.0):
             for i in range(_NP):
                 s[_SAPP + i] = 0.0
             s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
