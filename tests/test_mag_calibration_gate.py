@@ -48,14 +48,16 @@ def test_recommended_composes_the_calibration_by_default():
 @pytest.mark.parametrize("distance", ["carried 5 cm", "carried 10 cm"])
 def test_a_carried_magnet_costs_about_nothing_once_calibrated(runs, distance):
     """8 uT (5 cm) and 1 uT (10 cm) of body-fixed field: without the calibration the heading is
-    5.5 / 0.3 deg off over the last 20 s; with it 0.50 / 0.06 (the undisturbed turning: 0.05). The 5 cm
-    run's 0.3-0.4 deg is the heading still converging (tau_mag) from the uncalibrated start's -17 deg;
-    with the rest learner's fixed gain of before issue 14's stop 18 it was 0.41 / 0.11 (undisturbed
-    0.15): its half-learnt vertical bias drifted the heading towards the truth; with the bias in
-    motion of before stop 17, 0.41 / 0.30 against 0.33."""
+    5.5 / 0.3 deg off over the last 20 s; with it 0.70 / 0.11 (the undisturbed turning: 0.05). The 5 cm
+    run's 0.7 deg is the heading still converging (tau_mag, 15 s) from the uncalibrated start's
+    -22 deg: the calibration applies at 7.1 s, where the heading is 11 deg off, and mag-heading keeps
+    its filter. (Before the fit's misfit test weighed the estimate's own uncertainty it applied at
+    10.7 s, after a spurious restart, where the raw field's heading happened to be 8 deg off: 0.50.
+    With the rest learner's fixed gain of before issue 14's stop 18 it was 0.41 / 0.11, with the
+    bias in motion of before stop 17, 0.41 / 0.30 against 0.33.)"""
     rec, on, off = runs[distance]
     assert on.diagnostics["state"]["mod"][0][CONF] == 1.0
-    assert _late_heading_deg(rec, on) < 0.6
+    assert _late_heading_deg(rec, on) < (0.9 if distance == "carried 5 cm" else 0.3)
     if distance == "carried 5 cm":
         assert _late_heading_deg(rec, off) > 3.0
 
@@ -195,10 +197,10 @@ def _heading_deg(rec, res):
 
 def test_an_earth_fixed_field_while_turning_is_not_taken_against_the_iron():
     """The earth-frame test keeps the iron's calibration through the earth-fixed field: applied
-    once (one MAG_RECALIBRATED flag), heading 1.75 deg RMS over the run (1.9-2.1 uncalibrated).
+    once (one MAG_RECALIBRATED flag), heading 2.06 deg RMS over the run (2.04 uncalibrated).
     The norm test (``consistency_test="norm"``, the gate of before, kept) refuses and accepts it as
     the field's norm steps, and each switch makes ``mag-heading`` learn its reference again, inside
-    the earth-fixed field: 16.4 deg."""
+    the earth-fixed field: 16.2 deg."""
     rec = _iron_in_a_steel_structure()
     earth, norm = _recommended().run(rec), _recommended(consistency_test="norm").run(rec)
     assert np.count_nonzero(earth.flags & _RECAL) == 1

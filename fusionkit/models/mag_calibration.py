@@ -23,7 +23,11 @@ a steel beam) changes ``h``, not the relation above (a constant ``h`` still turn
 so it leaves ``b`` alone; the magnetic disturbance detector deals with it. Recovery: when the
 segments stop fitting (a residual above ``outlier_sigma`` standard deviations in
 ``outlier_count`` segments in a row: the magnet moved), the estimate is forgotten and learned
-again; the last confident offset is applied meanwhile.
+again; the last confident offset is applied meanwhile. The standard deviation a segment is judged
+by is the one its residual is expected to have (:func:`_spread`): the noise's and the estimate's
+own, ``sigma_e^2 (1 + tr(H A^-1 H^T) / 3)``. Before the body has turned about enough axes the
+estimate is poor along the directions not yet seen, so the first turn about a new axis has a
+large residual that is no misfit (judged by the noise alone, it restarted the fit).
 
 Soft iron (``soft_iron=True``, the default): ferrous material carried with the sensor, or a
 magnetometer's unequal axis gains, distort the field seen from the body by a matrix: ``m = S R^T h
@@ -56,10 +60,13 @@ earth frame at every turn, and the calibrated field not; an earth-fixed field is
 constant in the earth frame, except across the few segments that enter or leave it. Over each
 of the last 32 segments the gyro's turn ``C`` gives the earth-frame field's change seen from the
 body, ``u_k - C^T u_a``, raw (``u = m``) and calibrated (``u = W m - c``); their medians
-(:func:`_earth_change`, robust to those few segments) decide. A calibration that makes the change
-larger is refused (the samples pass unchanged); one applied is kept while it does not; a new one is
-applied where it divides the change by ``min_reduction`` or, for iron too weak to stand out of the
-segments' noise that way, where the norm test below passes. ``consistency_test="norm"``, the test
+(:func:`_earth_change`, robust to those few segments) decide. A new calibration is applied where
+it does not make the change larger and divides it by ``min_reduction`` or, for iron too weak to
+stand out of the segments' noise that way, where the norm test below passes; otherwise the
+samples pass unchanged. An applied one is withdrawn only where it makes the change
+``min_reduction`` times larger (significantly less constant in the earth frame: not body-fixed
+iron); a weak, right calibration would otherwise switch off and on with the noise, and each switch
+makes ``mag-heading`` learn its reference again. ``consistency_test="norm"``, the test
 of before: over the raw samples at the last 32 segment ends, the calibration divides the variance
 of the field's relative norm by ``min_reduction`` (an F test of two variances) and does not raise
 the dip's (against the accelerometer) (:func:`_consistent`); an earth-fixed field's step in the
@@ -128,7 +135,8 @@ class MagCalibrationConfig(PluginConfig):
         "field's norm", gt=0)
     min_segments: int = param(8, unit="-", description="segments before the noise estimate is trusted", ge=2)
     outlier_sigma: float = param(
-        6.0, unit="-", description="a segment whose residual exceeds this many standard deviations does not fit",
+        6.0, unit="-", description="a segment whose residual exceeds this many standard deviations (of the residual "
+        "expected: the noise's and the estimate's own uncertainty) does not fit",
         gt=0)
     outlier_count: int = param(
         3, unit="-", description="this many misfits in a row: the offset changed, learn it again", ge=1)
@@ -144,8 +152,9 @@ class MagCalibrationConfig(PluginConfig):
         "earth", unit="-", description="what consistency=True tests. earth: the calibration makes the field more "
         "constant in the earth frame across each of the last 32 segments (the gyro's turn over one segment): the "
         "median over them of the squared change of the calibrated field, turned into one frame, is below the raw "
-        "field's by min_reduction; an earth-fixed field (a steel structure, a magnet on the desk) changes only the "
-        "segments that enter or leave it. norm: the field's norm and dip at the last 32 segment ends (the gate of "
+        "field's by min_reduction, or not above it and the norm test passes; withdrawn where it is min_reduction "
+        "times above it; an earth-fixed field (a steel structure, a magnet on the desk) changes only the segments "
+        "that enter or leave it. norm: the field's norm and dip at the last 32 segment ends (the gate of "
         "before; an earth-fixed field's step in the norm makes it refuse iron it would otherwise accept)")
     min_reduction: float = param(
         2.0, unit="-", description="the factor by which the calibration must reduce the field norm's variance: an F "
@@ -219,7 +228,9 @@ class MagCalibrationModel(SensorModel):
         n = s[_N]
         e = r - h @ s[_BEST:_BEST + 3]
         e2 = float(e @ e) / 3.0
-        if n >= c.min_segments and e2 > c.outlier_sigma ** 2 * s[_VAR]:
+        lam = math.exp(-s[_T] / c.forget_time)
+        if n >= c.min_segments and e2 > c.outlier_sigma ** 2 * s[_VAR] * _spread(
+                h, s[_A:_A + 9].reshape(3, 3), lam, np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))):
             s[_BAD] += 1.0
             if s[_BAD] >= c.outlier_count:  # the offset changed: forget it and learn again
                 s[_A:_A + 9] = 0.0
@@ -228,7 +239,6 @@ class MagCalibrationModel(SensorModel):
                 s[STATE + _GC] = 0.0
             return
         s[_BAD] = 0.0
-        lam = math.exp(-s[_T] / c.forget_time)
         a = lam * s[_A:_A + 9].reshape(3, 3) + h.T @ h
         s[_A:_A + 9] = a.ravel()
         s[_Y:_Y + 3] = lam * s[_Y:_Y + 3] + h.T @ r
@@ -261,7 +271,10 @@ class MagCalibrationModel(SensorModel):
         r = m - ct @ s[_MA:_MA + 3]
         n = s[_N]
         e = r - h @ s[_SBEST:_SBEST + _NP]
-        if n >= c.min_segments and float(e @ e) / 3.0 > c.outlier_sigma ** 2 * s[_VAR]:
+        lam = math.exp(-s[_T] / c.forget_time)
+        if n >= c.min_segments and float(e @ e) / 3.0 > c.outlier_sigma ** 2 * s[_VAR] * _spread(
+                h, s[_SA:_SA + _NP * _NP].reshape(_NP, _NP), lam, np.empty((_NP, _NP)), np.empty((_NP, _NP)),
+                np.empty((_NP, _NP))):
             s[_BAD] += 1.0
             if s[_BAD] >= c.outlier_count:  # the calibration changed: forget it and learn again
                 s[_SA:_SA + _NP * _NP] = 0.0
@@ -270,7 +283,6 @@ class MagCalibrationModel(SensorModel):
                 s[STATE_SOFT + _GC] = 0.0
             return
         s[_BAD] = 0.0
-        lam = math.exp(-s[_T] / c.forget_time)
         a = lam * s[_SA:_SA + _NP * _NP].reshape(_NP, _NP) + h.T @ h
         s[_SA:_SA + _NP * _NP] = a.ravel()
         s[_SY:_SY + _NP] = lam * s[_SY:_SY + _NP] + h.T @ r
@@ -412,9 +424,9 @@ def _gate(code, s, g, w, c, min_reduction, applied) -> bool:
     if code == 1.0:
         return _consistent(s, g, w, c, min_reduction)
     raw, cal = _earth_change(s, g, w, c)
-    if not cal <= raw:  # less constant in the earth frame than the raw field: not body-fixed iron
-        return False
-    return applied or min_reduction * cal <= raw or _consistent(s, g, w, c, min_reduction)
+    if applied:  # withdrawn where it makes the field significantly less constant in the earth frame
+        return cal <= min_reduction * raw
+    return cal <= raw and (min_reduction * cal <= raw or _consistent(s, g, w, c, min_reduction))
 
 
 def _earth_change(s, g, w, c):
@@ -528,6 +540,31 @@ def _invert_spd(a, m, inv) -> bool:
     return True
 
 
+def _spread(h, a, lam, l, m, inv) -> float:
+    """How much larger than the fit's residual noise a new segment's misfit ``e = r - H x`` is
+    expected to be: ``1 + tr(H P H^T) / 3`` with ``P = (lam A)^-1`` the estimate's covariance over
+    the noise's variance (``A`` the information matrix before the segment, ``lam`` its
+    forgetting). Where ``A`` still leaves a direction unknown (rotations about one axis so far), a
+    turn about another axis shows a large misfit that is the estimate's own uncertainty, not a
+    moved magnet; inf for an ``A`` not yet invertible (no misfit can be judged). ``l``, ``m``,
+    ``inv``: scratch of ``a``'s shape. The same statements in the reference and, compiled, in the
+    kernel."""
+    n = a.shape[0]
+    for i in range(n):
+        for j in range(n):
+            l[i, j] = a[i, j]
+    if not _invert_spd(l, m, inv):
+        return math.inf
+    t = 0.0
+    for i in range(3):
+        for j in range(n):
+            x = 0.0
+            for k in range(n):
+                x += inv[j, k] * h[i, k]
+            t += h[i, j] * x
+    return 1.0 + t / (3.0 * lam)
+
+
 def _inverse3(a, inv) -> bool:
     """``inv = a^-1`` by the adjugate, False (``inv`` untouched) for a singular ``a``; the same
     statements in the reference and, compiled, in the kernel."""
@@ -574,6 +611,25 @@ def _min_eig_sym3(a) -> float:
 _k_min_eig = njit(_min_eig_sym3)
 _k_inverse3 = njit(_inverse3)
 _k_invert_spd = njit(_invert_spd)
+
+
+@njit
+def _k_spread(h, a, lam, l, m, inv):
+    """:func:`_spread`, compiled (its inverse through the compiled :func:`_invert_spd`)."""
+    n = a.shape[0]
+    for i in range(n):
+        for j in range(n):
+            l[i, j] = a[i, j]
+    if not _k_invert_spd(l, m, inv):
+        return math.inf
+    t = 0.0
+    for i in range(3):
+        for j in range(n):
+            x = 0.0
+            for k in range(n):
+                x += inv[j, k] * h[i, k]
+            t += h[i, j] * x
+    return 1.0 + t / (3.0 * lam)
 _k_basis = njit(_basis)
 _k_ring_push = njit(_ring_push, cold=True)  # once per segment (as are _k_segment and _k_segment_soft)
 _k_turned = njit(_turned)
@@ -587,9 +643,9 @@ def _k_gate(code, s, g, w, c, min_reduction, applied):
     if code == 1.0:
         return _k_consistent(s, g, w, c, min_reduction)
     raw, cal = _k_earth_change(s, g, w, c)
-    if not cal <= raw:
-        return False
-    return applied or min_reduction * cal <= raw or _k_consistent(s, g, w, c, min_reduction)
+    if applied:
+        return cal <= min_reduction * raw
+    return cal <= raw and (min_reduction * cal <= raw or _k_consistent(s, g, w, c, min_reduction))
 _k_applied = njit(_applied)
 _k_changed = njit(_changed)
 
@@ -689,7 +745,9 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
         e[i] = r[i] - (h[i, 0] * s[_BEST] + h[i, 1] * s[_BEST + 1] + h[i, 2] * s[_BEST + 2])
     n = s[_N]
     e2 = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]) / 3.0
-    if n >= min_seg and e2 > out_sigma * out_sigma * s[_VAR]:
+    lam = math.exp(-s[_T] / forget)
+    if n >= min_seg and e2 > out_sigma * out_sigma * s[_VAR] * _k_spread(
+            h, s[_A:_A + 9].reshape((3, 3)), lam, np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))):
         s[_BAD] += 1.0
         if s[_BAD] >= out_count:
             for i in range(9):
@@ -699,7 +757,6 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
             s[STATE + _GC] = 0.0
         return
     s[_BAD] = 0.0
-    lam = math.exp(-s[_T] / forget)
     a = np.empty((3, 3))
     k_forget_accumulate(s, _A, _Y, _RR, _NE, h, r, lam, a)
     s[_N] = n + 1.0
@@ -749,7 +806,11 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
             ei -= h[i, j] * s[_SBEST + j]
         e2 += ei * ei
     n = s[_N]
-    if n >= min_seg and e2 / 3.0 > out_sigma * out_sigma * s[_VAR]:
+    lam = math.exp(-s[_T] / forget)
+    # scratch for the spread: the information matrix's, its inverse's and the Cholesky's places below
+    if n >= min_seg and e2 / 3.0 > out_sigma * out_sigma * s[_VAR] * _k_spread(
+            h, s[_SA:_SA + _NP * _NP].reshape((_NP, _NP)), lam, buf[45:45 + _NP * _NP].reshape((_NP, _NP)),
+            buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), buf[109:109 + _NP * _NP].reshape((_NP, _NP))):
         s[_BAD] += 1.0
         if s[_BAD] >= out_count:
             for i in range(_NP * _NP):
@@ -760,7 +821,6 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
             s[STATE_SOFT + _GC] = 0.0
         return
     s[_BAD] = 0.0
-    lam = math.exp(-s[_T] / forget)
     a = buf[45:45 + _NP * _NP].reshape((_NP, _NP))
     for i in range(_NP):
         for j in range(_NP):
