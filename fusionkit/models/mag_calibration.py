@@ -229,8 +229,9 @@ class MagCalibrationModel(SensorModel):
         e = r - h @ s[_BEST:_BEST + 3]
         e2 = float(e @ e) / 3.0
         lam = math.exp(-s[_T] / c.forget_time)
+        inv = np.empty((3, 3))
         if n >= c.min_segments and e2 > c.outlier_sigma ** 2 * s[_VAR] * _spread(
-                h, s[_A:_A + 9].reshape(3, 3), lam, np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))):
+                h, inv, _invert_spd(s[_A:_A + 9].reshape(3, 3).copy(), np.empty((3, 3)), inv), lam):
             s[_BAD] += 1.0
             if s[_BAD] >= c.outlier_count:  # the offset changed: forget it and learn again
                 s[_A:_A + 9] = 0.0
@@ -272,9 +273,9 @@ class MagCalibrationModel(SensorModel):
         n = s[_N]
         e = r - h @ s[_SBEST:_SBEST + _NP]
         lam = math.exp(-s[_T] / c.forget_time)
+        inv = np.empty((_NP, _NP))
         if n >= c.min_segments and float(e @ e) / 3.0 > c.outlier_sigma ** 2 * s[_VAR] * _spread(
-                h, s[_SA:_SA + _NP * _NP].reshape(_NP, _NP), lam, np.empty((_NP, _NP)), np.empty((_NP, _NP)),
-                np.empty((_NP, _NP))):
+                h, inv, _invert_spd(s[_SA:_SA + _NP * _NP].reshape(_NP, _NP).copy(), np.empty((_NP, _NP)), inv), lam):
             s[_BAD] += 1.0
             if s[_BAD] >= c.outlier_count:  # the calibration changed: forget it and learn again
                 s[_SA:_SA + _NP * _NP] = 0.0
@@ -540,21 +541,17 @@ def _invert_spd(a, m, inv) -> bool:
     return True
 
 
-def _spread(h, a, lam, l, m, inv) -> float:
+def _spread(h, inv, ok, lam) -> float:
     """How much larger than the fit's residual noise a new segment's misfit ``e = r - H x`` is
     expected to be: ``1 + tr(H P H^T) / 3`` with ``P = (lam A)^-1`` the estimate's covariance over
-    the noise's variance (``A`` the information matrix before the segment, ``lam`` its
-    forgetting). Where ``A`` still leaves a direction unknown (rotations about one axis so far), a
-    turn about another axis shows a large misfit that is the estimate's own uncertainty, not a
-    moved magnet; inf for an ``A`` not yet invertible (no misfit can be judged). ``l``, ``m``,
-    ``inv``: scratch of ``a``'s shape. The same statements in the reference and, compiled, in the
-    kernel."""
-    n = a.shape[0]
-    for i in range(n):
-        for j in range(n):
-            l[i, j] = a[i, j]
-    if not _invert_spd(l, m, inv):
+    the noise's variance (``inv = A^-1``, ``A`` the information matrix before the segment, ``lam``
+    its forgetting). Where ``A`` still leaves a direction unknown (rotations about one axis so
+    far), a turn about another axis shows a large misfit that is the estimate's own uncertainty,
+    not a moved magnet; inf where ``A`` was not invertible (``ok`` False: no misfit can be
+    judged). The same statements in the reference and, compiled, in the kernel."""
+    if not ok:
         return math.inf
+    n = inv.shape[0]
     t = 0.0
     for i in range(3):
         for j in range(n):
@@ -613,23 +610,7 @@ _k_inverse3 = njit(_inverse3)
 _k_invert_spd = njit(_invert_spd)
 
 
-@njit
-def _k_spread(h, a, lam, l, m, inv):
-    """:func:`_spread`, compiled (its inverse through the compiled :func:`_invert_spd`)."""
-    n = a.shape[0]
-    for i in range(n):
-        for j in range(n):
-            l[i, j] = a[i, j]
-    if not _k_invert_spd(l, m, inv):
-        return math.inf
-    t = 0.0
-    for i in range(3):
-        for j in range(n):
-            x = 0.0
-            for k in range(n):
-                x += inv[j, k] * h[i, k]
-            t += h[i, j] * x
-    return 1.0 + t / (3.0 * lam)
+_k_spread = njit(_spread)
 _k_basis = njit(_basis)
 _k_ring_push = njit(_ring_push, cold=True)  # once per segment (as are _k_segment and _k_segment_soft)
 _k_turned = njit(_turned)
@@ -746,8 +727,9 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
     n = s[_N]
     e2 = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]) / 3.0
     lam = math.exp(-s[_T] / forget)
+    inv = np.empty((3, 3))
     if n >= min_seg and e2 > out_sigma * out_sigma * s[_VAR] * _k_spread(
-            h, s[_A:_A + 9].reshape((3, 3)), lam, np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))):
+            h, inv, _k_invert_spd(s[_A:_A + 9].reshape((3, 3)).copy(), np.empty((3, 3)), inv), lam):
         s[_BAD] += 1.0
         if s[_BAD] >= out_count:
             for i in range(9):
@@ -807,10 +789,15 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
         e2 += ei * ei
     n = s[_N]
     lam = math.exp(-s[_T] / forget)
-    # scratch for the spread: the information matrix's, its inverse's and the Cholesky's places below
-    if n >= min_seg and e2 / 3.0 > out_sigma * out_sigma * s[_VAR] * _k_spread(
-            h, s[_SA:_SA + _NP * _NP].reshape((_NP, _NP)), lam, buf[45:45 + _NP * _NP].reshape((_NP, _NP)),
-            buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), buf[109:109 + _NP * _NP].reshape((_NP, _NP))):
+    misfit = False
+    if n >= min_seg:  # the spread's scratch: the information matrix's, its inverse's and the Cholesky's places below
+        l = buf[45:45 + _NP * _NP]
+        for i in range(_NP * _NP):
+            l[i] = s[_SA + i]
+        inv = buf[109:109 + _NP * _NP].reshape((_NP, _NP))
+        ok = _k_invert_spd(l.reshape((_NP, _NP)), buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), inv)
+        misfit = e2 / 3.0 > out_sigma * out_sigma * s[_VAR] * _k_spread(h, inv, ok, lam)
+    if misfit:
         s[_BAD] += 1.0
         if s[_BAD] >= out_count:
             for i in range(_NP * _NP):
