@@ -608,8 +608,6 @@ def _min_eig_sym3(a) -> float:
 _k_min_eig = njit(_min_eig_sym3)
 _k_inverse3 = njit(_inverse3)
 _k_invert_spd = njit(_invert_spd)
-
-
 _k_spread = njit(_spread)
 _k_basis = njit(_basis)
 _k_ring_push = njit(_ring_push, cold=True)  # once per segment (as are _k_segment and _k_segment_soft)
@@ -627,6 +625,8 @@ def _k_gate(code, s, g, w, c, min_reduction, applied):
     if applied:
         return cal <= min_reduction * raw
     return cal <= raw and (min_reduction * cal <= raw or _k_consistent(s, g, w, c, min_reduction))
+
+
 _k_applied = njit(_applied)
 _k_changed = njit(_changed)
 
