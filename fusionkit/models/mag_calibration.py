@@ -61,7 +61,8 @@ constant in the earth frame, except across the few segments that enter or leave 
 of the last 32 segments the gyro's turn ``C`` gives the earth-frame field's change seen from the
 body, ``u_k - C^T u_a``, raw (``u = m``) and calibrated (``u = W m - c``); their medians
 (:func:`_earth_change`, robust to those few segments) decide. A new calibration is applied where
-it does not make the change larger and divides it by ``min_reduction`` or, for iron too weak to
+it does not make the change larger and divides it by ``min_reduction`` (changing the field by at
+least ``max_std`` of its norm, the precision the confidence asks for) or, for iron too weak to
 stand out of the segments' noise that way, where the norm test below passes; otherwise the
 samples pass unchanged. An applied one is withdrawn only where it makes the change
 ``min_reduction`` times larger (significantly less constant in the earth frame: not body-fixed
@@ -257,7 +258,7 @@ class MagCalibrationModel(SensorModel):
         field = float(np.linalg.norm(m - best))
         if s[_N] >= c.min_segments and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= c.max_std * field:
             if c.consistency and not _gate(_gate_code(c), s, STATE, np.eye(3), best, c.min_reduction,
-                                            s[_CONF] == 1.0):
+                                            s[_CONF] == 1.0, c.max_std):
                 s[_B:_B + 3] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
                 s[_CONF] = 0.0
                 return
@@ -302,7 +303,7 @@ class MagCalibrationModel(SensorModel):
         std = np.sqrt(s[_VAR] * np.diag(inv))
         if s[_N] >= c.min_segments and std[5:8].max() <= c.max_std * field and std[:5].max() <= c.max_std:
             if c.consistency and not _gate(_gate_code(c), s, STATE_SOFT, w, best[5:8], c.min_reduction,
-                                            s[_CONF] == 1.0):
+                                            s[_CONF] == 1.0, c.max_std):
                 s[_SAPP:_SAPP + _NP] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
                 s[_B:_B + 3] = 0.0
                 s[_CONF] = 0.0
@@ -418,16 +419,18 @@ def _gate_code(c) -> float:
     return 0.0 if not c.consistency else 1.0 if c.consistency_test == "norm" else 2.0
 
 
-def _gate(code, s, g, w, c, min_reduction, applied) -> bool:
+def _gate(code, s, g, w, c, min_reduction, applied, max_std) -> bool:
     """Whether the calibration ``W m - c`` passes the gate ``code`` (:func:`_gate_code`); ``applied``:
     whether the calibration before this segment was applied and confident (earth: see
-    :func:`_earth_change`)."""
+    :func:`_earth_change`; a new calibration that changes the field by less than ``max_std`` of
+    its norm, the precision the confidence asks for, is applied only where the norm test passes)."""
     if code == 1.0:
         return _consistent(s, g, w, c, min_reduction)
-    raw, cal = _earth_change(s, g, w, c)
+    raw, cal, change = _earth_change(s, g, w, c)
     if applied:  # withdrawn where it makes the field significantly less constant in the earth frame
         return cal <= min_reduction * raw
-    return cal <= raw and (min_reduction * cal <= raw or _consistent(s, g, w, c, min_reduction))
+    return cal <= raw and ((min_reduction * cal <= raw and change >= max_std)
+                           or _consistent(s, g, w, c, min_reduction))
 
 
 def _earth_change(s, g, w, c):
@@ -439,14 +442,16 @@ def _earth_change(s, g, w, c):
     every turn and the calibrated one's zero; an earth-fixed field (uniform, or one the body
     turns in without moving far) is constant in the earth frame, so the raw change is already
     zero except in the few segments that enter or leave it, which the median ignores, and a
-    calibration fitted to what it does to those segments makes the others' change larger. (0, 0)
-    with fewer than 3 segments. The same statements in the reference and, compiled, in the
+    calibration fitted to what it does to those segments makes the others' change larger. Third,
+    the calibration's own size: the RMS over the segment ends of ``|W m - c - m| / |m|``. (0, 0,
+    0) with fewer than 3 segments. The same statements in the reference and, compiled, in the
     kernel."""
     n = int(s[g + _GC])
     if n < 3:
-        return 0.0, 0.0
+        return 0.0, 0.0, 0.0
     raw = np.empty(n)
     cal = np.empty(n)
+    size = 0.0
     for i in range(n):
         k = g + _GBUF + _GE * i
         qw, qx, qy, qz = s[k + 12], s[k + 13], s[k + 14], s[k + 15]
@@ -470,7 +475,10 @@ def _earth_change(s, g, w, c):
         e1 = uk1 - (r01 * ua0 + r11 * ua1 + r21 * ua2)
         e2 = uk2 - (r02 * ua0 + r12 * ua1 + r22 * ua2)
         cal[i] = e0 * e0 + e1 * e1 + e2 * e2
-    return np.median(raw), np.median(cal)
+        nm = mk0 * mk0 + mk1 * mk1 + mk2 * mk2
+        if nm > 0.0:
+            size += ((uk0 - mk0) ** 2 + (uk1 - mk1) ** 2 + (uk2 - mk2) ** 2) / nm
+    return np.median(raw), np.median(cal), math.sqrt(size / n)
 
 
 def _basis(j, v0, v1, v2):
@@ -617,14 +625,15 @@ _k_earth_change = njit(_earth_change)
 
 
 @njit
-def _k_gate(code, s, g, w, c, min_reduction, applied):
+def _k_gate(code, s, g, w, c, min_reduction, applied, max_std):
     """:func:`_gate`, compiled."""
     if code == 1.0:
         return _k_consistent(s, g, w, c, min_reduction)
-    raw, cal = _k_earth_change(s, g, w, c)
+    raw, cal, change = _k_earth_change(s, g, w, c)
     if applied:
         return cal <= min_reduction * raw
-    return cal <= raw and (min_reduction * cal <= raw or _k_consistent(s, g, w, c, min_reduction))
+    return cal <= raw and ((min_reduction * cal <= raw and change >= max_std)
+                           or _k_consistent(s, g, w, c, min_reduction))
 
 
 _k_applied = njit(_applied)
@@ -755,7 +764,7 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
     field = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
     if s[_N] >= min_seg and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= max_std * field:
         if gate != 0.0 and not _k_gate(gate, s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red,
-                                               s[_CONF] == 1.0):
+                                               s[_CONF] == 1.0, max_std):
             s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
             s[_CONF] = 0.0
             return
@@ -847,7 +856,8 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
         else:
             std_c = max(std_c, sd)
     if s[_N] >= min_seg and std_c <= max_std * field and std_e <= max_std:
-        if gate != 0.0 and not _k_gate(gate, s, STATE_SOFT, w, t[5:8], min_red, s[_CONF] == 1.0):
+        if gate != 0.0 and not _k_gate(gate, s, STATE_SOFT, w, t[5:8], min_red, s[_CONF] == 1.0,
+                                           max_std):
             for i in range(_NP):
                 s[_SAPP + i] = 0.0
             s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
