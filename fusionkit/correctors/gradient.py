@@ -298,9 +298,11 @@ def _gradient_correct(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_o
             s[_QPREV + i] = q[i]
         s[_HAVE], s[_ITERS] = 1.0, 1.0
         return 0
+    # the quaternion in registers from its one load to its one store (no reload on the chain)
+    w, xx, y, z = q[0], q[1], q[2], q[3]
     i, cap, may_raise = 0, 0, False
     while True:  # one call site of _gradient_at for the first gradient and each next one (one inlined copy)
-        e0, e1, e2, e3, res = _gradient_at(q[0], q[1], q[2], q[3], s, ax, ay, az, has_m, mx, my, mz)
+        e0, e1, e2, e3, res = _gradient_at(w, xx, y, z, s, ax, ay, az, has_m, mx, my, mz)
         if i == 0:
             s[_PERSIST] = s[_PERSIST] + dt if res > raise_above else 0.0
             may_raise = s[_PERSIST] >= raise_after
@@ -312,23 +314,28 @@ def _gradient_correct(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_o
                 break
         elif res < epsilon:
             break
-        n = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3)
-        if n == 0.0:
+        n2 = e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3
+        if n2 == 0.0:
             break
         if variable and cap > 1:
             if res > raise_above and may_raise:
                 step = min(max(0.5 * res, base), beta_max)
             elif res < lower_below:
                 step = base
-        k = step / n
-        q[0], q[1], q[2], q[3] = q[0] - k * e0, q[1] - k * e1, q[2] - k * e2, q[3] - k * e3
-        r = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-        for j in range(4):
-            q[j] *= r
+        # normalise(q - step e / n) = normalise(n q - step e): with |q - step e / n|^2 =
+        # |q|^2 + step^2 - 2 step (q . e) / n, the square of |n q - step e| is
+        # n^2 (|q|^2 + step^2) - 2 n step (q . e), whose parts wait for n alone: after the
+        # gradient, one square root, a multiplication and a subtraction before the normalising
+        # one (not a division by n and a sum of squares of the corrected quaternion)
+        n = math.sqrt(n2)
+        qq = w * w + xx * xx + y * y + z * z
+        qe = w * e0 + xx * e1 + y * e2 + z * e3
+        r = 1.0 / math.sqrt(n2 * (qq + step * step) - (2.0 * step) * qe * n)
+        w, xx, y, z = (n * w - step * e0) * r, (n * xx - step * e1) * r, (n * y - step * e2) * r, (n * z - step * e3) * r
         i += 1
         if i == cap:  # the loop ends anyway: no stop test, no next gradient
             break
-    for j in range(4):
-        s[_QPREV + j] = q[j]
+    q[0], q[1], q[2], q[3] = w, xx, y, z
+    s[_QPREV], s[_QPREV + 1], s[_QPREV + 2], s[_QPREV + 3] = w, xx, y, z
     s[_HAVE], s[_ITERS] = 1.0, float(i)
     return 0
