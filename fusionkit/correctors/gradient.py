@@ -223,7 +223,7 @@ class GradientCorrector(Corrector):
 
 @njit
 def _jt_f(q0, q1, q2, q3, d0, d1, d2, s0, s1, s2):
-    """``(J^T f, |f|)`` as five scalars, ``f = R(q)^T d - s`` (:func:`objective`,
+    """``(J^T f, |f|^2)`` as five scalars, ``f = R(q)^T d - s`` (:func:`objective`,
     :func:`jacobian_t_times`)."""
     w, x, y, z = q0, q1, q2, q3
     f0 = (1 - 2 * (y * y + z * z)) * d0 + 2 * (x * y + w * z) * d1 + 2 * (x * z - w * y) * d2 - s0
@@ -234,14 +234,14 @@ def _jt_f(q0, q1, q2, q3, d0, d1, d2, s0, s1, s2):
     j20, j21, j22, j23 = y * d0 - x * d1, z * d0 - w * d1 - 2 * x * d2, w * d0 + z * d1 - 2 * y * d2, x * d0 + y * d1
     return (2.0 * (j00 * f0 + j10 * f1 + j20 * f2), 2.0 * (j01 * f0 + j11 * f1 + j21 * f2),
             2.0 * (j02 * f0 + j12 * f1 + j22 * f2), 2.0 * (j03 * f0 + j13 * f1 + j23 * f2),
-            math.sqrt(f0 * f0 + f1 * f1 + f2 * f2))
+            f0 * f0 + f1 * f1 + f2 * f2)
 
 
 @njit
 def _gradient_at(q0, q1, q2, q3, s, ax, ay, az, has_m, mx, my, mz):
-    """:meth:`GradientCorrector.gradient`: ``(grad0..3, accelerometer residual)``."""
+    """:meth:`GradientCorrector.gradient`: ``(grad0..3, accelerometer residual squared)``."""
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
-    e0, e1, e2, e3, res = _jt_f(q0, q1, q2, q3, u0, u1, u2, ax, ay, az)
+    e0, e1, e2, e3, res2 = _jt_f(q0, q1, q2, q3, u0, u1, u2, ax, ay, az)
     if has_m:
         w, x, y, z = q0, q1, q2, q3
         h0 = (1 - 2 * (y * y + z * z)) * mx + 2 * (x * y - w * z) * my + 2 * (x * z + w * y) * mz
@@ -253,7 +253,7 @@ def _gradient_at(q0, q1, q2, q3, s, ax, ay, az, has_m, mx, my, mz):
         k0, k1, k2, k3, _ = _jt_f(q0, q1, q2, q3, hor * s[_N] + vert * u0, hor * s[_N + 1] + vert * u1,
                                   hor * s[_N + 2] + vert * u2, mx, my, mz)
         e0, e1, e2, e3 = e0 + k0, e1 + k1, e2 + k2, e3 + k3
-    return e0, e1, e2, e3, res
+    return e0, e1, e2, e3, res2
 
 
 @njit
@@ -302,17 +302,19 @@ def _gradient_correct(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_o
     w, xx, y, z = q[0], q[1], q[2], q[3]
     i, cap, may_raise = 0, 0, False
     while True:  # one call site of _gradient_at for the first gradient and each next one (one inlined copy)
-        e0, e1, e2, e3, res = _gradient_at(w, xx, y, z, s, ax, ay, az, has_m, mx, my, mz)
+        e0, e1, e2, e3, res2 = _gradient_at(w, xx, y, z, s, ax, ay, az, has_m, mx, my, mz)
         if i == 0:
-            s[_PERSIST] = s[_PERSIST] + dt if res > raise_above else 0.0
+            # the persistence test on the squared residual, and the static gate only when it
+            # matters: one correction per sample (the default) takes no square root or division here
+            s[_PERSIST] = s[_PERSIST] + dt if res2 > raise_above * raise_above else 0.0
             may_raise = s[_PERSIST] >= raise_after
-            static = abs(na / gravity - 1.0) <= static_gate
             cap = iterations if iterations > 0 else max_iterations
-            if variable and not (may_raise and static):
+            if variable and not (may_raise and abs(na / gravity - 1.0) <= static_gate):
                 cap = 1
             if cap <= 0:
                 break
-        elif res < epsilon:
+        res = math.sqrt(res2) if cap > 1 else 0.0  # the iterations' stop test and variable step read it
+        if i > 0 and res < epsilon:
             break
         n2 = e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3
         if n2 == 0.0:
