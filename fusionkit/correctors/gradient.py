@@ -257,6 +257,19 @@ def _gradient_at(q0, q1, q2, q3, s, ax, ay, az, has_m, mx, my, mz):
 
 
 @njit
+def _descend(w, x, y, z, e0, e1, e2, e3, n2, step):
+    """``normalise(q - step e / |e|)`` for ``n2 = |e|^2 > 0``, computed as ``normalise(n q - step e)``
+    (``n = |e|``): the square of ``|n q - step e|`` is ``n^2 (|q|^2 + step^2) - 2 n step (q . e)``,
+    whose parts wait for ``n`` alone, so after the gradient the next sample waits for one square
+    root, a multiplication and a subtraction before the normalising one, not for a division by
+    ``n`` and a sum of squares of the corrected quaternion (the same value to rounding)."""
+    n = math.sqrt(n2)
+    r = 1.0 / math.sqrt(n2 * (w * w + x * x + y * y + z * z + step * step)
+                        - (2.0 * step) * (w * e0 + x * e1 + y * e2 + z * e3) * n)
+    return (n * w - step * e0) * r, (n * x - step * e1) * r, (n * y - step * e2) * r, (n * z - step * e3) * r
+
+
+@njit
 def _gradient_correct(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, dt, p):
     beta, rate_scaled, iterations, max_iterations, epsilon = p[0], p[1] != 0.0, int(p[2]), int(p[3]), p[4]
     variable, raise_above, lower_below, beta_max = p[5] != 0.0, p[6], p[7], p[8]
@@ -289,13 +302,15 @@ def _gradient_correct(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_o
             p2 = (-w * h1 + xx * h2 + y - z * h0) / pp
             p3 = (-w * h2 - xx * h1 + y * h0 + z) / pp
         e0, e1, e2, e3, _ = _gradient_at(p0, p1, p2, p3, s, ax, ay, az, has_m, mx, my, mz)
-        n = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3)
-        k = step / n if n > 0.0 else 0.0
-        q[0], q[1], q[2], q[3] = x[0] - k * e0, x[1] - k * e1, x[2] - k * e2, x[3] - k * e3
-        r = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-        for i in range(4):
-            q[i] *= r
-            s[_QPREV + i] = q[i]
+        w, xx, y, z = x[0], x[1], x[2], x[3]
+        n2 = e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3
+        if n2 > 0.0:
+            w, xx, y, z = _descend(w, xx, y, z, e0, e1, e2, e3, n2, step)
+        else:  # no gradient: the propagation normalised
+            r = 1.0 / math.sqrt(w * w + xx * xx + y * y + z * z)
+            w, xx, y, z = w * r, xx * r, y * r, z * r
+        q[0], q[1], q[2], q[3] = w, xx, y, z
+        s[_QPREV], s[_QPREV + 1], s[_QPREV + 2], s[_QPREV + 3] = w, xx, y, z
         s[_HAVE], s[_ITERS] = 1.0, 1.0
         return 0
     # the quaternion in registers from its one load to its one store (no reload on the chain)
@@ -324,16 +339,7 @@ def _gradient_correct(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_o
                 step = min(max(0.5 * res, base), beta_max)
             elif res < lower_below:
                 step = base
-        # normalise(q - step e / n) = normalise(n q - step e): with |q - step e / n|^2 =
-        # |q|^2 + step^2 - 2 step (q . e) / n, the square of |n q - step e| is
-        # n^2 (|q|^2 + step^2) - 2 n step (q . e), whose parts wait for n alone: after the
-        # gradient, one square root, a multiplication and a subtraction before the normalising
-        # one (not a division by n and a sum of squares of the corrected quaternion)
-        n = math.sqrt(n2)
-        qq = w * w + xx * xx + y * y + z * z
-        qe = w * e0 + xx * e1 + y * e2 + z * e3
-        r = 1.0 / math.sqrt(n2 * (qq + step * step) - (2.0 * step) * qe * n)
-        w, xx, y, z = (n * w - step * e0) * r, (n * xx - step * e1) * r, (n * y - step * e2) * r, (n * z - step * e3) * r
+        w, xx, y, z = _descend(w, xx, y, z, e0, e1, e2, e3, n2, step)
         i += 1
         if i == cap:  # the loop ends anyway: no stop test, no next gradient
             break
