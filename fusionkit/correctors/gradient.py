@@ -262,11 +262,15 @@ def _descend(w, x, y, z, e0, e1, e2, e3, n2, step):
     (``n = |e|``): the square of ``|n q - step e|`` is ``n^2 (|q|^2 + step^2) - 2 n step (q . e)``,
     whose parts wait for ``n`` alone, so after the gradient the next sample waits for one square
     root, a multiplication and a subtraction before the normalising one, not for a division by
-    ``n`` and a sum of squares of the corrected quaternion (the same value to rounding)."""
+    ``n`` and a sum of squares of the corrected quaternion (the same value to rounding; a step that
+    nearly cancels ``q``, where the difference loses its digits, takes the sum of squares)."""
     n = math.sqrt(n2)
-    r = 1.0 / math.sqrt(n2 * (w * w + x * x + y * y + z * z + step * step)
-                        - (2.0 * step) * (w * e0 + x * e1 + y * e2 + z * e3) * n)
-    return (n * w - step * e0) * r, (n * x - step * e1) * r, (n * y - step * e2) * r, (n * z - step * e3) * r
+    v0, v1, v2, v3 = n * w - step * e0, n * x - step * e1, n * y - step * e2, n * z - step * e3
+    vv = n2 * (w * w + x * x + y * y + z * z + step * step) - (2.0 * step) * (w * e0 + x * e1 + y * e2 + z * e3) * n
+    if vv < 1e-6 * n2:  # a step of about |q| along q itself (a beta near 1): the difference cancels
+        vv = v0 * v0 + v1 * v1 + v2 * v2 + v3 * v3
+    r = 1.0 / math.sqrt(vv)
+    return v0 * r, v1 * r, v2 * r, v3 * r
 
 
 @njit
