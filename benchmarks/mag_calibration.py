@@ -2,8 +2,9 @@
 without it (``mag_calibration=False``), with it (the default: the gate confident, consistent and
 reducing the field's scatter; ``mag-heading`` learns its disturbance reference again when the
 calibration changes), with the reference kept (``follow_calibration=False``, before issue 14's
-second part) and with the confidence gate alone (``consistency=False``, the model before issue
-14), VQF in the same run; per trial, per group, and the mean without the trial each variant
+second part), with the norm gate (``consistency_test="norm"``, the gate before the earth-frame
+test) and with the confidence gate alone (``consistency=False``, the model before issue 14), VQF
+in the same run; per trial, per group, and the mean without the trial each variant
 helps most (leave-one-out).
 
     python benchmarks/mag_calibration.py [--data DIR] [--trials A,B] [--params JSON] [--json OUT]
@@ -11,7 +12,8 @@ helps most (leave-one-out).
 
 ``--params`` adds a variant with those ``mag-calibration`` parameters. ``--scenarios``: the
 simulated scenarios instead (``sim.scenarios``: undisturbed, a magnet carried at 10, 5 and 3 cm,
-a magnet on the desk), heading RMS over the last 20 s, deg.
+a magnet on the desk, 2 uT of iron turning through a 20 uT earth-fixed field from 15 to 30 s),
+heading RMS over the last 20 s, deg.
 """
 
 from __future__ import annotations
@@ -57,7 +59,10 @@ def scenarios(variants: dict) -> None:
             "carried magnet at 10 cm": sim.scenarios.carried_magnet(distance=0.10),
             "carried magnet at 5 cm": sim.scenarios.carried_magnet(distance=0.05),
             "carried magnet at 3 cm": sim.scenarios.carried_magnet(distance=0.03),
-            "magnet on the desk (earth-fixed)": sim.scenarios.magnet_nearby()}
+            "magnet on the desk (earth-fixed)": sim.scenarios.magnet_nearby(),
+            "2 uT iron, 20 uT earth-fixed field 15-30 s": sim.scenarios.perturbed(
+                "hard-iron-turning", errors={"patches": (sim.FieldPatch((12.0, -10.0, 12.0), 15.0, 30.0),)},
+                offset=(1.5, -1.0, 1.5))}
     print("| scenario | " + " | ".join(variants) + " |")
     print("|---|" + "---:|" * len(variants))
     for name, rec in recs.items():
@@ -77,6 +82,7 @@ def main() -> None:
     variants = {"without": lambda: fk.make("recommended", mag_calibration=False),
                 "with": lambda: fk.make("recommended", mag_calibration=True),
                 "reference kept": lambda: with_model({}, {"follow_calibration": False}),
+                "norm gate": lambda: with_model({"consistency_test": "norm"}),
                 "confidence only": lambda: with_model({"consistency": False})}
     if args.params:
         variants["params"] = lambda: with_model(json.loads(args.params))

@@ -22,6 +22,14 @@ def qmul_into(p0, p1, p2, p3, q0, q1, q2, q3, out):
     out[3] = p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0
 
 
+@njit(inline="always")
+def qmul_entries(p0, p1, p2, p3, q0, q1, q2, q3):
+    """:func:`qmul_into` as a tuple: a kernel that keeps the product in registers (no store and
+    reload of the array on its per-sample dependency chain)."""
+    return (p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3, p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2,
+            p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1, p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0)
+
+
 @njit
 def qnormalize(q):
     """Normalise the first four entries of ``q`` in place (rotations.quat_normalize)."""

@@ -45,7 +45,7 @@ from ._sources import fusionkit_hash, source_hash
 from .gnss_rows import NO_GNSS
 from .navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, PHASE, SEEN
 
-__all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack", "STEP_WORK"]
+__all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack", "repack", "STEP_WORK"]
 
 
 @dataclass(frozen=True)
@@ -104,6 +104,12 @@ def unpack(S, O, states) -> None:
     """Copy ``S`` back into ``states`` (the arrays :func:`pack` joined)."""
     for i, a in enumerate(states):
         a[...] = S[O[2 * i]:O[2 * i + 1]].reshape(a.shape)
+
+
+def repack(S, O, states) -> None:
+    """Copy ``states`` (the arrays :func:`pack` joined) into ``S`` again: :func:`unpack`'s inverse."""
+    for i, a in enumerate(states):
+        S[O[2 * i]:O[2 * i + 1]] = a.ravel()
 
 
 def _ref(func: Callable) -> tuple[str, str] | None:

@@ -313,13 +313,27 @@ class Pipeline(Filter):
         S, P, O = _loopgen.pack(states, params)
         return _loopgen.get_compiled(lay), S, P, O, states
 
-    def _run_compiled(self, st, kernels, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, start, stop,
-                      gn=None) -> None:
+    def _run_compiled(self, st, kernels, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, restart, cuts, gn,
+                      bar) -> None:
+        """The compiled loop over the whole recording: the state and parameters packed once, one
+        call per progress chunk and per stretch between restarts (``cuts``, where ``restart`` is
+        set: the state is unpacked for :meth:`_restart` and packed again), unpacked at the end."""
         # a magnetometer-only detector cannot fire without one, and its reference step leaves its state alone
         dets = [i for i, d in enumerate(self.detectors) if has_mag or not d.needs_mag]
         mod, S, P, O, states = self._compiled(st, kernels, dets)
-        mod.loop(gyr, acc, mag, dt, has_mag, S, P, O, out_q, out_f, out_c, start, stop,
-                 gn if gn is not None else NO_GNSS[None, :])
+        gn = gn if gn is not None else NO_GNSS[None, :]
+        n = out_q.shape[0]
+        for start in range(0, n, _CHUNK):
+            stop = min(n, start + _CHUNK)
+            bounds = [start, *[c for c in cuts if start < c < stop], stop]
+            for s, e in zip(bounds[:-1], bounds[1:]):
+                if restart[s]:
+                    _loopgen.unpack(S, O, states)
+                    self._restart(st)
+                    _loopgen.repack(S, O, states)
+                mod.loop(gyr, acc, mag, dt, has_mag, S, P, O, out_q, out_f, out_c, s, e, gn)
+            if bar is not None:
+                bar.update(stop - start)
         _loopgen.unpack(S, O, states)
 
     def _sync_stream(self) -> None:
@@ -366,24 +380,20 @@ class Pipeline(Filter):
         bar = _progress(n, progress, f"{self.name}")
         restart = (gaps | _after_saturation(rec.gyr, self.spec.gyr_range)) if self._restarts else np.zeros(n, bool)
         cuts = np.flatnonzero(restart).tolist()
-        for start in range(0, n, _CHUNK):
-            stop = min(n, start + _CHUNK)
-            if used == "numba":  # one compiled run per stretch between restarts
-                bounds = [start, *[c for c in cuts if start < c < stop], stop]
-                for s, e in zip(bounds[:-1], bounds[1:]):
-                    if restart[s]:
-                        self._restart(st)
-                    self._run_compiled(st, kernels, gyr, rec.acc, mag_row, dt, has_mag, out_q, out_f, out_c, s, e,
-                                       gn)
-            else:
+        if used == "numba":
+            self._run_compiled(st, kernels, gyr, rec.acc, mag_row, dt, has_mag, out_q, out_f, out_c, restart, cuts, gn,
+                               bar)
+        else:
+            for start in range(0, n, _CHUNK):
+                stop = min(n, start + _CHUNK)
                 for k in range(start, stop):
                     if restart[k]:
                         self._restart(st)
                     q, f, c = self._step(st, gyr[k], rec.acc[k], mag[k], dt[k], has_mag,
                                          None if gn is None else gn[k])
                     out_q[k], out_f[k], out_c[k] = q, f, c
-            if bar is not None:
-                bar.update(stop - start)
+                if bar is not None:
+                    bar.update(stop - start)
         if bar is not None:
             bar.close()
         if not self.models:  # a non-finite sample is flagged invalid: nan_policy="raise" needs no scan before

@@ -55,6 +55,24 @@ def test_jacobian_is_the_gradient_of_the_objective():
         np.testing.assert_allclose(jacobian_t_times(q, d, objective(q, d, s)), num, atol=1e-6)
 
 
+@pytest.mark.parametrize("compiled", [False, True])
+def test_descend_is_the_normalised_step_even_when_it_cancels_q(compiled):
+    """The kernel's ``normalise(n q - step e)`` equals ``normalise(q - step e / |e|)``; a step
+    that cancels ``q`` (a beta near 1 along the gradient) still gives a finite unit quaternion."""
+    from fusionkit.correctors.gradient import _descend
+
+    f = _descend if compiled else _descend.py_func
+    rng = np.random.default_rng(3)
+    for step in (1e-4, 0.05, 0.8):
+        q, e = quat_normalize(rng.standard_normal(4)), rng.standard_normal(4)
+        want = quat_normalize(q - step * e / np.linalg.norm(e))
+        np.testing.assert_allclose(f(*q, *e, e @ e, step), want, atol=1e-14)
+    q = quat_normalize(rng.standard_normal(4))
+    e = 3.0 * q + 1e-12 * rng.standard_normal(4)
+    out = np.array(f(*q, *e, e @ e, 1.0))
+    assert np.isfinite(out).all() and abs(out @ out - 1.0) < 1e-9
+
+
 def test_n1_is_madgwick_against_an_independent_formulation(rec):
     q0 = euler_to_quat(0.3, 0.1, -0.2, "NWU")
     ours = madgwick_filter(fk.Recording(gyr=rec.gyr, acc=rec.acc, rate=rec.rate), q0, 0.1, False).run(

@@ -48,14 +48,16 @@ def test_recommended_composes_the_calibration_by_default():
 @pytest.mark.parametrize("distance", ["carried 5 cm", "carried 10 cm"])
 def test_a_carried_magnet_costs_about_nothing_once_calibrated(runs, distance):
     """8 uT (5 cm) and 1 uT (10 cm) of body-fixed field: without the calibration the heading is
-    5.5 / 0.3 deg off over the last 20 s; with it 0.50 / 0.06 (the undisturbed turning: 0.05). The 5 cm
-    run's 0.3-0.4 deg is the heading still converging (tau_mag) from the uncalibrated start's -17 deg;
-    with the rest learner's fixed gain of before issue 14's stop 18 it was 0.41 / 0.11 (undisturbed
-    0.15): its half-learnt vertical bias drifted the heading towards the truth; with the bias in
-    motion of before stop 17, 0.41 / 0.30 against 0.33."""
+    5.5 / 0.3 deg off over the last 20 s; with it 0.70 / 0.11 (the undisturbed turning: 0.05). The 5 cm
+    run's 0.7 deg is the heading still converging (tau_mag, 15 s) from the uncalibrated start's
+    -22 deg: the calibration applies at 7.1 s, where the heading is 11 deg off, and mag-heading keeps
+    its filter. (Before the fit's misfit test weighed the estimate's own uncertainty it applied at
+    10.7 s, after a spurious restart, where the raw field's heading happened to be 8 deg off: 0.50.
+    With the rest learner's fixed gain of before issue 14's stop 18 it was 0.41 / 0.11, with the
+    bias in motion of before stop 17, 0.41 / 0.30 against 0.33.)"""
     rec, on, off = runs[distance]
     assert on.diagnostics["state"]["mod"][0][CONF] == 1.0
-    assert _late_heading_deg(rec, on) < 0.6
+    assert _late_heading_deg(rec, on) < (0.9 if distance == "carried 5 cm" else 0.3)
     if distance == "carried 5 cm":
         assert _late_heading_deg(rec, off) > 3.0
 
@@ -82,13 +84,14 @@ def test_confidence_alone_takes_the_earth_fixed_magnet_for_iron():
     assert conf == {False: 1.0, True: 0.0}
 
 
+@pytest.mark.parametrize("test", ["earth", "norm"])
 @pytest.mark.parametrize("soft_iron", [False, True])
-def test_gate_kernel_equals_reference(soft_iron):
+def test_gate_kernel_equals_reference(soft_iron, test):
     """Near the desk magnet the gate refuses confident estimates: reference = numba to 1e-9 on
-    every sample's output and on the model's state."""
+    every sample's output and on the model's state, with either test."""
     rec = sim.scenarios.magnet_nearby()
-    p = fk.compose({"estimator": "poisson-quat", "models": [{"name": "mag-calibration",
-                                                             "params": {"soft_iron": soft_iron}}],
+    p = fk.compose({"estimator": "poisson-quat", "models": [{"name": "mag-calibration", "params": {
+                        "soft_iron": soft_iron, "consistency_test": test}}],
                     "correctors": [{"name": "gradient-descent", "params": {"use_mag": True}}],
                     "alignment": {"mode": "fixed", "duration": 1.0, "heading": "auto"}})
     ref, fast = p.run(rec, backend="reference"), p.run(rec, backend="numba")
@@ -96,10 +99,10 @@ def test_gate_kernel_equals_reference(soft_iron):
     assert np.abs(fast.diagnostics["state"]["mod"][0] - ref.diagnostics["state"]["mod"][0]).max() < 1e-9
 
 
-def _recommended(follow=True, **model):
+def _recommended(follow=True, gain="kalman", **model):
     """``recommended`` with ``mag-calibration`` (``model`` parameters) and ``mag-heading``'s
-    ``follow_calibration``."""
-    cfg = fk.make("recommended").pipeline_config()
+    ``follow_calibration`` (and heading ``gain``)."""
+    cfg = fk.make("recommended", heading_gain=gain).pipeline_config()
     cors = [c.model_copy(update={"params": {**c.params, "follow_calibration": follow}}) if c.name == "mag-heading"
             else c for c in cfg.correctors]
     return Pipeline(cfg.model_copy(update={"models": [PluginSpec(name="mag-calibration", params=model)],
@@ -118,7 +121,7 @@ def test_a_magnet_carried_at_3cm_is_calibrated_and_used(close):
     filter's tau_mag converging from the raw field's heading), and no sample is rejected after it
     (the run has one recalibration, whose field the raw reference does not describe)."""
     res = fk.make("recommended").run(close)
-    kept = _recommended(follow=False).run(close)
+    kept = _recommended(follow=False, gain="fixed").run(close)  # (the Kalman gain recovers faster: 6 deg)
     at = np.nonzero(res.flags & _RECAL)[0]
     assert len(at) >= 1
     assert np.array_equal(res.flags & _RECAL, kept.flags & _RECAL)  # the model is the same; its flag too
@@ -177,3 +180,48 @@ def test_following_kernel_equals_reference(close, soft_iron):
     for k in ("mod", "cor"):
         for a, b in zip(ref.diagnostics["state"][k], fast.diagnostics["state"][k]):
             assert np.abs(np.asarray(a) - np.asarray(b)).max(initial=0.0) < 1e-9
+
+
+def _iron_in_a_steel_structure():
+    """2 uT of residual hard iron (what a calibration leaves) and slow turns about many axes; from
+    15 to 30 s, while turning, a uniform 20 uT field fixed in the earth frame (a steel structure
+    the body sits in, :class:`fusionkit.sim.FieldPatch`)."""
+    return sim.scenarios.perturbed("hard-iron-turning", errors={"patches": (
+        sim.FieldPatch((12.0, -10.0, 12.0), 15.0, 30.0),)}, offset=(1.5, -1.0, 1.5))
+
+
+def _heading_deg(rec, res):
+    q = quat_mul(res.quat, quat_conj(rec.truth))
+    return float(np.sqrt(np.mean(np.degrees(2.0 * np.arctan(np.abs(q[:, 3] / q[:, 0]))) ** 2)))
+
+
+def test_an_earth_fixed_field_while_turning_is_not_taken_against_the_iron():
+    """The earth-frame test keeps the iron's calibration through the earth-fixed field: applied
+    once (one MAG_RECALIBRATED flag), heading 2.06 deg RMS over the run (2.04 uncalibrated).
+    The norm test (``consistency_test="norm"``, the gate of before, kept) refuses and accepts it as
+    the field's norm steps, and each switch makes ``mag-heading`` learn its reference again, inside
+    the earth-fixed field: 16.2 deg."""
+    rec = _iron_in_a_steel_structure()
+    earth, norm = _recommended().run(rec), _recommended(consistency_test="norm").run(rec)
+    assert np.count_nonzero(earth.flags & _RECAL) == 1
+    assert earth.diagnostics["state"]["mod"][0][CONF] == 1.0
+    assert _heading_deg(rec, earth) < 2.5
+    assert np.count_nonzero(norm.flags & _RECAL) > 2
+    assert _heading_deg(rec, norm) > 8.0
+
+
+@pytest.mark.parametrize("soft_iron", [False, True])
+def test_earth_gate_kernel_equals_reference_through_an_earth_fixed_field(soft_iron):
+    """The earth-frame test while the calibration is applied and the body turns into and in the
+    earth-fixed field (the model alone, 25 s): reference = numba to 1e-9 on every sample and on
+    the model's state."""
+    rec = _iron_in_a_steel_structure().slice(0, 2500)
+    p = fk.compose({"estimator": "poisson-quat", "models": [{"name": "mag-calibration",
+                                                             "params": {"soft_iron": soft_iron}}],
+                    "correctors": [{"name": "gradient-descent", "params": {"use_mag": True}}],
+                    "alignment": {"mode": "fixed", "duration": 1.0, "heading": "auto"}})
+    ref, fast = p.run(rec, backend="reference"), p.run(rec, backend="numba")
+    assert ref.diagnostics["state"]["mod"][0][CONF] == 1.0  # applied: the gate had work to do
+    np.testing.assert_array_equal(ref.flags, fast.flags)
+    assert np.abs(fast.quat - ref.quat).max() < 1e-9
+    assert np.abs(fast.diagnostics["state"]["mod"][0] - ref.diagnostics["state"]["mod"][0]).max() < 1e-9

@@ -223,7 +223,7 @@ class GradientCorrector(Corrector):
 
 @njit
 def _jt_f(q0, q1, q2, q3, d0, d1, d2, s0, s1, s2):
-    """``(J^T f, |f|)`` as five scalars, ``f = R(q)^T d - s`` (:func:`objective`,
+    """``(J^T f, |f|^2)`` as five scalars, ``f = R(q)^T d - s`` (:func:`objective`,
     :func:`jacobian_t_times`)."""
     w, x, y, z = q0, q1, q2, q3
     f0 = (1 - 2 * (y * y + z * z)) * d0 + 2 * (x * y + w * z) * d1 + 2 * (x * z - w * y) * d2 - s0
@@ -234,14 +234,14 @@ def _jt_f(q0, q1, q2, q3, d0, d1, d2, s0, s1, s2):
     j20, j21, j22, j23 = y * d0 - x * d1, z * d0 - w * d1 - 2 * x * d2, w * d0 + z * d1 - 2 * y * d2, x * d0 + y * d1
     return (2.0 * (j00 * f0 + j10 * f1 + j20 * f2), 2.0 * (j01 * f0 + j11 * f1 + j21 * f2),
             2.0 * (j02 * f0 + j12 * f1 + j22 * f2), 2.0 * (j03 * f0 + j13 * f1 + j23 * f2),
-            math.sqrt(f0 * f0 + f1 * f1 + f2 * f2))
+            f0 * f0 + f1 * f1 + f2 * f2)
 
 
 @njit
 def _gradient_at(q0, q1, q2, q3, s, ax, ay, az, has_m, mx, my, mz):
-    """:meth:`GradientCorrector.gradient`: ``(grad0..3, accelerometer residual)``."""
+    """:meth:`GradientCorrector.gradient`: ``(grad0..3, accelerometer residual squared)``."""
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
-    e0, e1, e2, e3, res = _jt_f(q0, q1, q2, q3, u0, u1, u2, ax, ay, az)
+    e0, e1, e2, e3, res2 = _jt_f(q0, q1, q2, q3, u0, u1, u2, ax, ay, az)
     if has_m:
         w, x, y, z = q0, q1, q2, q3
         h0 = (1 - 2 * (y * y + z * z)) * mx + 2 * (x * y - w * z) * my + 2 * (x * z + w * y) * mz
@@ -253,7 +253,24 @@ def _gradient_at(q0, q1, q2, q3, s, ax, ay, az, has_m, mx, my, mz):
         k0, k1, k2, k3, _ = _jt_f(q0, q1, q2, q3, hor * s[_N] + vert * u0, hor * s[_N + 1] + vert * u1,
                                   hor * s[_N + 2] + vert * u2, mx, my, mz)
         e0, e1, e2, e3 = e0 + k0, e1 + k1, e2 + k2, e3 + k3
-    return e0, e1, e2, e3, res
+    return e0, e1, e2, e3, res2
+
+
+@njit
+def _descend(w, x, y, z, e0, e1, e2, e3, n2, step):
+    """``normalise(q - step e / |e|)`` for ``n2 = |e|^2 > 0``, computed as ``normalise(n q - step e)``
+    (``n = |e|``): the square of ``|n q - step e|`` is ``n^2 (|q|^2 + step^2) - 2 n step (q . e)``,
+    whose parts wait for ``n`` alone, so after the gradient the next sample waits for one square
+    root, a multiplication and a subtraction before the normalising one, not for a division by
+    ``n`` and a sum of squares of the corrected quaternion (the same value to rounding; a step that
+    nearly cancels ``q``, where the difference loses its digits, takes the sum of squares)."""
+    n = math.sqrt(n2)
+    v0, v1, v2, v3 = n * w - step * e0, n * x - step * e1, n * y - step * e2, n * z - step * e3
+    vv = n2 * (w * w + x * x + y * y + z * z + step * step) - (2.0 * step) * (w * e0 + x * e1 + y * e2 + z * e3) * n
+    if vv < 1e-6 * n2:  # a step of about |q| along q itself (a beta near 1): the difference cancels
+        vv = v0 * v0 + v1 * v1 + v2 * v2 + v3 * v3
+    r = 1.0 / math.sqrt(vv)
+    return v0 * r, v1 * r, v2 * r, v3 * r
 
 
 @njit
@@ -289,46 +306,48 @@ def _gradient_correct(x, q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_o
             p2 = (-w * h1 + xx * h2 + y - z * h0) / pp
             p3 = (-w * h2 - xx * h1 + y * h0 + z) / pp
         e0, e1, e2, e3, _ = _gradient_at(p0, p1, p2, p3, s, ax, ay, az, has_m, mx, my, mz)
-        n = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3)
-        k = step / n if n > 0.0 else 0.0
-        q[0], q[1], q[2], q[3] = x[0] - k * e0, x[1] - k * e1, x[2] - k * e2, x[3] - k * e3
-        r = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-        for i in range(4):
-            q[i] *= r
-            s[_QPREV + i] = q[i]
+        w, xx, y, z = x[0], x[1], x[2], x[3]
+        n2 = e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3
+        if n2 > 0.0:
+            w, xx, y, z = _descend(w, xx, y, z, e0, e1, e2, e3, n2, step)
+        else:  # no gradient: the propagation normalised
+            r = 1.0 / math.sqrt(w * w + xx * xx + y * y + z * z)
+            w, xx, y, z = w * r, xx * r, y * r, z * r
+        q[0], q[1], q[2], q[3] = w, xx, y, z
+        s[_QPREV], s[_QPREV + 1], s[_QPREV + 2], s[_QPREV + 3] = w, xx, y, z
         s[_HAVE], s[_ITERS] = 1.0, 1.0
         return 0
+    # the quaternion in registers from its one load to its one store (no reload on the chain)
+    w, xx, y, z = q[0], q[1], q[2], q[3]
     i, cap, may_raise = 0, 0, False
     while True:  # one call site of _gradient_at for the first gradient and each next one (one inlined copy)
-        e0, e1, e2, e3, res = _gradient_at(q[0], q[1], q[2], q[3], s, ax, ay, az, has_m, mx, my, mz)
+        e0, e1, e2, e3, res2 = _gradient_at(w, xx, y, z, s, ax, ay, az, has_m, mx, my, mz)
         if i == 0:
-            s[_PERSIST] = s[_PERSIST] + dt if res > raise_above else 0.0
+            # the persistence test on the squared residual, and the static gate only when it
+            # matters: one correction per sample (the default) takes no square root or division here
+            s[_PERSIST] = s[_PERSIST] + dt if res2 > raise_above * raise_above else 0.0
             may_raise = s[_PERSIST] >= raise_after
-            static = abs(na / gravity - 1.0) <= static_gate
             cap = iterations if iterations > 0 else max_iterations
-            if variable and not (may_raise and static):
+            if variable and not (may_raise and abs(na / gravity - 1.0) <= static_gate):
                 cap = 1
             if cap <= 0:
                 break
-        elif res < epsilon:
+        res = math.sqrt(res2) if cap > 1 else 0.0  # the iterations' stop test and variable step read it
+        if i > 0 and res < epsilon:
             break
-        n = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3)
-        if n == 0.0:
+        n2 = e0 * e0 + e1 * e1 + e2 * e2 + e3 * e3
+        if n2 == 0.0:
             break
         if variable and cap > 1:
             if res > raise_above and may_raise:
                 step = min(max(0.5 * res, base), beta_max)
             elif res < lower_below:
                 step = base
-        k = step / n
-        q[0], q[1], q[2], q[3] = q[0] - k * e0, q[1] - k * e1, q[2] - k * e2, q[3] - k * e3
-        r = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-        for j in range(4):
-            q[j] *= r
+        w, xx, y, z = _descend(w, xx, y, z, e0, e1, e2, e3, n2, step)
         i += 1
         if i == cap:  # the loop ends anyway: no stop test, no next gradient
             break
-    for j in range(4):
-        s[_QPREV + j] = q[j]
+    q[0], q[1], q[2], q[3] = w, xx, y, z
+    s[_QPREV], s[_QPREV + 1], s[_QPREV + 2], s[_QPREV + 3] = w, xx, y, z
     s[_HAVE], s[_ITERS] = 1.0, float(i)
     return 0

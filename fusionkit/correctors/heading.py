@@ -4,10 +4,31 @@ It keeps the factor ``Rz(delta)``, a rotation about the vertical by the heading 
 ``delta``, and composes the output ``Rz(delta) (x) q`` from the orientation ``q`` the factors before
 it give (``recommended``: ``q_tilt (x) q_gyr``, levelled). The field, seen in that levelled frame,
 gives a heading (the angle that turns its horizontal part to north); ``delta`` follows it with time
-constant ``tau``. A rotation about the vertical cannot change roll and pitch: a magnetic
-disturbance reaches heading only (source 002's channel separation; tested to 1e-12).
+constant ``tau`` (``gain="fixed"``) or with a gain from the heading's variance (``gain="kalman"``).
+A rotation about the vertical cannot change roll and pitch: a magnetic disturbance reaches heading
+only (source 002's channel separation; tested to 1e-12).
 
 Around it, each a separate idea:
+
+- **the gain from the heading's variance** (``gain="kalman"``): a scalar Kalman filter on
+  ``delta``. Its variance ``P`` grows every sample with what drifts the heading: the gyro's white
+  noise (``gyro_noise``) and the vertical bias and scale errors (``bias_sigma``, ``scale_sigma``),
+  which are *considered*, not estimated (a Schmidt-Kalman filter: their covariances with the
+  heading make a constant bias drift its standard deviation linearly in time). It grows so
+  while the magnetometer is rejected (no measurement), and a magnetometer heading shrinks it
+  with the gain ``P / (P + r)``. ``r``: the magnetometer's noise (``mag_noise``) and the field
+  errors a calibration leaves (``field_error``, or the sample's own departure from the magnetic
+  reference in norm and dip where that is larger: a disturbance under the rejection's thresholds)
+  as fractions of the field's strength, divided by the horizontal part ``cos(dip)^2``; the field
+  errors change over ``field_error_time`` and count as the white noise of the same low-frequency
+  power (``2 e^2 field_error_time / dt``). While the reference is learned at the start, the
+  heading's mean is what this filter gives from no prior (``P = r / n``). So after a rejection
+  or at the start the gain is high, and in a long clean stretch it settles where drift and
+  measurement balance (about ``(r dt / (2 bias_sigma^2))^(1/3)`` s; 11-14 s at the defaults and a
+  dip of 60-70 deg). It assumes the field errors uncorrelated beyond ``field_error_time`` and
+  the bias error no larger than ``bias_sigma``; it fails where an undetected field error lasts
+  longer (a calibration that learned a disturbance as iron) right after a rejection, which
+  it then follows faster than the fixed gain (docs/algorithms/recommended.md);
 
 - **magnetic disturbance rejection** (``rejection``; settings in ``magnetic``): the ``magnetic``
   detector's reference (:func:`fusionkit.detectors.magnetic.magnetic_step`) judged on the norm and
@@ -60,7 +81,7 @@ the same arithmetic (tests: 1e-9 on every sample).
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -77,7 +98,7 @@ from ..types import Flag
 from ._factor import (bias_step, frame_axes, gyro_lowpass, k_bias_step, k_gyro_lowpass, k_paired, k_qmul, k_rot,
                       paired)
 
-__all__ = ["MagHeadingConfig", "MagHeading", "mag_heading_kernel", "MAG_REFERENCE", "MAG_DELAY"]
+__all__ = ["MagHeadingConfig", "MagHeading", "mag_heading_kernel", "MAG_REFERENCE", "MAG_DELAY", "HEADING_VARIANCE"]
 
 # state: the magnetic reference's state, delta, the low-passed gyro and its sample count, the frame's
 # east, north, up axes, and the coefficients for the last dt (k of the heading, k of the gyro low-pass)
@@ -92,7 +113,13 @@ _EB = MAG_SIZE + 25
 _E2 = _EB + _EST_SIZE  # the forgetting-weighted sum of the segments' squared residuals |r - d x|^2
 # 1 while the reference is learned again after a recalibration (the heading keeps its filter meanwhile)
 _RELEARN = _E2 + 1
-_SIZE = _E2 + 2
+# gain "kalman": the heading's variance and its covariances with the vertical gyro bias error and scale error
+_PHH, _PHB, _PHS = _E2 + 2, _E2 + 3, _E2 + 4
+_SIZE = _E2 + 5
+#: where the heading's variance (gain kalman, rad^2) sits in the corrector's state
+HEADING_VARIANCE = _PHH
+#: the most the heading's variance grows to: a heading uniform on the circle (pi^2 / 3)
+_P_MAX = math.pi * math.pi / 3.0
 #: where the delay estimate's block sits in the corrector's state (``+ EST``, ``+ STD``, ``+ OFFSET``,
 #: ``+ CONF``, ``+ NSEG`` of fusionkit.models.time_offset: the gyro's delay against the magnetometer, s)
 MAG_DELAY = _EB
@@ -111,7 +138,25 @@ _kwrap = njit(wrap_angle)
 
 
 class MagHeadingConfig(PluginConfig):
-    tau: float = param(15.0, unit="s", description="time constant of the heading correction", gt=0)
+    tau: float = param(15.0, unit="s", description="gain fixed: time constant of the heading correction", gt=0)
+    gain: Literal["fixed", "kalman"] = param(
+        "fixed", unit="-", description="how the heading follows the magnetometer: fixed, the time constant tau; "
+        "kalman, weighed by the heading's variance (a scalar Kalman filter: it grows with the gyro's noise and the "
+        "heading drift its bias and scale errors make, while the magnetometer is rejected or the reference learned, "
+        "and shrinks with each magnetometer heading of the noise mag_noise and field_error give)")
+    gyro_noise: float = param(math.radians(0.01), unit="rad/s/sqrt(Hz)", description="kalman: the gyro's noise "
+                              "density (angle random walk; consumer MEMS 0.005-0.02 deg/s/sqrt(Hz))", ge=0)
+    bias_sigma: float = param(math.radians(0.1), unit="rad/s", description="kalman: the standard deviation of the "
+                              "vertical gyro bias error the heading integrates (VQF's biasSigmaMotion)", ge=0)
+    scale_sigma: float = param(0.0, unit="-", description="kalman: the standard deviation of the gyro's scale "
+                               "factor error about the vertical (a fraction; 0: none)", ge=0)
+    mag_noise: float = param(0.01, unit="-", description="kalman: the magnetometer's noise per sample as a fraction "
+                             "of the field's strength (0.5 uT of 50 uT)", ge=0)
+    field_error: float = param(0.03, unit="-", description="kalman: the standard deviation of the field errors a "
+                               "calibration leaves (residual iron, an inhomogeneous field) as a fraction of the "
+                               "field's strength (1.5 uT of 50 uT)", gt=0)
+    field_error_time: float = param(1.0, unit="s", description="kalman: the time over which those field errors "
+                                    "change (the motion turns and moves the sensor through them)", gt=0)
     rejection: bool = param(True, unit="-", description="leave out samples the magnetic reference calls disturbed")
     magnetic: MagneticConfig = param(
         MagneticConfig(), unit="-", description="the magnetic reference (the magnetic detector's settings; its "
@@ -171,6 +216,10 @@ class MagHeading(FactorCorrector):
             gyro_lowpass(x, _LW, _SEEN, g, x[_KW])  # the turning rate, on the samples the rest detector sees
         if c.mag_delay_estimate:
             _segment_time(x, dt, bool(np.isfinite(rate).all()))
+        if c.gain == "kalman":  # the heading's variance grows with the vertical rate's errors
+            w = quat_to_matrix(quat) @ (g - bias) if np.isfinite(g).all() else np.zeros(3)
+            _kf_predict(x, float(w @ x[_AX + 6:_AX + 9]), dt, c.gyro_noise ** 2, c.bias_sigma ** 2,
+                        c.scale_sigma ** 2)
         if sample.mag is not None:
             m = np.asarray(sample.mag, dtype=float)
             fresh = not (c.mag_hold and x[_PMOK] and np.array_equal(m, x[_PM:_PM + 3]))
@@ -226,8 +275,10 @@ class MagHeading(FactorCorrector):
         east, north, up = x[_AX:_AX + 3], x[_AX + 3:_AX + 6], x[_AX + 6:_AX + 9]
         norm, dip = field_norm_dip(m, up)
         mc = c.magnetic
+        kalman = c.gain == "kalman"
         if recalibrated and follow_field(x[_MAG:_MAG + MAG_SIZE], norm, dip, mc.norm_threshold, mc.dip_threshold):
             x[_RELEARN] = 1.0  # learned again; the heading keeps its filter meanwhile
+        r = _kf_noise(x, norm, dip, dt, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time) if kalman else 0.0
         target = 0.5 * math.pi - math.atan2(m @ north, m @ east)  # turns the field's azimuth to north
         code = self.magnetic.reference_step(x[_MAG:_MAG + MAG_SIZE], norm, dip, float(np.linalg.norm(x[_LW:_LW + 3])),
                                             dt)
@@ -236,10 +287,12 @@ class MagHeading(FactorCorrector):
         elif not x[_RELEARN]:  # the heading is the mean over the reference's learning time
             n = x[_MAG + MAG_COUNT]
             x[_DELTA] = wrap_angle(target if n == 1.0 else x[_DELTA] + wrap_angle(target - x[_DELTA]) / n)
+            if kalman:
+                _kf_mean(x, r, n)
             return 0, code
         if code == MAG_DISTURBED and c.rejection:
             return _MAG_DISTURBED, code
-        step = x[_KM] * wrap_angle(target - x[_DELTA])
+        step = (_kf_gain(x, r) if kalman else x[_KM]) * wrap_angle(target - x[_DELTA])
         x[_DELTA] = wrap_angle(x[_DELTA] + step)
         if c.mag_bias and not rest:  # the correction as a rate about the vertical: the gyro's vertical drift
             bias_step(bias, up * (step / dt), q6, dt, c.motion_bias_tau, c.bias_max)
@@ -250,8 +303,61 @@ class MagHeading(FactorCorrector):
         p = np.array([c.tau, float(c.rejection), c.mag_delay if c.mag_delay is not None else math.nan,
                       c.rate_tau, float(c.mag_bias), c.motion_bias_tau, c.bias_max, *self.magnetic.params(),
                       float(c.mag_hold), float(c.mag_delay_estimate), c.delay_max_std, c.delay_forget_time,
-                      float(c.follow_calibration)])
+                      float(c.follow_calibration), float(c.gain == "kalman"), c.gyro_noise ** 2, c.bias_sigma ** 2,
+                      c.scale_sigma ** 2, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time])
         return CorrectorKernel(mag_heading_kernel, p, mode="factor")
+
+
+def _kf_predict(x, wv, dt, q_gyro, p_bias, p_scale) -> None:
+    """gain kalman, every sample: the heading error ``e`` grows as ``e + (n + b + s wv) dt`` (``wv``
+    the rate about the vertical, ``n`` the gyro's white noise of density ``sqrt(q_gyro)``, ``b`` and
+    ``s`` the vertical bias and scale errors of variances ``p_bias``, ``p_scale``). ``b`` and ``s``
+    are not estimated here, only considered (a Schmidt-Kalman filter): their covariances with
+    ``e`` make a constant bias drift the heading's standard deviation linearly in time, not as a
+    random walk. Capped at a heading uniform on the circle, the covariances within
+    Cauchy-Schwarz's bound (the same statements in the reference and, compiled, in the kernel)."""
+    hb, hs = x[_PHB], x[_PHS]
+    p = x[_PHH] + 2.0 * dt * (hb + wv * hs) + dt * dt * (p_bias + wv * wv * p_scale) + q_gyro * dt
+    p = min(p, _P_MAX)
+    hb = min(hb + p_bias * dt, math.sqrt(p * p_bias))
+    lim = math.sqrt(p * p_scale)
+    hs = max(-lim, min(hs + p_scale * wv * dt, lim))
+    x[_PHH], x[_PHB], x[_PHS] = p, hb, hs
+
+
+def _kf_noise(x, norm, dip, dt, mag_noise2, field_error2, field_time):
+    """gain kalman: the variance of one magnetometer heading (``norm`` and ``dip`` its field's): the
+    field errors, as a fraction of the field's strength, are ``field_error2`` plus what this sample
+    shows of them, its norm's and dip's departure from the magnetic reference (a disturbance
+    under the rejection's thresholds turns the horizontal field by as much as it changes those
+    two); as a heading they are divided by the horizontal part ``cos(dip)^2``. Correlated over
+    ``field_time``, they count as the white noise of the same low-frequency power (``2 e2
+    field_time / dt`` per sample: the heading does not average them away faster than they
+    change), plus the magnetometer's noise (the same statements in the reference and, compiled,
+    in the kernel)."""
+    e2 = field_error2
+    if x[_MAG + MAG_COUNT] != 0.0:  # a reference to depart from
+        dn = (norm - x[_MAG]) / x[_MAG]
+        dd = dip - x[_MAG + 1]
+        e2 = max(e2, dn * dn + dd * dd)
+    h2 = max(math.cos(dip) ** 2, 1e-6)
+    return (mag_noise2 + 2.0 * e2 * field_time / dt) / h2
+
+
+def _kf_gain(x, r) -> float:
+    """gain kalman: the gain for a magnetometer heading of variance ``r``; the heading's variance and
+    covariances it leaves (the considered errors' own are not measured)."""
+    k = x[_PHH] / (x[_PHH] + r)
+    x[_PHH] *= 1.0 - k
+    x[_PHB] *= 1.0 - k
+    x[_PHS] *= 1.0 - k
+    return k
+
+
+def _kf_mean(x, r, n) -> None:
+    """gain kalman, while the reference is learned: the heading is the mean of ``n`` headings of
+    variance ``r`` (what a Kalman filter from no prior knowledge gives), no covariances yet."""
+    x[_PHH], x[_PHB], x[_PHS] = min(r / n, _P_MAX), 0.0, 0.0
 
 
 def _segment_time(x, dt, ok) -> None:
@@ -286,6 +392,10 @@ def _fit(x, b, xx, xr, rr, lam, max_std) -> bool:
 
 
 _k_segment_time = njit(_segment_time)
+_k_kf_predict = njit(_kf_predict)
+_k_kf_noise = njit(_kf_noise)
+_k_kf_gain = njit(_kf_gain)
+_k_kf_mean = njit(_kf_mean)
 _k_gate = njit(_gate)
 
 
@@ -330,7 +440,8 @@ def _k_estimate(s, c0, c1, c2, c3, m0, m1, m2, w0, w1, w2, dt, use, max_std, for
 def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
     """The kernel of :meth:`MagHeading.compose`: ``p = (tau, rejection, mag_delay (NaN: None), rate_tau,
     mag_bias, motion_bias_tau, bias_max, *magnetic params (6), mag_hold, mag_delay_estimate, delay_max_std,
-    delay_forget_time, follow_calibration)``."""
+    delay_forget_time, follow_calibration, kalman (1) or fixed (0), gyro_noise^2, bias_sigma^2, scale_sigma^2,
+    mag_noise^2, field_error^2, field_error_time)``."""
     if s[_DT] != dt:
         s[_DT], s[_KM], s[_KW] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[3])
     if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and (acc_ok or (flags & _ACC_REJECTED) != 0):
@@ -340,6 +451,13 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
     estimate = p[14] != 0.0
     if estimate:
         _k_segment_time(s, dt, math.isfinite(h0))
+    kalman = p[18] != 0.0
+    if kalman:
+        wv = 0.0
+        if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2):
+            w0, w1, w2 = k_rot(q[0], q[1], q[2], q[3], g0 - b[0], g1 - b[1], g2 - b[2])
+            wv = w0 * s[ax + 6] + w1 * s[ax + 7] + w2 * s[ax + 8]
+        _k_kf_predict(s, wv, dt, p[19], p[20], p[21])
     if mag_ok:
         fresh = not (p[13] != 0.0 and s[_PMOK] != 0.0 and m0 == s[_PM] and m1 == s[_PM + 1] and m2 == s[_PM + 2])
         if fresh:
@@ -362,16 +480,19 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
         if p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0 and k_follow_field(s, norm, dip, p[8], p[9]):
             s[_RELEARN] = 1.0  # (the reference's state sits at the start of the corrector's)
+        r = _k_kf_noise(s, norm, dip, dt, p[22], p[23], p[24]) if kalman else 0.0
         code = magnetic_step(s, norm, dip, rate, dt, p[7], p[8], p[9], p[10], p[11], p[12])
         if code != MAG_LEARNING:
             s[_RELEARN] = 0.0
         if code == MAG_LEARNING and s[_RELEARN] == 0.0:
             n = s[MAG_COUNT]
             s[_DELTA] = _kwrap(target if n == 1.0 else s[_DELTA] + _kwrap(target - s[_DELTA]) / n)
+            if kalman:
+                _k_kf_mean(s, r, n)
         elif code == MAG_DISTURBED and p[1] != 0.0:
             out = _MAG_DISTURBED
         else:
-            step = s[_KM] * _kwrap(target - s[_DELTA])
+            step = (_k_kf_gain(s, r) if kalman else s[_KM]) * _kwrap(target - s[_DELTA])
             s[_DELTA] = _kwrap(s[_DELTA] + step)
             if p[4] != 0.0 and (flags & _REST) == 0:
                 r = step / dt

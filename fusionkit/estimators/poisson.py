@@ -23,7 +23,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from .._kernels import dcm_to_quat, qmul_into, qnormalize, quat_to_dcm, rodrigues_entries, rotvec_quat_entries
+from .._kernels import dcm_to_quat, qmul_entries, qnormalize, quat_to_dcm, rodrigues_entries, rotvec_quat_entries
 from .._numba import njit
 from ..config import PluginConfig, param
 from ..protocols import Estimator, EstimatorKernel
@@ -124,17 +124,18 @@ def _quat_propagate(x, w0, w1, w2, dt, p):
     else:
         d0, d1, d2, d3 = rotvec_quat_entries(r0, r1, r2)
     x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
-    qmul_into(x0, x1, x2, x3, d0, d1, d2, d3, x)
+    y0, y1, y2, y3 = qmul_entries(x0, x1, x2, x3, d0, d1, d2, d3)
     if p[1] != 0.0:
         # |q (x) d| = |q| |d|: |d| comes from the gyro alone and 1/|q| (|q| = 1 to rounding: the
         # state is normalised every step) is one Newton step, (3 - |q|^2) / 2, exact to O((|q|^2 - 1)^2).
         # The same value as normalising the product, without a square root and a division on the
-        # sample-to-sample dependency chain (the kernel's speed is that chain's latency).
-        r = (1.5 - 0.5 * (x0 * x0 + x1 * x1 + x2 * x2 + x3 * x3)) / math.sqrt(d0 * d0 + d1 * d1 + d2 * d2 + d3 * d3)
-        x[0] *= r
-        x[1] *= r
-        x[2] *= r
-        x[3] *= r
+        # sample-to-sample dependency chain (the kernel's speed is that chain's latency): 1/|d| is
+        # off it, so the chain sees a multiplication, and the product stays in registers until
+        # its one store.
+        rd = 1.0 / math.sqrt(d0 * d0 + d1 * d1 + d2 * d2 + d3 * d3)
+        r = (1.5 - 0.5 * (x0 * x0 + x1 * x1 + x2 * x2 + x3 * x3)) * rd
+        y0, y1, y2, y3 = y0 * r, y1 * r, y2 * r, y3 * r
+    x[0], x[1], x[2], x[3] = y0, y1, y2, y3
 
 
 @njit

@@ -13,8 +13,9 @@ composition). Orientation is split into three factors, each corrected by one sen
    against the gyro's error, ``tau_acc`` for a still sensor), made vertical each sample by the smallest rotation;
    it also learns the gyro bias in motion (``bias_filter``: VQF's Kalman model, the correction as
    the low-passed earth-frame bias error; ``motion_bias_tau`` its forgetting time).
-3. ``delta``: heading only, about the vertical (corrector ``mag-heading``, time constant
-   ``tau_mag``), with the magnetic disturbance rejection (``mag_rejection``, ``magnetic``): a
+3. ``delta``: heading only, about the vertical (corrector ``mag-heading``; its gain from the
+   heading's variance, ``heading_gain``, or the time constant ``tau_mag``), with the magnetic
+   disturbance rejection (``mag_rejection``, ``magnetic``): a
    magnetic disturbance can only reach heading (roll and pitch are those of a magnetometer-free
    run, tested to 1e-12).
 
@@ -51,7 +52,7 @@ from typing import Any, ClassVar, Literal
 
 from ..config import AlignmentConfig, FilterConfig, PipelineConfig, PluginSpec, param
 from ..correctors._factor import initial_attitude
-from ..correctors.heading import MAG_REFERENCE
+from ..correctors.heading import HEADING_VARIANCE, MAG_REFERENCE
 from ..correctors.tilt import lowpass_coefficients
 from ..detectors.magnetic import MagneticConfig
 from ..detectors.rest import RestConfig
@@ -74,7 +75,14 @@ class RecommendedConfig(FilterConfig):
     gyro_rate_error: float = param(
         0.015, unit="-", description="tau_adapt: the gyro's error proportional to the rate (scale factor, "
         "misalignment; consumer MEMS data sheets: 1-3 %)", ge=0)
-    tau_mag: float = param(15.0, unit="s", description="time constant of the heading correction", gt=0)
+    tau_mag: float = param(15.0, unit="s", description="heading_gain fixed: time constant of the heading correction",
+                           gt=0)
+    heading_gain: Literal["fixed", "kalman"] = param(
+        "kalman", unit="-", description="how the heading follows the magnetometer (mag-heading's gain): kalman, "
+        "weighed by the heading's variance, which grows with the gyro's noise and the vertical bias error "
+        "(bias_sigma_motion) and while the magnetometer is rejected, and shrinks with each magnetometer heading (its "
+        "noise and the field errors, a departure from the magnetic reference counting as one, against the horizontal "
+        "field); fixed: the time constant tau_mag (the behaviour before issue 14's heading gain)")
     use_mag: bool = param(True, unit="-", description="use the magnetometer when the recording has one (9D)")
     fast_start: bool = param(
         True, unit="-", description="running means instead of the low-passes at the start (first tau_acc s, "
@@ -182,7 +190,8 @@ class RecommendedFilter(Pipeline):
         if c.use_mag:
             magnetic = c.magnetic if c.fast_start else c.magnetic.model_copy(update={"init_time": 0.0})
             correctors.append(PluginSpec(name="mag-heading", params={
-                "tau": c.tau_mag, "rejection": c.mag_rejection, "magnetic": magnetic.model_dump(),
+                "tau": c.tau_mag, "gain": c.heading_gain, "bias_sigma": c.bias_sigma_motion,
+                "rejection": c.mag_rejection, "magnetic": magnetic.model_dump(),
                 "rate_tau": c.rest.tau, "mag_bias": c.mag_bias and c.motion_bias_tau is not None,
                 "motion_bias_tau": c.motion_bias_tau if c.motion_bias_tau is not None else 100.0,
                 "bias_max": c.bias_max, "mag_delay": c.mag_delay, "mag_hold": c.mag_hold,
@@ -221,4 +230,6 @@ class RecommendedFilter(Pipeline):
         if heading:
             s = st["cor"][heading[0]]
             d["mag_reference"] = (float(s[MAG_REFERENCE]), float(s[MAG_REFERENCE + 1]))
+            if self.config.heading_gain == "kalman":  # the heading's standard deviation at the end, rad
+                d["heading_std"] = math.sqrt(float(s[HEADING_VARIANCE]))
         return d

@@ -23,7 +23,11 @@ a steel beam) changes ``h``, not the relation above (a constant ``h`` still turn
 so it leaves ``b`` alone; the magnetic disturbance detector deals with it. Recovery: when the
 segments stop fitting (a residual above ``outlier_sigma`` standard deviations in
 ``outlier_count`` segments in a row: the magnet moved), the estimate is forgotten and learned
-again; the last confident offset is applied meanwhile.
+again; the last confident offset is applied meanwhile. The standard deviation a segment is judged
+by is the one its residual is expected to have (:func:`_spread`): the noise's and the estimate's
+own, ``sigma_e^2 (1 + tr(H A^-1 H^T) / 3)``. Before the body has turned about enough axes the
+estimate is poor along the directions not yet seen, so the first turn about a new axis has a
+large residual that is no misfit (judged by the noise alone, it restarted the fit).
 
 Soft iron (``soft_iron=True``, the default): ferrous material carried with the sensor, or a
 magnetometer's unequal axis gains, distort the field seen from the body by a matrix: ``m = S R^T h
@@ -47,15 +51,27 @@ magnetometer late by ``d`` seconds adds an error of ``|w| d`` per segment, which
 rotations in both directions). The readable reference is :meth:`MagCalibrationModel.apply`;
 :func:`mag_calibration_apply` is its kernel.
 
-Consistency (``consistency=True``): a field fixed in the earth frame but not uniform where the
-sensor moves (near a magnet on the desk) changes with position; the segments then fit only in
-part, the residual noise absorbs the misfit, and the estimate can still become confident. A
-body-fixed calibration has two observable consequences such a field does not share: the
-calibrated field's norm stays constant as the body turns, and so does its angle to gravity (the
-dip, against the accelerometer). So a confident estimate is applied only if, over the raw samples
-at the last 32 segment ends, it divides the variance of the field's relative norm by
-``min_reduction`` (an F test of two variances) and does not raise the dip's; otherwise the
-samples pass unchanged (:func:`_consistent`). ``consistency=False``: the confidence alone.
+Consistency (``consistency=True``): a confident estimate is not yet body-fixed iron. Near a magnet
+on the desk the field is not uniform where the sensor moves, the segments fit only in part, the
+residual noise absorbs the misfit and the estimate can still become confident; and the few
+segments that enter or leave an earth-fixed field can pull it. What tells them apart
+(``consistency_test="earth"``, :func:`_gate`): body-fixed iron makes the raw field change in the
+earth frame at every turn, and the calibrated field not; an earth-fixed field is already
+constant in the earth frame, except across the few segments that enter or leave it. Over each
+of the last 32 segments the gyro's turn ``C`` gives the earth-frame field's change seen from the
+body, ``u_k - C^T u_a``, raw (``u = m``) and calibrated (``u = W m - c``); their medians
+(:func:`_earth_change`, robust to those few segments) decide. A new calibration is applied where
+it does not make the change larger and divides it by ``min_reduction`` (changing the field by at
+least ``max_std`` of its norm, the precision the confidence asks for) or, for iron too weak to
+stand out of the segments' noise that way, where the norm test below passes; otherwise the
+samples pass unchanged. An applied one is withdrawn only where it makes the change
+``min_reduction`` times larger (significantly less constant in the earth frame: not body-fixed
+iron); a weak, right calibration would otherwise switch off and on with the noise, and each switch
+makes ``mag-heading`` learn its reference again. ``consistency_test="norm"``, the test
+of before: over the raw samples at the last 32 segment ends, the calibration divides the variance
+of the field's relative norm by ``min_reduction`` (an F test of two variances) and does not raise
+the dip's (against the accelerometer) (:func:`_consistent`); an earth-fixed field's step in the
+norm makes it switch the calibration off and on. ``consistency=False``: the confidence alone.
 
 What the correctors are told (flag MAG_RECALIBRATED): where a closed segment changes the field
 the correctors see by more than the fit's refinement (a new estimate applied: the confidence
@@ -75,7 +91,7 @@ above is blind to a field that turns with the earth, which is the property that 
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -101,7 +117,8 @@ STATE_SOFT = 33 + 88
 # fill, then the raw field and the accelerometer's direction at the last _GK segment ends
 _GK = 32
 _GI, _GC, _GBUF = 0, 1, 2
-_GE = 9  # per segment end: the raw field, the accelerometer, |m|, |a| and the raw dip's sine
+_GE = 16  # per segment end: the raw field, the accelerometer, |m|, |a|, the raw dip's sine, the segment's
+# first raw field and its turn (the quaternion body a -> body k) for the earth-frame test
 GATE = 2 + _GE * _GK
 _SEG_BUF = 255  # the compiled soft-iron segment's working arrays (_k_segment_soft)
 _RECALIBRATED = int(Flag.MAG_RECALIBRATED)
@@ -119,7 +136,8 @@ class MagCalibrationConfig(PluginConfig):
         "field's norm", gt=0)
     min_segments: int = param(8, unit="-", description="segments before the noise estimate is trusted", ge=2)
     outlier_sigma: float = param(
-        6.0, unit="-", description="a segment whose residual exceeds this many standard deviations does not fit",
+        6.0, unit="-", description="a segment whose residual exceeds this many standard deviations (of the residual "
+        "expected: the noise's and the estimate's own uncertainty) does not fit",
         gt=0)
     outlier_count: int = param(
         3, unit="-", description="this many misfits in a row: the offset changed, learn it again", ge=1)
@@ -131,6 +149,14 @@ class MagCalibrationConfig(PluginConfig):
         "over the last 32 segment ends it divides the variance of the field's relative norm by min_reduction and "
         "does not raise the variance of its angle to the accelerometer's (the dip); otherwise the samples pass "
         "unchanged. False: the confidence alone (the model before this gate)")
+    consistency_test: Literal["earth", "norm"] = param(
+        "earth", unit="-", description="what consistency=True tests. earth: the calibration makes the field more "
+        "constant in the earth frame across each of the last 32 segments (the gyro's turn over one segment): the "
+        "median over them of the squared change of the calibrated field, turned into one frame, is below the raw "
+        "field's by min_reduction, or not above it and the norm test passes; withdrawn where it is min_reduction "
+        "times above it; an earth-fixed field (a steel structure, a magnet on the desk) changes only the segments "
+        "that enter or leave it. norm: the field's norm and dip at the last 32 segment ends (the gate of "
+        "before; an earth-fixed field's step in the norm makes it refuse iron it would otherwise accept)")
     min_reduction: float = param(
         2.0, unit="-", description="the factor by which the calibration must reduce the field norm's variance: an F "
         "test at the 32 segment ends' degrees of freedom (F(31, 31) at 97%)", gt=1)
@@ -153,7 +179,7 @@ class MagCalibrationModel(SensorModel):
     def params(self) -> np.ndarray:
         c = self.config
         return np.array([c.segment_angle, c.segment_time, c.forget_time, c.max_std, float(c.min_segments),
-                         c.outlier_sigma, float(c.outlier_count), float(c.soft_iron), float(c.consistency),
+                         c.outlier_sigma, float(c.outlier_count), float(c.soft_iron), _gate_code(c),
                          c.min_reduction, math.cos(0.5 * c.segment_angle)])
 
     def kernel(self) -> SensorModelKernel:
@@ -177,7 +203,7 @@ class MagCalibrationModel(SensorModel):
             dq = s[_DQ:_DQ + 4]
             if _turned(dq[0], dq[1], dq[2], dq[3], math.cos(0.5 * c.segment_angle)) or s[_T] >= c.segment_time:
                 acc = sample.acc if sample.acc is not None and np.isfinite(sample.acc).all() else np.zeros(3)
-                _ring_push(s, STATE_SOFT if c.soft_iron else STATE, m, acc)
+                _ring_push(s, STATE_SOFT if c.soft_iron else STATE, m, acc, s[_MA:_MA + 3], dq)
                 conf, applied = s[_CONF], _applied(s, c.soft_iron)
                 if c.soft_iron:
                     self._segment_soft(s, quat_to_matrix(dq).T, m)
@@ -203,7 +229,10 @@ class MagCalibrationModel(SensorModel):
         n = s[_N]
         e = r - h @ s[_BEST:_BEST + 3]
         e2 = float(e @ e) / 3.0
-        if n >= c.min_segments and e2 > c.outlier_sigma ** 2 * s[_VAR]:
+        lam = math.exp(-s[_T] / c.forget_time)
+        inv = np.empty((3, 3))
+        if n >= c.min_segments and e2 > c.outlier_sigma ** 2 * s[_VAR] * _spread(
+                h, inv, _invert_spd(s[_A:_A + 9].reshape(3, 3).copy(), np.empty((3, 3)), inv), lam):
             s[_BAD] += 1.0
             if s[_BAD] >= c.outlier_count:  # the offset changed: forget it and learn again
                 s[_A:_A + 9] = 0.0
@@ -212,7 +241,6 @@ class MagCalibrationModel(SensorModel):
                 s[STATE + _GC] = 0.0
             return
         s[_BAD] = 0.0
-        lam = math.exp(-s[_T] / c.forget_time)
         a = lam * s[_A:_A + 9].reshape(3, 3) + h.T @ h
         s[_A:_A + 9] = a.ravel()
         s[_Y:_Y + 3] = lam * s[_Y:_Y + 3] + h.T @ r
@@ -229,7 +257,8 @@ class MagCalibrationModel(SensorModel):
         lmin = _min_eig_sym3(a)
         field = float(np.linalg.norm(m - best))
         if s[_N] >= c.min_segments and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= c.max_std * field:
-            if c.consistency and not _consistent(s, STATE, np.eye(3), best, c.min_reduction):
+            if c.consistency and not _gate(_gate_code(c), s, STATE, np.eye(3), best, c.min_reduction,
+                                            s[_CONF] == 1.0, c.max_std):
                 s[_B:_B + 3] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
                 s[_CONF] = 0.0
                 return
@@ -244,7 +273,10 @@ class MagCalibrationModel(SensorModel):
         r = m - ct @ s[_MA:_MA + 3]
         n = s[_N]
         e = r - h @ s[_SBEST:_SBEST + _NP]
-        if n >= c.min_segments and float(e @ e) / 3.0 > c.outlier_sigma ** 2 * s[_VAR]:
+        lam = math.exp(-s[_T] / c.forget_time)
+        inv = np.empty((_NP, _NP))
+        if n >= c.min_segments and float(e @ e) / 3.0 > c.outlier_sigma ** 2 * s[_VAR] * _spread(
+                h, inv, _invert_spd(s[_SA:_SA + _NP * _NP].reshape(_NP, _NP).copy(), np.empty((_NP, _NP)), inv), lam):
             s[_BAD] += 1.0
             if s[_BAD] >= c.outlier_count:  # the calibration changed: forget it and learn again
                 s[_SA:_SA + _NP * _NP] = 0.0
@@ -253,7 +285,6 @@ class MagCalibrationModel(SensorModel):
                 s[STATE_SOFT + _GC] = 0.0
             return
         s[_BAD] = 0.0
-        lam = math.exp(-s[_T] / c.forget_time)
         a = lam * s[_SA:_SA + _NP * _NP].reshape(_NP, _NP) + h.T @ h
         s[_SA:_SA + _NP * _NP] = a.ravel()
         s[_SY:_SY + _NP] = lam * s[_SY:_SY + _NP] + h.T @ r
@@ -271,7 +302,8 @@ class MagCalibrationModel(SensorModel):
         field = float(np.linalg.norm(w @ m - best[5:8]))
         std = np.sqrt(s[_VAR] * np.diag(inv))
         if s[_N] >= c.min_segments and std[5:8].max() <= c.max_std * field and std[:5].max() <= c.max_std:
-            if c.consistency and not _consistent(s, STATE_SOFT, w, best[5:8], c.min_reduction):
+            if c.consistency and not _gate(_gate_code(c), s, STATE_SOFT, w, best[5:8], c.min_reduction,
+                                            s[_CONF] == 1.0, c.max_std):
                 s[_SAPP:_SAPP + _NP] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
                 s[_B:_B + 3] = 0.0
                 s[_CONF] = 0.0
@@ -315,15 +347,18 @@ def _turned(w, x, y, z, c) -> bool:
     return c >= 0.0 and w * w <= c * c * (w * w + x * x + y * y + z * z)
 
 
-def _ring_push(s, g, m, a):
+def _ring_push(s, g, m, a, ma, dq):
     """A segment's end into the gate's ring (at ``s[g:]``): the raw field ``m`` and the
-    accelerometer ``a`` (zeros when invalid). The same statements in the reference and, compiled,
-    in the kernel."""
+    accelerometer ``a`` (zeros when invalid), the segment's first raw field ``ma`` and its turn
+    ``dq`` (body a -> body k). The same statements in the reference and, compiled, in the kernel."""
     i = int(s[g + _GI])
     k = g + _GBUF + _GE * i
     for j in range(3):
         s[k + j] = m[j]
         s[k + 3 + j] = a[j]
+        s[k + 9 + j] = ma[j]
+    for j in range(4):
+        s[k + 12 + j] = dq[j]
     # what the gate computes of the raw field at every check, once: its norm, the accelerometer's, the dip's sine
     nr = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
     na = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
@@ -377,6 +412,73 @@ def _consistent(s, g, w, c, min_reduction) -> bool:
     if nd >= 3:
         return max(cd2 / nd - (cd1 / nd) ** 2, 0.0) <= max(rd2 / nd - (rd1 / nd) ** 2, 0.0)
     return True
+
+
+def _gate_code(c) -> float:
+    """The gate's test as the kernel's parameter: 0 none (``consistency=False``), 1 norm, 2 earth."""
+    return 0.0 if not c.consistency else 1.0 if c.consistency_test == "norm" else 2.0
+
+
+def _gate(code, s, g, w, c, min_reduction, applied, max_std) -> bool:
+    """Whether the calibration ``W m - c`` passes the gate ``code`` (:func:`_gate_code`); ``applied``:
+    whether the calibration before this segment was applied and confident (earth: see
+    :func:`_earth_change`; a new calibration that changes the field by less than ``max_std`` of
+    its norm, the precision the confidence asks for, is applied only where the norm test passes)."""
+    if code == 1.0:
+        return _consistent(s, g, w, c, min_reduction)
+    raw, cal, change = _earth_change(s, g, w, c)
+    if applied:  # withdrawn where it makes the field significantly less constant in the earth frame
+        return cal <= min_reduction * raw
+    return cal <= raw and ((min_reduction * cal <= raw and change >= max_std)
+                           or _consistent(s, g, w, c, min_reduction))
+
+
+def _earth_change(s, g, w, c):
+    """The medians over the ring's segments of the squared change of the field in the earth frame
+    across the segment, raw and calibrated by ``W m - c``. Over one segment (body a -> body k,
+    the gyro's turn ``C``) a field constant in the earth frame seen from the body satisfies
+    ``u_k = C^T u_a``: the change ``e = u_k - C^T u_a`` is the earth-frame field's change
+    across the segment, seen from body k. Body-fixed iron makes the raw field's change nonzero at
+    every turn and the calibrated one's zero; an earth-fixed field (uniform, or one the body
+    turns in without moving far) is constant in the earth frame, so the raw change is already
+    zero except in the few segments that enter or leave it, which the median ignores, and a
+    calibration fitted to what it does to those segments makes the others' change larger. Third,
+    the calibration's own size: the RMS over the segment ends of ``|W m - c - m| / |m|``. (0, 0,
+    0) with fewer than 3 segments. The same statements in the reference and, compiled, in the
+    kernel."""
+    n = int(s[g + _GC])
+    if n < 3:
+        return 0.0, 0.0, 0.0
+    raw = np.empty(n)
+    cal = np.empty(n)
+    size = 0.0
+    for i in range(n):
+        k = g + _GBUF + _GE * i
+        qw, qx, qy, qz = s[k + 12], s[k + 13], s[k + 14], s[k + 15]
+        # C = R(dq), row major; the change uses C^T
+        r00, r01, r02 = 1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy)
+        r10, r11, r12 = 2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx)
+        r20, r21, r22 = 2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)
+        mk0, mk1, mk2 = s[k], s[k + 1], s[k + 2]
+        ma0, ma1, ma2 = s[k + 9], s[k + 10], s[k + 11]
+        d0 = mk0 - (r00 * ma0 + r10 * ma1 + r20 * ma2)
+        d1 = mk1 - (r01 * ma0 + r11 * ma1 + r21 * ma2)
+        d2 = mk2 - (r02 * ma0 + r12 * ma1 + r22 * ma2)
+        raw[i] = d0 * d0 + d1 * d1 + d2 * d2
+        uk0 = w[0, 0] * mk0 + w[0, 1] * mk1 + w[0, 2] * mk2 - c[0]
+        uk1 = w[1, 0] * mk0 + w[1, 1] * mk1 + w[1, 2] * mk2 - c[1]
+        uk2 = w[2, 0] * mk0 + w[2, 1] * mk1 + w[2, 2] * mk2 - c[2]
+        ua0 = w[0, 0] * ma0 + w[0, 1] * ma1 + w[0, 2] * ma2 - c[0]
+        ua1 = w[1, 0] * ma0 + w[1, 1] * ma1 + w[1, 2] * ma2 - c[1]
+        ua2 = w[2, 0] * ma0 + w[2, 1] * ma1 + w[2, 2] * ma2 - c[2]
+        e0 = uk0 - (r00 * ua0 + r10 * ua1 + r20 * ua2)
+        e1 = uk1 - (r01 * ua0 + r11 * ua1 + r21 * ua2)
+        e2 = uk2 - (r02 * ua0 + r12 * ua1 + r22 * ua2)
+        cal[i] = e0 * e0 + e1 * e1 + e2 * e2
+        nm = mk0 * mk0 + mk1 * mk1 + mk2 * mk2
+        if nm > 0.0:
+            size += ((uk0 - mk0) ** 2 + (uk1 - mk1) ** 2 + (uk2 - mk2) ** 2) / nm
+    return np.median(raw), np.median(cal), math.sqrt(size / n)
 
 
 def _basis(j, v0, v1, v2):
@@ -447,6 +549,27 @@ def _invert_spd(a, m, inv) -> bool:
     return True
 
 
+def _spread(h, inv, ok, lam) -> float:
+    """How much larger than the fit's residual noise a new segment's misfit ``e = r - H x`` is
+    expected to be: ``1 + tr(H P H^T) / 3`` with ``P = (lam A)^-1`` the estimate's covariance over
+    the noise's variance (``inv = A^-1``, ``A`` the information matrix before the segment, ``lam``
+    its forgetting). Where ``A`` still leaves a direction unknown (rotations about one axis so
+    far), a turn about another axis shows a large misfit that is the estimate's own uncertainty,
+    not a moved magnet; inf where ``A`` was not invertible (``ok`` False: no misfit can be
+    judged). The same statements in the reference and, compiled, in the kernel."""
+    if not ok:
+        return math.inf
+    n = inv.shape[0]
+    t = 0.0
+    for i in range(3):
+        for j in range(n):
+            x = 0.0
+            for k in range(n):
+                x += inv[j, k] * h[i, k]
+            t += h[i, j] * x
+    return 1.0 + t / (3.0 * lam)
+
+
 def _inverse3(a, inv) -> bool:
     """``inv = a^-1`` by the adjugate, False (``inv`` untouched) for a singular ``a``; the same
     statements in the reference and, compiled, in the kernel."""
@@ -493,10 +616,26 @@ def _min_eig_sym3(a) -> float:
 _k_min_eig = njit(_min_eig_sym3)
 _k_inverse3 = njit(_inverse3)
 _k_invert_spd = njit(_invert_spd)
+_k_spread = njit(_spread)
 _k_basis = njit(_basis)
 _k_ring_push = njit(_ring_push, cold=True)  # once per segment (as are _k_segment and _k_segment_soft)
 _k_turned = njit(_turned)
 _k_consistent = njit(_consistent)
+_k_earth_change = njit(_earth_change)
+
+
+@njit
+def _k_gate(code, s, g, w, c, min_reduction, applied, max_std):
+    """:func:`_gate`, compiled."""
+    if code == 1.0:
+        return _k_consistent(s, g, w, c, min_reduction)
+    raw, cal, change = _k_earth_change(s, g, w, c)
+    if applied:
+        return cal <= min_reduction * raw
+    return cal <= raw and ((min_reduction * cal <= raw and change >= max_std)
+                           or _k_consistent(s, g, w, c, min_reduction))
+
+
 _k_applied = njit(_applied)
 _k_changed = njit(_changed)
 
@@ -520,7 +659,7 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
     """Kernel of :class:`MagCalibrationModel` (``SensorModelKernel.apply``)."""
     seg_time, forget, max_std, min_seg, out_sigma, out_count = p[1], p[2], p[3], p[4], p[5], p[6]
     soft = p[7] != 0.0
-    gate, min_red = p[8] != 0.0, p[9]
+    gate, min_red = p[8], p[9]
     if not gyr_ok:
         s[_ANCHOR] = 0.0
     elif s[_ANCHOR] != 0.0:
@@ -536,7 +675,7 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
     if gyr_ok and s[_ANCHOR] != 0.0:
         if _k_turned(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], p[10]) or s[_T] >= seg_time:
             acc = (v[3], v[4], v[5]) if acc_ok else (0.0, 0.0, 0.0)
-            _k_ring_push(s, STATE_SOFT if soft else STATE, (m0, m1, m2), acc)
+            _k_ring_push(s, STATE_SOFT if soft else STATE, (m0, m1, m2), acc, s[_MA:_MA + 3], s[_DQ:_DQ + 4])
             conf, applied = s[_CONF], _k_applied(s, soft)
             if soft:
                 _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red)
@@ -596,7 +735,10 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
         e[i] = r[i] - (h[i, 0] * s[_BEST] + h[i, 1] * s[_BEST + 1] + h[i, 2] * s[_BEST + 2])
     n = s[_N]
     e2 = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]) / 3.0
-    if n >= min_seg and e2 > out_sigma * out_sigma * s[_VAR]:
+    lam = math.exp(-s[_T] / forget)
+    inv = np.empty((3, 3))
+    if n >= min_seg and e2 > out_sigma * out_sigma * s[_VAR] * _k_spread(
+            h, inv, _k_invert_spd(s[_A:_A + 9].reshape((3, 3)).copy(), np.empty((3, 3)), inv), lam):
         s[_BAD] += 1.0
         if s[_BAD] >= out_count:
             for i in range(9):
@@ -606,7 +748,6 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
             s[STATE + _GC] = 0.0
         return
     s[_BAD] = 0.0
-    lam = math.exp(-s[_T] / forget)
     a = np.empty((3, 3))
     k_forget_accumulate(s, _A, _Y, _RR, _NE, h, r, lam, a)
     s[_N] = n + 1.0
@@ -622,7 +763,8 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
     f0, f1, f2 = m0 - s[_BEST], m1 - s[_BEST + 1], m2 - s[_BEST + 2]
     field = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
     if s[_N] >= min_seg and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= max_std * field:
-        if gate and not _k_consistent(s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red):
+        if gate != 0.0 and not _k_gate(gate, s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red,
+                                               s[_CONF] == 1.0, max_std):
             s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
             s[_CONF] = 0.0
             return
@@ -655,7 +797,16 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
             ei -= h[i, j] * s[_SBEST + j]
         e2 += ei * ei
     n = s[_N]
-    if n >= min_seg and e2 / 3.0 > out_sigma * out_sigma * s[_VAR]:
+    lam = math.exp(-s[_T] / forget)
+    misfit = False
+    if n >= min_seg:  # the spread's scratch: the information matrix's, its inverse's and the Cholesky's places below
+        l = buf[45:45 + _NP * _NP]
+        for i in range(_NP * _NP):
+            l[i] = s[_SA + i]
+        inv = buf[109:109 + _NP * _NP].reshape((_NP, _NP))
+        ok = _k_invert_spd(l.reshape((_NP, _NP)), buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), inv)
+        misfit = e2 / 3.0 > out_sigma * out_sigma * s[_VAR] * _k_spread(h, inv, ok, lam)
+    if misfit:
         s[_BAD] += 1.0
         if s[_BAD] >= out_count:
             for i in range(_NP * _NP):
@@ -666,7 +817,6 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
             s[STATE_SOFT + _GC] = 0.0
         return
     s[_BAD] = 0.0
-    lam = math.exp(-s[_T] / forget)
     a = buf[45:45 + _NP * _NP].reshape((_NP, _NP))
     for i in range(_NP):
         for j in range(_NP):
@@ -706,7 +856,8 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
         else:
             std_c = max(std_c, sd)
     if s[_N] >= min_seg and std_c <= max_std * field and std_e <= max_std:
-        if gate and not _k_consistent(s, STATE_SOFT, w, t[5:8], min_red):
+        if gate != 0.0 and not _k_gate(gate, s, STATE_SOFT, w, t[5:8], min_red, s[_CONF] == 1.0,
+                                           max_std):
             for i in range(_NP):
                 s[_SAPP + i] = 0.0
             s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
