@@ -29,14 +29,24 @@ Options, each a separate idea:
   with ``q_gyr (x) exp(-w dt / 2)``; 0 pairs it with the end of the step; a larger value serves an
   accelerometer later than the gyroscope (``q_gyr (x) exp(-(w - bias) d)``).
 
+- **adaptive time constant** (``tau_adapt``, off here, on in ``recommended``): per sample the
+  ``tau`` where the linear acceleration let through, ``sigma_v / (g tau)``, and the gyro error
+  accumulated, ``d tau``, have the least sum of squares: ``tau = sqrt(sigma_v / (g d))`` within
+  ``[tau_min, tau_max]`` (:func:`_adapt_step`: ``sigma_v`` measured from the specific force in I,
+  ``d`` from the bias's uncertainty and ``gyro_rate_error`` times the net turn rate); ``tau`` is
+  then the time constant of a still sensor. The low-passes' delay lines are scaled to each new
+  coefficient set (docs/algorithms/recommended.md, "The adaptive time constant").
+
 After a timestamp gap or a saturated gyro (``restarts``) the low-pass starts again: the gravity
 seen in I before is stale. A sample without a valid accelerometer reading (or one the
 ``acceleration`` detector rejected) leaves the factor as it is.
 
 Assumes: the linear accelerations average out over ``tau`` in I (true of motion that starts and
 ends at rest, not of a sustained acceleration like a car's), and the gyro drifts slowly against
-``tau``. The readable reference is :meth:`InertialTilt.compose`; :func:`inertial_tilt_kernel`
-does the same arithmetic (tests: 1e-9 on every sample).
+``tau`` (with ``tau_adapt``: at most at the bias's uncertainty plus ``gyro_rate_error`` of the net
+turn rate; a gyro late against the accelerometer is not in that model). The readable reference is
+:meth:`InertialTilt.compose`; :func:`inertial_tilt_kernel` does the same arithmetic (tests: 1e-9 on
+every sample).
 """
 
 from __future__ import annotations
@@ -62,8 +72,13 @@ _UP, _EAST, _DT, _B = 19, 22, 25, 26  # _B: b0, b1, b2, a1, a2
 # the bias filter (bias_filter "kalman"): the low-passed rotation matrix's and R bias's delay lines, the
 # covariance P (3 x 3), whether the low-passes started, and its noise terms for the last dt (_kf_noise)
 _RZ1, _RZ2, _BZ1, _BZ2, _P, _KREADY, _N = 31, 40, 49, 52, 55, 64, 65
-_SIZE = 70
+# the adaptive time constant (tau_adapt): the velocity deviation (across the vertical, in I), the mean
+# squares of that velocity and of the low-passed rate, the samples they average so far, the time constant
+# now, the low-passed rate in I, and the bias's variance the rests tell
+_VEL, _SV2, _SW2, _NST, _TAU, _WLP, _VR = 70, 73, 74, 75, 76, 77, 80
+_SIZE = 81
 _REST = int(Flag.REST)
+_FORGET = 100.0  # tau_adapt without motion_bias_tau: the time in which the bias's variance grows by sigma_motion^2
 
 
 def lowpass_coefficients(tau: float, dt: float) -> tuple[float, float, float, float, float]:
@@ -91,6 +106,87 @@ def _kf_noise(dt, forget, sigma_init, sigma_motion, sigma_rest, vertical):
 
 
 _k_kf_noise = njit(inline="always")(_kf_noise)
+
+
+def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, sigma_m, sigma_i, forget, kappa,
+                tau_min, tau_max):
+    """The time constant for this sample (``tau_adapt``): state ``x``, the sample ``a`` and the rate
+    ``w`` in I (NaN without a valid gyro sample), the vertical ``z`` in the body, a REST sample.
+
+    The inclination error has two parts that a time constant trades: the linear acceleration the
+    low-pass lets through, ``sigma_v / (g tau)`` (the low-passed derivative of a velocity that
+    deviates by ``sigma_v`` from its mean), and the gyro drift the low-pass accumulates, ``d tau``.
+    The sum of their squares is least at ``tau = sqrt(sigma_v / (g d))``, limited to ``[tau_min,
+    tau_max]``. Across the vertical (the part that tilts), from the previous sample's low-passed
+    vector: the specific force minus it is the linear acceleration; integrated with the leak
+    ``tau0``, the velocity's deviation ``sigma_v`` (a velocity slower than ``tau0`` is not seen:
+    ``tau_max`` a small multiple of it). The drift ``d^2 = sigma_b^2 + kappa^2 |LP(w)|^2``: the
+    bias's uncertainty across the vertical, the bias filter's ``tr P - z^T P z`` and the rests'
+    (``sigma_m^2`` per axis after a REST sample, growing by ``sigma_m^2`` in ``forget`` s up to
+    ``sigma_i^2``) as independent informations; and the gyro's error proportional to the rate
+    (scale factor, misalignment) of the rate in I low-passed with ``tau0``: the net turn, as a
+    back-and-forth turn's error comes back with it. The mean squares are running means over the
+    first ``window`` s, then exponential averages of that time constant."""
+    x[_VR] = sigma_m * sigma_m if rest else min(x[_VR] + sigma_m * sigma_m * dt / forget, sigma_i * sigma_i)
+    if x[_NST] == 0.0:  # no low-passed vector yet: the statistics start
+        ok = math.isfinite(w0)
+        x[_NST] = 1.0
+        x[_SV2] = 0.0
+        x[_VEL], x[_VEL + 1], x[_VEL + 2] = 0.0, 0.0, 0.0
+        x[_WLP], x[_WLP + 1], x[_WLP + 2] = (w0, w1, w2) if ok else (0.0, 0.0, 0.0)
+        x[_SW2] = w0 * w0 + w1 * w1 + w2 * w2 if ok else 0.0
+        x[_TAU] = tau0
+        return tau0
+    y0, y1, y2 = x[_Y], x[_Y + 1], x[_Y + 2]
+    g = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
+    u0, u1, u2 = y0 / g, y1 / g, y2 / g
+    r0, r1, r2 = a0 - y0, a1 - y1, a2 - y2
+    ru = r0 * u0 + r1 * u1 + r2 * u2
+    f = min(dt / tau0, 1.0)
+    x[_VEL] += (r0 - u0 * ru) * dt - x[_VEL] * f
+    x[_VEL + 1] += (r1 - u1 * ru) * dt - x[_VEL + 1] * f
+    x[_VEL + 2] += (r2 - u2 * ru) * dt - x[_VEL + 2] * f
+    x[_NST] += 1.0
+    k = max(dt / window, 1.0 / (x[_NST] - 1.0))
+    x[_SV2] += (x[_VEL] * x[_VEL] + x[_VEL + 1] * x[_VEL + 1] + x[_VEL + 2] * x[_VEL + 2] - x[_SV2]) * k
+    if math.isfinite(w0):
+        x[_WLP] += (w0 - x[_WLP]) * f
+        x[_WLP + 1] += (w1 - x[_WLP + 1]) * f
+        x[_WLP + 2] += (w2 - x[_WLP + 2]) * f
+        x[_SW2] += (x[_WLP] * x[_WLP] + x[_WLP + 1] * x[_WLP + 1] + x[_WLP + 2] * x[_WLP + 2] - x[_SW2]) * k
+    ph = x[_P] + x[_P + 4] + x[_P + 8] - (x[_P] * z0 * z0 + x[_P + 4] * z1 * z1 + x[_P + 8] * z2 * z2
+                                          + 2.0 * (x[_P + 1] * z0 * z1 + x[_P + 2] * z0 * z2 + x[_P + 5] * z1 * z2))
+    vr = 2.0 * x[_VR]
+    db = math.sqrt(max(ph, 0.0) * vr / (max(ph, 0.0) + vr))
+    d = math.sqrt(db * db + kappa * kappa * x[_SW2])
+    sv = max(math.sqrt(x[_SV2]), g * db * tau0 * tau0)
+    x[_TAU] = min(max(math.sqrt(sv / (g * d)), tau_min), tau_max) if d > 0.0 else tau_max
+    return x[_TAU]
+
+
+_k_adapt_step = njit(inline="always")(_adapt_step)
+
+
+def _set_tau(x, b0, b1, b2, a1, a2):
+    """The low-passes' new coefficients (``tau_adapt``: this sample's ``tau`` and ``dt``). The
+    transposed direct form's delay lines hold ``y (1 - b0)`` and ``y (b2 - a2)`` in the steady state:
+    once the low-pass runs, they are scaled to the new coefficients' steady state, or a change of
+    ``tau`` at a low cutoff (``a2`` moves by about ``sqrt(2) dt d(1/tau)``) would put a step into the
+    output. The bias filter's low-passes (rotation and bias, same coefficients) likewise."""
+    f1 = (1.0 - b0) / (1.0 - x[_B]) if x[_READY] != 0.0 else 1.0
+    f2 = (b2 - a2) / (x[_B + 2] - x[_B + 4]) if x[_READY] != 0.0 else 1.0
+    x[_B], x[_B + 1], x[_B + 2], x[_B + 3], x[_B + 4] = b0, b1, b2, a1, a2
+    for i in range(3):
+        x[_Z1 + i] *= f1
+        x[_Z2 + i] *= f2
+        x[_BZ1 + i] *= f1
+        x[_BZ2 + i] *= f2
+    for i in range(9):
+        x[_RZ1 + i] *= f1
+        x[_RZ2 + i] *= f2
+
+
+_k_set_tau = njit(inline="always")(_set_tau)
 
 
 @njit(inline="always")
@@ -239,6 +335,20 @@ class InertialTiltConfig(PluginConfig):
         "in motion: they shrink the covariance as that measurement does (VQF's biasSigmaRest, 0.03 deg/s: a rest "
         "pins the bias). None: not at all (a rest sees the zero-rate bias only; in motion the scale factor's and "
         "misalignment's error, proportional to the rate, adds to it)", gt=0)
+    tau_adapt: bool = param(
+        False, unit="-", description="the time constant per sample from the motion: tau = sqrt(sigma_v / (g d)), the "
+        "least linear acceleration let through plus gyro drift accumulated (sigma_v: the velocity's deviation in I, "
+        "from the specific force; d: the bias's uncertainty and gyro_rate_error times the net turn rate), within "
+        "[tau_min, tau_max]; tau is then the time constant of the velocity and net turn estimates. False: tau "
+        "throughout (the behaviour before)")
+    gyro_rate_error: float = param(
+        0.015, unit="-", description="tau_adapt: the gyro's error proportional to the rate (scale factor and "
+        "misalignment; consumer MEMS data sheets: 1-3 %)", ge=0)
+    tau_min: float = param(0.5, unit="s", description="tau_adapt: the shortest time constant", gt=0)
+    tau_max: float = param(4.0, unit="s", description="tau_adapt: the longest time constant (the velocity estimate, "
+                           "leaking with tau, does not see accelerations slower than a few tau)", gt=0)
+    adapt_window: float = param(10.0, unit="s", description="tau_adapt: the time over which the velocity's and "
+                                "the rate's mean squares are averaged", gt=0)
     bias_vertical_forgetting: float = param(
         1e-4, unit="-", description="kalman: the weight, relative to the horizontal axes, of the pseudo-measurement "
         "'no drift about the vertical' (unobservable from the accelerometer)", gt=0)
@@ -259,6 +369,7 @@ class InertialTilt(FactorCorrector):
         axes = frame_axes(frame)
         s[_UP:_UP + 3], s[_EAST:_EAST + 3] = axes[6:9], axes[0:3]
         s[_P:_P + 9] = np.eye(3).ravel() * self.config.bias_sigma_init ** 2
+        s[_VR] = self.config.bias_sigma_init ** 2
         return s
 
     def restart(self, state: np.ndarray) -> None:
@@ -266,16 +377,23 @@ class InertialTilt(FactorCorrector):
         state[_READY] = state[_NMEAN] = state[_TACC] = 0.0
         state[_MEAN:_MEAN + 3] = 0.0
         state[_KREADY] = 0.0  # the bias filter's low-passes start again with the inclination's
+        state[_NST] = 0.0  # and the adaptive time constant's statistics
 
     def compose(self, state, quat, sample, bias, rate, flags):
         if sample.acc is not None:
             qg = paired(quat, self.config.acc_delay, rate, sample.gyr, bias, sample.dt)
-            self._tilt(state, quat_to_matrix(qg) @ sample.acc, quat, bias, sample.dt, bool(flags & _REST))
+            r = quat_to_matrix(qg)
+            y = state[_Y:_Y + 3]
+            z = r.T @ (y / np.linalg.norm(y)) if state[_NST] > 0.0 else np.zeros(3)  # the vertical in the body
+            self._tilt(state, r @ sample.acc, quat, bias, sample.dt, bool(flags & _REST), r @ (sample.gyr - bias), z)
         return quat_mul(state[_QA:_QA + 4], quat), 0
 
-    def _tilt(self, x, a_i, quat, bias, dt, rest) -> None:
+    def _tilt(self, x, a_i, quat, bias, dt, rest, w_i, z) -> None:
         c = self.config
         y = x[_Y:_Y + 3]
+        tau = _adapt_step(x, *a_i, *w_i, *z, rest, dt, c.tau, c.adapt_window, c.bias_sigma_motion, c.bias_sigma_init,
+                          c.motion_bias_tau or _FORGET, c.gyro_rate_error,
+                          c.tau_min, c.tau_max) if c.tau_adapt else c.tau
         x[_TACC] += dt
         # durations are sums of dt compared with half a sample of margin (a split run equals one run)
         if c.fast_start and not x[_READY] and x[_TACC] + 0.5 * dt < c.tau:
@@ -284,10 +402,14 @@ class InertialTilt(FactorCorrector):
             y[:] = x[_MEAN:_MEAN + 3]
         else:
             if x[_DT] != dt:  # the coefficients (and the bias filter's noise), once per distinct dt
-                x[_DT], x[_B:_B + 5] = dt, lowpass_coefficients(c.tau, dt)
+                x[_DT] = dt
+                if not c.tau_adapt:
+                    x[_B:_B + 5] = lowpass_coefficients(c.tau, dt)
                 if c.motion_bias_tau is not None and c.bias_filter == "kalman":
                     x[_N:_N + 5] = _kf_noise(dt, c.motion_bias_tau, c.bias_sigma_init, c.bias_sigma_motion,
                                              c.bias_sigma_rest or 0.0, c.bias_vertical_forgetting)
+            if c.tau_adapt:  # the coefficients of this sample's time constant
+                _set_tau(x, *lowpass_coefficients(tau, dt))
             b0, b1, b2, a1, a2 = x[_B:_B + 5]
             z1, z2 = x[_Z1:_Z1 + 3], x[_Z2:_Z2 + 3]
             if not x[_READY]:  # start in the steady state of the mean (or of the first sample)
@@ -367,7 +489,8 @@ class InertialTilt(FactorCorrector):
         p = np.array([c.tau, float(c.fast_start), c.acc_delay if c.acc_delay is not None else math.nan,
                       c.motion_bias_tau if c.motion_bias_tau is not None else 0.0, c.bias_max,
                       float(c.bias_filter == "kalman"), c.bias_sigma_init, c.bias_sigma_motion,
-                      c.bias_sigma_rest if c.bias_sigma_rest is not None else 0.0, c.bias_vertical_forgetting])
+                      c.bias_sigma_rest if c.bias_sigma_rest is not None else 0.0, c.bias_vertical_forgetting,
+                      float(c.tau_adapt), c.gyro_rate_error, c.tau_min, c.tau_max, c.adapt_window])
         return CorrectorKernel(inertial_tilt_kernel, p, mode="factor")
 
 
@@ -375,10 +498,20 @@ class InertialTilt(FactorCorrector):
 def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
     """The kernel of :meth:`InertialTilt.compose`: ``p = (tau, fast_start, acc_delay (NaN: None),
     motion_bias_tau (0: off), bias_max, kalman (1) or lowpass (0), bias_sigma_init, bias_sigma_motion,
-    bias_sigma_rest (0: None), bias_vertical_forgetting)``."""
+    bias_sigma_rest (0: None), bias_vertical_forgetting, tau_adapt, gyro_rate_error, tau_min, tau_max,
+    adapt_window)``."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
         v0, v1, v2 = k_rot(p0, p1, p2, p3, a0, a1, a2)
+        tau = p[0]
+        if p[10] != 0.0:
+            w0, w1, w2 = k_rot(p0, p1, p2, p3, g0 - b[0], g1 - b[1], g2 - b[2])
+            z0 = z1 = z2 = 0.0
+            if s[_NST] > 0.0:  # the vertical in the body
+                n = math.sqrt(s[_Y] * s[_Y] + s[_Y + 1] * s[_Y + 1] + s[_Y + 2] * s[_Y + 2])
+                z0, z1, z2 = k_rot(p0, -p1, -p2, -p3, s[_Y] / n, s[_Y + 1] / n, s[_Y + 2] / n)
+            tau = _k_adapt_step(s, v0, v1, v2, w0, w1, w2, z0, z1, z2, (flags & _REST) != 0, dt, p[0], p[14], p[7],
+                                p[6], p[3] if p[3] > 0.0 else _FORGET, p[11], p[12], p[13])
         s[_TACC] += dt
         if p[1] != 0.0 and s[_READY] == 0.0 and s[_TACC] + 0.5 * dt < p[0]:
             s[_NMEAN] += 1.0
@@ -389,9 +522,13 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
         else:
             if s[_DT] != dt:
                 s[_DT] = dt
-                s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4] = _lp_coeffs(p[0], dt)
+                if p[10] == 0.0:
+                    s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4] = _lp_coeffs(p[0], dt)
                 if p[3] > 0.0 and p[5] != 0.0:
                     s[_N], s[_N + 1], s[_N + 2], s[_N + 3], s[_N + 4] = _k_kf_noise(dt, p[3], p[6], p[7], p[8], p[9])
+            if p[10] != 0.0:
+                t0, t1, t2, t3, t4 = _lp_coeffs(tau, dt)
+                _k_set_tau(s, t0, t1, t2, t3, t4)
             b0, b1, b2, c1, c2 = s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4]
             if s[_READY] == 0.0:  # start in the steady state of the mean (or of the first sample)
                 t0, t1, t2 = (s[_MEAN], s[_MEAN + 1], s[_MEAN + 2]) if s[_NMEAN] > 0 else (v0, v1, v2)

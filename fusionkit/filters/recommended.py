@@ -9,7 +9,8 @@ composition). Orientation is split into three factors, each corrected by one sen
 1. ``q_gyr``: the gyroscope strapdown (estimator ``poisson-quat``, the exact exponential of
    ``(w - bias) dt``) from the body to an "almost inertial" frame I. Nothing corrects it.
 2. ``q_tilt``: the inclination factor (corrector ``inertial-tilt``): the specific force low-passed
-   in I (second-order Butterworth, ``tau_acc``), made vertical each sample by the smallest rotation;
+   in I (second-order Butterworth, ``tau_acc``; ``tau_adapt``: per sample from the linear acceleration
+   against the gyro's error, ``tau_acc`` for a still sensor), made vertical each sample by the smallest rotation;
    it also learns the gyro bias in motion (``bias_filter``: VQF's Kalman model, the correction as
    the low-passed earth-frame bias error; ``motion_bias_tau`` its forgetting time).
 3. ``delta``: heading only, about the vertical (corrector ``mag-heading``; its gain from the
@@ -66,6 +67,14 @@ _NO_RECOVERY = 1e9
 class RecommendedConfig(FilterConfig):
     tau_acc: float = param(
         2.0, unit="s", description="time constant of the inclination low-pass (in the almost-inertial frame)", gt=0)
+    tau_adapt: bool = param(
+        True, unit="-", description="inertial-tilt's adaptive time constant: per sample sqrt(sigma_v / (g d)), the "
+        "least linear acceleration let through plus gyro drift accumulated (sigma_v: the velocity's deviation, d: "
+        "the bias's uncertainty and gyro_rate_error times the net turn rate), tau_acc for a still sensor, within "
+        "0.5-4 s (recommended.md). False: tau_acc throughout (the behaviour before issue 14's stop 19)")
+    gyro_rate_error: float = param(
+        0.015, unit="-", description="tau_adapt: the gyro's error proportional to the rate (scale factor, "
+        "misalignment; consumer MEMS data sheets: 1-3 %)", ge=0)
     tau_mag: float = param(15.0, unit="s", description="heading_gain fixed: time constant of the heading correction",
                            gt=0)
     heading_gain: Literal["fixed", "kalman"] = param(
@@ -176,7 +185,8 @@ class RecommendedFilter(Pipeline):
             "tau": c.tau_acc, "fast_start": c.fast_start, "motion_bias_tau": c.motion_bias_tau,
             "bias_max": c.bias_max, "acc_delay": c.acc_delay, "bias_filter": c.bias_filter,
             "bias_sigma_init": c.bias_sigma_init,
-            "bias_sigma_motion": c.bias_sigma_motion, "bias_sigma_rest": c.bias_sigma_rest if c.rest_bias else None}))
+            "bias_sigma_motion": c.bias_sigma_motion, "bias_sigma_rest": c.bias_sigma_rest if c.rest_bias else None,
+            "tau_adapt": c.tau_adapt, "gyro_rate_error": c.gyro_rate_error}))
         if c.use_mag:
             magnetic = c.magnetic if c.fast_start else c.magnetic.model_copy(update={"init_time": 0.0})
             correctors.append(PluginSpec(name="mag-heading", params={
