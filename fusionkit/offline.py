@@ -65,6 +65,13 @@ norm does not depend on the orientation, while a wrong offset ``e`` makes the no
 sides). Both passes then run on that stream, without the model. ``calibration="per-pass"``: each
 pass with its own model, as online (the mode before this).
 
+The two calibration passes gate with the model's norm test (``calibration_test="norm"``, default;
+``"model"``: the model's own ``consistency_test``). Online, the model's earth-frame test keeps a
+calibration from switching on and off inside an earth-fixed field, because each switch makes
+``mag-heading`` learn its reference again there. Here no pass sees a switch: the per-sample choice
+above already compares the streams with samples from both sides, and the earth test's later
+application and reluctant withdrawal only leave it fewer calibrated stretches to choose from.
+
 **The magnetometer's timing decided with the whole recording** (``mag_timing``, default
 ``"recording"``). A magnetometer several samples late against the gyroscope (a sensor's filter,
 its read-out, a lower rate held) reads the field turned by the rotation over its delay: the
@@ -114,6 +121,9 @@ __all__ = ["OfflineFilter", "reverse_recording", "reversed_config", "information
 _MAG_CALIBRATION = "mag-calibration"
 #: how the offline mode treats that model (``OfflineFilter(calibration=...)``)
 _CALIBRATIONS = ("recording", "per-pass")
+#: which gate the whole-recording calibration's passes use (``OfflineFilter(calibration_test=...)``):
+#: ``"norm"`` the model's norm test, ``"model"`` the model's own setting
+_CALIBRATION_TESTS = ("norm", "model")
 #: how the offline mode treats the magnetometer's timing (``OfflineFilter(mag_timing=...)``)
 _MAG_TIMINGS = ("recording", "as-is")
 #: the delay estimate's forgetting time (s): none within any recording
@@ -300,7 +310,8 @@ class OfflineFilter(Filter):
     MAG_DELAY_SIGMAS: ClassVar[float] = 3.0
 
     def __init__(self, inner: Filter, disturbance_gap: float | None = DISTURBANCE_GAP,
-                 calibration: str = "recording", mag_timing: str = "recording") -> None:
+                 calibration: str = "recording", mag_timing: str = "recording",
+                 calibration_test: str = "norm") -> None:
         why = supports_offline(inner)
         if why is not None:
             raise PluginError(f"filter {inner.name!r} does not support offline=True: {why}")
@@ -310,12 +321,16 @@ class OfflineFilter(Filter):
                               f"got {disturbance_gap!r}")
         if calibration not in _CALIBRATIONS:
             raise ConfigError(f"calibration must be one of {', '.join(map(repr, _CALIBRATIONS))}, got {calibration!r}")
+        if calibration_test not in _CALIBRATION_TESTS:
+            raise ConfigError(f"calibration_test must be one of {', '.join(map(repr, _CALIBRATION_TESTS))}, "
+                              f"got {calibration_test!r}")
         if mag_timing not in _MAG_TIMINGS:
             raise ConfigError(f"mag_timing must be one of {', '.join(map(repr, _MAG_TIMINGS))}, got {mag_timing!r}")
         self.inner = inner
         self.mag_timing = mag_timing
         self.disturbance_gap = None if disturbance_gap is None else float(disturbance_gap)
         self.calibration = calibration
+        self.calibration_test = calibration_test
         self.config = inner.config
         self.name = f"{inner.name} (offline)"
 
@@ -425,6 +440,8 @@ class OfflineFilter(Filter):
         forward and backward passes (``rec`` itself where neither applied a calibration), the
         choice per sample, and the forward model's final state."""
         gyr_range, acc_range = getattr(config, "gyr_range", None), getattr(config, "acc_range", None)
+        if self.calibration_test == "norm" and getattr(model.config, "consistency_test", "norm") != "norm":
+            model = type(model)(model.config.model_copy(update={"consistency_test": "norm"}))
         fwd, bwd, end = calibration_passes(model, rec, getattr(config, "max_gap", None), gyr_range, acc_range,
                                            used, model_state)
         choice = np.zeros(len(rec), dtype=np.int8)

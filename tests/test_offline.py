@@ -401,6 +401,27 @@ def test_calibration_state_and_options():
         OfflineFilter(fk.make("recommended"), calibration="both")
 
 
+def test_calibration_passes_gate_with_the_norm_test_unless_told(monkeypatch):
+    """The whole-recording calibration's passes use the model's norm test by default (no pass sees
+    a switch: the per-sample choice decides), the model's own earth-frame test with
+    ``calibration_test="model"``; anything else is a ConfigError naming the argument."""
+    seen = []
+    real = offline.calibration_passes
+
+    def spy(model, *args, **kw):
+        seen.append(model.config.consistency_test)
+        return real(model, *args, **kw)
+
+    monkeypatch.setattr(offline, "calibration_passes", spy)
+    rec = carried_magnet_taken_off().slice(0, 3000)
+    assert fk.make("recommended").models[0].config.consistency_test == "earth"  # the online default
+    OfflineFilter(fk.make("recommended")).run(rec)
+    OfflineFilter(fk.make("recommended"), calibration_test="model").run(rec)
+    assert seen == ["norm", "earth"]
+    with pytest.raises(ConfigError, match="calibration_test"):
+        OfflineFilter(fk.make("recommended"), calibration_test="earth")
+
+
 def test_calibration_decision_does_not_depend_on_the_direction_of_time():
     """The calibration decided with the whole recording keeps the offline mode's symmetry: played
     backwards, the forward and backward calibration models swap roles and the choice is the same."""
