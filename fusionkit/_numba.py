@@ -431,6 +431,37 @@ def inline_copy(func):
     return _INLINED[func]
 
 
+# -- a test session's loops call their kernels -------------------------------------------------
+#
+# Inlining every kernel makes each composition's loop one large body, and numba's front end
+# (typing, lowering) grows with it: 10-30 s of CPU per composition, paid again for every
+# composition, where a loop that calls its kernels costs 1-3 s and the kernels, compiled once
+# each, are shared through numba's disk cache. With fastmath off, the two compute the same
+# numbers (a call or an inlined body evaluates the same operations in the same order); only the
+# speed differs. ``FUSIONKIT_LOOP_INLINE=0`` (the test suite's setting, tests/conftest.py) makes
+# the generated loops call their kernels; the loop's source names the choice, so the two kinds of
+# loop are separate cache entries and a session's loops never serve a user's run.
+
+LOOP_INLINE = os.environ.get("FUSIONKIT_LOOP_INLINE", "1").strip() != "0"
+
+_CALLED: dict = {}
+
+
+def call_copy(func):
+    """What a loop built with ``LOOP_INLINE`` off calls instead of :func:`inline_copy`'s twin:
+    ``func`` itself, or, for a function declared ``inline="always"`` (which numba would inline
+    into any caller), a dispatcher of the same Python function compiled as a call (cached on disk
+    like ``func`` would be)."""
+    if not HAVE_NUMBA or not isinstance(func, _nb.core.registry.CPUDispatcher):
+        return func
+    if func.targetoptions.get("inline", "never") == "never":
+        return func
+    if func not in _CALLED:
+        opts = {k: v for k, v in func.targetoptions.items() if k not in ("inline", "nopython")}
+        _CALLED[func] = _light_load(_nb.njit(**{**opts, "inline": "never"})(func.py_func))
+    return _CALLED[func]
+
+
 def resolve_backend(backend: str, has_kernel: bool) -> str:
     """Pick the backend that will run: ``"numba"`` or ``"reference"``.
 

@@ -9,8 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import fusionkit as fk
-from fusionkit import sim
+# The suite's generated loops call their kernels instead of inlining them (fusionkit/_numba.py,
+# LOOP_INLINE): the same numbers at a tenth of the compile time per composition. The inlined
+# loops users run are checked against these, preset by preset, in test_inlined_loops.py.
+# Set before fusionkit is imported; the tests' subprocesses inherit it.
+os.environ.setdefault("FUSIONKIT_LOOP_INLINE", "0")
+
+import fusionkit as fk  # noqa: E402
+from fusionkit import sim  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 

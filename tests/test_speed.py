@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import fusionkit as fk
+import fusionkit._numba
 from fusionkit import _loopgen, sim
 from fusionkit._numba import HAVE_NUMBA, inline_copy, njit
 from fusionkit.errors import InputError
@@ -40,9 +41,11 @@ def test_inline_copy_makes_inline_twins_of_the_whole_call_tree():
     assert inline_copy(len) is len  # not a numba function: returned as it is
 
 
-def test_the_loop_calls_its_kernels_inline_and_step_calls_the_loop():
+def test_the_loop_calls_its_kernels_inline_and_step_calls_the_loop(monkeypatch):
     """The loop inlines every per-sample kernel; ``step`` (``update()``'s) runs that loop over one
-    sample instead of a second body of its own (one compile per composition)."""
+    sample instead of a second body of its own (one compile per composition). (The suite's own
+    loops call their kernels, ``FUSIONKIT_LOOP_INLINE=0``; what users get is inlined.)"""
+    monkeypatch.setattr(fusionkit._numba, "LOOP_INLINE", True)
     f = fk.make("gradient-descent")
     ek, mks, dks, cks = f._kernels()
     for unit in (False, True):  # a unit-quaternion state is the output itself: no to_quat
