@@ -132,6 +132,13 @@ def test_adaptive_time_constant_under_a_turn():
     assert incl(on, r).mean() < 0.6 * incl(off, r).mean()
 
 
+def test_adaptive_time_constant_bounds_are_checked():
+    """A reversed ``[tau_min, tau_max]`` would pin every sample to ``tau_max``: a ConfigError naming it."""
+    with pytest.raises(fk.ConfigError, match="tau_max"):
+        composition([{"name": "inertial-tilt", "params": {"tau_adapt": True, "tau_min": 5.0, "tau_max": 1.0}}])
+    composition([{"name": "inertial-tilt", "params": {"tau_adapt": True, "tau_min": 1.0, "tau_max": 1.0}}])
+
+
 def test_fast_start():
     r = sim.simulate([sim.Rest(4.0)], rate=100.0, noise=sim.Noise(acc_noise=0.3, mag_noise=3.0), seed=4,
                      initial=tuple(fk.conventions.euler_to_quat(0.5, 0.2, -0.3)), gnss_rate=None)

@@ -55,6 +55,7 @@ import math
 from typing import ClassVar, Literal
 
 import numpy as np
+from pydantic import field_validator
 
 from .._numba import njit
 from ..config import PluginConfig, param
@@ -352,6 +353,16 @@ class InertialTiltConfig(PluginConfig):
     bias_vertical_forgetting: float = param(
         1e-4, unit="-", description="kalman: the weight, relative to the horizontal axes, of the pseudo-measurement "
         "'no drift about the vertical' (unobservable from the accelerometer)", gt=0)
+
+    @field_validator("tau_max")
+    @classmethod
+    def _tau_max_not_below_tau_min(cls, v: float, info) -> float:
+        """``[tau_min, tau_max]`` bounds the adaptive time constant: reversed, every sample would get
+        ``tau_max`` whatever the motion, silently."""
+        lo = info.data.get("tau_min")
+        if lo is not None and v < lo:
+            raise ValueError(f"must be at least tau_min ({lo:g} s), got {v:g} s")
+        return v
 
 
 class InertialTilt(FactorCorrector):
