@@ -325,7 +325,7 @@ def _kf_predict(x, wv, dt, q_gyro, p_bias, p_scale) -> None:
     x[_PHH], x[_PHB], x[_PHS] = p, hb, hs
 
 
-def _kf_noise(x, norm, dip, dt, mag_noise2, field_error2, field_time):
+def _kf_noise(x, norm, dip, dt, mag_noise2, field_error2, field_time, cos2=None):
     """gain kalman: the variance of one magnetometer heading (``norm`` and ``dip`` its field's): the
     field errors, as a fraction of the field's strength, are ``field_error2`` plus what this sample
     shows of them, its norm's and dip's departure from the magnetic reference (a disturbance
@@ -334,13 +334,14 @@ def _kf_noise(x, norm, dip, dt, mag_noise2, field_error2, field_time):
     ``field_time``, they count as the white noise of the same low-frequency power (``2 e2
     field_time / dt`` per sample: the heading does not average them away faster than they
     change), plus the magnetometer's noise (the same statements in the reference and, compiled,
-    in the kernel)."""
+    in the kernel). ``cos2``: ``cos(dip)^2`` where the caller has it (the kernel: ``1 - sin^2`` from the
+    sine it took the dip's arcsine of, no libm call)."""
     e2 = field_error2
     if x[_MAG + MAG_COUNT] != 0.0:  # a reference to depart from
         dn = (norm - x[_MAG]) / x[_MAG]
         dd = dip - x[_MAG + 1]
         e2 = max(e2, dn * dn + dd * dd)
-    h2 = max(math.cos(dip) ** 2, 1e-6)
+    h2 = max(math.cos(dip) ** 2 if cos2 is None else cos2, 1e-6)
     return (mag_noise2 + 2.0 * e2 * field_time / dt) / h2
 
 
@@ -474,13 +475,14 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         v0, v1, v2 = k_rot(p0, p1, p2, p3, m0, m1, m2)
         norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
         vu = v0 * s[ax + 6] + v1 * s[ax + 7] + v2 * s[ax + 8]
-        dip = math.asin(max(-1.0, min(1.0, vu / norm)))
+        sd = max(-1.0, min(1.0, vu / norm))
+        dip = math.asin(sd)
         target = 0.5 * math.pi - math.atan2(v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5],
                                             v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2])
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
         if p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0 and k_follow_field(s, norm, dip, p[8], p[9]):
             s[_RELEARN] = 1.0  # (the reference's state sits at the start of the corrector's)
-        r = _k_kf_noise(s, norm, dip, dt, p[22], p[23], p[24]) if kalman else 0.0
+        r = _k_kf_noise(s, norm, dip, dt, p[22], p[23], p[24], 1.0 - sd * sd) if kalman else 0.0
         code = magnetic_step(s, norm, dip, rate, dt, p[7], p[8], p[9], p[10], p[11], p[12])
         if code != MAG_LEARNING:
             s[_RELEARN] = 0.0

@@ -191,6 +191,17 @@ _k_set_tau = njit(inline="always")(_set_tau)
 
 
 @njit(inline="always")
+def _atan_over(s, c):
+    """``atan2(s, c) / s`` for ``s > 0``: a small angle (``s < c / 100``) by the series of ``atan(t) / t``
+    to ``t^8`` (relative error under 1e-20), a division instead of a libm call every sample."""
+    if c > 0.0 and s < 0.01 * c:
+        ic = 1.0 / c
+        t2 = s * s * ic * ic
+        return ic * (1.0 + t2 * (-1.0 / 3.0 + t2 * (0.2 + t2 * (-1.0 / 7.0 + t2 * (1.0 / 9.0)))))
+    return math.atan2(s, c) / s
+
+
+@njit(inline="always")
 def _qmat(w, x, y, z):
     """``R(q)`` as a row-major 9-tuple."""
     return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
@@ -566,12 +577,12 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
         e0, e1, e2, e3 = k_qmul(t0, t1, t2, t3, q[0], q[1], q[2], q[3])  # the output (and the bias step's q6)
         if p[3] > 0.0 and p[5] != 0.0 and s[_READY] != 0.0:
             sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
-            f = 2.0 * math.atan2(sn, c0) / (sn * dt) if sn > 0.0 else 0.0
+            f = 2.0 * _atan_over(sn, c0) / dt if sn > 0.0 else 0.0
             _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, (flags & _REST) != 0, dt, p)
         elif p[3] > 0.0 and (flags & _REST) == 0 and s[_READY] != 0.0:
             sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
             if sn > 0.0:
-                f = 2.0 * math.atan2(sn, c0) / (sn * dt)
+                f = 2.0 * _atan_over(sn, c0) / dt
                 k_bias_step(b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, dt / p[3], p[4])
         q[0], q[1], q[2], q[3] = e0, e1, e2, e3
         return 0
