@@ -13,21 +13,18 @@ from ._numba import njit
 from .types import ACC_LIMIT as _ACC_LIMIT, GYR_LIMIT as _GYR_LIMIT, HUGE as _HUGE, TINY as _TINY
 
 
-@njit
-def qmul_into(p0, p1, p2, p3, q0, q1, q2, q3, out):
-    """``out = p (x) q`` (rotations.quat_mul)."""
-    out[0] = p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3
-    out[1] = p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2
-    out[2] = p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1
-    out[3] = p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0
-
-
 @njit(inline="always")
 def qmul_entries(p0, p1, p2, p3, q0, q1, q2, q3):
-    """:func:`qmul_into` as a tuple: a kernel that keeps the product in registers (no store and
-    reload of the array on its per-sample dependency chain)."""
+    """``p (x) q`` as four scalars (rotations.quat_mul): a kernel that keeps the product in
+    registers (no store and reload of an array on its per-sample dependency chain)."""
     return (p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3, p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2,
             p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1, p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0)
+
+
+@njit
+def qmul_into(p0, p1, p2, p3, q0, q1, q2, q3, out):
+    """``out = p (x) q`` (:func:`qmul_entries` stored)."""
+    out[0], out[1], out[2], out[3] = qmul_entries(p0, p1, p2, p3, q0, q1, q2, q3)
 
 
 @njit

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from .._kernels import qmul_entries as k_qmul  # ``p (x) q`` as four scalars
 from .._kernels import rotvec_scalars as k_rotvec
 from .._numba import njit
 from ..conventions import frame_matrix
@@ -59,13 +60,6 @@ def bias_step(bias, r_level, q6, dt, tau, bias_max) -> None:
 
 
 # ---- scalar numba twins ------------------------------------------------------------------------
-
-@njit(inline="always")
-def k_qmul(p0, p1, p2, p3, q0, q1, q2, q3):
-    """``p (x) q`` as four scalars."""
-    return (p0 * q0 - p1 * q1 - p2 * q2 - p3 * q3, p0 * q1 + p1 * q0 + p2 * q3 - p3 * q2,
-            p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1, p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0)
-
 
 @njit(inline="always")
 def k_rot(w, x, y, z, v0, v1, v2):
