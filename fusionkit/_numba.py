@@ -7,6 +7,7 @@ Without numba the decorator returns the plain Python function, and ``HAVE_NUMBA`
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 
@@ -132,13 +133,34 @@ def njit(func=None, *, cache: bool = True, inline: str = "never", forward_copies
 def _light_load(dispatcher):
     """``dispatcher`` (returned), its disk cache loading through :func:`_load_overload_light`."""
     cache = getattr(dispatcher, "_cache", None)
-    if cache is not None and hasattr(cache, "_load_overload"):  # numba's Cache: cache=True, JIT enabled
-        import functools
-
-        _stamp_sources(dispatcher, cache)
-        cache.load_overload = functools.partial(_load_overload_light, cache)
+    if cache is not None and hasattr(cache, "_load_overload") and not isinstance(cache.load_overload, _Light):
+        _stamp_sources(dispatcher, cache)  # (numba's Cache: cache=True, JIT enabled; once)
+        cache.load_overload = _Light(_load_overload_light, cache)
         _lock_compiles(dispatcher, cache)
     return dispatcher
+
+
+class _Light(functools.partial):
+    """A cache's ``load_overload`` made by :func:`_light_load`."""
+
+
+_ADOPTED: set = set()
+
+
+def adopt(func) -> None:
+    """Give an njit function made by numba's own decorator (a plugin's kernel, ``numba.njit(cache=True)``),
+    and every njit function it calls by a global name, the disk cache of :func:`njit`'s functions:
+    stamped with its packages' sources (below), loaded lightly, compiled under the lock. A
+    generated loop that calls it links its compiled code, which numba's own stamp would let go
+    stale. Code the function has loaded already in this process stays; anything that is not a
+    numba dispatcher is left as it is."""
+    if not HAVE_NUMBA or not isinstance(func, _nb.core.registry.CPUDispatcher) or func in _ADOPTED:
+        return
+    _ADOPTED.add(func)
+    _light_load(func)
+    py = func.py_func
+    for name in py.__code__.co_names:
+        adopt(py.__globals__.get(name))
 
 
 # -- the disk cache's source stamp covers the packages, not the function's file alone ----------
@@ -221,13 +243,17 @@ def _unchanged(top: str) -> bool:
 def _stamp_sources(dispatcher, cache) -> None:
     """Add the packages' source hashes to ``cache``'s stamp (:func:`_package_stamp`); a numba
     that keeps its stamp elsewhere gets its disk cache turned off, never a stale entry."""
+    top = _top(dispatcher.py_func)
     try:
         index = cache._cache_file
-        index._source_stamp = (index._source_stamp, _package_stamp(dispatcher.py_func.__module__ or ""))
-    except (AttributeError, TypeError):
+        own = index._source_stamp
+        index._source_stamp = (own, _package_stamp(dispatcher.py_func.__module__ or ""))
+        if own != cache._impl.locator.get_source_stamp():  # the file changed since numba read it
+            _DIRTY.add(top)
+    except (AttributeError, TypeError, OSError):
         cache.disable()
         return
-    _check_file(_top(dispatcher.py_func), dispatcher.py_func.__code__.co_filename)  # (a module reloaded after an edit)
+    _check_file(top, dispatcher.py_func.__code__.co_filename)  # (a module reloaded after an edit)
 
 
 # -- one compile of a function at a time across processes ----------------------------------------

@@ -47,14 +47,27 @@ def value(x):
     return x + {v}
 """
 
-# Both callers are called, then report their result and whether numba loaded them from its disk
+# A plugin kernel made with numba's own decorator, which fusionkit adopts (as a pipeline's loop does).
+PLAIN = """
+from numba import njit
+
+from .b import value
+
+
+@njit(cache=True)
+def through(x):
+    return value(x)
+"""
+
+# The callers are called, then report their result and whether numba loaded them from its disk
 # cache or compiled them.
 RUN = """
 import json, fusionkit
-from fusionkit import _cache_probe_a as f
-from probe_plugin import a as p
+from fusionkit import _cache_probe_a as f, _numba
+from probe_plugin import a as p, plain
+_numba.adopt(plain.through)
 out = {"file": fusionkit.__file__}
-for name, mod in (("fusionkit", f), ("plugin", p)):
+for name, mod in (("fusionkit", f), ("plugin", p), ("plain", plain)):
     r = mod.through(1.0)
     st = mod.through.stats
     out[name] = [r, sum(st.cache_hits.values()), sum(st.cache_misses.values())]
@@ -75,6 +88,7 @@ def tree(tmp_path):
     plugin.mkdir()
     (plugin / "__init__.py").write_text("")
     (plugin / "a.py").write_text(CALLER.format(callee="b"))
+    (plugin / "plain.py").write_text(PLAIN)
     (plugin / "b.py").write_text(CALLEE.format(v="1.0"))
     return src
 
@@ -102,7 +116,8 @@ def test_an_edited_callee_in_another_module_is_compiled_again(tree):
     edited = run(tree)
     assert edited["fusionkit"][0] == 3.0, "fusionkit: stale machine code from numba's disk cache"
     assert edited["plugin"][0] == 3.0, "plugin: stale machine code from numba's disk cache"
-    assert edited["fusionkit"][2] == 1 and edited["plugin"][2] == 1  # compiled, not loaded
+    assert edited["plain"][0] == 3.0, "a plugin's numba.njit: stale machine code from numba's disk cache"
+    assert edited["fusionkit"][2] == edited["plugin"][2] == edited["plain"][2] == 1  # compiled, not loaded
 
 
 def test_an_edit_anywhere_in_fusionkit_recompiles_and_unchanged_sources_load(tree):
@@ -111,11 +126,11 @@ def test_an_edit_anywhere_in_fusionkit_recompiles_and_unchanged_sources_load(tre
     plugin's (a plugin's kernels call fusionkit's)."""
     assert run(tree)["fusionkit"] == [2.0, 0, 1]
     warm = run(tree)
-    assert warm["fusionkit"] == [2.0, 1, 0] and warm["plugin"] == [2.0, 1, 0]
+    assert warm["fusionkit"] == warm["plugin"] == warm["plain"] == [2.0, 1, 0]
     other = tree / "fusionkit" / "errors.py"
     other.write_text(other.read_text() + "\n# edited\n")
     edited = run(tree)
-    assert edited["fusionkit"] == [2.0, 0, 1] and edited["plugin"] == [2.0, 0, 1]
+    assert edited["fusionkit"] == edited["plugin"] == edited["plain"] == [2.0, 0, 1]
 
 
 def test_every_cached_njit_function_is_stamped_with_its_sources():
@@ -156,6 +171,36 @@ def test_a_module_edited_after_its_package_was_hashed_turns_the_cache_off(tmp_pa
         assert not a.through._cache._enabled and not c.value._cache._enabled
         assert sum(a.through.stats.cache_misses.values()) == 1
         assert not list(pkg.rglob("*.nbi"))  # nothing saved
+    finally:
+        for m in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
+            del sys.modules[m]
+
+
+def test_a_pipeline_loop_adopts_its_plugins_numba_functions(tmp_path, monkeypatch):
+    """The generated loop links the compiled code of the functions it calls: a plugin's made with
+    ``numba.njit(cache=True)`` (and what they call) get fusionkit's stamp when the loop is built."""
+    from fusionkit import _loopgen
+
+    name = "probe_" + tmp_path.name.replace("-", "_")
+    pkg = tmp_path / name
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "b.py").write_text(CALLEE.format(v="1.0"))
+    (pkg / "est.py").write_text(PLAIN + "\n\n@njit(cache=True)\ndef to_quat(x, q):\n    q[0] = x[0]\n"
+                                "\n\n@njit(cache=True)\ndef from_quat(q, x):\n    x[0] = q[0]\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("FUSIONKIT_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(_loopgen, "_BUILT", {})
+    import importlib
+
+    try:
+        est = importlib.import_module(f"{name}.est")
+        b = sys.modules[f"{name}.b"]
+        assert not isinstance(est.through._cache._cache_file._source_stamp, tuple)  # numba's own
+        _loopgen.get_compiled(_loopgen.Layout((est.through, est.to_quat, est.from_quat), True, (), 0, 4))
+        for f in (est.through, est.to_quat, est.from_quat, b.value):  # b.value: what through calls
+            assert f._cache._cache_file._source_stamp[1].endswith(_numba._snapshot(name)[0])
+            assert isinstance(f._cache.load_overload, _numba._Light)
     finally:
         for m in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
             del sys.modules[m]
