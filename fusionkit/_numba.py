@@ -233,10 +233,11 @@ def _unchanged(top: str) -> bool:
     if _SEEN.get(top) != len(sys.modules):
         _SEEN[top] = len(sys.modules)
         for name, mod in list(sys.modules.items()):
-            path = getattr(mod, "__file__", None)
-            if path and (name == top or name.startswith(top + ".")) and path not in _CHECKED:
-                _CHECKED.add(path)
-                _check_file(top, path)
+            if name == top or name.startswith(top + "."):
+                path = getattr(mod, "__file__", None)
+                if path and path not in _CHECKED:
+                    _CHECKED.add(path)
+                    _check_file(top, path)
     return top not in _DIRTY
 
 
