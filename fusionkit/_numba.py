@@ -165,8 +165,8 @@ def adopt(func) -> None:
 
 # -- the disk cache's source stamp covers the packages, not the function's file alone ----------
 #
-# numba keys a cached function on its own file (the file's content hash; its modification time and
-# size before numba 0.61), but the machine code it saves has every njit function it calls compiled
+# numba keys a cached function on its own file (the file's content hash; in older numba its
+# modification time and size), but the machine code it saves has every njit function it calls compiled
 # in, and the values of the other modules' globals it reads. An edit of a helper in another
 # module (an edited plugin, an upgrade that leaves the caller's file as it was) left the caller's
 # entry valid: the old code, silently. Every cached function made here is stamped with numba's
@@ -186,6 +186,7 @@ _SNAPSHOTS: dict = {}  # top-level package -> (source hash, {file: (st_mtime_ns,
 _SEEN: dict = {}  # top-level package -> the size of sys.modules when its modules were checked
 _CHECKED: set = set()  # the files of imported modules checked so far
 _DIRTY: set = set()  # packages with a file changed since their hash was taken
+_ROOTS: dict = {}  # top-level package -> the directory its hashed files are in
 
 
 def _top(py_func) -> str:
@@ -198,7 +199,11 @@ def _snapshot(top: str):
     if top not in _SNAPSHOTS:
         from ._sources import fusionkit_snapshot, source_snapshot
 
-        _SNAPSHOTS[top] = fusionkit_snapshot() if top == "fusionkit" else source_snapshot(top)
+        try:
+            _SNAPSHOTS[top] = fusionkit_snapshot() if top == "fusionkit" else source_snapshot(top)
+        except (OSError, ValueError):  # a file that cannot be read: no disk cache for the package
+            _SNAPSHOTS[top] = (None, {})
+            _DIRTY.add(top)
     return _SNAPSHOTS[top]
 
 
@@ -211,14 +216,22 @@ def _package_stamp(module: str) -> str:
 
 
 def _check_file(top: str, path) -> None:
-    """Mark ``top`` changed when the file ``path`` of one of its modules is not as it was hashed."""
+    """Mark ``top`` changed when the file ``path`` of one of its modules is not as it was hashed
+    (or is a source file of its directory that was not there)."""
     stats = _snapshot(top)[1]
-    if not stats:  # no source to hash (a zip, a frozen application): numba's own stamp
-        return
+    if not stats or not isinstance(path, str) or not path.endswith(".py"):
+        return  # no source was hashed (a zip, a frozen application: numba's own stamp), an extension module
+    path = os.path.abspath(path)
+    known = stats.get(path)
+    if known is None:
+        if top not in _ROOTS:
+            _ROOTS[top] = os.path.commonpath(list(stats)) if len(stats) > 1 else os.path.dirname(next(iter(stats)))
+        if not path.startswith(_ROOTS[top] + os.sep):
+            return  # not in the package's directory, not hashed: numba's own stamp covers it
     try:
         st = os.stat(path)
-        same = stats.get(os.path.abspath(path)) == (st.st_mtime_ns, st.st_size)
-    except (OSError, TypeError, ValueError):
+        same = known == (st.st_mtime_ns, st.st_size)
+    except OSError:
         same = False
     if not same:
         _DIRTY.add(top)

@@ -43,7 +43,7 @@ def source_snapshot(top: str) -> tuple[str | None, dict[str, tuple[int, int]]]:
     stats = {}
     for f in files:
         st = f.stat()
-        stats[str(f)] = (st.st_mtime_ns, st.st_size)
+        stats[os.path.abspath(f)] = (st.st_mtime_ns, st.st_size)
         h.update(str(f.relative_to(root)).encode())  # a renamed file is a change too
         h.update(f.read_bytes())
     return h.hexdigest(), stats

@@ -204,3 +204,23 @@ def test_a_pipeline_loop_adopts_its_plugins_numba_functions(tmp_path, monkeypatc
     finally:
         for m in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
             del sys.modules[m]
+
+
+def test_only_a_changed_or_new_source_file_of_the_package_counts_as_a_change(monkeypatch, tmp_path):
+    """The check of the files against the package's hash: a file named by a relative path, an
+    extension module or a file outside the package are no change; a source file of the package
+    that was not hashed (a new module) or that differs is."""
+    from fusionkit import _kernels
+
+    monkeypatch.setattr(_numba, "_DIRTY", set())
+    here = _kernels.__file__
+    for path in (os.path.relpath(here), here[:-3] + ".cpython-311-x86_64-linux-gnu.so", str(tmp_path / "x.py")):
+        _numba._check_file("fusionkit", path)
+        assert not _numba._DIRTY, path
+    _numba._check_file("fusionkit", os.path.join(os.path.dirname(here), "not_hashed_module.py"))
+    assert _numba._DIRTY == {"fusionkit"}
+    _numba._DIRTY.clear()
+    digest, stats = _numba._snapshot("fusionkit")  # as if the file had been edited since it was hashed
+    monkeypatch.setitem(_numba._SNAPSHOTS, "fusionkit", (digest, {**stats, os.path.abspath(here): (0, 0)}))
+    _numba._check_file("fusionkit", here)
+    assert _numba._DIRTY == {"fusionkit"}
