@@ -382,6 +382,8 @@ def get_compiled(lay: Layout):
     if key in _BUILT:
         return _BUILT[key]
     funcs = {i: k.func for i, k in enumerate(lay.kernels)}
+    for f in (*lay.est, *funcs.values()):  # a plugin's own numba.njit: fusionkit's cache stamp
+        _numba.adopt(f)
     refs = {i: _ref(f) for i, f in funcs.items()}
     est_refs = [_ref(f) for f in lay.est]
     where = cache_dir()

@@ -7,6 +7,7 @@ Without numba the decorator returns the plain Python function, and ``HAVE_NUMBA`
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 
@@ -132,12 +133,141 @@ def njit(func=None, *, cache: bool = True, inline: str = "never", forward_copies
 def _light_load(dispatcher):
     """``dispatcher`` (returned), its disk cache loading through :func:`_load_overload_light`."""
     cache = getattr(dispatcher, "_cache", None)
-    if cache is not None and hasattr(cache, "_load_overload"):  # numba's Cache: cache=True, JIT enabled
-        import functools
-
-        cache.load_overload = functools.partial(_load_overload_light, cache)
+    if cache is not None and hasattr(cache, "_load_overload") and not isinstance(cache.load_overload, _Light):
+        _stamp_sources(dispatcher, cache)  # (numba's Cache: cache=True, JIT enabled; once)
+        cache.load_overload = _Light(_load_overload_light, cache)
         _lock_compiles(dispatcher, cache)
     return dispatcher
+
+
+class _Light(functools.partial):
+    """A cache's ``load_overload`` made by :func:`_light_load`."""
+
+
+_ADOPTED: set = set()
+
+
+def adopt(func) -> None:
+    """Give an njit function made by numba's own decorator (a plugin's kernel, ``numba.njit(cache=True)``),
+    and every njit function it calls by a global name, the disk cache of :func:`njit`'s functions:
+    stamped with its packages' sources (below), loaded lightly, compiled under the lock. A
+    generated loop that calls it links its compiled code, which numba's own stamp would let go
+    stale. Code the function has loaded already in this process stays; anything that is not a
+    numba dispatcher is left as it is."""
+    if not HAVE_NUMBA or not isinstance(func, _nb.core.registry.CPUDispatcher) or func in _ADOPTED:
+        return
+    _ADOPTED.add(func)
+    _light_load(func)
+    py = func.py_func
+    for name in py.__code__.co_names:
+        adopt(py.__globals__.get(name))
+
+
+# -- the disk cache's source stamp covers the packages, not the function's file alone ----------
+#
+# numba keys a cached function on its own file (the file's content hash; in older numba its
+# modification time and size), but the machine code it saves has every njit function it calls compiled
+# in, and the values of the other modules' globals it reads. An edit of a helper in another
+# module (an edited plugin, an upgrade that leaves the caller's file as it was) left the caller's
+# entry valid: the old code, silently. Every cached function made here is stamped with numba's
+# stamp and the source hash of fusionkit (``fusionkit._sources``), and, for a function outside
+# fusionkit (a plugin's kernel, a generated loop), of its own top-level package as well: an edit
+# of any of their files makes every entry they stamp stale, and numba compiles and saves it again
+# (overwriting the old entry, as for an edit of the function's own file).
+#
+# A package is hashed once per process, when its first cached function is made (during its
+# import), so the hash describes the code the process runs. A module of it whose file is not what
+# was hashed (edited after that, before the module was imported) makes the code in memory a mix
+# that no hash describes: the package's functions, and with fusionkit's every function, then
+# neither load from nor save to the disk cache in this process (each load checks the files of the
+# modules imported since, one ``os.stat`` per file and process).
+
+_SNAPSHOTS: dict = {}  # top-level package -> (source hash, {file: (st_mtime_ns, st_size)})
+_SEEN: dict = {}  # top-level package -> the size of sys.modules when its modules were checked
+_CHECKED: set = set()  # the files of imported modules checked so far
+_DIRTY: set = set()  # packages with a file changed since their hash was taken
+_ROOTS: dict = {}  # top-level package -> the directory its hashed files are in
+
+
+def _top(py_func) -> str:
+    return (getattr(py_func, "__module__", None) or "").partition(".")[0]
+
+
+def _snapshot(top: str):
+    if not top:
+        return None, {}
+    if top not in _SNAPSHOTS:
+        from ._sources import fusionkit_snapshot, source_snapshot
+
+        try:
+            _SNAPSHOTS[top] = fusionkit_snapshot() if top == "fusionkit" else source_snapshot(top)
+        except (OSError, ValueError):  # a file that cannot be read: no disk cache for the package
+            _SNAPSHOTS[top] = (None, {})
+            _DIRTY.add(top)
+    return _SNAPSHOTS[top]
+
+
+def _package_stamp(module: str) -> str:
+    """What a cached function of ``module`` adds to numba's stamp: fusionkit's source hash, and
+    outside fusionkit its own top-level package's after it."""
+    top = module.partition(".")[0]
+    digest = _snapshot("fusionkit")[0] or ""
+    return digest if top == "fusionkit" else f"{digest}:{_snapshot(top)[0] or ''}"
+
+
+def _check_file(top: str, path) -> None:
+    """Mark ``top`` changed when the file ``path`` of one of its modules is not as it was hashed
+    (or is a source file of its directory that was not there)."""
+    stats = _snapshot(top)[1]
+    if not stats or not isinstance(path, str) or not path.endswith(".py"):
+        return  # no source was hashed (a zip, a frozen application: numba's own stamp), an extension module
+    path = os.path.abspath(path)
+    known = stats.get(path)
+    if known is None:
+        if top not in _ROOTS:
+            _ROOTS[top] = os.path.commonpath(list(stats)) if len(stats) > 1 else os.path.dirname(next(iter(stats)))
+        if not path.startswith(_ROOTS[top] + os.sep):
+            return  # not in the package's directory, not hashed: numba's own stamp covers it
+    try:
+        st = os.stat(path)
+        same = known == (st.st_mtime_ns, st.st_size)
+    except OSError:
+        same = False
+    if not same:
+        _DIRTY.add(top)
+
+
+def _unchanged(top: str) -> bool:
+    """Whether every imported module of the package ``top`` is as it was when it was hashed."""
+    if top in _DIRTY:
+        return False
+    if not top:
+        return True
+    if _SEEN.get(top) != len(sys.modules):
+        _SEEN[top] = len(sys.modules)
+        for name, mod in list(sys.modules.items()):
+            if name == top or name.startswith(top + "."):
+                path = getattr(mod, "__file__", None)
+                if path and path not in _CHECKED:
+                    _CHECKED.add(path)
+                    _check_file(top, path)
+    return top not in _DIRTY
+
+
+def _stamp_sources(dispatcher, cache) -> None:
+    """Add the packages' source hashes to ``cache``'s stamp (:func:`_package_stamp`); a numba
+    that keeps its stamp elsewhere gets its disk cache turned off, never a stale entry."""
+    top = _top(dispatcher.py_func)
+    try:
+        index = cache._cache_file
+        own = index._source_stamp
+        index._source_stamp = (own, _package_stamp(dispatcher.py_func.__module__ or ""))
+        if own != cache._impl.locator.get_source_stamp():  # the file changed since numba read it
+            _DIRTY.add(top)
+    except (AttributeError, TypeError, OSError):
+        cache.disable()
+        return
+    _check_file(top, dispatcher.py_func.__code__.co_filename)  # (a module reloaded after an edit)
 
 
 # -- one compile of a function at a time across processes ----------------------------------------
@@ -233,8 +363,14 @@ def _load_overload_light(cache, sig, target_context):
     time is numba's runtime (NRT, started here) and the C helpers numba registers when it makes
     its context. A cache miss returns None and the dispatcher compiles, and the compiler does the
     full refresh itself (as does numba's own load for any other function); a failure here falls
-    back to numba's own load.
+    back to numba's own load. When a source file changed while the process ran (:func:`_unchanged`,
+    "the disk cache's source stamp" above), the cache is turned off instead: the dispatcher
+    compiles, and saves nothing.
     """
+    top = _top(getattr(cache, "_py_func", None))
+    if not (_unchanged("fusionkit") and _unchanged(top)):  # sources changed while the process ran
+        cache.disable()
+        return None
     try:
         from numba.core.runtime import nrt
 

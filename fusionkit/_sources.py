@@ -1,7 +1,8 @@
 """Hashes of the source code a piece of code comes from: cache keys that an edit invalidates.
 
-Two caches use them: the benchmark's result cache (a fixed plugin must be re-run) and the disk
-cache of generated pipeline loops (an edited kernel must be recompiled, not loaded stale).
+Three caches use them: the benchmark's result cache (a fixed plugin must be re-run), the disk
+cache of generated pipeline loops and numba's disk cache of every cached function (an edited
+kernel must be recompiled, not loaded stale: ``fusionkit._numba``'s source stamp).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["source_files", "source_hash", "fusionkit_hash"]
+__all__ = ["source_files", "source_hash", "source_snapshot", "fusionkit_hash", "fusionkit_snapshot"]
 
 
 def source_files(top: str) -> list[Path]:
@@ -31,21 +32,36 @@ def source_files(top: str) -> list[Path]:
     return [Path(file)] if file else []
 
 
+def source_snapshot(top: str) -> tuple[str | None, dict[str, tuple[int, int]]]:
+    """:func:`source_hash` of ``top`` and, for each file hashed, its ``(st_mtime_ns, st_size)``
+    taken before it was read: a later ``os.stat`` that differs says the file changed since."""
+    files = source_files(top)
+    if not files:
+        return None, {}
+    root = Path(os.path.commonpath(files)) if len(files) > 1 else files[0].parent
+    h = hashlib.sha256()
+    stats = {}
+    for f in files:
+        st = f.stat()
+        stats[os.path.abspath(f)] = (st.st_mtime_ns, st.st_size)
+        h.update(str(f.relative_to(root)).encode())  # a renamed file is a change too
+        h.update(f.read_bytes())
+    return h.hexdigest(), stats
+
+
 def source_hash(top: str) -> str | None:
     """sha256 over the files of ``top`` (each one's path within it, then its bytes); None when it
     has no source to read. Not memoised: a plugin edited and reloaded in a process hashes anew."""
-    files = source_files(top)
-    if not files:
-        return None
-    root = Path(os.path.commonpath(files)) if len(files) > 1 else files[0].parent
-    h = hashlib.sha256()
-    for f in files:
-        h.update(str(f.relative_to(root)).encode())  # a renamed file is a change too
-        h.update(f.read_bytes())
-    return h.hexdigest()
+    return source_snapshot(top)[0]
 
 
 @functools.lru_cache(maxsize=1)
+def fusionkit_snapshot() -> tuple[str | None, dict[str, tuple[int, int]]]:
+    """:func:`source_snapshot` of fusionkit itself, once per process (at its first cached numba
+    function, during ``import fusionkit``: see ``fusionkit._numba``)."""
+    return source_snapshot("fusionkit")
+
+
 def fusionkit_hash() -> str:
     """:func:`source_hash` of fusionkit itself, once per process."""
-    return source_hash("fusionkit") or ""
+    return fusionkit_snapshot()[0] or ""
