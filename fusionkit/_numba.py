@@ -594,7 +594,8 @@ def call_copy(func):
         return func
     if func not in _CALLED:
         opts = {k: v for k, v in func.targetoptions.items() if k not in ("inline", "nopython")}
-        _CALLED[func] = _light_load(_nb.njit(**{**opts, "inline": "never"})(func.py_func))
+        cache = not isinstance(getattr(func, "_cache", None), _nb.core.caching.NullCache)
+        _CALLED[func] = _light_load(_nb.njit(cache=cache, **{**opts, "inline": "never"})(func.py_func))
     return _CALLED[func]
 
 

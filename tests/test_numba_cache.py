@@ -147,6 +147,20 @@ def test_every_cached_njit_function_is_stamped_with_its_sources():
         assert f._cache._enabled
 
 
+@pytest.mark.skipif(not HAVE_NUMBA, reason="numba's disk cache")
+def test_a_called_twin_of_an_inlined_kernel_is_cached_and_stamped_like_the_kernel():
+    """A loop built with ``FUSIONKIT_LOOP_INLINE=0`` (the test suite's setting) calls a twin of
+    each ``inline="always"`` kernel: compiled once on disk, like the kernel, so a second process
+    or another loop loads it instead of compiling it again, and stamped with the sources."""
+    from fusionkit._kernels import qmul_entries
+    from fusionkit._sources import fusionkit_hash
+
+    assert qmul_entries.targetoptions["inline"] == "always"
+    twin = _numba.call_copy(qmul_entries)
+    assert twin is not qmul_entries and twin.targetoptions["inline"] == "never"
+    assert twin._cache._enabled and twin._cache._cache_file._source_stamp[1] == fusionkit_hash()
+
+
 def test_a_module_edited_after_its_package_was_hashed_turns_the_cache_off(tmp_path, monkeypatch):
     """A module of a package imported after an edit made once the package's hash was taken: the
     code in memory is not what the hash describes, so the package's functions neither load nor
