@@ -13,7 +13,9 @@ of the offline mode (default: ``OfflineFilter.DISTURBANCE_GAP``); ``--per-pass``
 pass running its own magnetometer calibration model (``calibration="per-pass"``, the mode before the
 calibration was decided with the whole recording) and one without the model (``mag_calibration=False``);
 ``--as-is-timing`` a column with the magnetometer as it is recorded (``mag_timing="as-is"``, the mode
-before its timing was decided with the whole recording); ``--groups`` adds, per mode, the mean
+before its timing was decided with the whole recording); ``--average-inclination`` a column with the
+passes' inclinations fused as they are (``inclination="average"``, the mode before the smoothing in
+the other direction of time); ``--groups`` adds, per mode, the mean
 of each BROAD group (``trials.json`` in the data folder: rotation, translation, slow, fast,
 magnets ...) for every column: which kinds of motion the offline mode wins or loses against
 ``vqf-offline``.
@@ -82,6 +84,8 @@ def main() -> None:
     ap.add_argument("--gap", type=float, default=OfflineFilter.DISTURBANCE_GAP, help="disturbance_gap [s]")
     ap.add_argument("--per-pass", action="store_true", help="add the per-pass calibration and no calibration")
     ap.add_argument("--as-is-timing", action="store_true", help="add the magnetometer's timing as recorded")
+    ap.add_argument("--average-inclination", action="store_true",
+                    help="add the passes' inclinations fused as they are (the mode before the smoothing)")
     ap.add_argument("--groups", action="store_true", help="add the mean per BROAD group (trials.json)")
     args = ap.parse_args()
     files = sorted(Path(args.data).glob("*.hdf5"))
@@ -112,6 +116,9 @@ def main() -> None:
         if args.as_is_timing and not six:
             runs["offline, timing as-is"] = OfflineFilter(fk.make("recommended", **kw), disturbance_gap=args.gap,
                                                           mag_timing="as-is")
+        if args.average_inclination:
+            runs["offline, inclination averaged"] = OfflineFilter(fk.make("recommended", **kw),
+                                                                  disturbance_gap=args.gap, inclination="average")
         key = "inclination" if six else "total"
         err = {n: [] for n in runs}
         secs = {n: 0.0 for n in runs}

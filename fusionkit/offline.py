@@ -27,6 +27,18 @@ processed after the fact, every sample's orientation can use the samples after i
    Without a magnetometer (6D) the heading of either pass is arbitrary: the heading is the
    forward pass's, only the inclination is fused.
 
+**The inclination smoothed in the other direction of time** (``inclination``, default
+``"smoothed"``; ``"average"``: the passes fused as they are, the mode before). Before the fusion,
+each pass's vertical is low-passed again in the other direction of time with the ``inertial-tilt``
+corrector's low-pass and time-constant model (:func:`smooth_reference`), in the frame of the gyro
+minus the bias that pass used (:func:`bias_trace`). A pass is ``H`` on the accelerometer and
+``1 - H`` on the gyro's errors; the average of two passes is ``Re H``, which for the second-order
+Butterworth falls only as ``(f_c / f)^2`` above the cutoff, and ``1 - Re H`` as ``(f / f_c)^2``
+below; a pass low-passed again the other way is the forward-backward ``|H|^2 = 1 / (1 + (f / f_c)^4)``,
+fourth order on both sides (VQF's offline mode filters the accelerometer so, with a fixed time
+constant). What it gives up: a linear acceleration sustained over about the time constant (a walk
+that speeds up for seconds) is passed more by ``|H|^2`` than by ``Re H``.
+
 What the fusion does, physically: the two passes' errors from linear accelerations, from
 magnetometer noise and from a gyro bias not yet learned come from the past and from the future
 respectively, so they are partly independent and average down (a bias error drifts the two
@@ -91,7 +103,8 @@ see), MAG_DISTURBED where the magnetometer was left out (the mask above) or both
 (VQF's offline rule), the other bits where either pass sets them.
 
 The readable reference is :func:`fuse_reference`; :func:`_fuse_kernel` (numba) does the same
-arithmetic (tests hold them to 1e-9); likewise the re-timing (:func:`retime_mag`'s two backends).
+arithmetic (tests hold them to 1e-9); likewise the re-timing (:func:`retime_mag`'s two backends)
+and the smoothing (:func:`smooth_reference`, :func:`_smooth_kernel`).
 """
 
 from __future__ import annotations
@@ -110,12 +123,15 @@ from .errors import ConfigError, InputError, PluginError
 from .models.mag_calibration import mag_calibration_apply
 from .models.time_offset import EST, MAG, NSEG, STD, TimeOffsetModel, time_offset_apply
 from .protocols import Filter
-from .rotations import quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec
+from .rotations import quat_conj, quat_from_rotvec, quat_mul, quat_to_matrix, quat_to_rotvec
 from .types import Flag, Recording, Result, hold_gaps, sample_validity
+from .correctors._factor import k_qmul, k_rot
+from .correctors.tilt import _Y as _T_Y, _Z1 as _T_Z1, _Z2 as _T_Z2, _NST as _T_NST, _READY as _T_READY, _TAU as _T_TAU
+from .correctors.tilt import _k_adapt_step, _k_set_tau, _lp_coeffs
 
 __all__ = ["OfflineFilter", "reverse_recording", "reversed_config", "information", "fuse_reference",
            "supports_offline", "disturbance_mask", "calibration_passes", "select_calibration", "mag_delay_recording",
-           "retime_mag"]
+           "retime_mag", "smooth_reference", "smoothing_params", "bias_trace"]
 
 #: the sensor model whose magnetometer calibration the offline mode decides with the whole recording
 _MAG_CALIBRATION = "mag-calibration"
@@ -126,6 +142,9 @@ _CALIBRATIONS = ("recording", "per-pass")
 _CALIBRATION_TESTS = ("norm", "model")
 #: how the offline mode treats the magnetometer's timing (``OfflineFilter(mag_timing=...)``)
 _MAG_TIMINGS = ("recording", "as-is")
+#: how the two passes' inclinations are combined (``OfflineFilter(inclination=...)``): ``"smoothed"``
+#: each pass's low-passed again in the other direction of time, then fused; ``"average"`` fused as they are
+_INCLINATIONS = ("smoothed", "average")
 #: the delay estimate's forgetting time (s): none within any recording
 _NO_FORGETTING = 1e12
 
@@ -288,6 +307,219 @@ def _fuse_kernel(q_f, q_b, w_incl, w_head, out):
         out[k, 0], out[k, 1], out[k, 2], out[k, 3] = _qm(a0, a1, a2, a3, f0, f1, f2, f3)
 
 
+#: the second low-pass's parameters (:func:`smooth_reference`): tau, adapt_window, bias_sigma_motion,
+#: bias_sigma_init, the bias variance's forgetting time, gyro_rate_error, tau_min, tau_max, tau_adapt (0/1), g
+_SMOOTH_PARAMS = 10
+
+
+def smoothing_params(config) -> np.ndarray:
+    """The second low-pass's parameters from a filter's config (:func:`smooth_reference`): its
+    ``tau_acc`` and, where it has them, the adaptive time constant's settings (``tau_adapt``,
+    ``gyro_rate_error``, the bias's uncertainties; the ``inertial-tilt`` corrector's defaults for
+    the rest), so that the second low-pass chooses its time constant as the passes do."""
+    from .correctors.tilt import InertialTiltConfig
+
+    d = InertialTiltConfig()
+    def get(key, default):
+        value = getattr(config, key, None)
+        return default if value is None else value
+
+    return np.array([float(config.tau_acc), d.adapt_window, get("bias_sigma_motion", d.bias_sigma_motion),
+                     get("bias_sigma_init", d.bias_sigma_init), get("motion_bias_tau", _FORGET_BIAS),
+                     get("gyro_rate_error", d.gyro_rate_error), d.tau_min, d.tau_max,
+                     float(bool(getattr(config, "tau_adapt", False))), get("gravity", 9.81)])
+
+
+#: the bias variance's forgetting time (s) without motion_bias_tau (the inertial-tilt corrector's)
+_FORGET_BIAS = 100.0
+
+
+def bias_trace(filt: Filter, rec: Recording, state=None, step: float = 1.0, backend: str = "auto") -> np.ndarray | None:
+    """The gyro bias ``filt`` uses over ``rec``, per sample ``(N, 3)``: the filter run in pieces of
+    ``step`` s, each continuing the state of the one before (a split run gives the numbers of one
+    run), its ``diagnostics["bias"]`` read at the end of each piece and interpolated linearly between
+    (held before the first). None when the filter reports no bias or no state. ``state``: the
+    initial state, as for ``run``. Costs one more run of the filter (and a call per piece)."""
+    n = len(rec)
+    m = max(2, int(round(step / rec.nominal_dt)))
+    cuts = list(range(0, n, m)) + [n]
+    if len(cuts) > 2 and n - cuts[-2] < 2:  # no piece of one sample (a recording needs two)
+        del cuts[-2]
+    ends, values = [], []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        res = filt.run(_piece(rec, a, b), backend=backend, progress=False, state=state)
+        state, bias = res.diagnostics.get("state"), res.diagnostics.get("bias")
+        if state is None or bias is None:
+            return None
+        ends.append(b - 1)
+        values.append(np.asarray(bias, dtype=float))
+    v = np.array(values)
+    k = np.arange(n)
+    return np.stack([np.interp(k, ends, v[:, i]) for i in range(3)], axis=1)
+
+
+def _piece(rec: Recording, a: int, b: int) -> Recording:
+    """Samples ``[a, b)`` of ``rec`` as a shallow copy: the samples passed the Recording's checks
+    already (a second of them alone may not pass its units heuristics). Its first interval follows
+    the Recording convention; truth, movement and GNSS are not carried."""
+    out = copy.copy(rec)
+    out.gyr, out.acc = rec.gyr[a:b], rec.acc[a:b]
+    out.mag = None if rec.mag is None else rec.mag[a:b]
+    if rec.t is not None:
+        out.t = rec.t[a:b]
+    out.truth = out.movement = out.gnss = None
+    out.meta = {}
+    return out
+
+
+def _smooth_state(p: np.ndarray) -> np.ndarray:
+    """A fresh state of the second low-pass: the ``inertial-tilt`` corrector's layout (its low-pass
+    and adaptive time constant), the bias's covariance at its initial uncertainty."""
+    from .correctors import tilt
+
+    x = np.zeros(tilt._SIZE)
+    x[tilt._P:tilt._P + 9] = np.eye(3).ravel() * p[3] * p[3]
+    x[tilt._VR] = p[3] * p[3]
+    return x
+
+
+def smooth_reference(q_est: np.ndarray, gyr: np.ndarray, acc: np.ndarray, dt: np.ndarray, bias: np.ndarray,
+                     rest: np.ndarray, gap: np.ndarray, reverse: bool, p: np.ndarray) -> np.ndarray:
+    """One pass's inclination smoothed by the inclination low-pass run in the *other* direction of
+    time (the readable reference of :func:`_smooth_kernel`): ``q_est`` ``(N, 4)`` body -> ENU, at the
+    end of each gyro step; the result has the same heading and the inclination of the low-passed
+    vertical.
+
+    The vertical that ``q_est`` says (``g R^T e_up`` in the body) is rotated into an almost-inertial
+    frame I (the gyroscope minus ``bias`` ``(N, 3)``, the bias the pass used at each sample,
+    integrated in the direction of the low-pass: backward in time with ``reverse``) and low-passed
+    there with the ``inertial-tilt`` corrector's second-order Butterworth, whose time constant is
+    chosen per sample as the passes choose it (``p``, :func:`smoothing_params`; with the adaptive
+    time constant from the specific force, rotated into I at the middle of each step, and the REST
+    samples ``rest``). A sample flagged ``gap`` (a
+    timestamp gap before it) starts the low-pass again. A pass is ``H`` on the accelerometer and
+    ``1 - H`` on the gyroscope's errors; this low-pass, run the other way, makes that ``|H|^2`` and
+    ``1 - |H|^2`` (a forward-backward filter): see :class:`OfflineFilter`'s ``inclination``."""
+    from .correctors import tilt
+
+    n = q_est.shape[0]
+    out = np.empty_like(q_est)
+    x = _smooth_state(p)
+    g = p[9]
+    qi = np.array([1.0, 0.0, 0.0, 0.0])
+    order = range(n - 1, -1, -1) if reverse else range(n)
+    first = True
+    for k in order:
+        if not first:
+            s = k + 1 if reverse else k  # the gyro step between this sample and the one before it
+            rate = np.where(np.isfinite(gyr[s]), gyr[s] - bias[s], 0.0)
+            qi = quat_mul(qi, quat_from_rotvec(rate * dt[s] * (-1.0 if reverse else 1.0)))
+            qi = qi / np.linalg.norm(qi)
+            if gap[s]:
+                x = _smooth_state(p)
+        first = False
+        r = quat_to_matrix(qi)
+        v = r @ (quat_to_matrix(q_est[k]).T @ np.array([0.0, 0.0, g]))  # the estimate's vertical, in I
+        tau = p[0]
+        if p[8] != 0.0 and np.all(np.isfinite(acc[k])):
+            rate = np.where(np.isfinite(gyr[k]), gyr[k] - bias[k], 0.0)
+            mid = quat_to_matrix(quat_mul(qi, quat_from_rotvec(-0.5 * rate * dt[k])))  # the middle of the step
+            y = x[tilt._Y:tilt._Y + 3]
+            z = r.T @ (y / np.linalg.norm(y)) if x[tilt._NST] > 0.0 else np.zeros(3)
+            tau = tilt._adapt_step(x, *(mid @ acc[k]), *(mid @ rate), *z, bool(rest[k]), dt[k], p[0], p[1], p[2],
+                                   p[3], p[4], p[5], p[6], p[7])
+        elif p[8] != 0.0 and x[tilt._TAU] > 0.0:
+            tau = x[tilt._TAU]
+        tilt._set_tau(x, *tilt.lowpass_coefficients(tau, dt[k]))
+        b0, b1, b2, a1, a2 = x[tilt._B:tilt._B + 5]
+        z1, z2 = x[tilt._Z1:tilt._Z1 + 3], x[tilt._Z2:tilt._Z2 + 3]
+        if not x[tilt._READY]:  # start in the steady state of the first sample
+            z1[:], z2[:] = v * (1.0 - b0), v * (b2 - a2)
+            x[tilt._READY] = 1.0
+        y = b0 * v + z1
+        z1[:] = b1 * v - a1 * y + z2
+        z2[:] = b2 * v - a2 * y
+        x[tilt._Y:tilt._Y + 3] = y
+        u = quat_to_matrix(q_est[k]) @ (r.T @ y)  # the low-passed vertical in the estimate's earth frame
+        u = u / np.linalg.norm(u)
+        c = np.array([1.0 + u[2], u[1], -u[0], 0.0])  # the smallest rotation taking it to the vertical
+        out[k] = quat_mul(c / np.linalg.norm(c), q_est[k])
+    return out
+
+
+@njit
+def _smooth_kernel(q_est, gyr, acc, dt, bias, rest, gap, reverse, p, x0, out):
+    """:func:`smooth_reference` compiled (``x0``: a fresh state, :func:`_smooth_state`)."""
+    n = q_est.shape[0]
+    x = x0.copy()
+    g = p[9]
+    i0, i1, i2, i3 = 1.0, 0.0, 0.0, 0.0
+    sg = -1.0 if reverse else 1.0
+    for j in range(n):
+        k = n - 1 - j if reverse else j
+        if j > 0:
+            s = k + 1 if reverse else k
+            r0, r1, r2 = _rate(gyr, s, bias)
+            i0, i1, i2, i3 = _turn(i0, i1, i2, i3, sg * r0 * dt[s], sg * r1 * dt[s], sg * r2 * dt[s])
+            nq = math.sqrt(i0 * i0 + i1 * i1 + i2 * i2 + i3 * i3)
+            i0, i1, i2, i3 = i0 / nq, i1 / nq, i2 / nq, i3 / nq
+            if gap[s]:
+                x[:] = x0
+        e0, e1, e2, e3 = q_est[k, 0], q_est[k, 1], q_est[k, 2], q_est[k, 3]
+        u0, u1, u2 = k_rot(e0, -e1, -e2, -e3, 0.0, 0.0, g)
+        v0, v1, v2 = k_rot(i0, i1, i2, i3, u0, u1, u2)
+        tau = p[0]
+        if p[8] != 0.0 and math.isfinite(acc[k, 0]) and math.isfinite(acc[k, 1]) and math.isfinite(acc[k, 2]):
+            r0, r1, r2 = _rate(gyr, k, bias)
+            m0, m1, m2, m3 = _turn(i0, i1, i2, i3, -0.5 * r0 * dt[k], -0.5 * r1 * dt[k], -0.5 * r2 * dt[k])
+            a0, a1, a2 = k_rot(m0, m1, m2, m3, acc[k, 0], acc[k, 1], acc[k, 2])
+            w0, w1, w2 = k_rot(m0, m1, m2, m3, r0, r1, r2)
+            z0 = z1 = z2 = 0.0
+            if x[_T_NST] > 0.0:
+                ny = math.sqrt(x[_T_Y] * x[_T_Y] + x[_T_Y + 1] * x[_T_Y + 1] + x[_T_Y + 2] * x[_T_Y + 2])
+                z0, z1, z2 = k_rot(i0, -i1, -i2, -i3, x[_T_Y] / ny, x[_T_Y + 1] / ny, x[_T_Y + 2] / ny)
+            tau = _k_adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest[k], dt[k], p[0], p[1], p[2], p[3], p[4],
+                                p[5], p[6], p[7])
+        elif p[8] != 0.0 and x[_T_TAU] > 0.0:
+            tau = x[_T_TAU]
+        b0, b1, b2, c1, c2 = _lp_coeffs(tau, dt[k])
+        _k_set_tau(x, b0, b1, b2, c1, c2)
+        if x[_T_READY] == 0.0:
+            x[_T_Z1], x[_T_Z1 + 1], x[_T_Z1 + 2] = v0 * (1.0 - b0), v1 * (1.0 - b0), v2 * (1.0 - b0)
+            x[_T_Z2], x[_T_Z2 + 1], x[_T_Z2 + 2] = v0 * (b2 - c2), v1 * (b2 - c2), v2 * (b2 - c2)
+            x[_T_READY] = 1.0
+        y0, y1, y2 = b0 * v0 + x[_T_Z1], b0 * v1 + x[_T_Z1 + 1], b0 * v2 + x[_T_Z1 + 2]
+        x[_T_Y], x[_T_Y + 1], x[_T_Y + 2] = y0, y1, y2
+        x[_T_Z1] = b1 * v0 - c1 * y0 + x[_T_Z2]
+        x[_T_Z1 + 1] = b1 * v1 - c1 * y1 + x[_T_Z2 + 1]
+        x[_T_Z1 + 2] = b1 * v2 - c1 * y2 + x[_T_Z2 + 2]
+        x[_T_Z2], x[_T_Z2 + 1], x[_T_Z2 + 2] = b2 * v0 - c2 * y0, b2 * v1 - c2 * y1, b2 * v2 - c2 * y2
+        m0, m1, m2 = k_rot(i0, -i1, -i2, -i3, y0, y1, y2)
+        v0, v1, v2 = k_rot(e0, e1, e2, e3, m0, m1, m2)
+        nv = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        c0, c1, c2 = 1.0 + v2 / nv, v1 / nv, -v0 / nv
+        nc = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3] = k_qmul(c0 / nc, c1 / nc, c2 / nc, 0.0, e0, e1, e2, e3)
+
+
+@njit(inline="always")
+def _rate(gyr, k, bias):
+    """The gyro's rate minus ``bias[k]`` at sample ``k`` (0 where it is not finite)."""
+    g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
+    if not (math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)):
+        return 0.0, 0.0, 0.0
+    return g0 - bias[k, 0], g1 - bias[k, 1], g2 - bias[k, 2]
+
+
+@njit(inline="always")
+def _turn(q0, q1, q2, q3, r0, r1, r2):
+    """``q (x) exp(r)``, ``r`` a rotation vector (rad); :func:`quat_from_rotvec`'s series below 1e-8 rad."""
+    a = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    c = math.cos(0.5 * a)
+    f = 0.5 - a * a / 48.0 if a < 1e-8 else math.sin(0.5 * a) / a
+    return k_qmul(q0, q1, q2, q3, c, r0 * f, r1 * f, r2 * f)
+
+
 class OfflineFilter(Filter):
     """A filter run forward and backward in time, fused by each pass's information (see the
     module docs). Built by ``fk.make(name, offline=True)``; runs whole recordings only."""
@@ -308,10 +540,14 @@ class OfflineFilter(Filter):
     #: the 0.3% level that the sensor does not keep the pairing the filter assumes (a recording
     #: with little angular acceleration, e.g. at rest, informs the estimate little and keeps it)
     MAG_DELAY_SIGMAS: ClassVar[float] = 3.0
+    #: the interval (s) at which :func:`bias_trace` reads each pass's gyro bias for the smoothed
+    #: inclination (``inclination="smoothed"``): the bias moves fastest at a rest, where
+    #: ``recommended``'s rest corrector learns it with a time constant of 1 s (``rest_bias_tau``)
+    BIAS_STEP: ClassVar[float] = 1.0
 
     def __init__(self, inner: Filter, disturbance_gap: float | None = DISTURBANCE_GAP,
                  calibration: str = "recording", mag_timing: str = "recording",
-                 calibration_test: str = "norm") -> None:
+                 calibration_test: str = "norm", inclination: str = "smoothed") -> None:
         why = supports_offline(inner)
         if why is not None:
             raise PluginError(f"filter {inner.name!r} does not support offline=True: {why}")
@@ -324,6 +560,8 @@ class OfflineFilter(Filter):
         if calibration_test not in _CALIBRATION_TESTS:
             raise ConfigError(f"calibration_test must be one of {', '.join(map(repr, _CALIBRATION_TESTS))}, "
                               f"got {calibration_test!r}")
+        if inclination not in _INCLINATIONS:
+            raise ConfigError(f"inclination must be one of {', '.join(map(repr, _INCLINATIONS))}, got {inclination!r}")
         if mag_timing not in _MAG_TIMINGS:
             raise ConfigError(f"mag_timing must be one of {', '.join(map(repr, _MAG_TIMINGS))}, got {mag_timing!r}")
         self.inner = inner
@@ -331,6 +569,7 @@ class OfflineFilter(Filter):
         self.disturbance_gap = None if disturbance_gap is None else float(disturbance_gap)
         self.calibration = calibration
         self.calibration_test = calibration_test
+        self.inclination = inclination
         self.config = inner.config
         self.name = f"{inner.name} (offline)"
 
@@ -358,7 +597,8 @@ class OfflineFilter(Filter):
         calibration model or ``calibration="per-pass"``); ``diagnostics["mag_timing"]`` the
         magnetometer's delay estimated over the recording, its standard deviation (s) and whether the
         stream was re-timed (``{"delay", "std", "applied"}``; None in 6D or with
-        ``mag_timing="as-is"``); ``backend`` is the passes',
+        ``mag_timing="as-is"``); ``inclination="smoothed"`` runs each pass once more in pieces for
+        its bias (:func:`bias_trace`); ``backend`` is the passes',
         ``fusion_backend`` the fusion's."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
@@ -387,6 +627,7 @@ class OfflineFilter(Filter):
             return fwd
         back = type(inner)(reversed_config(inner, rec.nominal_dt))
         bwd = back.run(reverse_recording(rec), backend=backend, progress=progress)
+        passes = (inner, back, rec, state)  # what the passes ran: the smoothing retraces their bias
         has_mag = self.dimension(rec) == "9D"
         disturbed = None
         if has_mag and self.disturbance_gap is not None:
@@ -394,7 +635,7 @@ class OfflineFilter(Filter):
             disturbed = disturbance_mask(fwd.flags, bwd.flags[::-1], rec.time, self.disturbance_gap)
             took = ((fwd.flags & _MAG_UNUSED) == 0) | ((bwd.flags[::-1] & _MAG_UNUSED) == 0)
             if (disturbed & took).any():  # the passes again, without the disturbed samples either had used
-                fwd, bwd = self._without(rec, disturbed, inner, back, backend, progress, state)
+                fwd, bwd, passes = self._without(rec, disturbed, inner, back, backend, progress, state)
         dt = rec.dt
         c = self.config
         # information of each pass in its own time order; the backward one's sample j is input
@@ -416,6 +657,8 @@ class OfflineFilter(Filter):
         frame = fwd.frame
         qf = change_frame(fwd.quat, frame, "ENU") if frame != "ENU" else fwd.quat
         qb = change_frame(q_b, frame, "ENU") if frame != "ENU" else q_b
+        if self.inclination == "smoothed":
+            qf, qb = self._smoothed(rec, qf, qb, fwd, bwd, passes, used)
         if used == "numba":
             q = np.empty((n, 4))
             _fuse_kernel(np.ascontiguousarray(qf), np.ascontiguousarray(qb), w_i, w_h, q)
@@ -476,7 +719,8 @@ class OfflineFilter(Filter):
     @staticmethod
     def _without(rec, disturbed, inner, back, backend, progress, state):
         """Both passes on ``rec`` with the magnetometer's ``disturbed`` samples left out (made
-        invalid, the passes skipping them); their flags say MAG_DISTURBED there, not MAG_INVALID."""
+        invalid, the passes skipping them); their flags say MAG_DISTURBED there, not MAG_INVALID.
+        Also what they ran: ``(forward filter, backward filter, recording, state)``."""
         masked = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
         masked.mag = rec.mag.copy()
         masked.mag[disturbed] = np.nan
@@ -488,7 +732,38 @@ class OfflineFilter(Filter):
         inv, dis = np.uint32(Flag.MAG_INVALID), np.uint32(Flag.MAG_DISTURBED)
         for res, mask in ((fwd, ours), (bwd, ours[::-1])):
             res.flags[mask] = (res.flags[mask] & ~inv) | dis
-        return fwd, bwd
+        return fwd, bwd, (inner, back, masked, state)
+
+    def _smoothed(self, rec, qf, qb, fwd, bwd, passes, used):
+        """Each pass's estimate (ENU, ``qb`` in the recording's order) with its inclination low-passed
+        again in the other direction of time (:func:`smooth_reference`), each in the frame of the
+        gyroscope minus the bias that pass used (:func:`bias_trace`; ``passes``: the forward and
+        backward filters, the recording they ran on and the forward pass's initial state). A filter
+        that reports no bias: the recording's gyro as it is (``diagnostics["bias"]`` missing)."""
+        p = smoothing_params(self.inner.config)
+        rest = ((fwd.flags | bwd.flags[::-1]) & np.uint32(Flag.REST)) != 0
+        gap = (fwd.flags & np.uint32(Flag.GAP)) != 0
+        inner, back, prec, state = passes
+        out = []
+        for q, filt, r, st, reverse in ((qf, inner, prec, state, True), (qb, back, None, None, False)):
+            if r is None:  # the backward pass: its bias, of the negated gyro, in the recording's order
+                b = bias_trace(filt, reverse_recording(prec), None, self.BIAS_STEP, used)
+                bias = None if b is None else -b[::-1]
+            else:
+                bias = bias_trace(filt, r, st, self.BIAS_STEP, used)
+            if bias is None:
+                bias = np.zeros((len(rec), 3))
+            bias = np.ascontiguousarray(np.where(np.isfinite(bias), bias, 0.0))
+            q = np.ascontiguousarray(q, dtype=float)
+            if used == "numba":
+                o = np.empty_like(q)
+                gyr, acc = np.ascontiguousarray(rec.gyr, dtype=float), np.ascontiguousarray(rec.acc, dtype=float)
+                _smooth_kernel(q, gyr, acc, np.ascontiguousarray(rec.dt, dtype=float), bias, rest, gap, reverse, p,
+                               _smooth_state(p), o)
+            else:
+                o = smooth_reference(q, rec.gyr, rec.acc, rec.dt, bias, rest, gap, reverse, p)
+            out.append(o)
+        return out[0], out[1]
 
     @staticmethod
     def _info(flags, dt, tau, unused, start, used) -> np.ndarray:
