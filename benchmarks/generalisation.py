@@ -10,6 +10,7 @@ tune anything: the point is to find the conditions where ``recommended`` loses.
 
     python benchmarks/generalisation.py [--quick] [--draws N] [--seed S] [--families A,B]
                                         [--filters recommended,vqf,imufusion] [--diagnose]
+    python benchmarks/generalisation.py --quick --filters recommended+offline,vqf-offline
 
 Scores: 6D inclination RMSE and 9D total RMSE (deg) over the moving samples
 (:func:`fusionkit.benchmarking.metrics.rms_errors`). Tables: per family and per condition bucket
@@ -129,12 +130,16 @@ def build(cond: dict):
 
 
 def make_filter(name: str, dims: str):
-    """``name`` as a 6D or 9D filter: ``mode`` for the peers, ``use_mag`` for fusionkit's own."""
+    """``name`` as a 6D or 9D filter: ``mode`` for the peers, ``use_mag`` for fusionkit's own.
+    ``NAME+offline`` is fusionkit's offline mode of ``NAME`` (``fk.make(NAME, offline=True)``)."""
+    name, _, option = name.partition("+")
+    if option not in ("", "offline"):
+        raise SystemExit(f"{name}+{option}: the only option is '+offline'")
     fields = fk.get(name, "filter").Config.model_fields
-    if "mode" in fields:
+    if "mode" in fields and not option:
         return fk.make(name, mode=dims)
     if "use_mag" in fields:
-        return fk.make(name, use_mag=dims == "9D")
+        return fk.make(name, offline=option == "offline", use_mag=dims == "9D")
     raise SystemExit(f"{name}: no 'mode' or 'use_mag' parameter to choose 6D or 9D with")
 
 
