@@ -339,14 +339,20 @@ def bias_trace(filt: Filter, rec: Recording, state=None, step: float = 1.0, back
     ``step`` s, each continuing the state of the one before (a split run gives the numbers of one
     run), its ``diagnostics["bias"]`` read at the end of each piece and interpolated linearly between
     (held before the first). None when the filter reports no bias or no state. ``state``: the
-    initial state, as for ``run``. Costs one more run of the filter (and a call per piece)."""
+    initial state, as for ``run``. Costs one more run of the filter: a pipeline's in one call
+    (``run(..., bias_at=...)``), any other filter's a call per piece."""
     n = len(rec)
     m = max(2, int(round(step / rec.nominal_dt)))
     cuts = list(range(0, n, m)) + [n]
     if len(cuts) > 2 and n - cuts[-2] < 2:  # no piece of one sample (a recording needs two)
         del cuts[-2]
+    from .pipeline import Pipeline
+
     ends, values = [], []
-    for a, b in zip(cuts[:-1], cuts[1:]):
+    if isinstance(filt, Pipeline):  # one run, read at the pieces' ends: the same numbers
+        res = filt.run(rec, backend=backend, progress=False, state=state, bias_at=[b - 1 for b in cuts[1:]])
+        ends, values = [b - 1 for b in cuts[1:]], list(res.diagnostics["bias_at"])
+    for a, b in zip(cuts[:-1], cuts[1:]) if not ends else ():
         res = filt.run(_piece(rec, a, b), backend=backend, progress=False, state=state)
         state, bias = res.diagnostics.get("state"), res.diagnostics.get("bias")
         if state is None or bias is None:

@@ -314,15 +314,20 @@ class Pipeline(Filter):
         return _loopgen.get_compiled(lay), S, P, O, states
 
     def _run_compiled(self, st, kernels, gyr, acc, mag, dt, has_mag, out_q, out_f, out_c, restart, cuts, gn,
-                      bar) -> None:
+                      bar, probe=None) -> None:
         """The compiled loop over the whole recording: the state and parameters packed once, one
         call per progress chunk and per stretch between restarts (``cuts``, where ``restart`` is
-        set: the state is unpacked for :meth:`_restart` and packed again), unpacked at the end."""
+        set: the state is unpacked for :meth:`_restart` and packed again), unpacked at the end.
+        ``probe``: ``(ends, read)``, after the sample before each end the state is unpacked and
+        ``read(st)`` called (the loop's packed state is left as it is)."""
         # a magnetometer-only detector cannot fire without one, and its reference step leaves its state alone
         dets = [i for i, d in enumerate(self.detectors) if has_mag or not d.needs_mag]
         mod, S, P, O, states = self._compiled(st, kernels, dets)
         gn = gn if gn is not None else NO_GNSS[None, :]
         n = out_q.shape[0]
+        ends, read = probe if probe is not None else ((), None)
+        cuts = sorted(set(cuts) | set(ends))
+        ends = set(ends)
         for start in range(0, n, _CHUNK):
             stop = min(n, start + _CHUNK)
             bounds = [start, *[c for c in cuts if start < c < stop], stop]
@@ -332,6 +337,9 @@ class Pipeline(Filter):
                     self._restart(st)
                     _loopgen.repack(S, O, states)
                 mod.loop(gyr, acc, mag, dt, has_mag, S, P, O, out_q, out_f, out_c, s, e, gn)
+                if e in ends:
+                    _loopgen.unpack(S, O, states)
+                    read(st)
             if bar is not None:
                 bar.update(stop - start)
         _loopgen.unpack(S, O, states)
@@ -343,12 +351,16 @@ class Pipeline(Filter):
 
     # -- public ----------------------------------------------------------------------------
     def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
-            state: dict[str, Any] | None = None) -> Result:
+            state: dict[str, Any] | None = None, bias_at=None) -> Result:
         """Process ``rec``; start from ``state`` (``Result.diagnostics["state"]`` of an earlier
-        run) to continue a split recording."""
+        run) to continue a split recording. ``bias_at``: increasing sample indices after which the
+        gyro bias the filter uses is read, returned as ``diagnostics["bias_at"]`` ``(len, 3)`` (what
+        runs split after those samples would report as ``diagnostics["bias"]``, in one run)."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         n = len(rec)
+        probe_ends = _probe_ends(bias_at, n)
+        biases: list[np.ndarray] = []
         self._set_body(self.body_axes(rec))
         inputs = {"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}
         if self.models:  # a sensor model may change a sample before it is judged: the input first
@@ -381,8 +393,9 @@ class Pipeline(Filter):
         restart = (gaps | _after_saturation(rec.gyr, self.spec.gyr_range)) if self._restarts else np.zeros(n, bool)
         cuts = np.flatnonzero(restart).tolist()
         if used == "numba":
+            probe = (probe_ends, lambda s: biases.append(s["align"][BIAS:BIAS + 3].copy())) if probe_ends else None
             self._run_compiled(st, kernels, gyr, rec.acc, mag_row, dt, has_mag, out_q, out_f, out_c, restart, cuts, gn,
-                               bar)
+                               bar, probe)
         else:
             for start in range(0, n, _CHUNK):
                 stop = min(n, start + _CHUNK)
@@ -392,6 +405,8 @@ class Pipeline(Filter):
                     q, f, c = self._step(st, gyr[k], rec.acc[k], mag[k], dt[k], has_mag,
                                          None if gn is None else gn[k])
                     out_q[k], out_f[k], out_c[k] = q, f, c
+                    if probe_ends and len(biases) < len(probe_ends) and k + 1 == probe_ends[len(biases)]:
+                        biases.append(st["align"][BIAS:BIAS + 3].copy())
                 if bar is not None:
                     bar.update(stop - start)
         if bar is not None:
@@ -399,6 +414,8 @@ class Pipeline(Filter):
         if not self.models:  # a non-finite sample is flagged invalid: nan_policy="raise" needs no scan before
             check_finite_flagged(inputs, self.spec.nan_policy, out_f, _INVALID)
         diag = self._diagnostics(st, out_f, out_c, used)
+        if bias_at is not None:
+            diag["bias_at"] = np.array(biases).reshape(len(probe_ends), 3)
         report_disturbed(st["align"], st["dt"], self.spec.alignment.duration)
         mark_gaps(out_f, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.spec.max_gap))
         return Result(out_q, out_f, self.spec.frame, diag)
@@ -521,3 +538,14 @@ def _progress(n: int, progress: bool | None, desc: str):
     except ImportError:  # pragma: no cover
         return None
     return tqdm(total=n, desc=desc, unit="sample", unit_scale=True, leave=False)
+
+
+def _probe_ends(bias_at, n: int) -> list[int]:
+    """``bias_at`` (sample indices, increasing, in ``[0, n)``) as the loop's stretch ends (index + 1)."""
+    if bias_at is None:
+        return []
+    k = np.asarray(bias_at)
+    if k.ndim != 1 or (k.size and (not np.issubdtype(k.dtype, np.integer) or k[0] < 0 or k[-1] >= n
+                                   or np.any(np.diff(k) <= 0))):
+        raise InputError(f"bias_at must be increasing sample indices in [0, {n}), got {bias_at!r:.80}")
+    return [int(i) + 1 for i in k]

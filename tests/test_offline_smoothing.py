@@ -155,3 +155,31 @@ def test_bias_trace_reads_the_bias_the_pass_used():
     end = int(round(30.0 / rec.nominal_dt)) - 1  # the end of the 30th piece of 1 s
     np.testing.assert_allclose(trace[end], f.run(rec.slice(0, end + 1)).diagnostics["bias"], atol=1e-9)
     assert np.ptp(trace[len(rec) // 10:], axis=0).max() > 1e-3  # it moved (the bias wandered)
+
+
+@pytest.mark.parametrize("backend", ["numba", "reference"])
+def test_a_pipeline_reads_its_bias_at_given_samples_in_one_run(backend):
+    # run(..., bias_at=ks): the bias after each sample k, in one run, equal to what runs split after
+    # those samples report; the output itself unchanged. bias_trace takes it for a pipeline.
+    rec = sim.scenario("drifting-bias-long", duration=20.0)
+    f = fk.make("recommended", use_mag=False)
+    ks = [99, 1500, len(rec) - 1]
+    res = f.run(rec, backend=backend, bias_at=ks)
+    assert res.diagnostics["bias_at"].shape == (3, 3)
+    np.testing.assert_array_equal(res.quat, f.run(rec, backend=backend).quat)
+    for k, b in zip(ks, res.diagnostics["bias_at"]):
+        np.testing.assert_allclose(b, f.run(rec.slice(0, k + 1), backend=backend).diagnostics["bias"], atol=1e-12)
+
+    class NotAPipeline:  # the piecewise path
+        def run(self, *a, **k):
+            return f.run(*a, **k)
+
+    np.testing.assert_allclose(bias_trace(f, rec, step=1.0, backend=backend),
+                               bias_trace(NotAPipeline(), rec, step=1.0, backend=backend), atol=1e-12)
+
+
+@pytest.mark.parametrize("bad", [[5, 3], [-1], [10**9], [1.5], [[1, 2]]])
+def test_bias_at_names_itself_when_it_is_not_increasing_indices(bad):
+    rec = sim.scenario("drifting-bias-long", duration=20.0)
+    with pytest.raises(fk.errors.InputError, match="bias_at"):
+        fk.make("recommended", use_mag=False).run(rec, bias_at=bad)

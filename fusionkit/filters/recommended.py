@@ -208,13 +208,14 @@ class RecommendedFilter(Pipeline):
             alignment=AlignmentConfig(mode="none", initial_quat=initial_attitude(c.frame)),
         )
 
-    def run(self, rec, *, backend: str = "auto", progress: bool | None = None, state: dict[str, Any] | None = None):
+    def run(self, rec, *, backend: str = "auto", progress: bool | None = None, state: dict[str, Any] | None = None,
+            bias_at=None):
         """:meth:`Pipeline.run`; ``use_mag=False`` does not read the recording's magnetometer at all
         (no MAG_INVALID flags either)."""
         if not self.config.use_mag and getattr(rec, "mag", None) is not None:
             rec = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
             rec.mag = None
-        return super().run(rec, backend=backend, progress=progress, state=state)
+        return super().run(rec, backend=backend, progress=progress, state=state, bias_at=bias_at)
 
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
