@@ -21,6 +21,27 @@ from fusionkit import sim  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 
 
+# `-n 2 --dist loadfile` hands whole files to the two workers, and xdist's default order (the
+# files with the most tests first) left test_inlined_loops (9 tests, the inlined presets' compiles,
+# the suite's longest file cold) to the end, compiling on one worker after the other had finished.
+# The files a cold run spends longest in go first instead, longest first (the rest in collection
+# order), the second one needing none of the first one's kernels, so the two workers do not start
+# by waiting on each other's compile locks (fusionkit/_numba.py).
+HEAVY_FIRST = ("test_inlined_loops.py", "test_ins_gnss.py", "test_contract.py", "test_reliability.py",
+               "test_recommended.py", "test_gst.py", "test_time_offset.py", "test_offline.py",
+               "test_mag_calibration_gate.py", "test_poisson_filter.py")
+
+
+def pytest_configure(config):
+    if hasattr(config.option, "loadscopereorder"):  # pytest-xdist: keep the order below
+        config.option.loadscopereorder = False
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
 def data_dir() -> Path:
     env = os.environ.get("FUSIONKIT_DATA")
     return Path(env) if env else REPO.parent / "shared" / "data"
