@@ -36,7 +36,7 @@ Options, each a separate idea:
   ``d`` from the bias's uncertainty and ``gyro_rate_error`` times the net turn rate); ``tau`` is
   then the time constant of a still sensor. The low-passes' delay lines are scaled to each new
   coefficient set (docs/algorithms/recommended.md, "The adaptive time constant"); a set is kept
-  until ``tau`` moves by 0.1 % (``_TAU_STEP``: a numerical tolerance, far finer than the
+  until ``tau / dt`` moves by 0.1 % (``_TAU_STEP``: a numerical tolerance, far finer than the
   10 s statistics tau comes from resolve; computing the set and scaling the delay lines every sample
   put a tangent, divisions and 30 products on each sample's chain).
 
@@ -80,9 +80,9 @@ _RZ1, _RZ2, _BZ1, _BZ2, _P, _KREADY, _N = 31, 40, 49, 52, 55, 64, 65
 # squares of that velocity and of the low-passed rate, the samples they average so far, the time constant
 # now, the low-passed rate in I, and the bias's variance the rests tell
 _VEL, _SV2, _SW2, _NST, _TAU, _WLP, _VR = 70, 73, 74, 75, 76, 77, 80
-_TAUC = 81  # tau_adapt: the time constant the low-passes' coefficients were computed for (0: none yet)
+_TAUC = 81  # tau_adapt: tau / dt of the low-passes' coefficient set (0: none yet)
 _SIZE = 82
-# tau_adapt: a coefficient set is kept until tau moves by this fraction of it
+# tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
 _REST = int(Flag.REST)
 _FORGET = 100.0  # tau_adapt without motion_bias_tau: the time in which the bias's variance grows by sigma_motion^2
@@ -439,14 +439,13 @@ class InertialTilt(FactorCorrector):
         else:
             if x[_DT] != dt:  # the coefficients (and the bias filter's noise), once per distinct dt
                 x[_DT] = dt
-                x[_TAUC] = 0.0
                 if not c.tau_adapt:
                     x[_B:_B + 5] = lowpass_coefficients(c.tau, dt)
                 if c.motion_bias_tau is not None and c.bias_filter == "kalman":
                     x[_N:_N + 5] = _kf_noise(dt, c.motion_bias_tau, c.bias_sigma_init, c.bias_sigma_motion,
                                              c.bias_sigma_rest or 0.0, c.bias_vertical_forgetting)
-            if c.tau_adapt and (x[_TAUC] == 0.0 or abs(tau - x[_TAUC]) > _TAU_STEP * x[_TAUC]):
-                x[_TAUC] = tau  # the coefficients of this sample's time constant
+            if c.tau_adapt and abs(tau - x[_TAUC] * dt) > _TAU_STEP * x[_TAUC] * dt:
+                x[_TAUC] = tau / dt  # the coefficients of this sample's time constant
                 _set_tau(x, *lowpass_coefficients(tau, dt))
             b0, b1, b2, a1, a2 = x[_B:_B + 5]
             z1, z2 = x[_Z1:_Z1 + 3], x[_Z2:_Z2 + 3]
@@ -560,13 +559,12 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
         else:
             if s[_DT] != dt:
                 s[_DT] = dt
-                s[_TAUC] = 0.0
                 if p[10] == 0.0:
                     s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4] = _lp_coeffs(p[0], dt)
                 if p[3] > 0.0 and p[5] != 0.0:
                     s[_N], s[_N + 1], s[_N + 2], s[_N + 3], s[_N + 4] = _k_kf_noise(dt, p[3], p[6], p[7], p[8], p[9])
-            if p[10] != 0.0 and (s[_TAUC] == 0.0 or abs(tau - s[_TAUC]) > _TAU_STEP * s[_TAUC]):
-                s[_TAUC] = tau
+            if p[10] != 0.0 and abs(tau - s[_TAUC] * dt) > _TAU_STEP * s[_TAUC] * dt:
+                s[_TAUC] = tau / dt
                 t0, t1, t2, t3, t4 = _lp_coeffs(tau, dt)
                 _k_set_tau(s, t0, t1, t2, t3, t4)
             b0, b1, b2, c1, c2 = s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4]
