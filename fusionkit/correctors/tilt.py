@@ -35,7 +35,10 @@ Options, each a separate idea:
   ``[tau_min, tau_max]`` (:func:`_adapt_step`: ``sigma_v`` measured from the specific force in I,
   ``d`` from the bias's uncertainty and ``gyro_rate_error`` times the net turn rate); ``tau`` is
   then the time constant of a still sensor. The low-passes' delay lines are scaled to each new
-  coefficient set (docs/algorithms/recommended.md, "The adaptive time constant").
+  coefficient set (docs/algorithms/recommended.md, "The adaptive time constant"); a set is kept
+  until ``tau / dt`` moves by 0.1 % (``_TAU_STEP``: a numerical tolerance, far finer than the
+  10 s statistics tau comes from resolve; computing the set and scaling the delay lines every sample
+  put a tangent, divisions and 30 products on each sample's chain).
 
 After a timestamp gap or a saturated gyro (``restarts``) the low-pass starts again: the gravity
 seen in I before is stale. A sample without a valid accelerometer reading (or one the
@@ -77,7 +80,10 @@ _RZ1, _RZ2, _BZ1, _BZ2, _P, _KREADY, _N = 31, 40, 49, 52, 55, 64, 65
 # squares of that velocity and of the low-passed rate, the samples they average so far, the time constant
 # now, the low-passed rate in I, and the bias's variance the rests tell
 _VEL, _SV2, _SW2, _NST, _TAU, _WLP, _VR = 70, 73, 74, 75, 76, 77, 80
-_SIZE = 81
+_TAUC = 81  # tau_adapt: tau / dt of the low-passes' coefficient set (0: none yet)
+_SIZE = 82
+# tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
+_TAU_STEP = 1e-3
 _REST = int(Flag.REST)
 _FORGET = 100.0  # tau_adapt without motion_bias_tau: the time in which the bias's variance grows by sigma_motion^2
 
@@ -85,7 +91,13 @@ _FORGET = 100.0  # tau_adapt without motion_bias_tau: the time in which the bias
 def lowpass_coefficients(tau: float, dt: float) -> tuple[float, float, float, float, float]:
     """Second-order Butterworth low-pass (bilinear transform, cutoff ``1 / (2 pi tau)``):
     ``(b0, b1, b2, a1, a2)`` of ``y = b0 x + b1 x' + b2 x'' - a1 y' - a2 y''``; unit gain at DC."""
-    k = math.tan(0.5 * dt / tau)
+    x = 0.5 * dt / tau
+    if x < 0.01:  # tan's series to x^9 (relative error under 1e-21), Estrin's grouping: tau_adapt's per-sample
+        x2 = x * x  # chain from tau to the low-pass waits on it less than on libm's tan
+        x4 = x2 * x2
+        k = x + x * x2 * ((1.0 / 3.0 + x2 * (2.0 / 15.0)) + x4 * (17.0 / 315.0 + x2 * (62.0 / 2835.0)))
+    else:
+        k = math.tan(x)
     n = 1.0 / (1.0 + math.sqrt(2.0) * k + k * k)
     b0 = k * k * n
     return b0, 2.0 * b0, b0, 2.0 * (k * k - 1.0) * n, (1.0 - math.sqrt(2.0) * k + k * k) * n
@@ -139,14 +151,14 @@ def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, s
         x[_TAU] = tau0
         return tau0
     y0, y1, y2 = x[_Y], x[_Y + 1], x[_Y + 2]
-    g = math.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
-    u0, u1, u2 = y0 / g, y1 / g, y2 / g
+    yy = y0 * y0 + y1 * y1 + y2 * y2
+    g = math.sqrt(yy)
     r0, r1, r2 = a0 - y0, a1 - y1, a2 - y2
-    ru = r0 * u0 + r1 * u1 + r2 * u2
+    ru = (r0 * y0 + r1 * y1 + r2 * y2) / yy  # r's part along y without y / |y|: no square root on the chain
     f = min(dt / tau0, 1.0)
-    x[_VEL] += (r0 - u0 * ru) * dt - x[_VEL] * f
-    x[_VEL + 1] += (r1 - u1 * ru) * dt - x[_VEL + 1] * f
-    x[_VEL + 2] += (r2 - u2 * ru) * dt - x[_VEL + 2] * f
+    x[_VEL] += (r0 - y0 * ru) * dt - x[_VEL] * f
+    x[_VEL + 1] += (r1 - y1 * ru) * dt - x[_VEL + 1] * f
+    x[_VEL + 2] += (r2 - y2 * ru) * dt - x[_VEL + 2] * f
     x[_NST] += 1.0
     k = max(dt / window, 1.0 / (x[_NST] - 1.0))
     x[_SV2] += (x[_VEL] * x[_VEL] + x[_VEL + 1] * x[_VEL + 1] + x[_VEL + 2] * x[_VEL + 2] - x[_SV2]) * k
@@ -158,8 +170,9 @@ def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, s
     ph = x[_P] + x[_P + 4] + x[_P + 8] - (x[_P] * z0 * z0 + x[_P + 4] * z1 * z1 + x[_P + 8] * z2 * z2
                                           + 2.0 * (x[_P + 1] * z0 * z1 + x[_P + 2] * z0 * z2 + x[_P + 5] * z1 * z2))
     vr = 2.0 * x[_VR]
-    db = math.sqrt(max(ph, 0.0) * vr / (max(ph, 0.0) + vr))
-    d = math.sqrt(db * db + kappa * kappa * x[_SW2])
+    db2 = max(ph, 0.0) * vr / (max(ph, 0.0) + vr)  # db^2 (d needs no square root of a square root)
+    db = math.sqrt(db2)
+    d = math.sqrt(db2 + kappa * kappa * x[_SW2])
     sv = max(math.sqrt(x[_SV2]), g * db * tau0 * tau0)
     x[_TAU] = min(max(math.sqrt(sv / (g * d)), tau_min), tau_max) if d > 0.0 else tau_max
     return x[_TAU]
@@ -174,8 +187,9 @@ def _set_tau(x, b0, b1, b2, a1, a2):
     once the low-pass runs, they are scaled to the new coefficients' steady state, or a change of
     ``tau`` at a low cutoff (``a2`` moves by about ``sqrt(2) dt d(1/tau)``) would put a step into the
     output. The bias filter's low-passes (rotation and bias, same coefficients) likewise."""
-    f1 = (1.0 - b0) / (1.0 - x[_B]) if x[_READY] != 0.0 else 1.0
-    f2 = (b2 - a2) / (x[_B + 2] - x[_B + 4]) if x[_READY] != 0.0 else 1.0
+    # (the old coefficients' reciprocals are ready before the new coefficients: a multiplication on the chain)
+    f1 = (1.0 - b0) * (1.0 / (1.0 - x[_B])) if x[_READY] != 0.0 else 1.0
+    f2 = (b2 - a2) * (1.0 / (x[_B + 2] - x[_B + 4])) if x[_READY] != 0.0 else 1.0
     x[_B], x[_B + 1], x[_B + 2], x[_B + 3], x[_B + 4] = b0, b1, b2, a1, a2
     for i in range(3):
         x[_Z1 + i] *= f1
@@ -430,7 +444,8 @@ class InertialTilt(FactorCorrector):
                 if c.motion_bias_tau is not None and c.bias_filter == "kalman":
                     x[_N:_N + 5] = _kf_noise(dt, c.motion_bias_tau, c.bias_sigma_init, c.bias_sigma_motion,
                                              c.bias_sigma_rest or 0.0, c.bias_vertical_forgetting)
-            if c.tau_adapt:  # the coefficients of this sample's time constant
+            if c.tau_adapt and abs(tau - x[_TAUC] * dt) > _TAU_STEP * x[_TAUC] * dt:
+                x[_TAUC] = tau / dt  # the coefficients of this sample's time constant
                 _set_tau(x, *lowpass_coefficients(tau, dt))
             b0, b1, b2, a1, a2 = x[_B:_B + 5]
             z1, z2 = x[_Z1:_Z1 + 3], x[_Z2:_Z2 + 3]
@@ -548,7 +563,8 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                     s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4] = _lp_coeffs(p[0], dt)
                 if p[3] > 0.0 and p[5] != 0.0:
                     s[_N], s[_N + 1], s[_N + 2], s[_N + 3], s[_N + 4] = _k_kf_noise(dt, p[3], p[6], p[7], p[8], p[9])
-            if p[10] != 0.0:
+            if p[10] != 0.0 and abs(tau - s[_TAUC] * dt) > _TAU_STEP * s[_TAUC] * dt:
+                s[_TAUC] = tau / dt
                 t0, t1, t2, t3, t4 = _lp_coeffs(tau, dt)
                 _k_set_tau(s, t0, t1, t2, t3, t4)
             b0, b1, b2, c1, c2 = s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4]

@@ -117,9 +117,14 @@ STATE_SOFT = 33 + 88
 # fill, then the raw field and the accelerometer's direction at the last _GK segment ends
 _GK = 32
 _GI, _GC, _GBUF = 0, 1, 2
-_GE = 16  # per segment end: the raw field, the accelerometer, |m|, |a|, the raw dip's sine, the segment's
-# first raw field and its turn (the quaternion body a -> body k) for the earth-frame test
+_GE = 17  # per segment end: the raw field, the accelerometer, |m|, |a|, the raw dip's sine, the segment's
+# first raw field and its turn (the quaternion body a -> body k) for the earth-frame test, and the raw field's
+# squared change across it (the earth-frame test's raw term: it depends on the segment alone)
 GATE = 2 + _GE * _GK
+# soft iron, after the gate: the inverse of the information matrix as of the last segment that entered the
+# fit, and whether it exists (the next segment's misfit test needs it: computed once, not twice)
+_SINV = STATE_SOFT + GATE
+_SINVOK = _SINV + _NP * _NP
 _SEG_BUF = 255  # the compiled soft-iron segment's working arrays (_k_segment_soft)
 _RECALIBRATED = int(Flag.MAG_RECALIBRATED)
 
@@ -172,7 +177,7 @@ class MagCalibrationModel(SensorModel):
                               "when confident")
 
     def initial_state(self, dt: float) -> np.ndarray:
-        s = np.zeros((STATE_SOFT if self.config.soft_iron else STATE) + GATE)
+        s = np.zeros(_SINVOK + 1 if self.config.soft_iron else STATE + GATE)
         s[_DQ] = 1.0
         return s
 
@@ -274,14 +279,14 @@ class MagCalibrationModel(SensorModel):
         n = s[_N]
         e = r - h @ s[_SBEST:_SBEST + _NP]
         lam = math.exp(-s[_T] / c.forget_time)
-        inv = np.empty((_NP, _NP))
+        inv = s[_SINV:_SINV + _NP * _NP].reshape(_NP, _NP)  # A^-1, kept since A last changed (below)
         if n >= c.min_segments and float(e @ e) / 3.0 > c.outlier_sigma ** 2 * s[_VAR] * _spread(
-                h, inv, _invert_spd(s[_SA:_SA + _NP * _NP].reshape(_NP, _NP).copy(), np.empty((_NP, _NP)), inv), lam):
+                h, inv, s[_SINVOK] != 0.0, lam):
             s[_BAD] += 1.0
             if s[_BAD] >= c.outlier_count:  # the calibration changed: forget it and learn again
                 s[_SA:_SA + _NP * _NP] = 0.0
                 s[_SY:_SY + _NP] = 0.0
-                s[_N] = s[_VAR] = s[_CONF] = s[_BAD] = s[_RR] = s[_NE] = 0.0
+                s[_N] = s[_VAR] = s[_CONF] = s[_BAD] = s[_RR] = s[_NE] = s[_SINVOK] = 0.0
                 s[STATE_SOFT + _GC] = 0.0
             return
         s[_BAD] = 0.0
@@ -291,8 +296,8 @@ class MagCalibrationModel(SensorModel):
         s[_RR] = lam * s[_RR] + float(r @ r)
         s[_NE] = lam * s[_NE] + 1.0
         s[_N] = n + 1.0
-        inv = np.empty((_NP, _NP))
-        if not _invert_spd(a.copy(), np.empty((_NP, _NP)), inv):
+        s[_SINVOK] = float(_invert_spd(a.copy(), np.empty((_NP, _NP)), inv))  # inv: untouched if not invertible
+        if not s[_SINVOK]:
             return
         best = inv @ s[_SY:_SY + _NP]
         s[_SBEST:_SBEST + _NP] = best
@@ -359,6 +364,7 @@ def _ring_push(s, g, m, a, ma, dq):
         s[k + 9 + j] = ma[j]
     for j in range(4):
         s[k + 12 + j] = dq[j]
+    s[k + 16] = _raw_change(m[0], m[1], m[2], ma[0], ma[1], ma[2], dq[0], dq[1], dq[2], dq[3])
     # what the gate computes of the raw field at every check, once: its norm, the accelerometer's, the dip's sine
     nr = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
     na = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
@@ -455,16 +461,10 @@ def _earth_change(s, g, w, c):
     for i in range(n):
         k = g + _GBUF + _GE * i
         qw, qx, qy, qz = s[k + 12], s[k + 13], s[k + 14], s[k + 15]
-        # C = R(dq), row major; the change uses C^T
-        r00, r01, r02 = 1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy)
-        r10, r11, r12 = 2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx)
-        r20, r21, r22 = 2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rot_entries(qw, qx, qy, qz)
         mk0, mk1, mk2 = s[k], s[k + 1], s[k + 2]
         ma0, ma1, ma2 = s[k + 9], s[k + 10], s[k + 11]
-        d0 = mk0 - (r00 * ma0 + r10 * ma1 + r20 * ma2)
-        d1 = mk1 - (r01 * ma0 + r11 * ma1 + r21 * ma2)
-        d2 = mk2 - (r02 * ma0 + r12 * ma1 + r22 * ma2)
-        raw[i] = d0 * d0 + d1 * d1 + d2 * d2
+        raw[i] = s[k + 16]  # _raw_change, computed when the segment entered the ring
         uk0 = w[0, 0] * mk0 + w[0, 1] * mk1 + w[0, 2] * mk2 - c[0]
         uk1 = w[1, 0] * mk0 + w[1, 1] * mk1 + w[1, 2] * mk2 - c[1]
         uk2 = w[2, 0] * mk0 + w[2, 1] * mk1 + w[2, 2] * mk2 - c[2]
@@ -478,7 +478,47 @@ def _earth_change(s, g, w, c):
         nm = mk0 * mk0 + mk1 * mk1 + mk2 * mk2
         if nm > 0.0:
             size += ((uk0 - mk0) ** 2 + (uk1 - mk1) ** 2 + (uk2 - mk2) ** 2) / nm
-    return np.median(raw), np.median(cal), math.sqrt(size / n)
+    return _median(raw, n), _median(cal, n), math.sqrt(size / n)
+
+
+@njit(inline="always")
+def _rot_entries(qw, qx, qy, qz):
+    """``C = R(dq)`` row major (:func:`_earth_change` uses ``C^T``)."""
+    return (1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy),
+            2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx),
+            2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy))
+
+
+@njit(inline="always")
+def _raw_change(mk0, mk1, mk2, ma0, ma1, ma2, qw, qx, qy, qz):
+    """The raw field's squared change in the earth frame across one segment, ``|m_k - C^T m_a|^2``
+    (:func:`_earth_change`); it depends on the segment alone, so :func:`_ring_push` computes it
+    once. The same statements in the reference and, compiled, in the kernel."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rot_entries(qw, qx, qy, qz)
+    d0 = mk0 - (r00 * ma0 + r10 * ma1 + r20 * ma2)
+    d1 = mk1 - (r01 * ma0 + r11 * ma1 + r21 * ma2)
+    d2 = mk2 - (r02 * ma0 + r12 * ma1 + r22 * ma2)
+    return d0 * d0 + d1 * d1 + d2 * d2
+
+
+@njit(inline="always")
+def _median(a, n):
+    """``np.median(a[:n])`` (``a`` is sorted in place; NaN if any entry is): an insertion sort of the
+    ring's at most 32 values, no copy; the middle value, or the mean of the two middle ones as
+    numpy takes it. The same statements in the reference and, compiled, in the kernel."""
+    for i in range(1, n):
+        x = a[i]
+        if x != x:
+            return math.nan
+        j = i - 1
+        while j >= 0 and a[j] > x:
+            a[j + 1] = a[j]
+            j -= 1
+        a[j + 1] = x
+    if n > 0 and a[0] != a[0]:
+        return math.nan
+    h = n // 2
+    return a[h] if n % 2 == 1 else (a[h - 1] + a[h]) / 2.0
 
 
 def _basis(j, v0, v1, v2):
@@ -799,13 +839,9 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     n = s[_N]
     lam = math.exp(-s[_T] / forget)
     misfit = False
-    if n >= min_seg:  # the spread's scratch: the information matrix's, its inverse's and the Cholesky's places below
-        l = buf[45:45 + _NP * _NP]
-        for i in range(_NP * _NP):
-            l[i] = s[_SA + i]
-        inv = buf[109:109 + _NP * _NP].reshape((_NP, _NP))
-        ok = _k_invert_spd(l.reshape((_NP, _NP)), buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), inv)
-        misfit = e2 / 3.0 > out_sigma * out_sigma * s[_VAR] * _k_spread(h, inv, ok, lam)
+    if n >= min_seg:  # the spread from the information matrix's inverse kept since it last changed
+        misfit = e2 / 3.0 > out_sigma * out_sigma * s[_VAR] * _k_spread(
+            h, s[_SINV:_SINV + _NP * _NP].reshape((_NP, _NP)), s[_SINVOK] != 0.0, lam)
     if misfit:
         s[_BAD] += 1.0
         if s[_BAD] >= out_count:
@@ -813,7 +849,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
                 s[_SA + i] = 0.0
             for i in range(_NP):
                 s[_SY + i] = 0.0
-            s[_N] = s[_VAR] = s[_CONF] = s[_BAD] = s[_RR] = s[_NE] = 0.0
+            s[_N] = s[_VAR] = s[_CONF] = s[_BAD] = s[_RR] = s[_NE] = s[_SINVOK] = 0.0
             s[STATE_SOFT + _GC] = 0.0
         return
     s[_BAD] = 0.0
@@ -827,8 +863,9 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     s[_RR] = lam * s[_RR] + (r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
     s[_NE] = lam * s[_NE] + 1.0
     s[_N] = n + 1.0
-    inv = buf[109:109 + _NP * _NP].reshape((_NP, _NP))
-    if not _k_invert_spd(a, buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), inv):
+    inv = s[_SINV:_SINV + _NP * _NP].reshape((_NP, _NP))  # (untouched where a is not invertible)
+    s[_SINVOK] = 1.0 if _k_invert_spd(a, buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), inv) else 0.0
+    if s[_SINVOK] == 0.0:
         return
     yb = 0.0
     for i in range(_NP):
