@@ -21,6 +21,15 @@ def qmul_entries(p0, p1, p2, p3, q0, q1, q2, q3):
             p0 * q2 - p1 * q3 + p2 * q0 + p3 * q1, p0 * q3 + p1 * q2 - p2 * q1 + p3 * q0)
 
 
+@njit(inline="always")
+def dcm_entries(w, x, y, z):
+    """``R(q)`` (rotations.quat_to_matrix) as a row-major 9-tuple: a kernel that keeps the matrix
+    in registers."""
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
+
+
 @njit
 def qmul_into(p0, p1, p2, p3, q0, q1, q2, q3, out):
     """``out = p (x) q`` (:func:`qmul_entries` stored)."""

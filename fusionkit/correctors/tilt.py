@@ -60,6 +60,7 @@ from typing import ClassVar, Literal
 import numpy as np
 from pydantic import field_validator
 
+from .._kernels import dcm_entries
 from .._numba import njit
 from ..config import PluginConfig, param
 from ..protocols import CorrectorKernel, FactorCorrector
@@ -216,14 +217,6 @@ def _atan_over(s, c):
 
 
 @njit(inline="always")
-def _qmat(w, x, y, z):
-    """``R(q)`` as a row-major 9-tuple."""
-    return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
-
-
-@njit(inline="always")
 def _lp_step(s, i, n, x, b0, b1, b2, c1, c2):
     """One step of the second-order low-pass whose delay lines are ``s[i]`` and ``s[i + n]``."""
     y = b0 * x + s[i]
@@ -270,7 +263,7 @@ def _sym_downdate(q00, q01, q02, q11, q12, q22, a00, a01, a02, a10, a11, a12, a2
 @njit(inline="always")
 def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
     """:meth:`InertialTilt._kalman` (``e``: the output quaternion, ``r``: the correction rate)."""
-    rot = _qmat(e0, e1, e2, e3)
+    rot = dcm_entries(e0, e1, e2, e3)
     rb0 = rot[0] * b[0] + rot[1] * b[1] + rot[2] * b[2]
     rb1 = rot[3] * b[0] + rot[4] * b[1] + rot[5] * b[2]
     rb2 = rot[6] * b[0] + rot[7] * b[1] + rot[8] * b[2]

@@ -95,7 +95,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from .._kernels import qmul_into, quat_to_dcm, rotvec_quat_entries
+from .._kernels import dcm_entries, qmul_into, quat_to_dcm, rotvec_quat_entries
 from .._numba import njit
 from ..config import PluginConfig, param
 from ..protocols import Sample, SensorModel, SensorModelKernel
@@ -461,7 +461,7 @@ def _earth_change(s, g, w, c):
     for i in range(n):
         k = g + _GBUF + _GE * i
         qw, qx, qy, qz = s[k + 12], s[k + 13], s[k + 14], s[k + 15]
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rot_entries(qw, qx, qy, qz)
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = dcm_entries(qw, qx, qy, qz)  # C = R(dq)
         mk0, mk1, mk2 = s[k], s[k + 1], s[k + 2]
         ma0, ma1, ma2 = s[k + 9], s[k + 10], s[k + 11]
         raw[i] = s[k + 16]  # _raw_change, computed when the segment entered the ring
@@ -482,19 +482,11 @@ def _earth_change(s, g, w, c):
 
 
 @njit(inline="always")
-def _rot_entries(qw, qx, qy, qz):
-    """``C = R(dq)`` row major (:func:`_earth_change` uses ``C^T``)."""
-    return (1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - qw * qz), 2.0 * (qx * qz + qw * qy),
-            2.0 * (qx * qy + qw * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - qw * qx),
-            2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy))
-
-
-@njit(inline="always")
 def _raw_change(mk0, mk1, mk2, ma0, ma1, ma2, qw, qx, qy, qz):
     """The raw field's squared change in the earth frame across one segment, ``|m_k - C^T m_a|^2``
     (:func:`_earth_change`); it depends on the segment alone, so :func:`_ring_push` computes it
     once. The same statements in the reference and, compiled, in the kernel."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = _rot_entries(qw, qx, qy, qz)
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = dcm_entries(qw, qx, qy, qz)  # C = R(dq)
     d0 = mk0 - (r00 * ma0 + r10 * ma1 + r20 * ma2)
     d1 = mk1 - (r01 * ma0 + r11 * ma1 + r21 * ma2)
     d2 = mk2 - (r02 * ma0 + r12 * ma1 + r22 * ma2)
