@@ -29,8 +29,7 @@ REPO = Path(__file__).resolve().parents[1]
 # by waiting on each other's compile locks (fusionkit/_numba.py). The inlined presets' compiles
 # are two files, recommended's (the longest) and the others', so the two workers start on one each.
 HEAVY_FIRST = ("test_inlined_loops_recommended.py", "test_inlined_loops.py", "test_ins_gnss.py", "test_contract.py",
-               "test_reliability.py",
-               "test_recommended.py", "test_gst.py", "test_time_offset.py", "test_offline.py",
+               "test_reliability.py", "test_recommended.py", "test_gst.py", "test_time_offset.py", "test_offline.py",
                "test_mag_calibration_gate.py", "test_poisson_filter.py")
 
 
