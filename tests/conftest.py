@@ -11,7 +11,7 @@ import pytest
 
 # The suite's generated loops call their kernels instead of inlining them (fusionkit/_numba.py,
 # LOOP_INLINE): the same numbers at a tenth of the compile time per composition. The inlined
-# loops users run are checked against these, preset by preset, in test_inlined_loops.py.
+# loops users run are checked against these, preset by preset, in test_inlined_loops*.py.
 # Set before fusionkit is imported; the tests' subprocesses inherit it.
 os.environ.setdefault("FUSIONKIT_LOOP_INLINE", "0")
 
@@ -26,9 +26,10 @@ REPO = Path(__file__).resolve().parents[1]
 # the suite's longest file cold) to the end, compiling on one worker after the other had finished.
 # The files a cold run spends longest in go first instead, longest first (the rest in collection
 # order), the second one needing none of the first one's kernels, so the two workers do not start
-# by waiting on each other's compile locks (fusionkit/_numba.py).
-HEAVY_FIRST = ("test_inlined_loops.py", "test_ins_gnss.py", "test_contract.py", "test_reliability.py",
-               "test_recommended.py", "test_gst.py", "test_time_offset.py", "test_offline.py",
+# by waiting on each other's compile locks (fusionkit/_numba.py). The inlined presets' compiles
+# are two files, recommended's (the longest) and the others', so the two workers start on one each.
+HEAVY_FIRST = ("test_inlined_loops_recommended.py", "test_inlined_loops.py", "test_ins_gnss.py", "test_contract.py",
+               "test_reliability.py", "test_recommended.py", "test_gst.py", "test_time_offset.py", "test_offline.py",
                "test_mag_calibration_gate.py", "test_poisson_filter.py")
 
 

@@ -210,19 +210,23 @@ class MagHeading(FactorCorrector):
         c, x, dt = self.config, state, sample.dt
         out = 0
         g = sample.gyr
+        # per sample on 3-vectors: Python floats where numpy's per-call overhead is most of the cost
+        # (the same comparisons, so the same decisions)
+        g_ok = _finite3(g)
+        rate_ok = bool(np.isfinite(rate).all())
         if x[_DT] != dt:  # the coefficients, once per distinct dt
             x[_DT], x[_KM], x[_KW] = dt, 1.0 - math.exp(-dt / c.tau), 1.0 - math.exp(-dt / c.rate_tau)
-        if np.isfinite(g).all() and (sample.acc is not None or flags & _ACC_REJECTED):
+        if g_ok and (sample.acc is not None or flags & _ACC_REJECTED):
             gyro_lowpass(x, _LW, _SEEN, g, x[_KW])  # the turning rate, on the samples the rest detector sees
         if c.mag_delay_estimate:
-            _segment_time(x, dt, bool(np.isfinite(rate).all()))
+            _segment_time(x, dt, rate_ok)
         if c.gain == "kalman":  # the heading's variance grows with the vertical rate's errors
-            w = quat_to_matrix(quat) @ (g - bias) if np.isfinite(g).all() else np.zeros(3)
+            w = quat_to_matrix(quat) @ (g - bias) if g_ok else np.zeros(3)
             _kf_predict(x, float(w @ x[_AX + 6:_AX + 9]), dt, c.gyro_noise ** 2, c.bias_sigma ** 2,
                         c.scale_sigma ** 2)
         if sample.mag is not None:
             m = np.asarray(sample.mag, dtype=float)
-            fresh = not (c.mag_hold and x[_PMOK] and np.array_equal(m, x[_PM:_PM + 3]))
+            fresh = not (c.mag_hold and x[_PMOK] and m.tolist() == x[_PM:_PM + 3].tolist())
             if fresh:
                 qm = qc = paired(quat, c.mag_delay, rate, g, bias, dt)  # the configured pairing
                 if x[_EB + CONF]:  # the estimate's: the configured one moved by the remaining offset
@@ -235,7 +239,7 @@ class MagHeading(FactorCorrector):
             out, code = self._heading(x, quat_to_matrix(qm) @ m, quat, bias, dt, bool(flags & _REST),
                                       c.follow_calibration and bool(flags & _MAG_RECALIBRATED))
             if c.mag_delay_estimate and fresh:
-                self._estimate(x, qc, m, g - bias, dt, code == MAG_USE and bool(np.isfinite(rate).all()))
+                self._estimate(x, qc, m, g - bias, dt, code == MAG_USE and rate_ok)
         x[_PMOK] = float(sample.mag is not None)
         half = 0.5 * x[_DELTA]
         up = x[_AX + 6:_AX + 9]
@@ -280,7 +284,7 @@ class MagHeading(FactorCorrector):
             x[_RELEARN] = 1.0  # learned again; the heading keeps its filter meanwhile
         r = _kf_noise(x, norm, dip, dt, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time) if kalman else 0.0
         target = 0.5 * math.pi - math.atan2(m @ north, m @ east)  # turns the field's azimuth to north
-        code = self.magnetic.reference_step(x[_MAG:_MAG + MAG_SIZE], norm, dip, float(np.linalg.norm(x[_LW:_LW + 3])),
+        code = self.magnetic.reference_step(x[_MAG:_MAG + MAG_SIZE], norm, dip, _norm3(x[_LW:_LW + 3]),
                                             dt)
         if code != MAG_LEARNING:
             x[_RELEARN] = 0.0
@@ -306,6 +310,19 @@ class MagHeading(FactorCorrector):
                       float(c.follow_calibration), float(c.gain == "kalman"), c.gyro_noise ** 2, c.bias_sigma ** 2,
                       c.scale_sigma ** 2, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time])
         return CorrectorKernel(mag_heading_kernel, p, mode="factor")
+
+
+def _finite3(v) -> bool:
+    """``np.isfinite(v).all()`` for a 3-vector, on Python floats."""
+    a, b, c = v.tolist()
+    return math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
+
+
+def _norm3(v) -> float:
+    """``np.linalg.norm(v)`` of a 3-vector on Python floats (numpy's ``sqrt(v @ v)``: the same sum in
+    the same order, the same number)."""
+    a, b, c = v.tolist()
+    return math.sqrt(a * a + b * b + c * c)
 
 
 def _kf_predict(x, wv, dt, q_gyro, p_bias, p_scale) -> None:
