@@ -126,8 +126,8 @@ from .protocols import Filter
 from .rotations import quat_conj, quat_from_rotvec, quat_mul, quat_to_matrix, quat_to_rotvec
 from .types import Flag, Recording, Result, hold_gaps, sample_validity
 from .correctors._factor import k_qmul, k_rot
-from .correctors.tilt import _Y as _T_Y, _Z1 as _T_Z1, _Z2 as _T_Z2, _NST as _T_NST, _READY as _T_READY, _TAU as _T_TAU
-from .correctors.tilt import _k_adapt_step, _k_set_tau, _lp_coeffs
+from .correctors.tilt import _FORGET, _Y as _T_Y, _NST as _T_NST, _TAU as _T_TAU
+from .correctors.tilt import _k_adapt_step, _k_lowpass_vertical, _k_set_tau, _lp_coeffs
 
 __all__ = ["OfflineFilter", "reverse_recording", "reversed_config", "information", "fuse_reference",
            "supports_offline", "disturbance_mask", "calibration_passes", "select_calibration", "mag_delay_recording",
@@ -325,13 +325,9 @@ def smoothing_params(config) -> np.ndarray:
         return default if value is None else value
 
     return np.array([float(config.tau_acc), d.adapt_window, get("bias_sigma_motion", d.bias_sigma_motion),
-                     get("bias_sigma_init", d.bias_sigma_init), get("motion_bias_tau", _FORGET_BIAS),
+                     get("bias_sigma_init", d.bias_sigma_init), get("motion_bias_tau", _FORGET),
                      get("gyro_rate_error", d.gyro_rate_error), d.tau_min, d.tau_max,
                      float(bool(getattr(config, "tau_adapt", False))), get("gravity", 9.81)])
-
-
-#: the bias variance's forgetting time (s) without motion_bias_tau (the inertial-tilt corrector's)
-_FORGET_BIAS = 100.0
 
 
 def bias_trace(filt: Filter, rec: Recording, state=None, step: float = 1.0, backend: str = "auto") -> np.ndarray | None:
@@ -437,15 +433,7 @@ def smooth_reference(q_est: np.ndarray, gyr: np.ndarray, acc: np.ndarray, dt: np
         elif p[8] != 0.0 and x[tilt._TAU] > 0.0:
             tau = x[tilt._TAU]
         tilt._set_tau(x, *tilt.lowpass_coefficients(tau, dt[k]))
-        b0, b1, b2, a1, a2 = x[tilt._B:tilt._B + 5]
-        z1, z2 = x[tilt._Z1:tilt._Z1 + 3], x[tilt._Z2:tilt._Z2 + 3]
-        if not x[tilt._READY]:  # start in the steady state of the first sample
-            z1[:], z2[:] = v * (1.0 - b0), v * (b2 - a2)
-            x[tilt._READY] = 1.0
-        y = b0 * v + z1
-        z1[:] = b1 * v - a1 * y + z2
-        z2[:] = b2 * v - a2 * y
-        x[tilt._Y:tilt._Y + 3] = y
+        y = tilt._lowpass_vertical(x, v)  # (no fast start: its first step starts in v's steady state)
         u = quat_to_matrix(q_est[k]) @ (r.T @ y)  # the low-passed vertical in the estimate's earth frame
         u = u / np.linalg.norm(u)
         c = np.array([1.0 + u[2], u[1], -u[0], 0.0])  # the smallest rotation taking it to the vertical
@@ -490,16 +478,7 @@ def _smooth_kernel(q_est, gyr, acc, dt, bias, rest, gap, reverse, p, x0, out):
             tau = x[_T_TAU]
         b0, b1, b2, c1, c2 = _lp_coeffs(tau, dt[k])
         _k_set_tau(x, b0, b1, b2, c1, c2)
-        if x[_T_READY] == 0.0:
-            x[_T_Z1], x[_T_Z1 + 1], x[_T_Z1 + 2] = v0 * (1.0 - b0), v1 * (1.0 - b0), v2 * (1.0 - b0)
-            x[_T_Z2], x[_T_Z2 + 1], x[_T_Z2 + 2] = v0 * (b2 - c2), v1 * (b2 - c2), v2 * (b2 - c2)
-            x[_T_READY] = 1.0
-        y0, y1, y2 = b0 * v0 + x[_T_Z1], b0 * v1 + x[_T_Z1 + 1], b0 * v2 + x[_T_Z1 + 2]
-        x[_T_Y], x[_T_Y + 1], x[_T_Y + 2] = y0, y1, y2
-        x[_T_Z1] = b1 * v0 - c1 * y0 + x[_T_Z2]
-        x[_T_Z1 + 1] = b1 * v1 - c1 * y1 + x[_T_Z2 + 1]
-        x[_T_Z1 + 2] = b1 * v2 - c1 * y2 + x[_T_Z2 + 2]
-        x[_T_Z2], x[_T_Z2 + 1], x[_T_Z2 + 2] = b2 * v0 - c2 * y0, b2 * v1 - c2 * y1, b2 * v2 - c2 * y2
+        y0, y1, y2 = _k_lowpass_vertical(x, v0, v1, v2)
         m0, m1, m2 = k_rot(i0, -i1, -i2, -i3, y0, y1, y2)
         v0, v1, v2 = k_rot(e0, e1, e2, e3, m0, m1, m2)
         nv = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)

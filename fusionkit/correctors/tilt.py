@@ -216,6 +216,39 @@ def _atan_over(s, c):
     return math.atan2(s, c) / s
 
 
+def _lowpass_vertical(x, v):
+    """One step of the inclination low-pass on ``v`` (the specific force in I) with the state's
+    coefficients (transposed direct form II); its first step starts in the steady state of the
+    fast start's mean (or of ``v`` without one). Returns the low-passed vector (``x[_Y:_Y + 3]``)."""
+    b0, b1, b2, a1, a2 = x[_B:_B + 5]
+    y, z1, z2 = x[_Y:_Y + 3], x[_Z1:_Z1 + 3], x[_Z2:_Z2 + 3]
+    if not x[_READY]:  # start in the steady state of the mean (or of the first sample)
+        start = x[_MEAN:_MEAN + 3] if x[_NMEAN] > 0 else v
+        z1[:], z2[:] = start * (1.0 - b0), start * (b2 - a2)
+        x[_READY] = 1.0
+    y[:] = b0 * v + z1
+    z1[:] = b1 * v - a1 * y + z2
+    z2[:] = b2 * v - a2 * y
+    return y
+
+
+@njit(inline="always")
+def _k_lowpass_vertical(s, v0, v1, v2):
+    """:func:`_lowpass_vertical` compiled: the low-passed vector's three entries."""
+    b0, b1, b2, c1, c2 = s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4]
+    if s[_READY] == 0.0:  # start in the steady state of the mean (or of the first sample)
+        t0, t1, t2 = (s[_MEAN], s[_MEAN + 1], s[_MEAN + 2]) if s[_NMEAN] > 0 else (v0, v1, v2)
+        s[_Z1], s[_Z1 + 1], s[_Z1 + 2] = t0 * (1.0 - b0), t1 * (1.0 - b0), t2 * (1.0 - b0)
+        s[_Z2], s[_Z2 + 1], s[_Z2 + 2] = t0 * (b2 - c2), t1 * (b2 - c2), t2 * (b2 - c2)
+        s[_READY] = 1.0
+    y0, y1, y2 = b0 * v0 + s[_Z1], b0 * v1 + s[_Z1 + 1], b0 * v2 + s[_Z1 + 2]
+    s[_Y], s[_Y + 1], s[_Y + 2] = y0, y1, y2
+    s[_Z1], s[_Z1 + 1], s[_Z1 + 2] = (b1 * v0 - c1 * y0 + s[_Z2], b1 * v1 - c1 * y1 + s[_Z2 + 1],
+                                      b1 * v2 - c1 * y2 + s[_Z2 + 2])
+    s[_Z2], s[_Z2 + 1], s[_Z2 + 2] = b2 * v0 - c2 * y0, b2 * v1 - c2 * y1, b2 * v2 - c2 * y2
+    return y0, y1, y2
+
+
 @njit(inline="always")
 def _lp_step(s, i, n, x, b0, b1, b2, c1, c2):
     """One step of the second-order low-pass whose delay lines are ``s[i]`` and ``s[i + n]``."""
@@ -440,15 +473,7 @@ class InertialTilt(FactorCorrector):
             if c.tau_adapt and abs(tau - x[_TAUC] * dt) > _TAU_STEP * x[_TAUC] * dt:
                 x[_TAUC] = tau / dt  # the coefficients of this sample's time constant
                 _set_tau(x, *lowpass_coefficients(tau, dt))
-            b0, b1, b2, a1, a2 = x[_B:_B + 5]
-            z1, z2 = x[_Z1:_Z1 + 3], x[_Z2:_Z2 + 3]
-            if not x[_READY]:  # start in the steady state of the mean (or of the first sample)
-                start = x[_MEAN:_MEAN + 3] if x[_NMEAN] > 0 else a_i
-                z1[:], z2[:] = start * (1.0 - b0), start * (b2 - a2)
-                x[_READY] = 1.0
-            y[:] = b0 * a_i + z1  # transposed direct form II
-            z1[:] = b1 * a_i - a1 * y + z2
-            z2[:] = b2 * a_i - a2 * y
+            _lowpass_vertical(x, a_i)
         # the smallest rotation taking the low-passed vector (levelled frame) to the vertical
         up = x[_UP:_UP + 3]
         v = quat_to_matrix(x[_QA:_QA + 4]) @ y
@@ -560,17 +585,7 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                 s[_TAUC] = tau / dt
                 t0, t1, t2, t3, t4 = _lp_coeffs(tau, dt)
                 _k_set_tau(s, t0, t1, t2, t3, t4)
-            b0, b1, b2, c1, c2 = s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4]
-            if s[_READY] == 0.0:  # start in the steady state of the mean (or of the first sample)
-                t0, t1, t2 = (s[_MEAN], s[_MEAN + 1], s[_MEAN + 2]) if s[_NMEAN] > 0 else (v0, v1, v2)
-                s[_Z1], s[_Z1 + 1], s[_Z1 + 2] = t0 * (1.0 - b0), t1 * (1.0 - b0), t2 * (1.0 - b0)
-                s[_Z2], s[_Z2 + 1], s[_Z2 + 2] = t0 * (b2 - c2), t1 * (b2 - c2), t2 * (b2 - c2)
-                s[_READY] = 1.0
-            y0, y1, y2 = b0 * v0 + s[_Z1], b0 * v1 + s[_Z1 + 1], b0 * v2 + s[_Z1 + 2]
-            s[_Y], s[_Y + 1], s[_Y + 2] = y0, y1, y2
-            s[_Z1], s[_Z1 + 1], s[_Z1 + 2] = (b1 * v0 - c1 * y0 + s[_Z2], b1 * v1 - c1 * y1 + s[_Z2 + 1],
-                                              b1 * v2 - c1 * y2 + s[_Z2 + 2])
-            s[_Z2], s[_Z2 + 1], s[_Z2 + 2] = b2 * v0 - c2 * y0, b2 * v1 - c2 * y1, b2 * v2 - c2 * y2
+            _k_lowpass_vertical(s, v0, v1, v2)
         v0, v1, v2 = k_rot(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], s[_Y], s[_Y + 1], s[_Y + 2])
         n = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
         v0, v1, v2 = v0 / n, v1 / n, v2 / n
