@@ -78,17 +78,8 @@ def rotvec_quat_entries(r0, r1, r2):
 
 @njit
 def quat_to_dcm(q, c):
-    """Row-major rotation matrix of ``q`` into ``c[0:9]`` (rotations.quat_to_matrix)."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    c[0] = 1 - 2 * (y * y + z * z)
-    c[1] = 2 * (x * y - w * z)
-    c[2] = 2 * (x * z + w * y)
-    c[3] = 2 * (x * y + w * z)
-    c[4] = 1 - 2 * (x * x + z * z)
-    c[5] = 2 * (y * z - w * x)
-    c[6] = 2 * (x * z - w * y)
-    c[7] = 2 * (y * z + w * x)
-    c[8] = 1 - 2 * (x * x + y * y)
+    """Row-major rotation matrix of ``q`` into ``c[0:9]`` (rotations.quat_to_matrix; :func:`dcm_entries` stored)."""
+    c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8] = dcm_entries(q[0], q[1], q[2], q[3])
 
 
 @njit
