@@ -364,7 +364,7 @@ def _ring_push(s, g, m, a, ma, dq):
         s[k + 9 + j] = ma[j]
     for j in range(4):
         s[k + 12 + j] = dq[j]
-    s[k + 16] = _raw_change(m[0], m[1], m[2], ma[0], ma[1], ma[2], dq[0], dq[1], dq[2], dq[3])
+    s[k + 16] = _field_change(m[0], m[1], m[2], ma[0], ma[1], ma[2], dq[0], dq[1], dq[2], dq[3])
     # what the gate computes of the raw field at every check, once: its norm, the accelerometer's, the dip's sine
     nr = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
     na = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
@@ -460,21 +460,16 @@ def _earth_change(s, g, w, c):
     size = 0.0
     for i in range(n):
         k = g + _GBUF + _GE * i
-        qw, qx, qy, qz = s[k + 12], s[k + 13], s[k + 14], s[k + 15]
-        r00, r01, r02, r10, r11, r12, r20, r21, r22 = dcm_entries(qw, qx, qy, qz)  # C = R(dq)
         mk0, mk1, mk2 = s[k], s[k + 1], s[k + 2]
         ma0, ma1, ma2 = s[k + 9], s[k + 10], s[k + 11]
-        raw[i] = s[k + 16]  # _raw_change, computed when the segment entered the ring
+        raw[i] = s[k + 16]  # _field_change, computed when the segment entered the ring
         uk0 = w[0, 0] * mk0 + w[0, 1] * mk1 + w[0, 2] * mk2 - c[0]
         uk1 = w[1, 0] * mk0 + w[1, 1] * mk1 + w[1, 2] * mk2 - c[1]
         uk2 = w[2, 0] * mk0 + w[2, 1] * mk1 + w[2, 2] * mk2 - c[2]
         ua0 = w[0, 0] * ma0 + w[0, 1] * ma1 + w[0, 2] * ma2 - c[0]
         ua1 = w[1, 0] * ma0 + w[1, 1] * ma1 + w[1, 2] * ma2 - c[1]
         ua2 = w[2, 0] * ma0 + w[2, 1] * ma1 + w[2, 2] * ma2 - c[2]
-        e0 = uk0 - (r00 * ua0 + r10 * ua1 + r20 * ua2)
-        e1 = uk1 - (r01 * ua0 + r11 * ua1 + r21 * ua2)
-        e2 = uk2 - (r02 * ua0 + r12 * ua1 + r22 * ua2)
-        cal[i] = e0 * e0 + e1 * e1 + e2 * e2
+        cal[i] = _field_change(uk0, uk1, uk2, ua0, ua1, ua2, s[k + 12], s[k + 13], s[k + 14], s[k + 15])
         nm = mk0 * mk0 + mk1 * mk1 + mk2 * mk2
         if nm > 0.0:
             size += ((uk0 - mk0) ** 2 + (uk1 - mk1) ** 2 + (uk2 - mk2) ** 2) / nm
@@ -482,10 +477,11 @@ def _earth_change(s, g, w, c):
 
 
 @njit(inline="always")
-def _raw_change(mk0, mk1, mk2, ma0, ma1, ma2, qw, qx, qy, qz):
-    """The raw field's squared change in the earth frame across one segment, ``|m_k - C^T m_a|^2``
-    (:func:`_earth_change`); it depends on the segment alone, so :func:`_ring_push` computes it
-    once. The same statements in the reference and, compiled, in the kernel."""
+def _field_change(mk0, mk1, mk2, ma0, ma1, ma2, qw, qx, qy, qz):
+    """A field's squared change in the earth frame across one segment, ``|m_k - C^T m_a|^2``
+    (:func:`_earth_change`; ``C = R(q)``, the segment's turn): the raw field's depends on the
+    segment alone, so :func:`_ring_push` computes it once; the calibrated field's is taken at each
+    check. The same statements in the reference and, compiled, in the kernel."""
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = dcm_entries(qw, qx, qy, qz)  # C = R(dq)
     d0 = mk0 - (r00 * ma0 + r10 * ma1 + r20 * ma2)
     d1 = mk1 - (r01 * ma0 + r11 * ma1 + r21 * ma2)
