@@ -15,7 +15,9 @@ calibration was decided with the whole recording) and one without the model (``m
 ``--as-is-timing`` a column with the magnetometer as it is recorded (``mag_timing="as-is"``, the mode
 before its timing was decided with the whole recording); ``--average-inclination`` a column with the
 passes' inclinations fused as they are (``inclination="average"``, the mode before the smoothing in
-the other direction of time); ``--groups`` adds, per mode, the mean
+the other direction of time); ``--gyro-timing`` a column with the gyroscope moved onto the
+accelerometer's clock by its delay estimated over the recording (``gyro_timing="recording"``, an
+option; each trial's estimate is printed); ``--groups`` adds, per mode, the mean
 of each BROAD group (``trials.json`` in the data folder: rotation, translation, slow, fast,
 magnets ...) for every column: which kinds of motion the offline mode wins or loses against
 ``vqf-offline``.
@@ -86,6 +88,8 @@ def main() -> None:
     ap.add_argument("--as-is-timing", action="store_true", help="add the magnetometer's timing as recorded")
     ap.add_argument("--average-inclination", action="store_true",
                     help="add the passes' inclinations fused as they are (the mode before the smoothing)")
+    ap.add_argument("--gyro-timing", action="store_true",
+                    help="add the gyroscope re-timed onto the accelerometer's clock (gyro_timing='recording')")
     ap.add_argument("--groups", action="store_true", help="add the mean per BROAD group (trials.json)")
     args = ap.parse_args()
     files = sorted(Path(args.data).glob("*.hdf5"))
@@ -119,6 +123,9 @@ def main() -> None:
         if args.average_inclination:
             runs["offline, inclination averaged"] = OfflineFilter(fk.make("recommended", **kw),
                                                                   disturbance_gap=args.gap, inclination="average")
+        if args.gyro_timing:
+            runs["offline, gyro timing"] = OfflineFilter(fk.make("recommended", **kw), disturbance_gap=args.gap,
+                                                         gyro_timing="recording")
         key = "inclination" if six else "total"
         err = {n: [] for n in runs}
         secs = {n: 0.0 for n in runs}
@@ -130,6 +137,10 @@ def main() -> None:
                 res = f.run(rec)
                 secs[n] += time.perf_counter() - t0
                 err[n].append(rms_errors(res, rec)[key])
+                if n == "offline, gyro timing":
+                    g = res.diagnostics["gyro_timing"]
+                    print(f"{rec.name}: gyro delay {g['delay'] / rec.nominal_dt:+.2f} +- "
+                          f"{g['std'] / rec.nominal_dt:.2f} samples, applied {g['applied']}")
         names = list(runs)
         print(f"\n{mode}: {key} RMSE [deg]\n| trial | " + " | ".join(names) + " |")
         print("|---|" + "---:|" * len(names))
@@ -143,6 +154,8 @@ def main() -> None:
             pairs.append(("offline, no mask", "recommended offline", "the disturbance mask's"))
         if "offline, per-pass calibration" in runs:
             pairs.append(("offline, per-pass calibration", "recommended offline", "the recording's calibration's"))
+        if "offline, gyro timing" in runs:
+            pairs.append(("recommended offline", "offline, gyro timing", "the gyro timing's"))
         if "offline, timing as-is" in runs:
             pairs.append(("offline, timing as-is", "recommended offline", "the recording's timing's"))
         for base, new, what in pairs:

@@ -98,6 +98,16 @@ between (:func:`retime_mag`). It runs after the calibration (the iron does not t
 earth's field). The output stays on the gyroscope's clock. ``mag_timing="as-is"``: the stream as
 recorded (the mode before).
 
+**The gyroscope's timing against the accelerometer** (``gyro_timing``, default ``"as-is"``;
+``"recording"``: an option). A gyroscope late against the accelerometer (its digital low-pass's group
+delay, a later sampling instant) lags both passes alike. With ``"recording"`` its delay is estimated
+over the whole recording from the IMU alone (:func:`gyro_delay_recording`, the magnetometer's
+estimator on gravity's direction) and, past the same ``MAG_DELAY_SIGMAS`` test, the gyro is moved
+earlier by it before every other step (:func:`retime_gyro`): the output then follows the
+accelerometer's clock. Not the default: the estimate assumes linear accelerations that do not
+correlate with the angular acceleration, which a hand-held sensor's do (on BROAD it is several
+samples off).
+
 Flags: REST where either pass detects rest (the future confirms a rest the past could not yet
 see), MAG_DISTURBED where the magnetometer was left out (the mask above) or both passes reject it
 (VQF's offline rule), the other bits where either pass sets them.
@@ -121,7 +131,7 @@ from .config import FilterConfig
 from .conventions import change_frame
 from .errors import ConfigError, InputError, PluginError
 from .models.mag_calibration import mag_calibration_apply
-from .models.time_offset import EST, MAG, NSEG, STD, TimeOffsetModel, time_offset_apply
+from .models.time_offset import ACC, EST, MAG, NSEG, STD, TimeOffsetModel, time_offset_apply
 from .protocols import Filter
 from .rotations import quat_conj, quat_from_rotvec, quat_mul, quat_to_matrix, quat_to_rotvec
 from .types import Flag, Recording, Result, hold_gaps, sample_validity
@@ -131,7 +141,7 @@ from .correctors.tilt import _k_adapt_step, _k_lowpass_vertical, _k_set_tau, _lp
 
 __all__ = ["OfflineFilter", "reverse_recording", "reversed_config", "information", "fuse_reference",
            "supports_offline", "disturbance_mask", "calibration_passes", "select_calibration", "mag_delay_recording",
-           "retime_mag", "smooth_reference", "smoothing_params", "bias_trace"]
+           "retime_mag", "smooth_reference", "smoothing_params", "bias_trace", "gyro_delay_recording", "retime_gyro"]
 
 #: the sensor model whose magnetometer calibration the offline mode decides with the whole recording
 _MAG_CALIBRATION = "mag-calibration"
@@ -142,6 +152,8 @@ _CALIBRATIONS = ("recording", "per-pass")
 _CALIBRATION_TESTS = ("norm", "model")
 #: how the offline mode treats the magnetometer's timing (``OfflineFilter(mag_timing=...)``)
 _MAG_TIMINGS = ("recording", "as-is")
+#: how the offline mode treats the gyroscope's timing against the accelerometer (``OfflineFilter(gyro_timing=...)``)
+_GYRO_TIMINGS = ("as-is", "recording")
 #: how the two passes' inclinations are combined (``OfflineFilter(inclination=...)``): ``"smoothed"``
 #: each pass's low-passed again in the other direction of time, then fused; ``"average"`` fused as they are
 _INCLINATIONS = ("smoothed", "average")
@@ -532,7 +544,7 @@ class OfflineFilter(Filter):
 
     def __init__(self, inner: Filter, disturbance_gap: float | None = DISTURBANCE_GAP,
                  calibration: str = "recording", mag_timing: str = "recording",
-                 calibration_test: str = "norm", inclination: str = "smoothed") -> None:
+                 calibration_test: str = "norm", inclination: str = "smoothed", gyro_timing: str = "as-is") -> None:
         why = supports_offline(inner)
         if why is not None:
             raise PluginError(f"filter {inner.name!r} does not support offline=True: {why}")
@@ -549,6 +561,9 @@ class OfflineFilter(Filter):
             raise ConfigError(f"inclination must be one of {', '.join(map(repr, _INCLINATIONS))}, got {inclination!r}")
         if mag_timing not in _MAG_TIMINGS:
             raise ConfigError(f"mag_timing must be one of {', '.join(map(repr, _MAG_TIMINGS))}, got {mag_timing!r}")
+        if gyro_timing not in _GYRO_TIMINGS:
+            raise ConfigError(f"gyro_timing must be one of {', '.join(map(repr, _GYRO_TIMINGS))}, got {gyro_timing!r}")
+        self.gyro_timing = gyro_timing
         self.inner = inner
         self.mag_timing = mag_timing
         self.disturbance_gap = None if disturbance_gap is None else float(disturbance_gap)
@@ -582,7 +597,8 @@ class OfflineFilter(Filter):
         calibration model or ``calibration="per-pass"``); ``diagnostics["mag_timing"]`` the
         magnetometer's delay estimated over the recording, its standard deviation (s) and whether the
         stream was re-timed (``{"delay", "std", "applied"}``; None in 6D or with
-        ``mag_timing="as-is"``); ``inclination="smoothed"`` runs each pass once more in pieces for
+        ``mag_timing="as-is"``); ``diagnostics["gyro_timing"]`` the gyroscope's delay against the
+        accelerometer, likewise (None with ``gyro_timing="as-is"``); ``inclination="smoothed"`` runs each pass once more in pieces for
         its bias (:func:`bias_trace`); ``backend`` is the passes',
         ``fusion_backend`` the fusion's."""
         if not isinstance(rec, Recording):
@@ -592,6 +608,9 @@ class OfflineFilter(Filter):
         lead = float(getattr(inner.config, "output_lead", 0.0) or 0.0)
         if lead > 0.0:  # the passes without it; the fused trajectory is read ahead instead (_read_ahead)
             inner = type(inner)(inner.config.model_copy(update={"output_lead": 0.0}))
+        gyro_timing = None
+        if self.gyro_timing == "recording" and len(rec) >= 2:  # first: every later step reads the gyro
+            rec, gyro_timing = self._gyro_retimed(rec, inner.config, used)
         choice = None
         if self.calibration == "recording" and len(rec) >= 2 and self.dimension(rec) == "9D":
             split = _split_calibration(inner)
@@ -659,7 +678,7 @@ class OfflineFilter(Filter):
         diag = dict(fwd.diagnostics)
         diag.update({"filter": self.name, "fusion_backend": used, "offline": True, "config": self.config.model_dump(),
                      "backward_weight": {"inclination": w_i, "heading": w_h}, "mag_disturbed": disturbed,
-                     "mag_calibration": choice, "mag_timing": timing,
+                     "mag_calibration": choice, "mag_timing": timing, "gyro_timing": gyro_timing,
                      "backward_diagnostics": {k: v for k, v in bwd.diagnostics.items() if k != "config"}})
         return Result(q, flags, frame, diag)
 
@@ -699,6 +718,24 @@ class OfflineFilter(Filter):
         out = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
         limit = TimeOffsetModel.Config().max_offset  # the model's bound on a sensor's delay, as it applies it
         out.mag = retime_mag(rec.gyr, rec.mag, rec.time, rec.dt, min(max(delay, -limit), limit), pairing, used)
+        return out, info
+
+    @classmethod
+    def _gyro_retimed(cls, rec, config, used):
+        """``rec`` with its gyroscope moved onto the accelerometer's clock (:func:`retime_gyro`) where
+        the gyro's delay estimated over the whole recording (:func:`gyro_delay_recording`) differs
+        from the filter's pairing by more than ``MAG_DELAY_SIGMAS`` standard deviations (the same
+        test as the magnetometer's; clamped to the ``time-offset`` model's ``max_offset``), else
+        ``rec`` itself; and ``{"delay", "std", "applied"}`` (s)."""
+        delay, std = gyro_delay_recording(rec, getattr(config, "gyr_range", None), getattr(config, "acc_range", None),
+                                          getattr(config, "acc_delay", None), used)
+        applied = bool(math.isfinite(delay) and math.isfinite(std) and abs(delay) > cls.MAG_DELAY_SIGMAS * std)
+        info = {"delay": delay, "std": std, "applied": applied}
+        if not applied:
+            return rec, info
+        out = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
+        limit = TimeOffsetModel.Config().max_offset
+        out.gyr = retime_gyro(rec.gyr, rec.time, min(max(delay, -limit), limit))
         return out, info
 
     @staticmethod
@@ -882,20 +919,67 @@ def mag_delay_recording(rec: Recording, gyr_range: float | None = None, acc_rang
     over the recording without forgetting: offline every segment of the recording informs the
     one delay of the hardware. ``backend``: ``"numba"`` (its kernel) or ``"reference"`` (the
     model's ``apply``, the same numbers)."""
-    model = TimeOffsetModel(forget_time=_NO_FORGETTING)
-    s = model.initial_state(rec.nominal_dt)
-    dt = np.ascontiguousarray(rec.dt, dtype=float)
-    if resolve_backend(backend, True) == "numba":
-        _delay_kernel(s, rec.gyr, rec.acc, rec.mag, dt, _validity(rec.gyr, rec.acc, rec.mag, gyr_range, acc_range),
-                      model.params())
-    else:
-        _model_reference(model, s, rec.gyr, rec.acc, rec.mag, dt, gyr_range, acc_range)
+    s, model = _delay_state(rec, gyr_range, acc_range, backend)
     if s[MAG + NSEG] < model.config.min_segments or not s[MAG + STD] > 0.0:
         return math.nan, math.nan
     # the model's estimate is the gyro's delay against the magnetometer, both taken at the middle of
     # the step (negative: the magnetometer is the later); the filter pairs it pairing before the end
     middle = 0.5 * rec.nominal_dt
     return -float(s[MAG + EST]) + (middle - pairing if pairing is not None else 0.0), float(s[MAG + STD])
+
+
+def gyro_delay_recording(rec: Recording, gyr_range: float | None = None, acc_range: float | None = None,
+                         pairing: float | None = None, backend: str = "numba") -> tuple[float, float]:
+    """The gyroscope's delay against the accelerometer over the whole recording, from the IMU alone:
+    ``(delay, std)`` in s, ``delay`` the time by which a gyro sample describes the body *after* the
+    instant the filter pairs the accelerometer with (``pairing``: the filter's ``acc_delay``, None the
+    middle of the gyro's step; positive: the gyro is late, its digital low-pass's group delay or a
+    later sampling instant), NaN without enough segments.
+
+    The same estimator as :func:`mag_delay_recording` on gravity's direction (the ``time-offset``
+    model's accelerometer block, without forgetting): between two accelerometer samples the
+    direction the gyro's turn does not explain is proportional to the angular acceleration times
+    the delay; a sample whose norm is off gravity's by more than the model's ``acc_tol`` does not
+    enter. It assumes the linear accelerations do not correlate with the angular acceleration; a
+    hand's do where the sensor sits away from the wrist (tangential accelerations), and then the
+    estimate is biased by several samples (BROAD: docs/algorithms/offline.md)."""
+    s, model = _delay_state(rec, gyr_range, acc_range, backend)
+    if s[ACC + NSEG] < model.config.min_segments or not s[ACC + STD] > 0.0:
+        return math.nan, math.nan
+    # the model's estimate is the gyro's delay against the accelerometer, both at the middle of the
+    # step; the filter pairs the accelerometer pairing before the end of the step
+    middle = 0.5 * rec.nominal_dt
+    return float(s[ACC + EST]) + (pairing - middle if pairing is not None else 0.0), float(s[ACC + STD])
+
+
+def _delay_state(rec, gyr_range, acc_range, backend):
+    """The ``time-offset`` model run once over ``rec`` without forgetting: its state (both sensors'
+    estimates; without a magnetometer its block stays empty) and the model."""
+    model = TimeOffsetModel(forget_time=_NO_FORGETTING)
+    s = model.initial_state(rec.nominal_dt)
+    dt = np.ascontiguousarray(rec.dt, dtype=float)
+    mag = np.full_like(rec.acc, np.nan) if rec.mag is None else rec.mag
+    if resolve_backend(backend, True) == "numba":
+        _delay_kernel(s, rec.gyr, rec.acc, mag, dt, _validity(rec.gyr, rec.acc, mag, gyr_range, acc_range),
+                      model.params())
+    else:
+        _model_reference(model, s, rec.gyr, rec.acc, mag, dt, gyr_range, acc_range)
+    return s, model
+
+
+def retime_gyro(gyr: np.ndarray, time: np.ndarray, delay: float) -> np.ndarray:
+    """The gyroscope ``delay`` s earlier (:func:`gyro_delay_recording`): each sample replaced by the
+    rate at its instant plus ``delay``, interpolated linearly between the samples around it (held
+    past the ends). Offline the later samples are there, so no extrapolation (the ``time-offset``
+    model's online re-timing extrapolates). A sample with a non-finite axis stays as it is, and a
+    sample whose interpolation would read one keeps its own value. The orientation integrated from the result
+    follows the accelerometer's clock."""
+    gyr = np.asarray(gyr, dtype=float)
+    t = np.asarray(time, dtype=float)
+    out = np.stack([np.interp(t + delay, t, gyr[:, i]) for i in range(3)], axis=1)
+    bad = ~(np.isfinite(out).all(axis=1) & np.isfinite(gyr).all(axis=1))
+    out[bad] = gyr[bad]
+    return out
 
 
 @njit
