@@ -102,11 +102,12 @@ recorded (the mode before).
 ``"recording"``: an option). A gyroscope late against the accelerometer (its digital low-pass's group
 delay, a later sampling instant) lags both passes alike. With ``"recording"`` its delay is estimated
 over the whole recording from the IMU alone (:func:`gyro_delay_recording`, the magnetometer's
-estimator on gravity's direction) and, past the same ``MAG_DELAY_SIGMAS`` test, the gyro is moved
-earlier by it before every other step (:func:`retime_gyro`): the output then follows the
+estimator on gravity's direction) and, where it is one delay (past the same ``MAG_DELAY_SIGMAS``
+test, and so is the estimate over ``GYRO_CHECK_SEGMENT`` s segments, and the two agree), the gyro is
+moved earlier by it before every other step (:func:`retime_gyro`): the output then follows the
 accelerometer's clock. Not the default: the estimate assumes linear accelerations that do not
 correlate with the angular acceleration, which a hand-held sensor's do (on BROAD it is several
-samples off).
+samples off; the second time scale refuses it there).
 
 Flags: REST where either pass detects rest (the future confirms a rest the past could not yet
 see), MAG_DISTURBED where the magnetometer was left out (the mask above) or both passes reject it
@@ -537,6 +538,12 @@ class OfflineFilter(Filter):
     #: the 0.3% level that the sensor does not keep the pairing the filter assumes (a recording
     #: with little angular acceleration, e.g. at rest, informs the estimate little and keeps it)
     MAG_DELAY_SIGMAS: ClassVar[float] = 3.0
+    #: the segment length (s) of the second estimate of the gyro's delay (``gyro_timing="recording"``):
+    #: five times the ``time-offset`` model's 0.02 s, a band five times lower. A pure delay is the same
+    #: at every time scale; a bias from linear accelerations that come with the rotation (a hand's) is
+    #: not, as their share of the direction's change and the delay's (the angular acceleration times
+    #: the delay) scale differently with the frequency
+    GYRO_CHECK_SEGMENT: ClassVar[float] = 0.1
     #: the interval (s) at which :func:`bias_trace` reads each pass's gyro bias for the smoothed
     #: inclination (``inclination="smoothed"``): the bias moves fastest at a rest, where
     #: ``recommended``'s rest corrector learns it with a time constant of 1 s (``rest_bias_tau``)
@@ -723,14 +730,20 @@ class OfflineFilter(Filter):
     @classmethod
     def _gyro_retimed(cls, rec, config, used):
         """``rec`` with its gyroscope moved onto the accelerometer's clock (:func:`retime_gyro`) where
-        the gyro's delay estimated over the whole recording (:func:`gyro_delay_recording`) differs
-        from the filter's pairing by more than ``MAG_DELAY_SIGMAS`` standard deviations (the same
-        test as the magnetometer's; clamped to the ``time-offset`` model's ``max_offset``), else
-        ``rec`` itself; and ``{"delay", "std", "applied"}`` (s)."""
-        delay, std = gyro_delay_recording(rec, getattr(config, "gyr_range", None), getattr(config, "acc_range", None),
-                                          getattr(config, "acc_delay", None), used)
-        applied = bool(math.isfinite(delay) and math.isfinite(std) and abs(delay) > cls.MAG_DELAY_SIGMAS * std)
-        info = {"delay": delay, "std": std, "applied": applied}
+        the gyro's delay estimated over the whole recording (:func:`gyro_delay_recording`) is a delay:
+        it differs from the filter's pairing by more than ``MAG_DELAY_SIGMAS`` standard deviations (the
+        magnetometer's test), so does the estimate over ``GYRO_CHECK_SEGMENT`` s segments, and the two
+        agree within ``MAG_DELAY_SIGMAS`` of their combined standard deviation (clamped to the
+        ``time-offset`` model's ``max_offset``); else ``rec`` itself. And ``{"delay", "std", "check",
+        "check_std", "applied"}`` (s; ``check`` the estimate over the longer segments)."""
+        args = (rec, getattr(config, "gyr_range", None), getattr(config, "acc_range", None),
+                getattr(config, "acc_delay", None), used)
+        delay, std = gyro_delay_recording(*args)
+        check, check_std = gyro_delay_recording(*args, segment_time=cls.GYRO_CHECK_SEGMENT)
+        k = cls.MAG_DELAY_SIGMAS
+        applied = bool(np.all(np.isfinite([delay, std, check, check_std])) and abs(delay) > k * std
+                       and abs(check) > k * check_std and abs(delay - check) < k * math.hypot(std, check_std))
+        info = {"delay": delay, "std": std, "check": check, "check_std": check_std, "applied": applied}
         if not applied:
             return rec, info
         out = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
@@ -929,7 +942,8 @@ def mag_delay_recording(rec: Recording, gyr_range: float | None = None, acc_rang
 
 
 def gyro_delay_recording(rec: Recording, gyr_range: float | None = None, acc_range: float | None = None,
-                         pairing: float | None = None, backend: str = "numba") -> tuple[float, float]:
+                         pairing: float | None = None, backend: str = "numba",
+                         segment_time: float | None = None) -> tuple[float, float]:
     """The gyroscope's delay against the accelerometer over the whole recording, from the IMU alone:
     ``(delay, std)`` in s, ``delay`` the time by which a gyro sample describes the body *after* the
     instant the filter pairs the accelerometer with (``pairing``: the filter's ``acc_delay``, None the
@@ -942,8 +956,10 @@ def gyro_delay_recording(rec: Recording, gyr_range: float | None = None, acc_ran
     the delay; a sample whose norm is off gravity's by more than the model's ``acc_tol`` does not
     enter. It assumes the linear accelerations do not correlate with the angular acceleration; a
     hand's do where the sensor sits away from the wrist (tangential accelerations), and then the
-    estimate is biased by several samples (BROAD: docs/algorithms/offline.md)."""
-    s, model = _delay_state(rec, gyr_range, acc_range, backend)
+    estimate is biased by several samples (BROAD: docs/algorithms/offline.md). ``segment_time``: the
+    model's segment length (s; None its default, 0.02 s): the time scale over which the direction's
+    change is compared, which a pure delay does not depend on."""
+    s, model = _delay_state(rec, gyr_range, acc_range, backend, segment_time)
     if s[ACC + NSEG] < model.config.min_segments or not s[ACC + STD] > 0.0:
         return math.nan, math.nan
     # the model's estimate is the gyro's delay against the accelerometer, both at the middle of the
@@ -952,10 +968,12 @@ def gyro_delay_recording(rec: Recording, gyr_range: float | None = None, acc_ran
     return float(s[ACC + EST]) + (pairing - middle if pairing is not None else 0.0), float(s[ACC + STD])
 
 
-def _delay_state(rec, gyr_range, acc_range, backend):
-    """The ``time-offset`` model run once over ``rec`` without forgetting: its state (both sensors'
-    estimates; without a magnetometer its block stays empty) and the model."""
-    model = TimeOffsetModel(forget_time=_NO_FORGETTING)
+def _delay_state(rec, gyr_range, acc_range, backend, segment_time=None):
+    """The ``time-offset`` model run once over ``rec`` without forgetting (with ``segment_time`` when
+    given): its state (both sensors' estimates; without a magnetometer its block stays empty) and the
+    model."""
+    extra = {} if segment_time is None else {"segment_time": float(segment_time)}
+    model = TimeOffsetModel(forget_time=_NO_FORGETTING, **extra)
     s = model.initial_state(rec.nominal_dt)
     dt = np.ascontiguousarray(rec.dt, dtype=float)
     mag = np.full_like(rec.acc, np.nan) if rec.mag is None else rec.mag

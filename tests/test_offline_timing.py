@@ -219,3 +219,24 @@ def test_gyro_retimed_result_does_not_depend_on_the_direction_of_time():
     up_b = fk.rotations.quat_rotate(fk.rotations.quat_conj(b.quat[-3::-1][:n - 2]), up)
     ang = np.degrees(np.arccos(np.clip(np.sum(up_a * up_b, axis=1), -1, 1)))
     assert np.percentile(ang[500:-500], 99) < 0.01
+
+
+@pytest.mark.parametrize("short, long, applied", [
+    ((1.00, 0.04), (1.02, 0.08), True),  # late-gyro: the same delay at both time scales
+    ((5.64, 0.70), (2.68, 1.30), False),  # BROAD 03: significant over 0.02 s, not over 0.1 s (the hand's accelerations)
+    ((6.34, 0.92), (-0.89, 1.60), False),  # BROAD 04: the two disagree
+    ((5.23, 1.08), (3.49, 1.26), False),  # BROAD 06: agree, the longer one not significant (2.8 sigma)
+    ((2.00, 0.10), (1.00, 0.10), False),  # both significant, they disagree: not one delay
+])
+def test_gyro_delay_is_applied_only_where_both_time_scales_show_one_delay(monkeypatch, short, long, applied):
+    import fusionkit.offline as offline
+
+    def fake(rec, *args, segment_time=None):
+        d, s = long if segment_time == OfflineFilter.GYRO_CHECK_SEGMENT else short
+        return d * rec.nominal_dt, s * rec.nominal_dt
+
+    monkeypatch.setattr(offline, "gyro_delay_recording", fake)
+    rec = sim.scenario("late-gyro").slice(0, 400)
+    out, info = OfflineFilter._gyro_retimed(rec, fk.make("recommended").config, "numba")
+    assert info["applied"] is applied
+    assert (out is rec) is not applied
