@@ -107,7 +107,8 @@ test, and so is the estimate over ``GYRO_CHECK_SEGMENT`` s segments, and the two
 moved earlier by it before every other step (:func:`retime_gyro`): the output then follows the
 accelerometer's clock. Not the default: the estimate assumes linear accelerations that do not
 correlate with the angular acceleration, which a hand-held sensor's do (on BROAD it is several
-samples off; the second time scale refuses it there).
+samples off; the second time scale refuses it there). A number (s) is a delay the user knows,
+applied as given.
 
 Flags: REST where either pass detects rest (the future confirms a rest the past could not yet
 see), MAG_DISTURBED where the magnetometer was left out (the mask above) or both passes reject it
@@ -568,9 +569,13 @@ class OfflineFilter(Filter):
             raise ConfigError(f"inclination must be one of {', '.join(map(repr, _INCLINATIONS))}, got {inclination!r}")
         if mag_timing not in _MAG_TIMINGS:
             raise ConfigError(f"mag_timing must be one of {', '.join(map(repr, _MAG_TIMINGS))}, got {mag_timing!r}")
-        if gyro_timing not in _GYRO_TIMINGS:
-            raise ConfigError(f"gyro_timing must be one of {', '.join(map(repr, _GYRO_TIMINGS))}, got {gyro_timing!r}")
-        self.gyro_timing = gyro_timing
+        limit = TimeOffsetModel.Config().max_offset
+        given = isinstance(gyro_timing, (int, float)) and not isinstance(gyro_timing, bool)
+        if not (gyro_timing in _GYRO_TIMINGS if isinstance(gyro_timing, str)
+                else given and math.isfinite(gyro_timing) and abs(gyro_timing) <= limit):
+            raise ConfigError(f"gyro_timing must be one of {', '.join(map(repr, _GYRO_TIMINGS))} or the gyro's delay "
+                              f"against the accelerometer in s (|delay| <= {limit}), got {gyro_timing!r}")
+        self.gyro_timing = float(gyro_timing) if given else gyro_timing
         self.inner = inner
         self.mag_timing = mag_timing
         self.disturbance_gap = None if disturbance_gap is None else float(disturbance_gap)
@@ -618,6 +623,10 @@ class OfflineFilter(Filter):
         gyro_timing = None
         if self.gyro_timing == "recording" and len(rec) >= 2:  # first: every later step reads the gyro
             rec, gyro_timing = self._gyro_retimed(rec, inner.config, used)
+        elif isinstance(self.gyro_timing, float) and self.gyro_timing != 0.0:  # a delay the user knows
+            gyro_timing = {"delay": self.gyro_timing, "std": 0.0, "applied": True}
+            rec = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
+            rec.gyr = retime_gyro(rec.gyr, rec.time, self.gyro_timing)
         choice = None
         if self.calibration == "recording" and len(rec) >= 2 and self.dimension(rec) == "9D":
             split = _split_calibration(inner)

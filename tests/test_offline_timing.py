@@ -198,9 +198,21 @@ def test_retime_gyro_moves_the_rate_earlier_and_keeps_invalid_samples():
     assert not np.array_equal(out[99], w[99])
 
 
-def test_gyro_timing_option_is_checked():
+@pytest.mark.parametrize("bad", ["late", 0.2, float("nan"), True, None])
+def test_gyro_timing_option_is_checked(bad):
     with pytest.raises(ConfigError, match="gyro_timing"):
-        OfflineFilter(fk.make("recommended"), gyro_timing="late")
+        OfflineFilter(fk.make("recommended"), gyro_timing=bad)
+
+
+def test_a_known_gyro_delay_is_applied_as_given():
+    # a delay the user knows (a datasheet's group delay): the gyro moved by it, nothing estimated
+    rec = sim.scenario("late-gyro")  # the gyro 5 ms late
+    inner = fk.make("recommended", use_mag=False)
+    as_is = rms_errors(OfflineFilter(inner).run(rec), rec)["inclination"]
+    res = OfflineFilter(inner, gyro_timing=0.005).run(rec)
+    assert res.diagnostics["gyro_timing"] == {"delay": 0.005, "std": 0.0, "applied": True}
+    assert rms_errors(res, rec)["inclination"] < 0.1 * as_is
+    np.testing.assert_array_equal(OfflineFilter(inner, gyro_timing=0).run(rec).quat, OfflineFilter(inner).run(rec).quat)
 
 
 def test_gyro_retimed_result_does_not_depend_on_the_direction_of_time():
