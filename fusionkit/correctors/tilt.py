@@ -40,6 +40,12 @@ Options, each a separate idea:
   10 s statistics tau comes from resolve; computing the set and scaling the delay lines every sample
   put a tangent, divisions and 30 products on each sample's chain).
 
+- **impulses** (``impulse_clip``, off by default): before the low-pass, the specific force's departure
+  from the low-passed vector is limited to ``impulse_clip`` times its running RMS (:func:`_impulse_clip`,
+  a Huber step whose scale learns from the limited departures over ``impulse_window``): a knock on the
+  sensor, tens of g for a few ms that the sampled accelerometer does not integrate to the velocity the
+  body got, then does not tilt the estimate for the next ``tau``.
+
 After a timestamp gap or a saturated gyro (``restarts``) the low-pass starts again: the gravity
 seen in I before is stale. A sample without a valid accelerometer reading (or one the
 ``acceleration`` detector rejected) leaves the factor as it is.
@@ -82,7 +88,9 @@ _RZ1, _RZ2, _BZ1, _BZ2, _P, _KREADY, _N = 31, 40, 49, 52, 55, 64, 65
 # now, the low-passed rate in I, and the bias's variance the rests tell
 _VEL, _SV2, _SW2, _NST, _TAU, _WLP, _VR = 70, 73, 74, 75, 76, 77, 80
 _TAUC = 81  # tau_adapt: tau / dt of the low-passes' coefficient set (0: none yet)
-_SIZE = 82
+# impulse_clip: the mean square of the specific force's departure from the low-passed vector, the samples it averages
+_IMS, _IMN = 82, 83
+_SIZE = 84
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
 _REST = int(Flag.REST)
@@ -249,6 +257,56 @@ def _k_lowpass_vertical(s, v0, v1, v2):
     return y0, y1, y2
 
 
+def _impulse_clip(x, v, dt, clip, window, floor):
+    """The specific force ``v`` (in I) with an impulse's excess taken out (``impulse_clip``): its
+    departure ``r`` from the previous low-passed vector is limited to ``clip`` times the running
+    RMS of ``r`` (a Huber step; the RMS at least ``floor``), and the RMS learns from the limited
+    departure (an exponential mean square of time constant ``window``, a running mean over its first
+    samples), so an impulse does not raise its own limit.
+
+    Why: a knock on the sensor is a specific force of tens of g over a few ms that the sampled
+    accelerometer does not integrate to the velocity the body got (ringing above the sample rate,
+    the range's saturation). The low-pass in I assumes every linear acceleration integrates to a
+    velocity that returns; such a step does not, and turns into an inclination error of about
+    ``dv / (g tau)`` for about ``tau``. A motion's own accelerations lie within a few RMS of their
+    mean (a sinusoid's peak is 1.4 RMS), so the limit touches knocks, not motion. Off before the
+    low-pass runs (the fast start's mean) and after a restart until the next low-passed vector."""
+    if not x[_READY]:
+        return v
+    r = v - x[_Y:_Y + 3]
+    r2 = float(r @ r)
+    x[_IMN] += 1.0
+    if x[_IMN] == 1.0:  # the first departure starts the mean square
+        x[_IMS] = r2
+        return v
+    lim = clip * clip * max(x[_IMS], floor * floor)
+    if r2 > lim:
+        v = x[_Y:_Y + 3] + r * math.sqrt(lim / r2)
+        r2 = lim
+    x[_IMS] += (r2 - x[_IMS]) * max(dt / window, 1.0 / x[_IMN])
+    return v
+
+
+@njit(inline="always")
+def _k_impulse_clip(s, v0, v1, v2, dt, clip, window, floor):
+    """:func:`_impulse_clip` compiled: the sample's three entries."""
+    if s[_READY] == 0.0:
+        return v0, v1, v2
+    r0, r1, r2 = v0 - s[_Y], v1 - s[_Y + 1], v2 - s[_Y + 2]
+    rr = r0 * r0 + r1 * r1 + r2 * r2
+    s[_IMN] += 1.0
+    if s[_IMN] == 1.0:
+        s[_IMS] = rr
+        return v0, v1, v2
+    lim = clip * clip * max(s[_IMS], floor * floor)
+    if rr > lim:
+        f = math.sqrt(lim / rr)
+        v0, v1, v2 = s[_Y] + r0 * f, s[_Y + 1] + r1 * f, s[_Y + 2] + r2 * f
+        rr = lim
+    s[_IMS] += (rr - s[_IMS]) * max(dt / window, 1.0 / s[_IMN])
+    return v0, v1, v2
+
+
 @njit(inline="always")
 def _lp_step(s, i, n, x, b0, b1, b2, c1, c2):
     """One step of the second-order low-pass whose delay lines are ``s[i]`` and ``s[i + n]``."""
@@ -401,6 +459,15 @@ class InertialTiltConfig(PluginConfig):
                            "leaking with tau, does not see accelerations slower than a few tau)", gt=0)
     adapt_window: float = param(10.0, unit="s", description="tau_adapt: the time over which the velocity's and "
                                 "the rate's mean squares are averaged", gt=0)
+    impulse_clip: float | None = param(
+        None, unit="-", description="impulses (knocks, taps): the specific force's departure from the low-passed "
+        "vector limited to this many times its running RMS before the low-pass (a Huber step; the RMS learns from "
+        "the limited departure). None: off (the behaviour before)", gt=1)
+    impulse_window: float = param(1.0, unit="s", description="impulse_clip: the time constant of the departure's "
+                                  "mean square (the motion's scale it follows)", gt=0)
+    impulse_floor: float = param(0.05, unit="m/s^2", description="impulse_clip: the least RMS the limit is "
+                                 "taken from (an accelerometer's noise; a noise-free input would otherwise clip "
+                                 "every motion after a rest)", gt=0)
     bias_vertical_forgetting: float = param(
         1e-4, unit="-", description="kalman: the weight, relative to the horizontal axes, of the pseudo-measurement "
         "'no drift about the vertical' (unobservable from the accelerometer)", gt=0)
@@ -440,6 +507,7 @@ class InertialTilt(FactorCorrector):
         state[_MEAN:_MEAN + 3] = 0.0
         state[_KREADY] = 0.0  # the bias filter's low-passes start again with the inclination's
         state[_NST] = 0.0  # and the adaptive time constant's statistics
+        state[_IMN] = 0.0  # and the impulse clip's mean square
 
     def compose(self, state, quat, sample, bias, rate, flags):
         if sample.acc is not None:
@@ -473,6 +541,8 @@ class InertialTilt(FactorCorrector):
             if c.tau_adapt and abs(tau - x[_TAUC] * dt) > _TAU_STEP * x[_TAUC] * dt:
                 x[_TAUC] = tau / dt  # the coefficients of this sample's time constant
                 _set_tau(x, *lowpass_coefficients(tau, dt))
+            if c.impulse_clip is not None:
+                a_i = _impulse_clip(x, a_i, dt, c.impulse_clip, c.impulse_window, c.impulse_floor)
             _lowpass_vertical(x, a_i)
         # the smallest rotation taking the low-passed vector (levelled frame) to the vertical
         up = x[_UP:_UP + 3]
@@ -545,7 +615,8 @@ class InertialTilt(FactorCorrector):
                       c.motion_bias_tau if c.motion_bias_tau is not None else 0.0, c.bias_max,
                       float(c.bias_filter == "kalman"), c.bias_sigma_init, c.bias_sigma_motion,
                       c.bias_sigma_rest if c.bias_sigma_rest is not None else 0.0, c.bias_vertical_forgetting,
-                      float(c.tau_adapt), c.gyro_rate_error, c.tau_min, c.tau_max, c.adapt_window])
+                      float(c.tau_adapt), c.gyro_rate_error, c.tau_min, c.tau_max, c.adapt_window,
+                      c.impulse_clip if c.impulse_clip is not None else 0.0, c.impulse_window, c.impulse_floor])
         return CorrectorKernel(inertial_tilt_kernel, p, mode="factor")
 
 
@@ -554,7 +625,7 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
     """The kernel of :meth:`InertialTilt.compose`: ``p = (tau, fast_start, acc_delay (NaN: None),
     motion_bias_tau (0: off), bias_max, kalman (1) or lowpass (0), bias_sigma_init, bias_sigma_motion,
     bias_sigma_rest (0: None), bias_vertical_forgetting, tau_adapt, gyro_rate_error, tau_min, tau_max,
-    adapt_window)``."""
+    adapt_window, impulse_clip (0: None), impulse_window, impulse_floor)``."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
         v0, v1, v2 = k_rot(p0, p1, p2, p3, a0, a1, a2)
@@ -585,6 +656,8 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                 s[_TAUC] = tau / dt
                 t0, t1, t2, t3, t4 = _lp_coeffs(tau, dt)
                 _k_set_tau(s, t0, t1, t2, t3, t4)
+            if p[15] != 0.0:
+                v0, v1, v2 = _k_impulse_clip(s, v0, v1, v2, dt, p[15], p[16], p[17])
             _k_lowpass_vertical(s, v0, v1, v2)
         v0, v1, v2 = k_rot(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], s[_Y], s[_Y + 1], s[_Y + 2])
         n = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
