@@ -13,7 +13,7 @@ composition). Orientation is split into three factors, each corrected by one sen
    against the gyro's error, ``tau_acc`` for a still sensor), made vertical each sample by the smallest rotation;
    it also learns the gyro bias in motion (``bias_filter``: VQF's Kalman model, the correction as
    the low-passed earth-frame bias error; ``motion_bias_tau`` its forgetting time); ``impulse_clip``
-   (off by default) limits a knock's few samples before the low-pass.
+   (10 times the departure's running RMS) limits a knock's few samples before the low-pass.
 3. ``delta``: heading only, about the vertical (corrector ``mag-heading``; its gain from the
    heading's variance, ``heading_gain``, or the time constant ``tau_mag``), with the magnetic
    disturbance rejection (``mag_rejection``, ``magnetic``): a
@@ -77,10 +77,11 @@ class RecommendedConfig(FilterConfig):
         0.015, unit="-", description="tau_adapt: the gyro's error proportional to the rate (scale factor, "
         "misalignment; consumer MEMS data sheets: 1-3 %)", ge=0)
     impulse_clip: float | None = param(
-        None, unit="-", description="inertial-tilt's impulse clip: the specific force's departure from the "
+        10.0, unit="-", description="inertial-tilt's impulse clip: the specific force's departure from the "
         "low-passed vector limited to this many times its running RMS (over about 1 s) before the inclination "
         "low-pass: a knock's few samples of tens of g, which the sampled accelerometer does not integrate to the "
-        "velocity the body got, do not tilt the estimate (recommended.md). None: off", gt=1)
+        "velocity the body got, do not tilt the estimate (recommended.md). None: off (the behaviour before stop 21)",
+        gt=1)
     tau_mag: float = param(15.0, unit="s", description="heading_gain fixed: time constant of the heading correction",
                            gt=0)
     heading_gain: Literal["fixed", "kalman"] = param(
