@@ -551,7 +551,7 @@ def _check_channel(correctors) -> None:
                                   f"{Channel(name).name}: keep one")
             by[name] = i
     for i, c in enumerate(correctors):
-        for name in c.reads:
+        for name in c.channel_reads():
             if by.get(name, -1) >= i:
                 raise ConfigError(f"corrector {c.name!r} reads {Channel(name).name}, which "
                                   f"{correctors[by[name]].name!r} publishes after it: put the publisher first")

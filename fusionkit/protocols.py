@@ -228,6 +228,11 @@ class Corrector(Plugin, ABC):
         """Whether the pipeline hands this corrector the channel (it publishes or reads)."""
         return bool(self.publishes or self.reads)
 
+    def channel_reads(self) -> tuple[Channel, ...]:
+        """What it reads with its configuration (``reads`` unless an option is off): the pipeline
+        refuses a composition where one of these is published only after it."""
+        return self.reads
+
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         """The corrector's own state (empty by default); ``dt`` is the nominal sample interval,
         ``frame`` the pipeline's earth frame (for its reference vectors)."""

@@ -81,8 +81,9 @@ def _pipeline(correctors):
 
 
 def test_a_reader_before_its_publisher_is_refused():
-    """mag-heading reads what inertial-tilt publishes: put after it, it would read the previous
-    sample's value; two publishers of one quantity are ambiguous. Alone, it reads 0 (nothing known)."""
+    """mag-heading (inclination_noise) reads what inertial-tilt publishes: put before it, it would
+    read the previous sample's value; two publishers of one quantity are ambiguous. Alone, it reads
+    0 (nothing known); without inclination_noise it reads nothing, so any order is its own."""
     tilt = {"name": "inertial-tilt", "params": {"tau_adapt": True}}
     head = {"name": "mag-heading", "params": {"gain": "kalman", "inclination_noise": True}}
     with pytest.raises(ConfigError, match="INCLINATION_VARIANCE.*put the publisher first"):
@@ -91,3 +92,4 @@ def test_a_reader_before_its_publisher_is_refused():
         _pipeline([tilt, tilt, head])
     _pipeline([tilt, head])
     _pipeline([head])
+    _pipeline([{"name": "mag-heading", "params": {"gain": "kalman"}}, tilt])

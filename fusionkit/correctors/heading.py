@@ -218,6 +218,10 @@ class MagHeading(FactorCorrector):
         super().__init__(config, **params)
         self.magnetic = MagneticDetector(self.config.magnetic)
 
+    def channel_reads(self) -> tuple[Channel, ...]:
+        """The inclination's error with ``inclination_noise`` and the Kalman gain, else nothing."""
+        return self.reads if self.config.inclination_noise and self.config.gain == "kalman" else ()
+
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         s = np.zeros(_SIZE)
         s[_AX:_AX + 9] = frame_axes(frame)
