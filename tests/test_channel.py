@@ -75,6 +75,22 @@ def test_the_coupling_at_a_steep_dip_shrinks(steep):
                                                                         abs=0.002)
 
 
+def test_only_a_push_across_the_field_counts():
+    """The let-through tilt is about ``up x`` the acceleration: a push along the field's horizontal
+    direction (north) changes the dip, not the heading, and the heading's variance must not count
+    it; a push across it (east) turns the heading by tan(dip) times the tilt, and does count."""
+    out = {}
+    for name, ax in (("east", (1, 0, 0)), ("north", (0, 1, 0))):
+        back = tuple(-a for a in ax)
+        rec = simulate([Rest(12.0)] + [Translate(ax, 0.5, 1.5), Translate(back, 0.5, 1.5)] * 3 + [Rest(5.0)],
+                       rate=200.0, noise=Noise.mems(), seed=0, name=name)
+        out[name] = [rms_errors(fk.make("recommended", heading_inclination_noise=on).run(rec), rec)["heading"]
+                     for on in (False, True)]
+    (e_off, e_on), (n_off, n_on) = out["east"], out["north"]
+    assert e_on < 0.95 * e_off
+    assert abs(n_on - n_off) < 0.3 * (e_off - e_on)
+
+
 def _pipeline(correctors):
     return fk.compose({"estimator": {"name": "poisson-quat"}, "correctors": correctors,
                        "alignment": {"mode": "none", "initial_quat": (1.0, 0.0, 0.0, 0.0)}})
