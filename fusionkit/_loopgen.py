@@ -72,9 +72,9 @@ class Layout:
     """The structure of a compiled pipeline: the estimator's ``(propagate, to_quat, from_quat)``,
     whether its state is its unit quaternion, the kernels in order (their roles say where each
     runs), and the offsets of the pending correction rate, of the previous output and of the
-    correctors' channel in the pipeline's run state. Sizes are not part of it: the bounds of every state and parameter
-    vector in ``S`` and ``P`` come at run time in ``O`` (see :func:`pack`), so one compiled loop
-    serves every sample rate."""
+    correctors' channel in the pipeline's run state. Sizes are not part of it: the bounds of every
+    state and parameter vector in ``S`` and ``P`` come at run time in ``O`` (see :func:`pack`), so
+    one compiled loop serves every sample rate."""
 
     est: tuple[Callable, Callable, Callable]
     unit_quat: bool

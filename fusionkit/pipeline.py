@@ -34,10 +34,11 @@ Per sample, in this fixed order:
 **The channel** (:class:`~fusionkit.types.Channel`): besides the gyro bias and the flags,
 correctors share named quantities. One that declares ``publishes`` writes them into the run
 state's channel block, and one after it that declares ``reads`` reads them in the same sample
-(``recommended``: ``inertial-tilt`` publishes the inclination's variance, ``mag-heading`` counts it
-in its measurement variance). The block starts at 0 ("nothing known") and is part of the run
-state, so a split run and ``update()`` carry it; both paths hand the same block to the same
-correctors.
+(``inertial-tilt`` publishes its inclination error, ``mag-heading`` with ``inclination_noise``
+counts it in its measurement variance); the composition is refused where a corrector reads
+(:meth:`Corrector.channel_reads`) what only a later one publishes, or two publish one name. The
+block starts at 0 ("nothing known") and is part of the run state, so a split run and
+``update()`` carry it; both paths hand the same block to the same correctors.
 
 Before a sample that follows a timestamp gap (GAP) or a saturated gyro (the first unsaturated
 sample), correctors that declare ``restarts`` forget what became stale (:meth:`Corrector.restart`).

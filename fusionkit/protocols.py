@@ -219,7 +219,8 @@ class Corrector(Plugin, ABC):
     #: those it reads (published by one before it, or by none: then 0, "nothing known"). Either
     #: makes the pipeline hand it the channel: ``channel=`` (a view, read and write) to
     #: :meth:`correct` / :meth:`FactorCorrector.compose` / :meth:`BiasCorrector.update_bias`, and
-    #: ``ch`` to its kernel (:class:`CorrectorKernel`)
+    #: ``ch`` to its kernel (:class:`CorrectorKernel`). Class attributes: a kernel's signature does
+    #: not change with the configuration (:meth:`channel_reads` says what a configuration reads)
     publishes: ClassVar[tuple[Channel, ...]] = ()
     reads: ClassVar[tuple[Channel, ...]] = ()
 
