@@ -9,7 +9,9 @@ dip changed. Per dip: 9D heading and inclination RMS (deg, over the motion) of `
 motion (the gyro chain alone; equal for both). The magnetometer's heading is read in the levelled
 frame, so an inclination error about the east axis turns it by up to ``tan(dip)`` times itself: a
 cost that grows with the dip and vanishes at 0 is that coupling (docs/algorithms/recommended.md,
-"The adaptive time constant").
+"The adaptive time constant"). The last column: the default with ``heading_inclination_noise`` (the
+heading's variance counts the inclination's error times ``tan(dip)``, passed through the pipeline's
+channel; docs/algorithms/recommended.md, "The heading's variance and the inclination").
 """
 
 from __future__ import annotations
@@ -48,12 +50,12 @@ def main() -> None:
     warnings.filterwarnings("ignore")
     strength = float(np.linalg.norm(KYIV_FIELD_ENU))
     print("| dip [deg] | 9D heading, default | `tau_adapt=False` | 9D inclination, default | `tau_adapt=False` "
-          "| 6D heading drift, default | `tau_adapt=False` |")
-    print("|---:|---:|---:|---:|---:|---:|---:|")
+          "| 6D heading drift, default | `tau_adapt=False` | 9D heading, `heading_inclination_noise` |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
     for dip in (68.0, 45.0, 20.0, 0.0):
         field = np.array([0.0, strength * math.cos(dip * _DEG), -strength * math.sin(dip * _DEG)])
         cols = {}
-        for key, kw in (("on", {}), ("off", {"tau_adapt": False})):
+        for key, kw in (("on", {}), ("off", {"tau_adapt": False}), ("noise", {"heading_inclination_noise": True})):
             h, inc, d6 = [], [], []
             for i in range(args.seeds):
                 rec = simulate(_segments(), rate=200.0, noise=Noise.mems(), seed=2 + 3 * i, name="translation",
@@ -61,11 +63,12 @@ def main() -> None:
                 e = rms_errors(fk.make("recommended", **kw).run(rec), rec)
                 h.append(e["heading"])
                 inc.append(e["inclination"])
-                d6.append(_heading_drift_6d(rec, **kw))
-            cols[key] = (np.mean(h), np.mean(inc), np.mean(d6))
+                if key != "noise":  # (6D: no heading to weigh)
+                    d6.append(_heading_drift_6d(rec, **kw))
+            cols[key] = (np.mean(h), np.mean(inc), np.mean(d6) if d6 else math.nan)
         on, off = cols["on"], cols["off"]
-        print(f"| {dip:.0f} | {on[0]:.3f} | {off[0]:.3f} | {on[1]:.3f} | {off[1]:.3f} | {on[2]:.3f} | {off[2]:.3f} |",
-              flush=True)
+        print(f"| {dip:.0f} | {on[0]:.3f} | {off[0]:.3f} | {on[1]:.3f} | {off[1]:.3f} | {on[2]:.3f} | {off[2]:.3f} "
+              f"| {cols['noise'][0]:.3f} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -20,12 +20,13 @@ from .errors import ConfigError, FusionkitError, InputError, PluginError
 from .io import load
 from .protocols import Corrector, Detector, Estimator, Filter
 from .registry import available, default_registry, describe, get, make, register
-from .types import Flag, Gnss, Recording, Result
+from .types import Channel, Flag, Gnss, Recording, Result
 
 __version__ = "0.1.0"
 
 __all__ = [
     "AlignmentConfig",
+    "Channel",
     "ConfigError",
     "Corrector",
     "Detector",

@@ -45,6 +45,7 @@ from . import _numba
 from ._sources import fusionkit_hash, source_hash
 from .gnss_rows import NO_GNSS
 from .navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, PHASE, SEEN
+from .types import CHANNEL_SIZE
 
 __all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack", "repack", "STEP_WORK"]
 
@@ -54,7 +55,8 @@ class KernelSpec:
     """One plugin kernel in the loop: its function, role (``"model"``, ``"det"``, ``"state"``,
     ``"rate"``, ``"bias"``, ``"factor"``), whether it takes the GNSS row, and for detectors the flag it sets and whether
     its criteria are the ones the pipeline reports (its first detector's); for correctors, whether
-    it works on the estimator's state itself (its ``state_layout``: no quaternion round trip)."""
+    it works on the estimator's state itself (its ``state_layout``: no quaternion round trip) and
+    whether it takes the correctors' channel (:class:`fusionkit.types.Channel`)."""
 
     func: Callable
     role: str
@@ -62,22 +64,24 @@ class KernelSpec:
     flag: int = 0
     first: bool = False
     on_x: bool = False  # a corrector that works on the estimator's state itself (``state_layout``)
+    channel: bool = False  # a corrector that publishes or reads the channel: ``ch`` after its parameters
 
 
 @dataclass(frozen=True)
 class Layout:
     """The structure of a compiled pipeline: the estimator's ``(propagate, to_quat, from_quat)``,
     whether its state is its unit quaternion, the kernels in order (their roles say where each
-    runs), and the offsets of the pending correction rate and of the previous output in the
-    pipeline's run state. Sizes are not part of it: the bounds of every state and parameter
-    vector in ``S`` and ``P`` come at run time in ``O`` (see :func:`pack`), so one compiled loop
-    serves every sample rate."""
+    runs), and the offsets of the pending correction rate, of the previous output and of the
+    correctors' channel in the pipeline's run state. Sizes are not part of it: the bounds of every
+    state and parameter vector in ``S`` and ``P`` come at run time in ``O`` (see :func:`pack`), so
+    one compiled loop serves every sample rate."""
 
     est: tuple[Callable, Callable, Callable]
     unit_quat: bool
     kernels: tuple[KernelSpec, ...]
     rcorr: int
     qprev: int
+    chan: int = -1  # where the channel (CHANNEL_SIZE numbers) starts in the run state
 
     @property
     def uses_gnss(self) -> bool:
@@ -185,7 +189,7 @@ def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
             k = lay.kernels[i]
             direct = lay.unit_quat or k.on_x  # the state is the quaternion, or the corrector works on it
             qq = "x" if direct else "q"
-            gn = f", {_GN})" if k.gnss else ")"
+            gn = _ch(k) + (f", {_GN})" if k.gnss else ")")
             if not direct:
                 L.append("    e_to_quat(x, q)")
             if k.role == "rate":
@@ -203,9 +207,14 @@ def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
     L.append("    q[0], q[1], q[2], q[3] = x[0], x[1], x[2], x[3]" if lay.unit_quat else "    e_to_quat(x, q)")
     for i in factors:  # 6. factor correctors compose the output, in order
         L += [f"    cf = {names[i]}(q, s{i}, bv, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, ga_ok, gm_ok, flags, "
-              f"h, p{i})", "    if cf > 0:", "        flags |= cf"]
+              f"h, p{i}{_ch(lay.kernels[i])})", "    if cf > 0:", "        flags |= cf"]
     L.append(f"al[{qp}], al[{qp + 1}], al[{qp + 2}], al[{qp + 3}] = q[0], q[1], q[2], q[3]")
     return [ind + s for s in L]
+
+
+def _ch(k: KernelSpec) -> str:
+    """The channel argument of a corrector kernel's call (none for one that does not take it)."""
+    return ", ch" if k.channel else ""
 
 
 def _withholds(lay: Layout) -> bool:
@@ -222,7 +231,8 @@ def _bias_lines(lay: Layout, names: dict[int, str], factors: bool) -> list[str]:
     L = ["    ga_ok = acc_ok and (flags & 512) == 0", "    gm_ok = mag_ok and (flags & 256) == 0"]
     for i, k in enumerate(lay.kernels):
         if k.role == "bias":
-            L += [f"    cf = {names[i]}(s{i}, bv, g0, g1, g2, a0, a1, a2, m0, m1, m2, ga_ok, gm_ok, flags, h, p{i})",
+            L += [f"    cf = {names[i]}(s{i}, bv, g0, g1, g2, a0, a1, a2, m0, m1, m2, ga_ok, gm_ok, flags, h, p{i}"
+                  f"{_ch(k)})",
                   "    if cf > 0:", "        flags |= cf"]
     if factors:  # h: the way back from the end of the step to its middle, exp(-w dt / 2), once per sample
         L += ["    hh = -0.5 * h",
@@ -245,6 +255,8 @@ def _views(lay: Layout) -> list[str]:
     out += ["rate = np.zeros(3)", "v = np.empty(9)", "motion = int(pp[2])"]
     if _withholds(lay):  # the gyro bias, a view of the run state
         out.append(f"bv = al[{BIAS}:{BIAS + 3}]")
+    if any(k.channel for k in lay.kernels):  # the correctors' channel, a view of the run state
+        out.append(f"ch = al[{lay.chan}:{lay.chan + CHANNEL_SIZE}]")
     return ["    " + s for s in out]
 
 

@@ -31,6 +31,15 @@ Per sample, in this fixed order:
    q_gyr``). They see the gyroscope as measured, the rate the estimator integrated and the gyro
    bias, which they may update (it takes effect in the next propagation).
 
+**The channel** (:class:`~fusionkit.types.Channel`): besides the gyro bias and the flags,
+correctors share named quantities. One that declares ``publishes`` writes them into the run
+state's channel block, and one after it that declares ``reads`` reads them in the same sample
+(``inertial-tilt`` publishes its inclination error, ``mag-heading`` with ``inclination_noise``
+counts it in its measurement variance); the composition is refused where a corrector reads
+(:meth:`Corrector.channel_reads`) what only a later one publishes, or two publish one name. The
+block starts at 0 ("nothing known") and is part of the run state, so a split run and
+``update()`` carry it; both paths hand the same block to the same correctors.
+
 Before a sample that follows a timestamp gap (GAP) or a saturated gyro (the first unsaturated
 sample), correctors that declare ``restarts`` forget what became stale (:meth:`Corrector.restart`).
 
@@ -74,19 +83,20 @@ from .navigation.alignment import (
 )
 from .protocols import Filter, Sample
 from .registry import Registry, default_registry
-from .types import (Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, sample_validity,
-                    stream_gap)
+from .types import (CHANNEL_SIZE, Channel, Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps,
+                    sample_validity, stream_gap)
 from .filters._step_filter import _after_saturation
 from .validation import (as_vector, check_finite_all, check_finite_flagged, check_positive, check_sample_finite,
                          finite_sample)
 
 __all__ = ["Pipeline", "run_detector"]
 
-# the pipeline's run state "align": the alignment's fields, the pending correction rate, and the
-# previous output quaternion (what sensor models read)
+# the pipeline's run state "align": the alignment's fields, the pending correction rate, the
+# previous output quaternion (what sensor models read), and the correctors' channel (types.Channel)
 _RCORR = ALIGN_SIZE
 _QPREV = ALIGN_SIZE + 3
-_STATE_SIZE = ALIGN_SIZE + 7
+_CHAN = ALIGN_SIZE + 7
+_STATE_SIZE = _CHAN + CHANNEL_SIZE
 _CHUNK = 200_000
 _INVALID = int(Flag.GYR_INVALID | Flag.ACC_INVALID | Flag.MAG_INVALID)
 #: the most correctors the compiled loop takes: its first compile grows by about half a second per
@@ -129,6 +139,7 @@ class Pipeline(Filter):
             raise ConfigError("factor correctors compose their factors onto the estimate: they come after every "
                               "state and rate corrector (reorder the correctors)")
         self._restarts = any(c.restarts for c in self.correctors)
+        _check_channel(self.correctors)
         for c in self.correctors:
             if c.state_layout and c.state_layout != self.estimator.state_layout:
                 raise ConfigError(f"corrector {c.name!r} works on a {c.state_layout!r} estimator state, but estimator "
@@ -245,10 +256,11 @@ class Pipeline(Filter):
         if flags & Flag.ACC_REJECTED:
             sample = sample._replace(acc=None)
         bias = al[BIAS:BIAS + 3]  # a view: bias and factor correctors update it in place
+        chan = {"channel": al[_CHAN:_CHAN + CHANNEL_SIZE]}  # a view: the correctors' channel
         # 4. bias correctors (the gyroscope as measured)
         for i, cor in enumerate(self.correctors):
             if cor.mode == "bias":
-                flags |= cor.update_bias(st["cor"][i], bias, sample, flags)
+                flags |= cor.update_bias(st["cor"][i], bias, sample, flags, **(chan if cor.uses_channel else {}))
         # 5. propagation
         w = gyr - bias + al[_RCORR:_RCORR + 3]
         if gyr_ok:
@@ -261,10 +273,11 @@ class Pipeline(Filter):
             for i, cor in enumerate(self.correctors):
                 if cor.mode == "factor":
                     q, f = cor.compose(st["cor"][i], self.estimator.quat(st["x"]) if q is None else q, measured,
-                                       bias, w, flags)
+                                       bias, w, flags, **(chan if cor.uses_channel else {}))
                     flags |= f
                 elif cor.mode != "bias":
-                    out = cor.correct(self.estimator, st["x"], st["cor"][i], sample, flags)
+                    out = cor.correct(self.estimator, st["x"], st["cor"][i], sample, flags,
+                                      **(chan if cor.uses_channel else {}))
                     flags |= out.flags
                     if out.rate is not None:
                         rate += out.rate
@@ -303,10 +316,10 @@ class Pipeline(Filter):
         specs = [_loopgen.KernelSpec(k.apply, "model") for k in mks]
         specs += [_loopgen.KernelSpec(dks[i].step, "det", dks[i].gnss, int(self.detectors[i].flag), i == 0)
                   for i in dets]
-        specs += [_loopgen.KernelSpec(k.correct, k.mode, k.gnss, on_x=bool(c.state_layout))
+        specs += [_loopgen.KernelSpec(k.correct, k.mode, k.gnss, on_x=bool(c.state_layout), channel=c.uses_channel)
                   for c, k in zip(self.correctors, cks)]
         lay = _loopgen.Layout((ek.propagate, ek.to_quat, ek.from_quat), bool(ek.unit_quat), tuple(specs),
-                              _RCORR, _QPREV)
+                              _RCORR, _QPREV, _CHAN)
         states = [st["x"], *st["mod"], *[st["det"][i] for i in dets], *st["cor"], st["align"]]
         params = [ek.params, *[k.params for k in mks], *[dks[i].params for i in dets], *[k.params for k in cks],
                   self.aligner(st["dt"]).params(), self._loop_params()]
@@ -526,6 +539,23 @@ class Pipeline(Filter):
                 S = np.concatenate([S, np.zeros(_loopgen.STEP_WORK)])  # the step's one-sample arrays, reused
                 self._packed = (mod.step, S, P, O, np.empty(4), states, mod.step_sample)
         return self._packed or None
+
+
+def _check_channel(correctors) -> None:
+    """A ConfigError where a corrector reads a :class:`Channel` quantity that only a later one
+    publishes (it would read the previous sample's value) or two publish the same one."""
+    by = {}
+    for i, c in enumerate(correctors):
+        for name in c.publishes:
+            if name in by:
+                raise ConfigError(f"correctors {correctors[by[name]].name!r} and {c.name!r} both publish "
+                                  f"{Channel(name).name}: keep one")
+            by[name] = i
+    for i, c in enumerate(correctors):
+        for name in c.channel_reads():
+            if by.get(name, -1) >= i:
+                raise ConfigError(f"corrector {c.name!r} reads {Channel(name).name}, which "
+                                  f"{correctors[by[name]].name!r} publishes after it: put the publisher first")
 
 
 def _progress(n: int, progress: bool | None, desc: str):

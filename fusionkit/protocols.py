@@ -22,7 +22,7 @@ import numpy as np
 
 from .config import PluginConfig, build_config
 from .conventions import resolve_body
-from .types import Flag
+from .types import Channel, Flag
 
 __all__ = [
     "Plugin",
@@ -135,7 +135,11 @@ class CorrectorKernel(NamedTuple):
     In both, ``g`` is the gyroscope with the alignment's bias removed (as in the reference's
     ``sample.gyr``); ``acc_ok`` / ``mag_ok`` are False where the reference's sample has None.
     ``gnss=True``: ``correct`` takes the sample's GNSS row as six more arguments at the end,
-    ``vn, ve, valid, age, new, t_epoch`` (as :class:`DetectorKernel`)."""
+    ``vn, ve, valid, age, new, t_epoch`` (as :class:`DetectorKernel`).
+
+    A corrector that publishes or reads a :class:`~fusionkit.types.Channel` quantity
+    (:attr:`Corrector.uses_channel`) takes the channel ``ch`` (``CHANNEL_SIZE`` numbers, indexed by
+    the names; read and write) right after ``params``, before any GNSS row."""
 
     correct: Callable
     params: np.ndarray
@@ -211,6 +215,24 @@ class Corrector(Plugin, ABC):
     #: quaternion) names the layout it needs (:attr:`Estimator.state_layout`); the pipeline refuses
     #: any other estimator. "": it works through the quaternion, with any estimator
     state_layout: ClassVar[str] = ""
+    #: the :class:`~fusionkit.types.Channel` quantities it writes for the correctors after it, and
+    #: those it reads (published by one before it, or by none: then 0, "nothing known"). Either
+    #: makes the pipeline hand it the channel: ``channel=`` (a view, read and write) to
+    #: :meth:`correct` / :meth:`FactorCorrector.compose` / :meth:`BiasCorrector.update_bias`, and
+    #: ``ch`` to its kernel (:class:`CorrectorKernel`). Class attributes: a kernel's signature does
+    #: not change with the configuration (:meth:`channel_reads` says what a configuration reads)
+    publishes: ClassVar[tuple[Channel, ...]] = ()
+    reads: ClassVar[tuple[Channel, ...]] = ()
+
+    @property
+    def uses_channel(self) -> bool:
+        """Whether the pipeline hands this corrector the channel (it publishes or reads)."""
+        return bool(self.publishes or self.reads)
+
+    def channel_reads(self) -> tuple[Channel, ...]:
+        """What it reads with its configuration (``reads`` unless an option is off): the pipeline
+        refuses a composition where one of these is published only after it."""
+        return self.reads
 
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         """The corrector's own state (empty by default); ``dt`` is the nominal sample interval,

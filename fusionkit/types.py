@@ -1,5 +1,5 @@
 """Data types: :class:`Recording` (input), :class:`Gnss` (aiding stream), :class:`Result` (output)
-and the per-sample :class:`Flag` bitmask."""
+the per-sample :class:`Flag` bitmask, and the :class:`Channel` quantities correctors pass on."""
 
 from __future__ import annotations
 
@@ -37,6 +37,35 @@ class Flag(enum.IntFlag):
     GAP = 1 << 11  #: the interval before this sample is a timestamp gap: the state is held across it, not integrated
     GNSS_REJECTED = 1 << 12  #: a GNSS measurement on this sample failed the innovation gate and was not used
     MAG_RECALIBRATED = 1 << 13  #: a sensor model started, replaced or stopped the magnetometer calibration it applies
+
+
+class Channel(enum.IntEnum):
+    """The pipeline's channel: named quantities a corrector publishes for the correctors after it.
+
+    Correctors share the pipeline's gyro bias and the sample's flags; a quantity one corrector
+    knows and another needs (the inclination's uncertainty, which the heading's measurement
+    variance counts) goes through the channel. A corrector names what it writes in
+    ``publishes`` and what it reads in ``reads`` (:class:`~fusionkit.protocols.Corrector`); each
+    name is an index into the run state's channel block (``CHANNEL_SIZE`` numbers, all 0 at the
+    start: "nothing known", which every reader must take as the method without the quantity).
+    The pipeline refuses a composition where a corrector reads a quantity that only a later one
+    publishes (it would read the previous sample's value), or where two publish the same one.
+    A value stays until its publisher writes it again (a sample without its sensor leaves it)."""
+
+    #: rad^2: the variance of the inclination error about one horizontal axis that has no direction
+    #: (``inertial-tilt`` with ``tau_adapt``: the gyro bias's uncertainty accumulated over its time
+    #: constant)
+    INCLINATION_VARIANCE = 0
+    #: s: the time over which the inclination error changes (``inertial-tilt``'s time constant)
+    INCLINATION_TIME = 1
+    #: rad, three numbers from here (x, y, z of the pipeline's frame, levelled): the linear
+    #: acceleration the inclination lets through, as the tilt it makes (``inertial-tilt``: its
+    #: velocity deviation over ``g tau``); the inclination error is a rotation about ``up x`` it
+    LET_THROUGH = 2
+
+
+#: the channel's length (LET_THROUGH is a 3-vector)
+CHANNEL_SIZE = int(Channel.LET_THROUGH) + 3
 
 
 def flag_names(value: int) -> list[str]:

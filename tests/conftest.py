@@ -72,6 +72,22 @@ def broad_mean(broad_dir: Path, name: str, metric: str, six_d: bool = False, **p
     return float(np.mean(vals))
 
 
+def backend_quats(f, rec, split_at: int | None = None) -> dict[str, np.ndarray]:
+    """``f``'s output quaternions on ``rec`` from each path, ``{"reference": ..., "numba": ...}``;
+    with ``split_at`` as two runs, the second from the first's state (what a split recording gets)."""
+    out = {}
+    for backend in ("reference", "numba"):
+        if split_at is not None:
+            first = f.run(rec.slice(0, split_at), backend=backend)
+            second = f.run(rec.slice(split_at, len(rec)), backend=backend, state=first.diagnostics["state"])
+            out[backend] = np.vstack([first.quat, second.quat])
+        else:
+            res = f.run(rec, backend=backend)
+            assert res.diagnostics["backend"] == backend
+            out[backend] = res.quat
+    return out
+
+
 @pytest.fixture(scope="session")
 def imu_rec() -> fk.Recording:
     """Seeded noisy recording: 12 s rest, then rotations and a translation."""

@@ -16,6 +16,8 @@ from fusionkit.correctors import heading as H
 from fusionkit.errors import ConfigError
 from fusionkit.types import Flag
 
+from conftest import backend_quats
+
 DEG = math.pi / 180.0
 RATE = 100.0
 DIST = (20.0, 40.0)  # s: an earth-fixed field the rejection catches (norm +31 %)
@@ -129,17 +131,7 @@ def test_reference_equals_numba(split):
     for c in cfg["correctors"]:
         if c["name"] == "mag-heading":
             c["params"]["scale_sigma"] = 0.01
-    f = fk.compose(cfg)
-    out = {}
-    for backend in ("reference", "numba"):
-        if split:
-            first = f.run(r.slice(0, 2500), backend=backend)
-            second = f.run(r.slice(2500, len(r)), backend=backend, state=first.diagnostics["state"])
-            out[backend] = np.vstack([first.quat, second.quat])
-        else:
-            res = f.run(r, backend=backend)
-            assert res.diagnostics["backend"] == backend
-            out[backend] = res.quat
+    out = backend_quats(fk.compose(cfg), r, 2500 if split else None)
     assert np.abs(out["numba"] - out["reference"]).max() < 1e-9
 
 

@@ -30,6 +30,13 @@ Around it, each a separate idea:
   longer (a calibration that learned a disturbance as iron) right after a rejection, which
   it then follows faster than the fixed gain (docs/algorithms/recommended.md);
 
+- **the inclination's error in the heading's variance** (``inclination_noise``, with ``gain="kalman"``;
+  off by default): read in the levelled frame, the heading turns by ``tan(dip)`` times the
+  inclination error about the field's horizontal axis; ``r`` counts that error's variance, which
+  ``inertial-tilt`` publishes through the pipeline's channel (:func:`_inclination_noise`), as the
+  white noise of the same low-frequency power over its time constant. Without a publisher it adds
+  nothing;
+
 - **magnetic disturbance rejection** (``rejection``; settings in ``magnetic``): the ``magnetic``
   detector's reference (:func:`fusionkit.detectors.magnetic.magnetic_step`) judged on the norm and
   dip of the field in the levelled frame (an estimated vertical is better than the
@@ -94,7 +101,7 @@ from ..models.time_offset import _ANC, _DQ, _GA, _LINK, _NORM, _T, _U, CONF, EST
 from ..models.time_offset import _BLOCK as _EST_SIZE
 from ..protocols import CorrectorKernel, FactorCorrector
 from ..rotations import quat_mul, quat_to_matrix, wrap_angle
-from ..types import Flag
+from ..types import Channel, Flag
 from ._factor import (bias_step, frame_axes, gyro_lowpass, k_bias_step, k_gyro_lowpass, k_paired, k_qmul, k_rot,
                       paired)
 
@@ -134,6 +141,7 @@ _RESIDUAL_GATE = 3.0
 MAG_REFERENCE = _MAG
 _REST, _ACC_REJECTED, _MAG_DISTURBED = int(Flag.REST), int(Flag.ACC_REJECTED), int(Flag.MAG_DISTURBED)
 _MAG_RECALIBRATED = int(Flag.MAG_RECALIBRATED)
+_CH_VAR, _CH_TIME, _CH_LET = int(Channel.INCLINATION_VARIANCE), int(Channel.INCLINATION_TIME), int(Channel.LET_THROUGH)
 _kwrap = njit(wrap_angle)
 
 
@@ -157,6 +165,11 @@ class MagHeadingConfig(PluginConfig):
                                "field's strength (1.5 uT of 50 uT)", gt=0)
     field_error_time: float = param(1.0, unit="s", description="kalman: the time over which those field errors "
                                     "change (the motion turns and moves the sensor through them)", gt=0)
+    inclination_noise: bool = param(
+        False, unit="-", description="kalman: count the inclination's error in a magnetometer heading's variance: "
+        "read in the levelled frame, an inclination error about the field's horizontal axis turns the heading by "
+        "tan(dip) times itself; its variance and time constant come from the corrector before that publishes them "
+        "(inertial-tilt with tau_adapt, the pipeline's channel; none: nothing is added)")
     rejection: bool = param(True, unit="-", description="leave out samples the magnetic reference calls disturbed")
     magnetic: MagneticConfig = param(
         MagneticConfig(), unit="-", description="the magnetic reference (the magnetic detector's settings; its "
@@ -196,17 +209,25 @@ class MagHeading(FactorCorrector):
     uses_mag: ClassVar[bool] = True
     source: ClassVar[str] = "fusionkit (source 002's channel separation; magnetic disturbance rejection)"
     summary: ClassVar[str] = "heading factor about the vertical from the magnetometer; disturbances rejected"
+    #: ``inclination_noise``: the inclination error's variance, time constant and let-through tilt
+    #: (``inertial-tilt``)
+    reads: ClassVar[tuple[Channel, ...]] = (Channel.INCLINATION_VARIANCE, Channel.INCLINATION_TIME,
+                                            Channel.LET_THROUGH)
 
     def __init__(self, config=None, **params) -> None:
         super().__init__(config, **params)
         self.magnetic = MagneticDetector(self.config.magnetic)
+
+    def channel_reads(self) -> tuple[Channel, ...]:
+        """The inclination's error with ``inclination_noise`` and the Kalman gain, else nothing."""
+        return self.reads if self.config.inclination_noise and self.config.gain == "kalman" else ()
 
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         s = np.zeros(_SIZE)
         s[_AX:_AX + 9] = frame_axes(frame)
         return s
 
-    def compose(self, state, quat, sample, bias, rate, flags):
+    def compose(self, state, quat, sample, bias, rate, flags, channel=None):
         c, x, dt = self.config, state, sample.dt
         out = 0
         g = sample.gyr
@@ -236,8 +257,14 @@ class MagHeading(FactorCorrector):
             else:
                 qm = x[_QH:_QH + 4].copy()  # the held reading: as old as its fresh sample
             x[_PM:_PM + 3] = m
-            out, code = self._heading(x, quat_to_matrix(qm) @ m, quat, bias, dt, bool(flags & _REST),
-                                      c.follow_calibration and bool(flags & _MAG_RECALIBRATED))
+            ml = quat_to_matrix(qm) @ m  # the field in the levelled frame
+            incl = 0.0
+            if c.inclination_noise and channel is not None:
+                ax = x[_AX:_AX + 6]
+                incl = _inclination_noise(channel, float(ml @ ax[0:3]), float(ml @ ax[3:6]), float(channel[
+                    _CH_LET:_CH_LET + 3] @ ax[0:3]), float(channel[_CH_LET:_CH_LET + 3] @ ax[3:6]))
+            out, code = self._heading(x, ml, quat, bias, dt, bool(flags & _REST),
+                                      c.follow_calibration and bool(flags & _MAG_RECALIBRATED), incl)
             if c.mag_delay_estimate and fresh:
                 self._estimate(x, qc, m, g - bias, dt, code == MAG_USE and rate_ok)
         x[_PMOK] = float(sample.mag is not None)
@@ -271,10 +298,11 @@ class MagHeading(FactorCorrector):
             x[b + _DQ:b + _DQ + 4] = qc
             x[b + _T] = 0.0
 
-    def _heading(self, x, m, q6, bias, dt, rest, recalibrated) -> tuple[int, int]:
+    def _heading(self, x, m, q6, bias, dt, rest, recalibrated, incl=0.0) -> tuple[int, int]:
         """One magnetometer sample (``m`` in the levelled frame): the reference's verdict and the
         heading step; the flag bits and the verdict (MAG_USE, MAG_DISTURBED, MAG_LEARNING).
-        ``recalibrated``: the first sample of a new calibration, to follow."""
+        ``recalibrated``: the first sample of a new calibration, to follow; ``incl``: the
+        inclination error's variance times its time constant (``inclination_noise``; rad^2 s)."""
         c = self.config
         east, north, up = x[_AX:_AX + 3], x[_AX + 3:_AX + 6], x[_AX + 6:_AX + 9]
         norm, dip = field_norm_dip(m, up)
@@ -282,7 +310,8 @@ class MagHeading(FactorCorrector):
         kalman = c.gain == "kalman"
         if recalibrated and follow_field(x[_MAG:_MAG + MAG_SIZE], norm, dip, mc.norm_threshold, mc.dip_threshold):
             x[_RELEARN] = 1.0  # learned again; the heading keeps its filter meanwhile
-        r = _kf_noise(x, norm, dip, dt, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time) if kalman else 0.0
+        r = _kf_noise(x, norm, dip, dt, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time, None,
+                      incl) if kalman else 0.0
         target = 0.5 * math.pi - math.atan2(m @ north, m @ east)  # turns the field's azimuth to north
         code = self.magnetic.reference_step(x[_MAG:_MAG + MAG_SIZE], norm, dip, _norm3(x[_LW:_LW + 3]),
                                             dt)
@@ -308,7 +337,8 @@ class MagHeading(FactorCorrector):
                       c.rate_tau, float(c.mag_bias), c.motion_bias_tau, c.bias_max, *self.magnetic.params(),
                       float(c.mag_hold), float(c.mag_delay_estimate), c.delay_max_std, c.delay_forget_time,
                       float(c.follow_calibration), float(c.gain == "kalman"), c.gyro_noise ** 2, c.bias_sigma ** 2,
-                      c.scale_sigma ** 2, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time])
+                      c.scale_sigma ** 2, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time,
+                      float(c.inclination_noise)])
         return CorrectorKernel(mag_heading_kernel, p, mode="factor")
 
 
@@ -342,7 +372,7 @@ def _kf_predict(x, wv, dt, q_gyro, p_bias, p_scale) -> None:
     x[_PHH], x[_PHB], x[_PHS] = p, hb, hs
 
 
-def _kf_noise(x, norm, dip, dt, mag_noise2, field_error2, field_time, cos2=None):
+def _kf_noise(x, norm, dip, dt, mag_noise2, field_error2, field_time, cos2=None, incl=0.0):
     """gain kalman: the variance of one magnetometer heading (``norm`` and ``dip`` its field's): the
     field errors, as a fraction of the field's strength, are ``field_error2`` plus what this sample
     shows of them, its norm's and dip's departure from the magnetic reference (a disturbance
@@ -352,14 +382,35 @@ def _kf_noise(x, norm, dip, dt, mag_noise2, field_error2, field_time, cos2=None)
     field_time / dt`` per sample: the heading does not average them away faster than they
     change), plus the magnetometer's noise (the same statements in the reference and, compiled,
     in the kernel). ``cos2``: ``cos(dip)^2`` where the caller has it (the kernel: ``1 - sin^2`` from the
-    sine it took the dip's arcsine of, no libm call)."""
+    sine it took the dip's arcsine of, no libm call).
+
+    ``incl`` (``inclination_noise``): the inclination error's variance about the horizontal field's
+    axis times its time constant (:func:`_inclination_noise`). Read in the levelled frame, an
+    inclination error ``e`` about that axis moves the field's vertical part across it: the heading
+    turns by ``tan(dip) e``.
+    Correlated over its time constant as the field errors are over theirs, it counts as the white
+    noise of the same low-frequency power, ``2 tan(dip)^2 incl / dt`` per sample (0: the heading
+    as if the levelled frame were exact)."""
     e2 = field_error2
     if x[_MAG + MAG_COUNT] != 0.0:  # a reference to depart from
         dn = (norm - x[_MAG]) / x[_MAG]
         dd = dip - x[_MAG + 1]
         e2 = max(e2, dn * dn + dd * dd)
     h2 = max(math.cos(dip) ** 2 if cos2 is None else cos2, 1e-6)
-    return (mag_noise2 + 2.0 * e2 * field_time / dt) / h2
+    return (mag_noise2 + 2.0 * (e2 * field_time + (1.0 - h2) * incl) / dt) / h2
+
+
+def _inclination_noise(ch, me, mn, le, ln) -> float:
+    """``inclination_noise``: the inclination error's variance about the horizontal field's axis
+    times its time constant (rad^2 s), from the channel ``ch``: its part without a direction plus
+    the square of the let-through tilt's part across that axis (the tilt a linear acceleration
+    makes is about ``up x`` it, so an acceleration along the field's horizontal direction changes the
+    dip, one across it the heading). ``me``, ``mn``: the field's east and north parts in the
+    levelled frame; ``le``, ``ln``: the let-through tilt's (the same statements in the reference
+    and, compiled, in the kernel)."""
+    h = me * me + mn * mn
+    c = (mn * le - me * ln) ** 2 / h if h > 0.0 else 0.0
+    return (ch[_CH_VAR] + c) * ch[_CH_TIME]
 
 
 def _kf_gain(x, r) -> float:
@@ -413,6 +464,7 @@ _k_segment_time = njit(_segment_time)
 _k_kf_predict = njit(_kf_predict)
 _k_kf_noise = njit(_kf_noise)
 _k_kf_gain = njit(_kf_gain)
+_k_inclination_noise = njit(_inclination_noise)
 _k_kf_mean = njit(_kf_mean)
 _k_gate = njit(_gate)
 
@@ -455,11 +507,12 @@ def _k_estimate(s, c0, c1, c2, c3, m0, m1, m2, w0, w1, w2, dt, use, max_std, for
 
 
 @njit(inline="always")
-def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
+def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p,
+                       ch):
     """The kernel of :meth:`MagHeading.compose`: ``p = (tau, rejection, mag_delay (NaN: None), rate_tau,
     mag_bias, motion_bias_tau, bias_max, *magnetic params (6), mag_hold, mag_delay_estimate, delay_max_std,
     delay_forget_time, follow_calibration, kalman (1) or fixed (0), gyro_noise^2, bias_sigma^2, scale_sigma^2,
-    mag_noise^2, field_error^2, field_error_time)``."""
+    mag_noise^2, field_error^2, field_error_time, inclination_noise)``; ``ch`` the pipeline's channel."""
     if s[_DT] != dt:
         s[_DT], s[_KM], s[_KW] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[3])
     if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and (acc_ok or (flags & _ACC_REJECTED) != 0):
@@ -499,7 +552,13 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
         if p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0 and k_follow_field(s, norm, dip, p[8], p[9]):
             s[_RELEARN] = 1.0  # (the reference's state sits at the start of the corrector's)
-        r = _k_kf_noise(s, norm, dip, dt, p[22], p[23], p[24], 1.0 - sd * sd) if kalman else 0.0
+        incl = 0.0
+        if p[25] != 0.0:
+            le = ch[_CH_LET] * s[ax] + ch[_CH_LET + 1] * s[ax + 1] + ch[_CH_LET + 2] * s[ax + 2]
+            ln = ch[_CH_LET] * s[ax + 3] + ch[_CH_LET + 1] * s[ax + 4] + ch[_CH_LET + 2] * s[ax + 5]
+            incl = _k_inclination_noise(ch, v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2],
+                                        v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5], le, ln)
+        r = _k_kf_noise(s, norm, dip, dt, p[22], p[23], p[24], 1.0 - sd * sd, incl) if kalman else 0.0
         code = magnetic_step(s, norm, dip, rate, dt, p[7], p[8], p[9], p[10], p[11], p[12])
         if code != MAG_LEARNING:
             s[_RELEARN] = 0.0

@@ -40,11 +40,15 @@ Options, each a separate idea:
   10 s statistics tau comes from resolve; computing the set and scaling the delay lines every sample
   put a tangent, divisions and 30 products on each sample's chain).
 
-- **impulses** (``impulse_clip``, off by default): before the low-pass, the specific force's departure
+- **impulses** (``impulse_clip``, off by default; ``recommended``: 10): before the low-pass, the specific force's departure
   from the low-passed vector is limited to ``impulse_clip`` times its running RMS (:func:`_impulse_clip`,
   a Huber step whose scale learns from the limited departures over ``impulse_window``): a knock on the
   sensor, tens of g for a few ms that the sampled accelerometer does not integrate to the velocity the
   body got, then does not tilt the estimate for the next ``tau``.
+- **what its inclination error is, for the correctors after it** (with ``tau_adapt``; the pipeline's
+  channel, :class:`fusionkit.types.Channel`): the linear acceleration the low-pass lets through now
+  as the tilt it makes, the bias's part of the drift over ``tau``, and ``tau`` (:func:`_publish`;
+  ``mag-heading`` with ``inclination_noise`` reads them).
 
 After a timestamp gap or a saturated gyro (``restarts``) the low-pass starts again: the gravity
 seen in I before is stale. A sample without a valid accelerometer reading (or one the
@@ -71,7 +75,7 @@ from .._numba import njit
 from ..config import PluginConfig, param
 from ..protocols import CorrectorKernel, FactorCorrector
 from ..rotations import quat_mul, quat_to_matrix
-from ..types import Flag
+from ..types import Channel, Flag
 from ._factor import bias_step, frame_axes, k_bias_step, k_clamp3, k_paired, k_qmul, k_rot, paired
 
 __all__ = ["InertialTiltConfig", "InertialTilt", "inertial_tilt_kernel", "lowpass_coefficients"]
@@ -90,10 +94,12 @@ _VEL, _SV2, _SW2, _NST, _TAU, _WLP, _VR = 70, 73, 74, 75, 76, 77, 80
 _TAUC = 81  # tau_adapt: tau / dt of the low-passes' coefficient set (0: none yet)
 # impulse_clip: the mean square of the specific force's departure from the low-passed vector, the samples it averages
 _IMS, _IMN = 82, 83
-_SIZE = 84
+_IVAR = 84  # tau_adapt: the bias's part of the inclination error's variance about one horizontal axis at this tau
+_SIZE = 85
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
 _REST = int(Flag.REST)
+_CH_VAR, _CH_TIME, _CH_LET = int(Channel.INCLINATION_VARIANCE), int(Channel.INCLINATION_TIME), int(Channel.LET_THROUGH)
 _FORGET = 100.0  # tau_adapt without motion_bias_tau: the time in which the bias's variance grows by sigma_motion^2
 
 
@@ -148,7 +154,9 @@ def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, s
     ``sigma_i^2``) as independent informations; and the gyro's error proportional to the rate
     (scale factor, misalignment) of the rate in I low-passed with ``tau0``: the net turn, as a
     back-and-forth turn's error comes back with it. The mean squares are running means over the
-    first ``window`` s, then exponential averages of that time constant."""
+    first ``window`` s, then exponential averages of that time constant. ``(sigma_b tau)^2 / 2`` at
+    the ``tau`` returned is the bias's part of the inclination error's variance about one horizontal
+    axis (state ``_IVAR``: what the corrector publishes as ``Channel.INCLINATION_VARIANCE``)."""
     x[_VR] = sigma_m * sigma_m if rest else min(x[_VR] + sigma_m * sigma_m * dt / forget, sigma_i * sigma_i)
     if x[_NST] == 0.0:  # no low-passed vector yet: the statistics start
         ok = math.isfinite(w0)
@@ -183,11 +191,34 @@ def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, s
     db = math.sqrt(db2)
     d = math.sqrt(db2 + kappa * kappa * x[_SW2])
     sv = max(math.sqrt(x[_SV2]), g * db * tau0 * tau0)
-    x[_TAU] = min(max(math.sqrt(sv / (g * d)), tau_min), tau_max) if d > 0.0 else tau_max
-    return x[_TAU]
+    tau = min(max(math.sqrt(sv / (g * d)), tau_min), tau_max) if d > 0.0 else tau_max
+    x[_TAU] = tau
+    x[_IVAR] = 0.5 * db2 * tau * tau  # the bias's drift over tau about one horizontal axis (the channel's)
+    return tau
 
 
 _k_adapt_step = njit(inline="always")(_adapt_step)
+
+
+def _publish(x, ch) -> None:
+    """``tau_adapt``: what the inclination's error is now, for the correctors after this one (the
+    pipeline's channel): the gyro bias's part of its variance about one horizontal axis (``_IVAR``:
+    the uncertain bias drifting over ``tau``), the time constant, and the linear acceleration the
+    low-pass lets through now, as the tilt it makes: the velocity deviation (``_VEL``, in I) over
+    ``g tau``, in the levelled frame (``q_tilt``); the inclination error it causes is a rotation
+    about ``up x`` it. The gyro's rate-proportional error (``gyro_rate_error``) is not published:
+    a reader that weighs the inclination against the gyro (``mag-heading``) counts the gyro's
+    errors on its own side with its own model, which has no rate error unless its
+    ``scale_sigma`` says so; counted on one side only it tilts the balance (measured in
+    docs/algorithms/recommended.md). The same statements in the reference and, compiled, in
+    :func:`_k_publish`."""
+    f = 1.0 / (math.sqrt(x[_Y] * x[_Y] + x[_Y + 1] * x[_Y + 1] + x[_Y + 2] * x[_Y + 2]) * x[_TAU])
+    e0, e1, e2 = k_rot(x[_QA], x[_QA + 1], x[_QA + 2], x[_QA + 3], x[_VEL] * f, x[_VEL + 1] * f, x[_VEL + 2] * f)
+    ch[_CH_VAR], ch[_CH_TIME] = x[_IVAR], x[_TAU]
+    ch[_CH_LET], ch[_CH_LET + 1], ch[_CH_LET + 2] = e0, e1, e2
+
+
+_k_publish = njit(inline="always")(_publish)
 
 
 def _set_tau(x, b0, b1, b2, a1, a2):
@@ -489,6 +520,10 @@ class InertialTilt(FactorCorrector):
     name: ClassVar[str] = "inertial-tilt"
     Config = InertialTiltConfig
     restarts: ClassVar[bool] = True
+    #: with ``tau_adapt``, every sample with an accelerometer reading: the inclination error's bias
+    #: part, time constant and let-through tilt (:func:`_publish`; without ``tau_adapt``: nothing)
+    publishes: ClassVar[tuple[Channel, ...]] = (Channel.INCLINATION_VARIANCE, Channel.INCLINATION_TIME,
+                                                Channel.LET_THROUGH)
     source: ClassVar[str] = "fusionkit (source 002's channel separation; low-pass in the inertial frame)"
     summary: ClassVar[str] = "inclination factor: the accelerometer low-passed in the almost-inertial frame"
 
@@ -509,13 +544,15 @@ class InertialTilt(FactorCorrector):
         state[_NST] = 0.0  # and the adaptive time constant's statistics
         state[_IMN] = 0.0  # and the impulse clip's mean square
 
-    def compose(self, state, quat, sample, bias, rate, flags):
+    def compose(self, state, quat, sample, bias, rate, flags, channel=None):
         if sample.acc is not None:
             qg = paired(quat, self.config.acc_delay, rate, sample.gyr, bias, sample.dt)
             r = quat_to_matrix(qg)
             y = state[_Y:_Y + 3]
             z = r.T @ (y / np.linalg.norm(y)) if state[_NST] > 0.0 else np.zeros(3)  # the vertical in the body
             self._tilt(state, r @ sample.acc, quat, bias, sample.dt, bool(flags & _REST), r @ (sample.gyr - bias), z)
+            if self.config.tau_adapt and channel is not None:
+                _publish(state, channel)
         return quat_mul(state[_QA:_QA + 4], quat), 0
 
     def _tilt(self, x, a_i, quat, bias, dt, rest, w_i, z) -> None:
@@ -621,11 +658,12 @@ class InertialTilt(FactorCorrector):
 
 
 @njit(inline="always")
-def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p):
+def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p,
+                         ch):
     """The kernel of :meth:`InertialTilt.compose`: ``p = (tau, fast_start, acc_delay (NaN: None),
     motion_bias_tau (0: off), bias_max, kalman (1) or lowpass (0), bias_sigma_init, bias_sigma_motion,
     bias_sigma_rest (0: None), bias_vertical_forgetting, tau_adapt, gyro_rate_error, tau_min, tau_max,
-    adapt_window, impulse_clip (0: None), impulse_window, impulse_floor)``."""
+    adapt_window, impulse_clip (0: None), impulse_window, impulse_floor)``; ``ch`` the pipeline's channel."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
         v0, v1, v2 = k_rot(p0, p1, p2, p3, a0, a1, a2)
@@ -682,6 +720,8 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                 f = 2.0 * _atan_over(sn, c0) / dt
                 k_bias_step(b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, dt / p[3], p[4])
         q[0], q[1], q[2], q[3] = e0, e1, e2, e3
+        if p[10] != 0.0:
+            _k_publish(s, ch)
         return 0
     q[0], q[1], q[2], q[3] = k_qmul(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], q[0], q[1], q[2], q[3])
     return 0

@@ -90,6 +90,10 @@ class RecommendedConfig(FilterConfig):
         "(bias_sigma_motion) and while the magnetometer is rejected, and shrinks with each magnetometer heading (its "
         "noise and the field errors, a departure from the magnetic reference counting as one, against the horizontal "
         "field); fixed: the time constant tau_mag (the behaviour before issue 14's heading gain)")
+    heading_inclination_noise: bool = param(
+        False, unit="-", description="heading_gain kalman: a magnetometer heading's variance counts the inclination's "
+        "error times tan(dip) (mag-heading's inclination_noise; the variance inertial-tilt's adaptive time constant "
+        "models, passed through the pipeline's channel; nothing without tau_adapt)")
     use_mag: bool = param(True, unit="-", description="use the magnetometer when the recording has one (9D)")
     fast_start: bool = param(
         True, unit="-", description="running means instead of the low-passes at the start (first tau_acc s, "
@@ -202,7 +206,8 @@ class RecommendedFilter(Pipeline):
                 "rate_tau": c.rest.tau, "mag_bias": c.mag_bias and c.motion_bias_tau is not None,
                 "motion_bias_tau": c.motion_bias_tau if c.motion_bias_tau is not None else 100.0,
                 "bias_max": c.bias_max, "mag_delay": c.mag_delay, "mag_hold": c.mag_hold,
-                "mag_delay_estimate": c.mag_delay_estimate, "delay_max_std": c.mag_delay_max_std}))
+                "mag_delay_estimate": c.mag_delay_estimate, "delay_max_std": c.mag_delay_max_std,
+                "inclination_noise": c.heading_inclination_noise}))
         if c.output_lead > 0.0:
             correctors.append(PluginSpec(name="output-lead", params={"lead": c.output_lead}))
         return PipelineConfig(

@@ -1,0 +1,111 @@
+"""The pipeline's channel (:class:`fusionkit.types.Channel`): a corrector publishes a named
+quantity, a later one reads it, in the same sample, on both paths. ``recommended``'s use of it:
+``inertial-tilt`` publishes what its inclination error is, ``mag-heading`` (``inclination_noise``,
+``heading_inclination_noise``) counts it in a magnetometer heading's variance, where the heading read
+in the levelled frame turns by ``tan(dip)`` times the inclination error about the field's axis."""
+
+import math
+
+import numpy as np
+import pytest
+
+import fusionkit as fk
+from fusionkit.benchmarking.metrics import rms_errors
+from fusionkit.correctors import tilt as T
+from fusionkit.errors import ConfigError
+from fusionkit.pipeline import _CHAN
+from fusionkit.sim import Noise, Rest, Rotate, Translate, simulate
+from fusionkit.sim.sensors import KYIV_FIELD_ENU
+from fusionkit.types import CHANNEL_SIZE, Channel
+
+from conftest import backend_quats
+
+DEG = math.pi / 180.0
+
+
+def _translation(dip, seed=2):
+    """``fusionkit demo``'s translation (six 0.5 m pushes along the axes, a turn; 200 Hz, MEMS noise)
+    in a field of the demo's strength with dip ``dip`` (deg): benchmarks/tilt_heading_coupling.py."""
+    axes = ((1, 0, 0), (0, 1, 0), (0, 0, 1), (-1, 0, 0), (0, -1, 0), (0, 0, -1))
+    segs = [Rest(12.0)] + [Translate(d, 0.5, 1.5) for d in axes] + [Rotate((0, 0, 1), 30 * DEG, 2.0), Rest(5.0)]
+    b = float(np.linalg.norm(KYIV_FIELD_ENU))
+    field = np.array([0.0, b * math.cos(dip * DEG), -b * math.sin(dip * DEG)])
+    return simulate(segs, rate=200.0, noise=Noise.mems(), seed=seed, name="translation", mag_field=field)
+
+
+@pytest.fixture(scope="module")
+def steep():
+    return _translation(68.0)
+
+
+@pytest.mark.parametrize("split", [False, True])
+def test_reference_equals_numba(steep, split):
+    """With the heading reading the tilt's channel: reference == numba to 1e-9 on every sample, also
+    across a split run (the channel is part of the run state)."""
+    f = fk.make("recommended", heading_inclination_noise=True)
+    out = backend_quats(f, steep.slice(0, 5000), 2600 if split else None)
+    assert np.abs(out["numba"] - out["reference"]).max() < 1e-9
+
+
+def test_the_tilt_publishes_its_inclination_error(steep):
+    """inertial-tilt with tau_adapt writes its gyro part, time constant and let-through tilt into the
+    channel; without tau_adapt nothing (the channel stays 0, 'nothing known')."""
+    f = fk.make("recommended")
+    st = f.run(steep.slice(0, 3000)).diagnostics["state"]
+    ch = st["align"][_CHAN:_CHAN + CHANNEL_SIZE]
+    (i,) = [k for k, c in enumerate(f.correctors) if c.name == "inertial-tilt"]
+    x = st["cor"][i]
+    assert ch[Channel.INCLINATION_VARIANCE] == x[T._IVAR] > 0.0
+    assert ch[Channel.INCLINATION_TIME] == x[T._TAU] > 0.0
+    assert 0.0 < np.linalg.norm(ch[Channel.LET_THROUGH:Channel.LET_THROUGH + 3]) < 10 * DEG
+    st = fk.make("recommended", tau_adapt=False).run(steep.slice(0, 3000)).diagnostics["state"]
+    assert not st["align"][_CHAN:_CHAN + CHANNEL_SIZE].any()
+
+
+def test_the_coupling_at_a_steep_dip_shrinks(steep):
+    """At a dip of 68 deg the heading read in the levelled frame follows the inclination's let-through
+    (tan 68 = 2.5 times it): counting it in the heading's variance lowers the 9D heading error over
+    the motion; at a dip of 0 there is no coupling and it changes nothing."""
+    on = fk.make("recommended", heading_inclination_noise=True)
+    off = fk.make("recommended")
+    h_on, h_off = (rms_errors(f.run(steep), steep)["heading"] for f in (on, off))
+    assert h_on < 0.95 * h_off
+    flat = _translation(0.0)
+    assert rms_errors(on.run(flat), flat)["heading"] == pytest.approx(rms_errors(off.run(flat), flat)["heading"],
+                                                                        abs=0.002)
+
+
+def test_only_a_push_across_the_field_counts():
+    """The let-through tilt is about ``up x`` the acceleration: a push along the field's horizontal
+    direction (north) changes the dip, not the heading, and the heading's variance must not count
+    it; a push across it (east) turns the heading by tan(dip) times the tilt, and does count."""
+    out = {}
+    for name, ax in (("east", (1, 0, 0)), ("north", (0, 1, 0))):
+        back = tuple(-a for a in ax)
+        rec = simulate([Rest(12.0)] + [Translate(ax, 0.5, 1.5), Translate(back, 0.5, 1.5)] * 3 + [Rest(5.0)],
+                       rate=200.0, noise=Noise.mems(), seed=0, name=name)
+        out[name] = [rms_errors(fk.make("recommended", heading_inclination_noise=on).run(rec), rec)["heading"]
+                     for on in (False, True)]
+    (e_off, e_on), (n_off, n_on) = out["east"], out["north"]
+    assert e_on < 0.95 * e_off
+    assert abs(n_on - n_off) < 0.3 * (e_off - e_on)
+
+
+def _pipeline(correctors):
+    return fk.compose({"estimator": {"name": "poisson-quat"}, "correctors": correctors,
+                       "alignment": {"mode": "none", "initial_quat": (1.0, 0.0, 0.0, 0.0)}})
+
+
+def test_a_reader_before_its_publisher_is_refused():
+    """mag-heading (inclination_noise) reads what inertial-tilt publishes: put before it, it would
+    read the previous sample's value; two publishers of one quantity are ambiguous. Alone, it reads
+    0 (nothing known); without inclination_noise it reads nothing, so any order is its own."""
+    tilt = {"name": "inertial-tilt", "params": {"tau_adapt": True}}
+    head = {"name": "mag-heading", "params": {"gain": "kalman", "inclination_noise": True}}
+    with pytest.raises(ConfigError, match="INCLINATION_VARIANCE.*put the publisher first"):
+        _pipeline([head, tilt])
+    with pytest.raises(ConfigError, match="both publish"):
+        _pipeline([tilt, tilt, head])
+    _pipeline([tilt, head])
+    _pipeline([head])
+    _pipeline([{"name": "mag-heading", "params": {"gain": "kalman"}}, tilt])
