@@ -49,6 +49,12 @@ Options, each a separate idea:
   channel, :class:`fusionkit.types.Channel`): the linear acceleration the low-pass lets through now
   as the tilt it makes, the bias's part of the drift over ``tau``, and ``tau`` (:func:`_publish`;
   ``mag-heading`` with ``inclination_noise`` reads them).
+- **the gyro's rate error estimated** (``rate_error_estimate``, off; ``recommended``'s
+  ``gyro_rate_estimate``): the symmetric part of the gyro's scale and misalignment matrix E,
+  learned by a Kalman filter from what the bias filter leaves of the correction
+  (:func:`_rate_error_step`); ``tau_adapt`` then uses it and its uncertainty instead of
+  ``gyro_rate_error`` (which becomes its prior), and ``rate_error_correct`` also removes ``E w``
+  from the next propagation (through the pipeline's bias, taken off again before the bias filter).
 
 After a timestamp gap or a saturated gyro (``restarts``) the low-pass starts again: the gravity
 seen in I before is stale. A sample without a valid accelerometer reading (or one the
@@ -68,7 +74,7 @@ import math
 from typing import ClassVar, Literal
 
 import numpy as np
-from pydantic import field_validator
+from pydantic import field_validator, model_validator
 
 from .._kernels import dcm_entries
 from .._numba import njit
@@ -78,7 +84,8 @@ from ..rotations import quat_mul, quat_to_matrix
 from ..types import Channel, Flag
 from ._factor import bias_step, frame_axes, k_bias_step, k_clamp3, k_paired, k_qmul, k_rot, paired
 
-__all__ = ["InertialTiltConfig", "InertialTilt", "inertial_tilt_kernel", "lowpass_coefficients"]
+__all__ = ["InertialTiltConfig", "InertialTilt", "inertial_tilt_kernel", "lowpass_coefficients", "RATE_ERROR",
+           "RATE_KAPPA2"]
 
 # state: q_tilt, the low-pass's two delay lines, the fast start's mean and count, seconds seen, ready,
 # the low-passed vector, the frame's up and east axes, and the coefficients for the last dt
@@ -95,7 +102,14 @@ _TAUC = 81  # tau_adapt: tau / dt of the low-passes' coefficient set (0: none ye
 # impulse_clip: the mean square of the specific force's departure from the low-passed vector, the samples it averages
 _IMS, _IMN = 82, 83
 _IVAR = 84  # tau_adapt: the bias's part of the inclination error's variance about one horizontal axis at this tau
-_SIZE = 85
+# the gyro's rate error estimated (rate_error_estimate): E's symmetric part (00, 11, 22, 01, 02, 12), its covariance
+# (6 x 6), the regressor's low-pass delay lines (its east and north rows, 12 each), kappa^2 for tau_adapt, the delay lines' (1 - b0, b2 - a2) and
+# whether the regressor's low-pass started
+# and (rate_error_correct) the rate error E w the pipeline's bias carries for the next propagation
+_E, _PE, _HZ1, _HZ2, _KAP2, _ECO, _EREADY, _EW = 85, 91, 127, 139, 151, 152, 154, 155
+_SCR = 158  # rate_error_estimate's working space for one sample (no allocation per sample in the compiled loop)
+_SIZE = _SCR + 36
+RATE_ERROR, RATE_KAPPA2 = _E, _KAP2  # where a run's state holds E and kappa^2 (the recommended filter's diagnostics)
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
 _REST = int(Flag.REST)
@@ -384,7 +398,8 @@ def _sym_downdate(q00, q01, q02, q11, q12, q22, a00, a01, a02, a10, a11, a12, a2
 
 @njit(inline="always")
 def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
-    """:meth:`InertialTilt._kalman` (``e``: the output quaternion, ``r``: the correction rate)."""
+    """:meth:`InertialTilt._kalman` (``e``: the output quaternion, ``r``: the correction rate); returns the
+    residual after the update with ``rate_error_estimate`` (zeros without it)."""
     rot = dcm_entries(e0, e1, e2, e3)
     rb0 = rot[0] * b[0] + rot[1] * b[1] + rot[2] * b[2]
     rb1 = rot[3] * b[0] + rot[4] * b[1] + rot[5] * b[2]
@@ -417,7 +432,7 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
                                                          q00, q01, q02, q01, q11, q12, q02, q12, q22,
                                                          q00 + wr, q01, q02, q11 + wr, q12, q22 + wr)
         _sym_store(s, _P, q00, q01, q02, q11, q12, q22)
-        return
+        return 0.0, 0.0, 0.0
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
     hu = u0 * hb0 + u1 * hb1 + u2 * hb2
     f0 = -r0 + hb0 - u0 * hu - (h[0] * b[0] + h[1] * b[1] + h[2] * b[2])
@@ -446,6 +461,126 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
         b, f0, f1, f2)
     _sym_store(s, _P, q00, q01, q02, q11, q12, q22)
     k_clamp3(b, p[4])
+    if p[18] == 0.0:
+        return 0.0, 0.0, 0.0
+    # the residual after the update (rate_error_estimate): what the bias does not explain
+    return (-r0 + hb0 - u0 * hu - (h[0] * b[0] + h[1] * b[1] + h[2] * b[2]),
+            -r1 + hb1 - u1 * hu - (h[3] * b[0] + h[4] * b[1] + h[5] * b[2]),
+            -r2 + hb2 - u2 * hu - (h[6] * b[0] + h[7] * b[1] + h[8] * b[2]))
+
+
+def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0, forget, emax, correct):
+    """The gyro's rate error estimated online (``rate_error_estimate``), one sample: the output
+    quaternion ``e`` (body -> levelled), the body rate ``w`` (gyro minus bias), the bias filter's
+    residual ``f`` after its update (:meth:`InertialTilt._kalman`), a REST sample.
+
+    A gyro reads ``(I + E) w + b``: the scale factors (E's diagonal) and the axes' non-orthogonality
+    drift the strapdown at ``R E w`` in the levelled frame, and the inclination low-pass sees that
+    low-passed. E's antisymmetric part is a rotation of the gyro's axes as a whole: it tilts the
+    output by a constant, it does not drift, so it is not estimated (fitted, it takes up a mounting
+    offset between gyro and accelerometer). What the bias filter leaves of the correction rate is
+    the drift of the symmetric part: ``f = LP(R E w)``, linear in its 6 entries, the column of
+    ``E_ii`` being ``LP(R[:, i] w_i)`` and that of ``E_ij = E_ji`` ``LP(R[:, i] w_j + R[:, j] w_i)``,
+    low-passed with the inclination's coefficients (as the bias filter's ``LP(R)``), across the
+    vertical only (the accelerometer does not see a turn about it). A Kalman filter for them: the
+    prior is ``kappa0^2 / 3`` per entry of E (a gyro whose mean square rate error over the axes is
+    ``kappa0``: ``gyro_rate_error``), growing back to it in ``forget`` s, the measurement noise the
+    bias filter's; entries limited to ``emax``. A turn only tells the entries it excites, the rest
+    keep their prior. The result is the ``kappa^2`` tau_adapt uses, ``(|E|^2 + its variance) / 3``:
+    the rate error the strapdown still has, with what is not known of it. The bias filter learns
+    first: a steady turn's ``E w`` is a constant bias that it takes, so what this sees is the part of
+    the rate error that changes with the rate, which is what drifts the inclination.
+
+    ``correct`` (``rate_error_correct``): the estimate is removed from the gyro (the caller adds
+    ``E w`` to the pipeline's bias for the next propagation), so the residual measures what is left,
+    ``E - E_applied`` with ``E_applied`` the estimate itself: the innovation is the residual, and
+    ``kappa^2`` is the variance alone."""
+    c1, c2 = 1.0 - x[_B], x[_B + 2] - x[_B + 4]
+    r = dcm_entries(e0, e1, e2, e3)
+    # the levelled frame's two horizontal axes (east and north = up x east): rows of R seen along them
+    u0, u1, u2 = x[_UP], x[_UP + 1], x[_UP + 2]
+    s0, s1, s2 = x[_EAST], x[_EAST + 1], x[_EAST + 2]
+    n0, n1, n2 = u1 * s2 - u2 * s1, u2 * s0 - u0 * s2, u0 * s1 - u1 * s0
+    g = x[_SCR:_SCR + 12]  # the regressor before the low-pass: east then north row of the columns 00, 11, 22, 01, 02, 12
+    for k in range(2):
+        a0, a1, a2 = (s0, s1, s2) if k == 0 else (n0, n1, n2)
+        r0 = a0 * r[0] + a1 * r[3] + a2 * r[6]
+        r1 = a0 * r[1] + a1 * r[4] + a2 * r[7]
+        r2 = a0 * r[2] + a1 * r[5] + a2 * r[8]
+        g[6 * k], g[6 * k + 1], g[6 * k + 2] = r0 * w0, r1 * w1, r2 * w2
+        g[6 * k + 3], g[6 * k + 4], g[6 * k + 5] = r0 * w1 + r1 * w0, r0 * w2 + r2 * w0, r1 * w2 + r2 * w1
+    if x[_EREADY] == 0.0:  # start in the steady state of this sample
+        for m in range(12):
+            x[_HZ1 + m], x[_HZ2 + m] = g[m] * c1, g[m] * c2
+        x[_ECO], x[_ECO + 1], x[_EREADY] = c1, c2, 1.0
+    elif c1 != x[_ECO] or c2 != x[_ECO + 1]:  # new coefficients (tau_adapt, dt): the delay lines' steady state
+        q1, q2 = c1 / x[_ECO], c2 / x[_ECO + 1]
+        for m in range(12):
+            x[_HZ1 + m] *= q1
+            x[_HZ2 + m] *= q2
+        x[_ECO], x[_ECO + 1] = c1, c2
+    b0, b1, b2, a1, a2 = x[_B], x[_B + 1], x[_B + 2], x[_B + 3], x[_B + 4]
+    h = x[_SCR + 12:_SCR + 24].reshape((2, 6))
+    for m in range(12):
+        y = b0 * g[m] + x[_HZ1 + m]
+        x[_HZ1 + m] = b1 * g[m] - a1 * y + x[_HZ2 + m]
+        x[_HZ2 + m] = b2 * g[m] - a2 * y
+        h[m // 6, m % 6] = y
+    p0 = kappa0 * kappa0 / 3.0
+    v = p0 * dt / forget
+    for m in range(6):
+        if x[_PE + 7 * m] < p0:
+            x[_PE + 7 * m] += v
+    if not rest:
+        # the linear acceleration the low-pass lets through turns its vector by sigma_v / (g tau), changing over tau:
+        # as white noise of the same low-frequency power, 2 sigma_v^2 / (g^2 tau^3 dt) on the rate (tau_adapt's
+        # statistics; 0 without them)
+        wa = 0.0
+        if x[_NST] > 1.0:
+            t = x[_TAU]
+            wa = 2.0 * x[_SV2] / ((x[_Y] * x[_Y] + x[_Y + 1] * x[_Y + 1] + x[_Y + 2] * x[_Y + 2]) * t * t * t * dt)
+        v0, v1 = s0 * f0 + s1 * f1 + s2 * f2, n0 * f0 + n1 * f1 + n2 * f2  # the innovation
+        if not correct:
+            for n in range(6):
+                v0 -= h[0, n] * x[_E + n]
+                v1 -= h[1, n] * x[_E + n]
+        a = x[_SCR + 24:_SCR + 36].reshape((6, 2))  # P H^T
+        for m in range(6):
+            t0 = t1 = 0.0
+            for n in range(6):
+                t0 += x[_PE + 6 * m + n] * h[0, n]
+                t1 += x[_PE + 6 * m + n] * h[1, n]
+            a[m, 0], a[m, 1] = t0, t1
+        m00, m01, m11 = x[_N + 1] + wa, 0.0, x[_N + 1] + wa  # S = H P H^T + (wm + wa) I
+        for n in range(6):
+            m00 += h[0, n] * a[n, 0]
+            m01 += h[0, n] * a[n, 1]
+            m11 += h[1, n] * a[n, 1]
+        d = 1.0 / (m00 * m11 - m01 * m01)
+        i00, i01, i11 = m11 * d, -m01 * d, m00 * d
+        for m in range(6):  # K = P H^T S^-1 (row m), E += K nu, P -= K (P H^T)^T (symmetric: the upper half, mirrored)
+            k0 = a[m, 0] * i00 + a[m, 1] * i01
+            k1 = a[m, 0] * i01 + a[m, 1] * i11
+            x[_E + m] = min(max(x[_E + m] + k0 * v0 + k1 * v1, -emax), emax)
+            for n in range(m, 6):
+                x[_PE + 6 * m + n] -= k0 * a[n, 0] + k1 * a[n, 1]
+                x[_PE + 6 * n + m] = x[_PE + 6 * m + n]
+    k2 = 0.0
+    for m in range(6):
+        k2 += (1.0 if m < 3 else 2.0) * (x[_PE + 7 * m] if correct else x[_E + m] * x[_E + m] + x[_PE + 7 * m])
+    x[_KAP2] = k2 / 3.0
+    if correct:  # the rate error this sample's rate shows, for the next propagation: across the vertical only
+        e00, e11, e22, e01, e02, e12 = x[_E], x[_E + 1], x[_E + 2], x[_E + 3], x[_E + 4], x[_E + 5]
+        d0, d1, d2 = e00 * w0 + e01 * w1 + e02 * w2, e01 * w0 + e11 * w1 + e12 * w2, e02 * w0 + e12 * w1 + e22 * w2
+        # (its part about the vertical drifts the heading, which the accelerometer never checks: left to the
+        # heading's own correction)
+        c = u0 * (r[0] * d0 + r[1] * d1 + r[2] * d2) + u1 * (r[3] * d0 + r[4] * d1 + r[5] * d2) \
+            + u2 * (r[6] * d0 + r[7] * d1 + r[8] * d2)
+        z0, z1, z2 = r[0] * u0 + r[3] * u1 + r[6] * u2, r[1] * u0 + r[4] * u1 + r[7] * u2, r[2] * u0 + r[5] * u1 + r[8] * u2
+        x[_EW], x[_EW + 1], x[_EW + 2] = d0 - c * z0, d1 - c * z1, d2 - c * z2
+
+
+_k_rate_error_step = njit(inline="always")(_rate_error_step)
 
 
 class InertialTiltConfig(PluginConfig):
@@ -485,6 +620,17 @@ class InertialTiltConfig(PluginConfig):
     gyro_rate_error: float = param(
         0.015, unit="-", description="tau_adapt: the gyro's error proportional to the rate (scale factor and "
         "misalignment; consumer MEMS data sheets: 1-3 %)", ge=0)
+    rate_error_estimate: bool = param(
+        False, unit="-", description="tau_adapt: the gyro's rate error (the 3 x 3 scale and misalignment matrix E) "
+        "estimated online from what the bias filter leaves of the correction (a Kalman filter, prior "
+        "gyro_rate_error, needs bias_filter kalman with motion_bias_tau); tau_adapt's kappa is then "
+        "sqrt((|E|^2 + tr P) / 3), the rate error not yet removed with its uncertainty. The gyro is not corrected. "
+        "False: kappa = gyro_rate_error throughout")
+    rate_error_correct: bool = param(
+        False, unit="-", description="rate_error_estimate: the estimate removed from the gyro (E w, w the rate "
+        "of the sample, added to the pipeline's bias for the next propagation and taken off again before the bias "
+        "filter); kappa is then the estimate's uncertainty alone. False: the estimate only sets kappa")
+    rate_error_max: float = param(0.05, unit="-", description="rate_error_estimate: the largest entry of E", gt=0)
     tau_min: float = param(0.5, unit="s", description="tau_adapt: the shortest time constant", gt=0)
     tau_max: float = param(4.0, unit="s", description="tau_adapt: the longest time constant (the velocity estimate, "
                            "leaking with tau, does not see accelerations slower than a few tau)", gt=0)
@@ -513,6 +659,15 @@ class InertialTiltConfig(PluginConfig):
             raise ValueError(f"must be at least tau_min ({lo:g} s), got {v:g} s")
         return v
 
+    @model_validator(mode="after")
+    def _rate_error_needs_the_bias_filter(self):
+        """The rate error is learned from the bias filter's residual: without it, nothing would be learned."""
+        if self.rate_error_estimate and (self.motion_bias_tau is None or self.bias_filter != "kalman"):
+            raise ValueError("rate_error_estimate needs bias_filter 'kalman' with a motion_bias_tau")
+        if self.rate_error_correct and not self.rate_error_estimate:
+            raise ValueError("rate_error_correct needs rate_error_estimate")
+        return self
+
 
 class InertialTilt(FactorCorrector):
     """Inclination from the specific force low-passed in the almost-inertial frame (a factor)."""
@@ -534,6 +689,8 @@ class InertialTilt(FactorCorrector):
         s[_UP:_UP + 3], s[_EAST:_EAST + 3] = axes[6:9], axes[0:3]
         s[_P:_P + 9] = np.eye(3).ravel() * self.config.bias_sigma_init ** 2
         s[_VR] = self.config.bias_sigma_init ** 2
+        s[_PE:_PE + 36] = np.eye(6).ravel() * self.config.gyro_rate_error ** 2 / 3.0
+        s[_KAP2] = self.config.gyro_rate_error ** 2
         return s
 
     def restart(self, state: np.ndarray) -> None:
@@ -543,6 +700,7 @@ class InertialTilt(FactorCorrector):
         state[_KREADY] = 0.0  # the bias filter's low-passes start again with the inclination's
         state[_NST] = 0.0  # and the adaptive time constant's statistics
         state[_IMN] = 0.0  # and the impulse clip's mean square
+        state[_EREADY] = 0.0  # and the rate error's regressor (E and its covariance are the gyro's: kept)
 
     def compose(self, state, quat, sample, bias, rate, flags, channel=None):
         if sample.acc is not None:
@@ -550,16 +708,22 @@ class InertialTilt(FactorCorrector):
             r = quat_to_matrix(qg)
             y = state[_Y:_Y + 3]
             z = r.T @ (y / np.linalg.norm(y)) if state[_NST] > 0.0 else np.zeros(3)  # the vertical in the body
-            self._tilt(state, r @ sample.acc, quat, bias, sample.dt, bool(flags & _REST), r @ (sample.gyr - bias), z)
+            w_b = sample.gyr - bias  # (with rate_error_correct: the rate the propagation used, E w removed)
+            if self.config.rate_error_correct:
+                bias -= state[_EW:_EW + 3]  # the bias itself, for the bias filter
+            self._tilt(state, r @ sample.acc, quat, bias, sample.dt, bool(flags & _REST), r @ w_b, z, w_b)
+            if self.config.rate_error_correct:
+                bias += state[_EW:_EW + 3]
             if self.config.tau_adapt and channel is not None:
                 _publish(state, channel)
         return quat_mul(state[_QA:_QA + 4], quat), 0
 
-    def _tilt(self, x, a_i, quat, bias, dt, rest, w_i, z) -> None:
+    def _tilt(self, x, a_i, quat, bias, dt, rest, w_i, z, w_b) -> None:
         c = self.config
         y = x[_Y:_Y + 3]
         tau = _adapt_step(x, *a_i, *w_i, *z, rest, dt, c.tau, c.adapt_window, c.bias_sigma_motion, c.bias_sigma_init,
-                          c.motion_bias_tau or _FORGET, c.gyro_rate_error,
+                          c.motion_bias_tau or _FORGET,
+                          math.sqrt(x[_KAP2]) if c.rate_error_estimate else c.gyro_rate_error,
                           c.tau_min, c.tau_max) if c.tau_adapt else c.tau
         x[_TACC] += dt
         # durations are sums of dt compared with half a sample of margin (a split run equals one run)
@@ -592,7 +756,11 @@ class InertialTilt(FactorCorrector):
         if c.motion_bias_tau is not None and c.bias_filter == "kalman" and x[_READY]:
             s = float(np.linalg.norm(qc[1:]))
             r = qc[1:] * (2.0 * math.atan2(s, qc[0]) / (s * dt)) if s > 0.0 else np.zeros(3)
-            self._kalman(x, quat_to_matrix(quat_mul(x[_QA:_QA + 4], quat)), r, bias, dt, rest)
+            out = quat_mul(x[_QA:_QA + 4], quat)
+            res = self._kalman(x, quat_to_matrix(out), r, bias, dt, rest)
+            if c.rate_error_estimate and np.all(np.isfinite(w_b)):  # (a sample without a valid gyro: nothing to learn)
+                _rate_error_step(x, *out, *w_b, *res, rest, dt, c.gyro_rate_error, c.motion_bias_tau,
+                                 c.rate_error_max, c.rate_error_correct)
         elif c.motion_bias_tau is not None and not rest and x[_READY]:
             # the correction as a rate in the levelled frame is the gyro drift; seen in the body,
             # it is the (horizontal part of the) bias error
@@ -601,7 +769,7 @@ class InertialTilt(FactorCorrector):
                 r_level = qc[1:] * (2.0 * math.atan2(s, qc[0]) / (s * dt))
                 bias_step(bias, r_level, quat_mul(x[_QA:_QA + 4], quat), dt, c.motion_bias_tau, c.bias_max)
 
-    def _kalman(self, x, rot, r, bias, dt, rest) -> None:
+    def _kalman(self, x, rot, r, bias, dt, rest) -> np.ndarray:
         """The bias in motion as VQF learns it (``bias_filter="kalman"``). The gyro strapdown drifts
         at ``R (b_true - b)`` in the earth frame; the inclination low-pass sees that drift low-passed,
         so the correction rate ``r`` measures ``LP(R) b_true = -r + LP(R b)`` (the frame's vertical:
@@ -609,7 +777,9 @@ class InertialTilt(FactorCorrector):
         then says little, and the gain shrinks with it (mapping ``r`` with the sample's own R would
         put it on the wrong body axes). ``P`` grows by ``sigma_motion^2 dt / motion_bias_tau`` per
         sample up to ``sigma_init^2``; a REST sample is the rest corrector's measurement of the whole
-        bias (noise ``bias_sigma_rest``): it shrinks ``P`` (the bias itself is the rest corrector's)."""
+        bias (noise ``bias_sigma_rest``): it shrinks ``P`` (the bias itself is the rest corrector's).
+        Returns the residual after the update, ``-r + LP(R b) - LP(R) b`` with the frame's vertical
+        part of ``LP(R b)`` removed (zeros on a REST sample): what the bias does not explain."""
         c = self.config
         b0, b1, b2, a1, a2 = x[_B:_B + 5]
         rb = rot @ bias
@@ -633,7 +803,7 @@ class InertialTilt(FactorCorrector):
         if rest:
             if c.bias_sigma_rest is not None:
                 p -= p @ np.linalg.inv(p + wr * np.eye(3)) @ p
-            return
+            return np.zeros(3)
         up = x[_UP:_UP + 3]
         e = -r + hb - up * (up @ hb) - h @ bias
         ne = float(np.linalg.norm(e))
@@ -645,6 +815,7 @@ class InertialTilt(FactorCorrector):
         nb = float(np.linalg.norm(bias))
         if nb > c.bias_max:
             bias *= c.bias_max / nb
+        return -r + hb - up * (up @ hb) - h @ bias
 
     def kernel(self, estimator) -> CorrectorKernel:
         c = self.config
@@ -653,7 +824,8 @@ class InertialTilt(FactorCorrector):
                       float(c.bias_filter == "kalman"), c.bias_sigma_init, c.bias_sigma_motion,
                       c.bias_sigma_rest if c.bias_sigma_rest is not None else 0.0, c.bias_vertical_forgetting,
                       float(c.tau_adapt), c.gyro_rate_error, c.tau_min, c.tau_max, c.adapt_window,
-                      c.impulse_clip if c.impulse_clip is not None else 0.0, c.impulse_window, c.impulse_floor])
+                      c.impulse_clip if c.impulse_clip is not None else 0.0, c.impulse_window, c.impulse_floor,
+                      float(c.rate_error_estimate), c.rate_error_max, float(c.rate_error_correct)])
         return CorrectorKernel(inertial_tilt_kernel, p, mode="factor")
 
 
@@ -663,19 +835,24 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
     """The kernel of :meth:`InertialTilt.compose`: ``p = (tau, fast_start, acc_delay (NaN: None),
     motion_bias_tau (0: off), bias_max, kalman (1) or lowpass (0), bias_sigma_init, bias_sigma_motion,
     bias_sigma_rest (0: None), bias_vertical_forgetting, tau_adapt, gyro_rate_error, tau_min, tau_max,
-    adapt_window, impulse_clip (0: None), impulse_window, impulse_floor)``; ``ch`` the pipeline's channel."""
+    adapt_window, impulse_clip (0: None), impulse_window, impulse_floor, rate_error_estimate, rate_error_max,
+    rate_error_correct)``; ``ch`` the pipeline's channel."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
         v0, v1, v2 = k_rot(p0, p1, p2, p3, a0, a1, a2)
         tau = p[0]
+        wb0, wb1, wb2 = g0 - b[0], g1 - b[1], g2 - b[2]  # the body rate before the bias filter's update
+        if p[20] != 0.0:  # rate_error_correct: the bias itself, for the bias filter
+            b[0], b[1], b[2] = b[0] - s[_EW], b[1] - s[_EW + 1], b[2] - s[_EW + 2]
         if p[10] != 0.0:
-            w0, w1, w2 = k_rot(p0, p1, p2, p3, g0 - b[0], g1 - b[1], g2 - b[2])
+            w0, w1, w2 = k_rot(p0, p1, p2, p3, wb0, wb1, wb2)
             z0 = z1 = z2 = 0.0
             if s[_NST] > 0.0:  # the vertical in the body
                 n = math.sqrt(s[_Y] * s[_Y] + s[_Y + 1] * s[_Y + 1] + s[_Y + 2] * s[_Y + 2])
                 z0, z1, z2 = k_rot(p0, -p1, -p2, -p3, s[_Y] / n, s[_Y + 1] / n, s[_Y + 2] / n)
             tau = _k_adapt_step(s, v0, v1, v2, w0, w1, w2, z0, z1, z2, (flags & _REST) != 0, dt, p[0], p[14], p[7],
-                                p[6], p[3] if p[3] > 0.0 else _FORGET, p[11], p[12], p[13])
+                                p[6], p[3] if p[3] > 0.0 else _FORGET,
+                                math.sqrt(s[_KAP2]) if p[18] != 0.0 else p[11], p[12], p[13])
         s[_TACC] += dt
         if p[1] != 0.0 and s[_READY] == 0.0 and s[_TACC] + 0.5 * dt < p[0]:
             s[_NMEAN] += 1.0
@@ -713,12 +890,17 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
         if p[3] > 0.0 and p[5] != 0.0 and s[_READY] != 0.0:
             sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
             f = 2.0 * _atan_over(sn, c0) / dt if sn > 0.0 else 0.0
-            _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, (flags & _REST) != 0, dt, p)
+            f0, f1, f2 = _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, (flags & _REST) != 0, dt, p)
+            if p[18] != 0.0 and math.isfinite(wb0) and math.isfinite(wb1) and math.isfinite(wb2):
+                _k_rate_error_step(s, e0, e1, e2, e3, wb0, wb1, wb2, f0, f1, f2, (flags & _REST) != 0, dt, p[11],
+                                   p[3], p[19], p[20] != 0.0)
         elif p[3] > 0.0 and (flags & _REST) == 0 and s[_READY] != 0.0:
             sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
             if sn > 0.0:
                 f = 2.0 * _atan_over(sn, c0) / dt
                 k_bias_step(b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, dt / p[3], p[4])
+        if p[20] != 0.0:  # rate_error_correct: the next propagation removes this sample's E w
+            b[0], b[1], b[2] = b[0] + s[_EW], b[1] + s[_EW + 1], b[2] + s[_EW + 2]
         q[0], q[1], q[2], q[3] = e0, e1, e2, e3
         if p[10] != 0.0:
             _k_publish(s, ch)

@@ -51,9 +51,14 @@ import copy
 import math
 from typing import Any, ClassVar, Literal
 
+import numpy as np
+from pydantic import model_validator
+
 from ..config import AlignmentConfig, FilterConfig, PipelineConfig, PluginSpec, param
 from ..correctors._factor import initial_attitude
 from ..correctors.heading import HEADING_VARIANCE, MAG_REFERENCE
+from ..correctors.tilt import RATE_ERROR as TILT_RATE_ERROR
+from ..correctors.tilt import RATE_KAPPA2 as TILT_KAPPA2
 from ..correctors.tilt import lowpass_coefficients
 from ..detectors.magnetic import MagneticConfig
 from ..detectors.rest import RestConfig
@@ -82,6 +87,13 @@ class RecommendedConfig(FilterConfig):
         "low-pass: a knock's few samples of tens of g, which the sampled accelerometer does not integrate to the "
         "velocity the body got, do not tilt the estimate (recommended.md). None: off (the behaviour before stop 21)",
         gt=1)
+    gyro_rate_estimate: Literal["off", "tau", "correct"] = param(
+        "off", unit="-", description="the gyro's rate error (scale factors and non-orthogonality, E's symmetric part) "
+        "estimated online from what the bias in motion leaves of the inclination correction, gyro_rate_error its "
+        "prior (inertial-tilt's rate_error_estimate; recommended.md). correct: removed from the gyro, and the "
+        "adaptive time constant uses the estimate's uncertainty; tau: only the adaptive time constant uses it (the "
+        "estimate and its uncertainty instead of gyro_rate_error); off: gyro_rate_error throughout. Needs the bias "
+        "in motion (motion_bias_tau, bias_filter kalman)")
     tau_mag: float = param(15.0, unit="s", description="heading_gain fixed: time constant of the heading correction",
                            gt=0)
     heading_gain: Literal["fixed", "kalman"] = param(
@@ -169,6 +181,15 @@ class RecommendedConfig(FilterConfig):
     mag_delay_max_std: float = param(0.1, unit="samples", description="apply the delay estimate once its standard "
                                      "deviation is below this many sample intervals", gt=0)
 
+    @model_validator(mode="after")
+    def _gyro_rate_estimate_needs_the_bias_filter(self):
+        """The rate error is learned from the Kalman bias filter's residual (inertial-tilt): without it,
+        nothing would be learned."""
+        if self.gyro_rate_estimate != "off" and (self.motion_bias_tau is None or self.bias_filter != "kalman"):
+            raise ValueError(f"gyro_rate_estimate {self.gyro_rate_estimate!r} needs the bias in motion "
+                             "(motion_bias_tau, bias_filter 'kalman'; inertial-tilt's rate_error_estimate)")
+        return self
+
 
 class RecommendedFilter(Pipeline):
     """Gyro strapdown + inclination from the inertially low-passed accelerometer + separate
@@ -197,7 +218,9 @@ class RecommendedFilter(Pipeline):
             "bias_max": c.bias_max, "acc_delay": c.acc_delay, "bias_filter": c.bias_filter,
             "bias_sigma_init": c.bias_sigma_init,
             "bias_sigma_motion": c.bias_sigma_motion, "bias_sigma_rest": c.bias_sigma_rest if c.rest_bias else None,
-            "tau_adapt": c.tau_adapt, "gyro_rate_error": c.gyro_rate_error, "impulse_clip": c.impulse_clip}))
+            "tau_adapt": c.tau_adapt, "gyro_rate_error": c.gyro_rate_error, "impulse_clip": c.impulse_clip,
+            "rate_error_estimate": c.gyro_rate_estimate != "off",
+            "rate_error_correct": c.gyro_rate_estimate == "correct"}))
         if c.use_mag:
             magnetic = c.magnetic if c.fast_start else c.magnetic.model_copy(update={"init_time": 0.0})
             correctors.append(PluginSpec(name="mag-heading", params={
@@ -239,6 +262,12 @@ class RecommendedFilter(Pipeline):
 
     def _diagnostics(self, st, flags, crit, backend) -> dict[str, Any]:
         d = super()._diagnostics(st, flags, crit, backend)
+        tilt = [i for i, c in enumerate(self.correctors) if c.name == "inertial-tilt"]
+        if tilt and self.config.gyro_rate_estimate != "off":  # the rate error E (3 x 3) at the end, and tau_adapt's kappa
+            s = st["cor"][tilt[0]]
+            e00, e11, e22, e01, e02, e12 = s[TILT_RATE_ERROR:TILT_RATE_ERROR + 6]  # its symmetric part
+            d["gyro_rate_error"] = np.array([[e00, e01, e02], [e01, e11, e12], [e02, e12, e22]])
+            d["gyro_rate_kappa"] = math.sqrt(float(s[TILT_KAPPA2]))
         heading = [i for i, c in enumerate(self.correctors) if c.name == "mag-heading"]
         if heading:
             s = st["cor"][heading[0]]
