@@ -237,7 +237,7 @@ class MagCalibrationModel(SensorModel):
         lam = math.exp(-s[_T] / c.forget_time)
         inv = np.empty((3, 3))
         if n >= c.min_segments and e2 > c.outlier_sigma ** 2 * s[_VAR] * _spread(
-                h, inv, _invert_spd(s[_A:_A + 9].reshape(3, 3).copy(), np.empty((3, 3)), inv), lam):
+                h, inv, _invert_spd(s[_A:_A + 9].reshape(3, 3).copy(), np.empty((3, 3)), inv, 3), lam, 3):
             s[_BAD] += 1.0
             if s[_BAD] >= c.outlier_count:  # the offset changed: forget it and learn again
                 s[_A:_A + 9] = 0.0
@@ -281,7 +281,7 @@ class MagCalibrationModel(SensorModel):
         lam = math.exp(-s[_T] / c.forget_time)
         inv = s[_SINV:_SINV + _NP * _NP].reshape(_NP, _NP)  # A^-1, kept since A last changed (below)
         if n >= c.min_segments and float(e @ e) / 3.0 > c.outlier_sigma ** 2 * s[_VAR] * _spread(
-                h, inv, s[_SINVOK] != 0.0, lam):
+                h, inv, s[_SINVOK] != 0.0, lam, _NP):
             s[_BAD] += 1.0
             if s[_BAD] >= c.outlier_count:  # the calibration changed: forget it and learn again
                 s[_SA:_SA + _NP * _NP] = 0.0
@@ -296,7 +296,7 @@ class MagCalibrationModel(SensorModel):
         s[_RR] = lam * s[_RR] + float(r @ r)
         s[_NE] = lam * s[_NE] + 1.0
         s[_N] = n + 1.0
-        s[_SINVOK] = float(_invert_spd(a.copy(), np.empty((_NP, _NP)), inv))  # inv: untouched if not invertible
+        s[_SINVOK] = float(_invert_spd(a.copy(), np.empty((_NP, _NP)), inv, _NP))  # inv: untouched if not invertible
         if not s[_SINVOK]:
             return
         best = inv @ s[_SY:_SY + _NP]
@@ -536,14 +536,15 @@ def _soft_rows(ct, ma, mk, h):
             h[i, 5 + j] = (1.0 if i == j else 0.0) - ct[i, j]
 
 
-def _invert_spd(a, m, inv) -> bool:
+def _invert_spd(a, m, inv, n) -> bool:
     """``inv = a^-1`` of a symmetric positive definite ``a`` (the information matrix) by its
     Cholesky factor ``a = L L^T``: ``M = L^-1``, ``a^-1 = M^T M`` (about a third of Gauss-Jordan's
     operations, no pivoting: ``a``'s lower triangle is overwritten with ``L``, ``m`` is scratch);
     False for a matrix not positive definite to working precision (a pivot of ``L L^T`` at or
-    below ``1e-12`` of ``a``'s largest diagonal entry). The same statements in the reference and,
-    compiled, in the kernel."""
-    n = a.shape[0]
+    below ``1e-12`` of ``a``'s largest diagonal entry). ``n``: ``a``'s size, passed as a constant so
+    that the compiled twin, inlined into the segment, has loops of known length that LLVM unrolls and
+    schedules (the same operations in the same order: the same numbers, in about half the time of
+    loops over ``a.shape[0]``). The same statements in the reference and, compiled, in the kernel."""
     scale = 0.0
     for i in range(n):
         scale = max(scale, abs(a[i, i]))
@@ -577,17 +578,17 @@ def _invert_spd(a, m, inv) -> bool:
     return True
 
 
-def _spread(h, inv, ok, lam) -> float:
+def _spread(h, inv, ok, lam, n) -> float:
     """How much larger than the fit's residual noise a new segment's misfit ``e = r - H x`` is
     expected to be: ``1 + tr(H P H^T) / 3`` with ``P = (lam A)^-1`` the estimate's covariance over
     the noise's variance (``inv = A^-1``, ``A`` the information matrix before the segment, ``lam``
-    its forgetting). Where ``A`` still leaves a direction unknown (rotations about one axis so
-    far), a turn about another axis shows a large misfit that is the estimate's own uncertainty,
-    not a moved magnet; inf where ``A`` was not invertible (``ok`` False: no misfit can be
-    judged). The same statements in the reference and, compiled, in the kernel."""
+    its forgetting, ``n`` the unknowns' count). Where ``A`` still leaves a direction unknown
+    (rotations about one axis so far), a turn about another axis shows a large misfit that is the
+    estimate's own uncertainty, not a moved magnet; inf where ``A`` was not invertible (``ok``
+    False: no misfit can be judged). The same statements in the reference and, compiled, in the
+    kernel (there inlined with the size a constant: see :func:`_invert_spd`)."""
     if not ok:
         return math.inf
-    n = inv.shape[0]
     t = 0.0
     for i in range(3):
         for j in range(n):
@@ -643,8 +644,8 @@ def _min_eig_sym3(a) -> float:
 
 _k_min_eig = njit(_min_eig_sym3)
 _k_inverse3 = njit(_inverse3)
-_k_invert_spd = njit(_invert_spd)
-_k_spread = njit(_spread)
+_k_invert_spd = njit(inline="always")(_invert_spd)  # (the size a constant at each call: see _invert_spd)
+_k_spread = njit(inline="always")(_spread)
 _k_basis = njit(_basis)
 _k_ring_push = njit(_ring_push, cold=True)  # once per segment (as are _k_segment and _k_segment_soft)
 _k_turned = njit(_turned)
@@ -766,7 +767,7 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
     lam = math.exp(-s[_T] / forget)
     inv = np.empty((3, 3))
     if n >= min_seg and e2 > out_sigma * out_sigma * s[_VAR] * _k_spread(
-            h, inv, _k_invert_spd(s[_A:_A + 9].reshape((3, 3)).copy(), np.empty((3, 3)), inv), lam):
+            h, inv, _k_invert_spd(s[_A:_A + 9].reshape((3, 3)).copy(), np.empty((3, 3)), inv, 3), lam, 3):
         s[_BAD] += 1.0
         if s[_BAD] >= out_count:
             for i in range(9):
@@ -829,7 +830,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     misfit = False
     if n >= min_seg:  # the spread from the information matrix's inverse kept since it last changed
         misfit = e2 / 3.0 > out_sigma * out_sigma * s[_VAR] * _k_spread(
-            h, s[_SINV:_SINV + _NP * _NP].reshape((_NP, _NP)), s[_SINVOK] != 0.0, lam)
+            h, s[_SINV:_SINV + _NP * _NP].reshape((_NP, _NP)), s[_SINVOK] != 0.0, lam, _NP)
     if misfit:
         s[_BAD] += 1.0
         if s[_BAD] >= out_count:
@@ -852,7 +853,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     s[_NE] = lam * s[_NE] + 1.0
     s[_N] = n + 1.0
     inv = s[_SINV:_SINV + _NP * _NP].reshape((_NP, _NP))  # (untouched where a is not invertible)
-    s[_SINVOK] = 1.0 if _k_invert_spd(a, buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), inv) else 0.0
+    s[_SINVOK] = 1.0 if _k_invert_spd(a, buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), inv, _NP) else 0.0
     if s[_SINVOK] == 0.0:
         return
     yb = 0.0
