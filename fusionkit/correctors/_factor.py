@@ -98,10 +98,11 @@ def k_paired(q, delay, h0, h1, h2, h3, g0, g1, g2, b, dt):
 
 @njit(inline="always")
 def k_clamp3(v, limit):
-    """Scale the 3-vector ``v`` (in place) down to norm ``limit`` when it is longer."""
-    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    if n > limit:
-        f = limit / n
+    """Scale the 3-vector ``v`` (in place) down to norm ``limit`` when it is longer (the square
+    root only then: the squared norm against the squared limit)."""
+    n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    if n2 > limit * limit:
+        f = limit / math.sqrt(n2)
         v[0] *= f
         v[1] *= f
         v[2] *= f
