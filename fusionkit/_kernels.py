@@ -63,12 +63,15 @@ def rotvec_quat(r0, r1, r2, out):
 @njit(inline="always")
 def rotvec_quat_entries(r0, r1, r2):
     """:func:`rotvec_quat` as a tuple, with a polynomial below 0.05 rad (its error under 1e-22,
-    no square root or sine on the per-sample path), sin/cos above."""
+    no square root or sine on the per-sample path), sin/cos above. The polynomial multiplies by
+    the coefficients (a division by a constant that is no power of two stays a division: seven
+    of them, each several times a multiplication's cost, in a call made a few times per sample)."""
     s2 = r0 * r0 + r1 * r1 + r2 * r2
     if s2 < 0.0025:
         x = 0.25 * s2  # (s/2)^2
-        c = 1.0 - x / 2.0 + x * x / 24.0 - x * x * x / 720.0 + x * x * x * x / 40320.0
-        k = 0.5 * (1.0 - x / 6.0 + x * x / 120.0 - x * x * x / 5040.0 + x * x * x * x / 362880.0)
+        c = 1.0 - x * 0.5 + x * x * (1.0 / 24.0) - x * x * x * (1.0 / 720.0) + x * x * x * x * (1.0 / 40320.0)
+        k = 0.5 * (1.0 - x * (1.0 / 6.0) + x * x * (1.0 / 120.0) - x * x * x * (1.0 / 5040.0)
+                   + x * x * x * x * (1.0 / 362880.0))
     else:
         s = math.sqrt(s2)
         c = math.cos(0.5 * s)

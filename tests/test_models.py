@@ -282,9 +282,9 @@ def test_mag_calibration_spd_inverse():
         h = rng.normal(size=(rows, 8)) * rng.uniform(0.01, 10.0, size=8)
         a = h.T @ h
         inv, inv_k = np.empty((8, 8)), np.empty((8, 8))
-        assert _invert_spd(a.copy(), np.empty((8, 8)), inv) and _k_invert_spd(a.copy(), np.empty((8, 8)), inv_k)
+        assert _invert_spd(a.copy(), np.empty((8, 8)), inv, 8) and _k_invert_spd(a.copy(), np.empty((8, 8)), inv_k, 8)
         assert np.array_equal(inv, inv_k)
         ref = np.linalg.inv(a)
         assert np.abs(inv - ref).max() < 1e-12 * np.linalg.cond(a) * np.abs(ref).max()
     h = rng.normal(size=(5, 8))  # rank 5: three directions unknown
-    assert not _invert_spd(h.T @ h, np.empty((8, 8)), np.empty((8, 8)))
+    assert not _invert_spd(h.T @ h, np.empty((8, 8)), np.empty((8, 8)), 8)

@@ -19,7 +19,7 @@ from .._numba import njit
 from ..conventions import frame_matrix
 from ..rotations import quat_from_rotvec, quat_mul, quat_to_matrix
 
-__all__ = ["frame_axes", "paired", "bias_step", "initial_attitude"]
+__all__ = ["frame_axes", "paired", "bias_step", "initial_attitude", "atan2_small"]
 
 
 def frame_axes(frame: str) -> np.ndarray:
@@ -48,6 +48,19 @@ def paired(quat, delay, rate, gyr, bias, dt):
     if delay != 0.0:
         return quat_mul(quat, quat_from_rotvec(-(gyr - bias) * delay))
     return quat
+
+
+@njit(inline="always")
+def atan2_small(y, x) -> float:
+    """``atan2(y, x)``; a small angle (``|y| < x / 10``) by the series of ``atan(t)`` to ``t^15``
+    (relative error under 1e-17), arithmetic instead of a libm call: a correction's error, which
+    is small once it has converged (compiled; the reference calls it too)."""
+    if x > 0.0 and abs(y) < 0.1 * x:
+        t = y / x
+        u = t * t
+        return t * (1.0 + u * (-1.0 / 3.0 + u * (0.2 + u * (-1.0 / 7.0 + u * (1.0 / 9.0 + u * (
+            -1.0 / 11.0 + u * (1.0 / 13.0 + u * (-1.0 / 15.0))))))))
+    return math.atan2(y, x)
 
 
 def bias_step(bias, r_level, q6, dt, tau, bias_max) -> None:
@@ -85,10 +98,11 @@ def k_paired(q, delay, h0, h1, h2, h3, g0, g1, g2, b, dt):
 
 @njit(inline="always")
 def k_clamp3(v, limit):
-    """Scale the 3-vector ``v`` (in place) down to norm ``limit`` when it is longer."""
-    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    if n > limit:
-        f = limit / n
+    """Scale the 3-vector ``v`` (in place) down to norm ``limit`` when it is longer (the square
+    root only then: the squared norm against the squared limit)."""
+    n2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    if n2 > limit * limit:
+        f = limit / math.sqrt(n2)
         v[0] *= f
         v[1] *= f
         v[2] *= f

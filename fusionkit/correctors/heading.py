@@ -102,8 +102,9 @@ from ..models.time_offset import _BLOCK as _EST_SIZE
 from ..protocols import CorrectorKernel, FactorCorrector
 from ..rotations import quat_mul, quat_to_matrix, wrap_angle
 from ..types import Channel, Flag
-from ._factor import (bias_step, frame_axes, gyro_lowpass, k_bias_step, k_gyro_lowpass, k_paired, k_qmul, k_rot,
-                      paired)
+from .._kernels import rotvec_quat_entries
+from ._factor import (atan2_small, bias_step, frame_axes, gyro_lowpass, k_bias_step, k_gyro_lowpass, k_paired, k_qmul,
+                      k_rot, paired)
 
 __all__ = ["MagHeadingConfig", "MagHeading", "mag_heading_kernel", "MAG_REFERENCE", "MAG_DELAY", "HEADING_VARIANCE"]
 
@@ -122,7 +123,9 @@ _E2 = _EB + _EST_SIZE  # the forgetting-weighted sum of the segments' squared re
 _RELEARN = _E2 + 1
 # gain "kalman": the heading's variance and its covariances with the vertical gyro bias error and scale error
 _PHH, _PHB, _PHS = _E2 + 2, _E2 + 3, _E2 + 4
-_SIZE = _E2 + 5
+# cos and sin of delta / 2 (the output's Rz(delta) as a quaternion), turned with delta by each step (:func:`_turn`)
+_HC, _HS = _E2 + 5, _E2 + 6
+_SIZE = _E2 + 7
 #: where the heading's variance (gain kalman, rad^2) sits in the corrector's state
 HEADING_VARIANCE = _PHH
 #: the most the heading's variance grows to: a heading uniform on the circle (pi^2 / 3)
@@ -225,6 +228,7 @@ class MagHeading(FactorCorrector):
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         s = np.zeros(_SIZE)
         s[_AX:_AX + 9] = frame_axes(frame)
+        s[_HC] = 1.0
         return s
 
     def compose(self, state, quat, sample, bias, rate, flags, channel=None):
@@ -268,9 +272,8 @@ class MagHeading(FactorCorrector):
             if c.mag_delay_estimate and fresh:
                 self._estimate(x, qc, m, g - bias, dt, code == MAG_USE and rate_ok)
         x[_PMOK] = float(sample.mag is not None)
-        half = 0.5 * x[_DELTA]
         up = x[_AX + 6:_AX + 9]
-        return quat_mul(np.array([math.cos(half), *(math.sin(half) * up)]), quat), out
+        return quat_mul(np.array([x[_HC], *(x[_HS] * up)]), quat), out
 
     def _estimate(self, x, qc, m, w, dt, use) -> None:
         """A fresh magnetometer sample ``m``, paired as configured with ``qc``, at the rate ``w``:
@@ -312,21 +315,22 @@ class MagHeading(FactorCorrector):
             x[_RELEARN] = 1.0  # learned again; the heading keeps its filter meanwhile
         r = _kf_noise(x, norm, dip, dt, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time, None,
                       incl) if kalman else 0.0
-        target = 0.5 * math.pi - math.atan2(m @ north, m @ east)  # turns the field's azimuth to north
+        err = _heading_error(float(m @ east), float(m @ north), x[_HC], x[_HS])  # wrap(target - delta)
         code = self.magnetic.reference_step(x[_MAG:_MAG + MAG_SIZE], norm, dip, _norm3(x[_LW:_LW + 3]),
                                             dt)
         if code != MAG_LEARNING:
             x[_RELEARN] = 0.0
         elif not x[_RELEARN]:  # the heading is the mean over the reference's learning time
             n = x[_MAG + MAG_COUNT]
-            x[_DELTA] = wrap_angle(target if n == 1.0 else x[_DELTA] + wrap_angle(target - x[_DELTA]) / n)
+            x[_DELTA] = wrap_angle(x[_DELTA] + (err if n == 1.0 else err / n))
+            _set_half(x)
             if kalman:
                 _kf_mean(x, r, n)
             return 0, code
         if code == MAG_DISTURBED and c.rejection:
             return _MAG_DISTURBED, code
-        step = (_kf_gain(x, r) if kalman else x[_KM]) * wrap_angle(target - x[_DELTA])
-        x[_DELTA] = wrap_angle(x[_DELTA] + step)
+        step = (_kf_gain(x, r) if kalman else x[_KM]) * err
+        _turn(x, step)
         if c.mag_bias and not rest:  # the correction as a rate about the vertical: the gyro's vertical drift
             bias_step(bias, up * (step / dt), q6, dt, c.motion_bias_tau, c.bias_max)
         return 0, code
@@ -460,6 +464,43 @@ def _fit(x, b, xx, xr, rr, lam, max_std) -> bool:
     return True
 
 
+def _heading_error(e, n, c, s) -> float:
+    """``wrap(target - delta)``: the angle that turns the field's horizontal part (``e``, ``n``: east
+    and north in the levelled frame) from where ``Rz(delta)`` puts it to north (``target``: the
+    heading that does so), from ``(c, s)``, the cosine and sine of ``delta / 2``: the field turned
+    by ``delta`` and that angle by :func:`atan2_small` (once converged a small one: no libm call).
+    The same statements in the reference and, compiled, in the kernel."""
+    cd, sd = c * c - s * s, 2.0 * c * s
+    return atan2_small(e * cd - n * sd, e * sd + n * cd)
+
+
+def _turn(x, step) -> None:
+    """``delta += step`` (wrapped), and the cosine and sine of ``delta / 2`` turned by ``step / 2``
+    (:func:`rotvec_quat_entries`: a polynomial for a small step, no libm call), brought back to unit
+    length by one Newton step (the output's norm must not drift over the samples: an inclination
+    error of a few 1e-6 rad, read from the output, moves by 1e-8 rad for a norm off by 1e-13), and
+    negated where ``delta`` wraps (its half moves by pi). The same statements in the reference and,
+    compiled, in the kernel."""
+    ch, _, _, sh = rotvec_quat_entries(0.0, 0.0, step)
+    c, s = x[_HC], x[_HS]
+    c, s = c * ch - s * sh, s * ch + c * sh
+    f = 1.5 - 0.5 * (c * c + s * s)
+    c, s = c * f, s * f
+    d = x[_DELTA] + step
+    if d > math.pi or d <= -math.pi:
+        c, s = -c, -s
+    x[_DELTA] = _kwrap(d)
+    x[_HC], x[_HS] = c, s
+
+
+def _set_half(x) -> None:
+    """The cosine and sine of ``delta / 2`` where ``delta`` was set (the learning's mean)."""
+    x[_HC], x[_HS] = math.cos(0.5 * x[_DELTA]), math.sin(0.5 * x[_DELTA])
+
+
+_k_heading_error = njit(inline="always")(_heading_error)
+_k_turn = njit(inline="always")(_turn)
+_k_set_half = njit(_set_half)
 _k_segment_time = njit(_segment_time)
 _k_kf_predict = njit(_kf_predict)
 _k_kf_noise = njit(_kf_noise)
@@ -547,8 +588,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         vu = v0 * s[ax + 6] + v1 * s[ax + 7] + v2 * s[ax + 8]
         sd = max(-1.0, min(1.0, vu / norm))
         dip = math.asin(sd)
-        target = 0.5 * math.pi - math.atan2(v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5],
-                                            v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2])
+        err = _k_heading_error(v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2],
+                               v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5], s[_HC], s[_HS])
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
         if p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0 and k_follow_field(s, norm, dip, p[8], p[9]):
             s[_RELEARN] = 1.0  # (the reference's state sits at the start of the corrector's)
@@ -564,14 +605,15 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             s[_RELEARN] = 0.0
         if code == MAG_LEARNING and s[_RELEARN] == 0.0:
             n = s[MAG_COUNT]
-            s[_DELTA] = _kwrap(target if n == 1.0 else s[_DELTA] + _kwrap(target - s[_DELTA]) / n)
+            s[_DELTA] = _kwrap(s[_DELTA] + (err if n == 1.0 else err / n))
+            _k_set_half(s)
             if kalman:
                 _k_kf_mean(s, r, n)
         elif code == MAG_DISTURBED and p[1] != 0.0:
             out = _MAG_DISTURBED
         else:
-            step = (_k_kf_gain(s, r) if kalman else s[_KM]) * _kwrap(target - s[_DELTA])
-            s[_DELTA] = _kwrap(s[_DELTA] + step)
+            step = (_k_kf_gain(s, r) if kalman else s[_KM]) * err
+            _k_turn(s, step)
             if p[4] != 0.0 and (flags & _REST) == 0:
                 r = step / dt
                 k_bias_step(b, q[0], q[1], q[2], q[3], s[ax + 6] * r, s[ax + 7] * r, s[ax + 8] * r, dt / p[5], p[6])
@@ -580,7 +622,6 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
                         code == MAG_USE and math.isfinite(h0), p[15], p[16])
     s[_PMOK] = 1.0 if mag_ok else 0.0
     if s[_DELTA] != 0.0:  # Rz(0) is the identity (a run without a magnetometer never leaves 0)
-        half = 0.5 * s[_DELTA]
-        c, sn = math.cos(half), math.sin(half)
+        c, sn = s[_HC], s[_HS]
         q[0], q[1], q[2], q[3] = k_qmul(c, sn * s[ax + 6], sn * s[ax + 7], sn * s[ax + 8], q[0], q[1], q[2], q[3])
     return out

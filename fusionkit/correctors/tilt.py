@@ -108,8 +108,11 @@ _IVAR = 84  # tau_adapt: the bias's part of the inclination error's variance abo
 # and (rate_error_correct) the rate error E w the pipeline's bias carries for the next propagation
 _E, _PE, _HZ1, _HZ2, _KAP2, _ECO, _EREADY, _EW = 85, 91, 127, 139, 151, 152, 154, 155
 _SCR = 158  # rate_error_estimate's working space for one sample (no allocation per sample in the compiled loop)
-_SIZE = _SCR + 36
 RATE_ERROR, RATE_KAPPA2 = _E, _KAP2  # where a run's state holds E and kappa^2 (the recommended filter's diagnostics)
+# tau_adapt: the dt its per-sample factors are for, and those factors: min(dt / tau0, 1), dt / window, and the
+# rests' variance's growth sigma_m^2 dt / forget (:func:`_adapt_step`: divisions once per distinct dt)
+_ADT, _AF, _AK, _AV = _SCR + 36, _SCR + 37, _SCR + 38, _SCR + 39
+_SIZE = _SCR + 40
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
 _REST = int(Flag.REST)
@@ -170,8 +173,15 @@ def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, s
     back-and-forth turn's error comes back with it. The mean squares are running means over the
     first ``window`` s, then exponential averages of that time constant. ``(sigma_b tau)^2 / 2`` at
     the ``tau`` returned is the bias's part of the inclination error's variance about one horizontal
-    axis (state ``_IVAR``: what the corrector publishes as ``Channel.INCLINATION_VARIANCE``)."""
-    x[_VR] = sigma_m * sigma_m if rest else min(x[_VR] + sigma_m * sigma_m * dt / forget, sigma_i * sigma_i)
+    axis (state ``_IVAR``: what the corrector publishes as ``Channel.INCLINATION_VARIANCE``).
+
+    Written for few divisions and square roots (the compiled loop is bound by them): the factors
+    that depend on ``dt`` once per distinct ``dt`` (state ``_ADT``), ``g d`` and ``g db`` each as one
+    square root (``g = |y|``), and the running mean's ``1 / n`` only while it is larger than ``dt /
+    window``."""
+    if x[_ADT] != dt:
+        x[_ADT], x[_AF], x[_AK], x[_AV] = dt, min(dt / tau0, 1.0), dt / window, sigma_m * sigma_m * dt / forget
+    x[_VR] = sigma_m * sigma_m if rest else min(x[_VR] + x[_AV], sigma_i * sigma_i)
     if x[_NST] == 0.0:  # no low-passed vector yet: the statistics start
         ok = math.isfinite(w0)
         x[_NST] = 1.0
@@ -183,15 +193,15 @@ def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, s
         return tau0
     y0, y1, y2 = x[_Y], x[_Y + 1], x[_Y + 2]
     yy = y0 * y0 + y1 * y1 + y2 * y2
-    g = math.sqrt(yy)
     r0, r1, r2 = a0 - y0, a1 - y1, a2 - y2
     ru = (r0 * y0 + r1 * y1 + r2 * y2) / yy  # r's part along y without y / |y|: no square root on the chain
-    f = min(dt / tau0, 1.0)
+    f = x[_AF]
     x[_VEL] += (r0 - y0 * ru) * dt - x[_VEL] * f
     x[_VEL + 1] += (r1 - y1 * ru) * dt - x[_VEL + 1] * f
     x[_VEL + 2] += (r2 - y2 * ru) * dt - x[_VEL + 2] * f
     x[_NST] += 1.0
-    k = max(dt / window, 1.0 / (x[_NST] - 1.0))
+    n1 = x[_NST] - 1.0
+    k = x[_AK] if n1 * x[_AK] >= 1.0 else 1.0 / n1  # max(dt / window, 1 / n1)
     x[_SV2] += (x[_VEL] * x[_VEL] + x[_VEL + 1] * x[_VEL + 1] + x[_VEL + 2] * x[_VEL + 2] - x[_SV2]) * k
     if math.isfinite(w0):
         x[_WLP] += (w0 - x[_WLP]) * f
@@ -202,10 +212,9 @@ def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, s
                                           + 2.0 * (x[_P + 1] * z0 * z1 + x[_P + 2] * z0 * z2 + x[_P + 5] * z1 * z2))
     vr = 2.0 * x[_VR]
     db2 = max(ph, 0.0) * vr / (max(ph, 0.0) + vr)  # db^2 (d needs no square root of a square root)
-    db = math.sqrt(db2)
-    d = math.sqrt(db2 + kappa * kappa * x[_SW2])
-    sv = max(math.sqrt(x[_SV2]), g * db * tau0 * tau0)
-    tau = min(max(math.sqrt(sv / (g * d)), tau_min), tau_max) if d > 0.0 else tau_max
+    d2 = db2 + kappa * kappa * x[_SW2]
+    sv = max(math.sqrt(x[_SV2]), math.sqrt(yy * db2) * tau0 * tau0)  # (g db = sqrt(yy db^2))
+    tau = min(max(math.sqrt(sv / math.sqrt(yy * d2)), tau_min), tau_max) if d2 > 0.0 else tau_max
     x[_TAU] = tau
     x[_IVAR] = 0.5 * db2 * tau * tau  # the bias's drift over tau about one horizontal axis (the channel's)
     return tau
@@ -438,9 +447,9 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
     f0 = -r0 + hb0 - u0 * hu - (h[0] * b[0] + h[1] * b[1] + h[2] * b[2])
     f1 = -r1 + hb1 - u1 * hu - (h[3] * b[0] + h[4] * b[1] + h[5] * b[2])
     f2 = -r2 + hb2 - u2 * hu - (h[6] * b[0] + h[7] * b[1] + h[8] * b[2])
-    ne = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
-    if ne > p[4]:
-        g = p[4] / ne
+    ne2 = f0 * f0 + f1 * f1 + f2 * f2  # (the square root only to clamp)
+    if ne2 > p[4] * p[4]:
+        g = p[4] / math.sqrt(ne2)
         f0, f1, f2 = f0 * g, f1 * g, f2 * g
     # A = P H^T, S = H A + W (symmetric), K = A S^-1; P -= K A^T
     a00 = q00 * h[0] + q01 * h[1] + q02 * h[2]
@@ -848,8 +857,8 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
             w0, w1, w2 = k_rot(p0, p1, p2, p3, wb0, wb1, wb2)
             z0 = z1 = z2 = 0.0
             if s[_NST] > 0.0:  # the vertical in the body
-                n = math.sqrt(s[_Y] * s[_Y] + s[_Y + 1] * s[_Y + 1] + s[_Y + 2] * s[_Y + 2])
-                z0, z1, z2 = k_rot(p0, -p1, -p2, -p3, s[_Y] / n, s[_Y + 1] / n, s[_Y + 2] / n)
+                rn = 1.0 / math.sqrt(s[_Y] * s[_Y] + s[_Y + 1] * s[_Y + 1] + s[_Y + 2] * s[_Y + 2])
+                z0, z1, z2 = k_rot(p0, -p1, -p2, -p3, s[_Y] * rn, s[_Y + 1] * rn, s[_Y + 2] * rn)
             tau = _k_adapt_step(s, v0, v1, v2, w0, w1, w2, z0, z1, z2, (flags & _REST) != 0, dt, p[0], p[14], p[7],
                                 p[6], p[3] if p[3] > 0.0 else _FORGET,
                                 math.sqrt(s[_KAP2]) if p[18] != 0.0 else p[11], p[12], p[13])
@@ -875,13 +884,16 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                 v0, v1, v2 = _k_impulse_clip(s, v0, v1, v2, dt, p[15], p[16], p[17])
             _k_lowpass_vertical(s, v0, v1, v2)
         v0, v1, v2 = k_rot(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], s[_Y], s[_Y + 1], s[_Y + 2])
-        n = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-        v0, v1, v2 = v0 / n, v1 / n, v2 / n
+        # (normalised by one reciprocal: a division costs several multiplications, and the loop is bound
+        # by its divisions and square roots)
+        rn = 1.0 / math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        v0, v1, v2 = v0 * rn, v1 * rn, v2 * rn
         u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
         c0, c1, c2, c3 = 1.0 + v0 * u0 + v1 * u1 + v2 * u2, v1 * u2 - v2 * u1, v2 * u0 - v0 * u2, v0 * u1 - v1 * u0
         n = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2 + c3 * c3)
         if n > 1e-12:
-            c0, c1, c2, c3 = c0 / n, c1 / n, c2 / n, c3 / n
+            rn = 1.0 / n
+            c0, c1, c2, c3 = c0 * rn, c1 * rn, c2 * rn, c3 * rn
         else:
             c0, c1, c2, c3 = 0.0, s[_EAST], s[_EAST + 1], s[_EAST + 2]
         t0, t1, t2, t3 = k_qmul(c0, c1, c2, c3, s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3])

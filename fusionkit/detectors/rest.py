@@ -60,10 +60,11 @@ def rest_step(s, g0, g1, g2, a0, a1, a2, dt, tau, gyr_th, acc_th, max_rate, min_
     s[_LA] += k * (a0 - s[_LA])
     s[_LA + 1] += k * (a1 - s[_LA + 1])
     s[_LA + 2] += k * (a2 - s[_LA + 2])
-    dw = math.sqrt((g0 - s[_LW]) ** 2 + (g1 - s[_LW + 1]) ** 2 + (g2 - s[_LW + 2]) ** 2)
-    da = math.sqrt((a0 - s[_LA]) ** 2 + (a1 - s[_LA + 1]) ** 2 + (a2 - s[_LA + 2]) ** 2)
-    rate = math.sqrt(s[_LW] ** 2 + s[_LW + 1] ** 2 + s[_LW + 2] ** 2)
-    if dw < gyr_th and da < acc_th and rate < max_rate:
+    # the norms against the thresholds as their squares: no square root per sample
+    dw2 = (g0 - s[_LW]) ** 2 + (g1 - s[_LW + 1]) ** 2 + (g2 - s[_LW + 2]) ** 2
+    da2 = (a0 - s[_LA]) ** 2 + (a1 - s[_LA + 1]) ** 2 + (a2 - s[_LA + 2]) ** 2
+    rate2 = s[_LW] ** 2 + s[_LW + 1] ** 2 + s[_LW + 2] ** 2
+    if dw2 < gyr_th * gyr_th and da2 < acc_th * acc_th and rate2 < max_rate * max_rate:
         s[_QUIET] += dt
     else:
         s[_QUIET] = 0.0
@@ -105,8 +106,8 @@ class RestDetector(Detector):
         k = state[_K]
         lw += k * (g - lw)
         la += k * (a - la)
-        quiet = (math.sqrt(np.sum((g - lw) ** 2)) < gyr_th and math.sqrt(np.sum((a - la) ** 2)) < acc_th
-                 and math.sqrt(np.sum(lw ** 2)) < max_rate)
+        quiet = (np.sum((g - lw) ** 2) < gyr_th * gyr_th and np.sum((a - la) ** 2) < acc_th * acc_th
+                 and np.sum(lw ** 2) < max_rate * max_rate)  # the norms' squares: no square root
         state[_QUIET] = state[_QUIET] + sample.dt if quiet else 0.0
         return 1 if state[_QUIET] >= min_time else 0
 

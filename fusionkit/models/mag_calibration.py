@@ -237,7 +237,7 @@ class MagCalibrationModel(SensorModel):
         lam = math.exp(-s[_T] / c.forget_time)
         inv = np.empty((3, 3))
         if n >= c.min_segments and e2 > c.outlier_sigma ** 2 * s[_VAR] * _spread(
-                h, inv, _invert_spd(s[_A:_A + 9].reshape(3, 3).copy(), np.empty((3, 3)), inv), lam):
+                h, inv, _invert_spd(s[_A:_A + 9].reshape(3, 3).copy(), np.empty((3, 3)), inv, 3), lam, 3):
             s[_BAD] += 1.0
             if s[_BAD] >= c.outlier_count:  # the offset changed: forget it and learn again
                 s[_A:_A + 9] = 0.0
@@ -263,7 +263,7 @@ class MagCalibrationModel(SensorModel):
         field = float(np.linalg.norm(m - best))
         if s[_N] >= c.min_segments and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= c.max_std * field:
             if c.consistency and not _gate(_gate_code(c), s, STATE, np.eye(3), best, c.min_reduction,
-                                            s[_CONF] == 1.0, c.max_std):
+                                            s[_CONF] == 1.0, c.max_std, np.empty(2 * _GK)):
                 s[_B:_B + 3] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
                 s[_CONF] = 0.0
                 return
@@ -281,7 +281,7 @@ class MagCalibrationModel(SensorModel):
         lam = math.exp(-s[_T] / c.forget_time)
         inv = s[_SINV:_SINV + _NP * _NP].reshape(_NP, _NP)  # A^-1, kept since A last changed (below)
         if n >= c.min_segments and float(e @ e) / 3.0 > c.outlier_sigma ** 2 * s[_VAR] * _spread(
-                h, inv, s[_SINVOK] != 0.0, lam):
+                h, inv, s[_SINVOK] != 0.0, lam, _NP):
             s[_BAD] += 1.0
             if s[_BAD] >= c.outlier_count:  # the calibration changed: forget it and learn again
                 s[_SA:_SA + _NP * _NP] = 0.0
@@ -296,7 +296,7 @@ class MagCalibrationModel(SensorModel):
         s[_RR] = lam * s[_RR] + float(r @ r)
         s[_NE] = lam * s[_NE] + 1.0
         s[_N] = n + 1.0
-        s[_SINVOK] = float(_invert_spd(a.copy(), np.empty((_NP, _NP)), inv))  # inv: untouched if not invertible
+        s[_SINVOK] = float(_invert_spd(a.copy(), np.empty((_NP, _NP)), inv, _NP))  # inv: untouched if not invertible
         if not s[_SINVOK]:
             return
         best = inv @ s[_SY:_SY + _NP]
@@ -308,7 +308,7 @@ class MagCalibrationModel(SensorModel):
         std = np.sqrt(s[_VAR] * np.diag(inv))
         if s[_N] >= c.min_segments and std[5:8].max() <= c.max_std * field and std[:5].max() <= c.max_std:
             if c.consistency and not _gate(_gate_code(c), s, STATE_SOFT, w, best[5:8], c.min_reduction,
-                                            s[_CONF] == 1.0, c.max_std):
+                                            s[_CONF] == 1.0, c.max_std, np.empty(2 * _GK)):
                 s[_SAPP:_SAPP + _NP] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
                 s[_B:_B + 3] = 0.0
                 s[_CONF] = 0.0
@@ -425,21 +425,22 @@ def _gate_code(c) -> float:
     return 0.0 if not c.consistency else 1.0 if c.consistency_test == "norm" else 2.0
 
 
-def _gate(code, s, g, w, c, min_reduction, applied, max_std) -> bool:
+def _gate(code, s, g, w, c, min_reduction, applied, max_std, work) -> bool:
     """Whether the calibration ``W m - c`` passes the gate ``code`` (:func:`_gate_code`); ``applied``:
     whether the calibration before this segment was applied and confident (earth: see
     :func:`_earth_change`; a new calibration that changes the field by less than ``max_std`` of
-    its norm, the precision the confidence asks for, is applied only where the norm test passes)."""
+    its norm, the precision the confidence asks for, is applied only where the norm test passes).
+    ``work``: at least ``2 * 32`` entries of scratch for :func:`_earth_change`."""
     if code == 1.0:
         return _consistent(s, g, w, c, min_reduction)
-    raw, cal, change = _earth_change(s, g, w, c)
+    raw, cal, change = _earth_change(s, g, w, c, work)
     if applied:  # withdrawn where it makes the field significantly less constant in the earth frame
         return cal <= min_reduction * raw
     return cal <= raw and ((min_reduction * cal <= raw and change >= max_std)
                            or _consistent(s, g, w, c, min_reduction))
 
 
-def _earth_change(s, g, w, c):
+def _earth_change(s, g, w, c, work):
     """The medians over the ring's segments of the squared change of the field in the earth frame
     across the segment, raw and calibrated by ``W m - c``. Over one segment (body a -> body k,
     the gyro's turn ``C``) a field constant in the earth frame seen from the body satisfies
@@ -450,13 +451,14 @@ def _earth_change(s, g, w, c):
     zero except in the few segments that enter or leave it, which the median ignores, and a
     calibration fitted to what it does to those segments makes the others' change larger. Third,
     the calibration's own size: the RMS over the segment ends of ``|W m - c - m| / |m|``. (0, 0,
-    0) with fewer than 3 segments. The same statements in the reference and, compiled, in the
-    kernel."""
+    0) with fewer than 3 segments. ``work``: scratch of at least ``2 * 32`` entries for the two lists
+    the medians sort (the compiled segment's own buffer: no allocation per segment). The same
+    statements in the reference and, compiled, in the kernel."""
     n = int(s[g + _GC])
     if n < 3:
         return 0.0, 0.0, 0.0
-    raw = np.empty(n)
-    cal = np.empty(n)
+    raw = work[0:_GK]
+    cal = work[_GK:2 * _GK]
     size = 0.0
     for i in range(n):
         k = g + _GBUF + _GE * i
@@ -491,20 +493,25 @@ def _field_change(mk0, mk1, mk2, ma0, ma1, ma2, qw, qx, qy, qz):
 
 @njit(inline="always")
 def _median(a, n):
-    """``np.median(a[:n])`` (``a`` is sorted in place; NaN if any entry is): an insertion sort of the
-    ring's at most 32 values, no copy; the middle value, or the mean of the two middle ones as
-    numpy takes it. The same statements in the reference and, compiled, in the kernel."""
-    for i in range(1, n):
+    """``np.median(a[:n])`` (NaN if any entry is): the ``n // 2 + 1`` smallest of the ring's at most 32
+    values kept sorted at the front of ``a`` (an insertion sort that passes over a value larger
+    than all of them, in place, no copy: about half a full sort's moves); the middle value, or the
+    mean of the two middle ones as numpy takes it. The same statements in the reference and,
+    compiled, in the kernel."""
+    m = n // 2 + 1  # how many of the smallest values the median needs
+    for i in range(n):
         x = a[i]
         if x != x:
             return math.nan
         j = i - 1
+        if i >= m:  # the front holds the m smallest so far: x enters (its largest leaves) if smaller
+            if not x < a[m - 1]:
+                continue
+            j = m - 2
         while j >= 0 and a[j] > x:
             a[j + 1] = a[j]
             j -= 1
         a[j + 1] = x
-    if n > 0 and a[0] != a[0]:
-        return math.nan
     h = n // 2
     return a[h] if n % 2 == 1 else (a[h - 1] + a[h]) / 2.0
 
@@ -536,14 +543,15 @@ def _soft_rows(ct, ma, mk, h):
             h[i, 5 + j] = (1.0 if i == j else 0.0) - ct[i, j]
 
 
-def _invert_spd(a, m, inv) -> bool:
+def _invert_spd(a, m, inv, n) -> bool:
     """``inv = a^-1`` of a symmetric positive definite ``a`` (the information matrix) by its
     Cholesky factor ``a = L L^T``: ``M = L^-1``, ``a^-1 = M^T M`` (about a third of Gauss-Jordan's
     operations, no pivoting: ``a``'s lower triangle is overwritten with ``L``, ``m`` is scratch);
     False for a matrix not positive definite to working precision (a pivot of ``L L^T`` at or
-    below ``1e-12`` of ``a``'s largest diagonal entry). The same statements in the reference and,
-    compiled, in the kernel."""
-    n = a.shape[0]
+    below ``1e-12`` of ``a``'s largest diagonal entry). ``n``: ``a``'s size, passed as a constant so
+    that the compiled twin, inlined into the segment, has loops of known length that LLVM unrolls and
+    schedules (the same operations in the same order: the same numbers, in about half the time of
+    loops over ``a.shape[0]``). The same statements in the reference and, compiled, in the kernel."""
     scale = 0.0
     for i in range(n):
         scale = max(scale, abs(a[i, i]))
@@ -577,17 +585,17 @@ def _invert_spd(a, m, inv) -> bool:
     return True
 
 
-def _spread(h, inv, ok, lam) -> float:
+def _spread(h, inv, ok, lam, n) -> float:
     """How much larger than the fit's residual noise a new segment's misfit ``e = r - H x`` is
     expected to be: ``1 + tr(H P H^T) / 3`` with ``P = (lam A)^-1`` the estimate's covariance over
     the noise's variance (``inv = A^-1``, ``A`` the information matrix before the segment, ``lam``
-    its forgetting). Where ``A`` still leaves a direction unknown (rotations about one axis so
-    far), a turn about another axis shows a large misfit that is the estimate's own uncertainty,
-    not a moved magnet; inf where ``A`` was not invertible (``ok`` False: no misfit can be
-    judged). The same statements in the reference and, compiled, in the kernel."""
+    its forgetting, ``n`` the unknowns' count). Where ``A`` still leaves a direction unknown
+    (rotations about one axis so far), a turn about another axis shows a large misfit that is the
+    estimate's own uncertainty, not a moved magnet; inf where ``A`` was not invertible (``ok``
+    False: no misfit can be judged). The same statements in the reference and, compiled, in the
+    kernel (there inlined with the size a constant: see :func:`_invert_spd`)."""
     if not ok:
         return math.inf
-    n = inv.shape[0]
     t = 0.0
     for i in range(3):
         for j in range(n):
@@ -643,8 +651,8 @@ def _min_eig_sym3(a) -> float:
 
 _k_min_eig = njit(_min_eig_sym3)
 _k_inverse3 = njit(_inverse3)
-_k_invert_spd = njit(_invert_spd)
-_k_spread = njit(_spread)
+_k_invert_spd = njit(inline="always")(_invert_spd)  # (the size a constant at each call: see _invert_spd)
+_k_spread = njit(inline="always")(_spread)
 _k_basis = njit(_basis)
 _k_ring_push = njit(_ring_push, cold=True)  # once per segment (as are _k_segment and _k_segment_soft)
 _k_turned = njit(_turned)
@@ -653,11 +661,11 @@ _k_earth_change = njit(_earth_change)
 
 
 @njit
-def _k_gate(code, s, g, w, c, min_reduction, applied, max_std):
+def _k_gate(code, s, g, w, c, min_reduction, applied, max_std, work):
     """:func:`_gate`, compiled."""
     if code == 1.0:
         return _k_consistent(s, g, w, c, min_reduction)
-    raw, cal, change = _k_earth_change(s, g, w, c)
+    raw, cal, change = _k_earth_change(s, g, w, c, work)
     if applied:
         return cal <= min_reduction * raw
     return cal <= raw and ((min_reduction * cal <= raw and change >= max_std)
@@ -766,7 +774,7 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
     lam = math.exp(-s[_T] / forget)
     inv = np.empty((3, 3))
     if n >= min_seg and e2 > out_sigma * out_sigma * s[_VAR] * _k_spread(
-            h, inv, _k_invert_spd(s[_A:_A + 9].reshape((3, 3)).copy(), np.empty((3, 3)), inv), lam):
+            h, inv, _k_invert_spd(s[_A:_A + 9].reshape((3, 3)).copy(), np.empty((3, 3)), inv, 3), lam, 3):
         s[_BAD] += 1.0
         if s[_BAD] >= out_count:
             for i in range(9):
@@ -792,7 +800,7 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
     field = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
     if s[_N] >= min_seg and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= max_std * field:
         if gate != 0.0 and not _k_gate(gate, s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red,
-                                               s[_CONF] == 1.0, max_std):
+                                               s[_CONF] == 1.0, max_std, np.empty(2 * _GK)):
             s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
             s[_CONF] = 0.0
             return
@@ -829,7 +837,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     misfit = False
     if n >= min_seg:  # the spread from the information matrix's inverse kept since it last changed
         misfit = e2 / 3.0 > out_sigma * out_sigma * s[_VAR] * _k_spread(
-            h, s[_SINV:_SINV + _NP * _NP].reshape((_NP, _NP)), s[_SINVOK] != 0.0, lam)
+            h, s[_SINV:_SINV + _NP * _NP].reshape((_NP, _NP)), s[_SINVOK] != 0.0, lam, _NP)
     if misfit:
         s[_BAD] += 1.0
         if s[_BAD] >= out_count:
@@ -852,7 +860,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     s[_NE] = lam * s[_NE] + 1.0
     s[_N] = n + 1.0
     inv = s[_SINV:_SINV + _NP * _NP].reshape((_NP, _NP))  # (untouched where a is not invertible)
-    s[_SINVOK] = 1.0 if _k_invert_spd(a, buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), inv) else 0.0
+    s[_SINVOK] = 1.0 if _k_invert_spd(a, buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), inv, _NP) else 0.0
     if s[_SINVOK] == 0.0:
         return
     yb = 0.0
@@ -882,7 +890,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
             std_c = max(std_c, sd)
     if s[_N] >= min_seg and std_c <= max_std * field and std_e <= max_std:
         if gate != 0.0 and not _k_gate(gate, s, STATE_SOFT, w, t[5:8], min_red, s[_CONF] == 1.0,
-                                           max_std):
+                                           max_std, buf[0:2 * _GK]):  # (the arrays in buf[0:64] are done with)
             for i in range(_NP):
                 s[_SAPP + i] = 0.0
             s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
