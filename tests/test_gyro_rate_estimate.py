@@ -42,8 +42,9 @@ def test_a_scale_error_is_learned_and_removed(scaled):
     2 %; the off-diagonal entries, zero here, below 0.07 %) and removing it from the gyro nearly halves the
     inclination error (0.94 against 1.65 deg; VQF 1.84). Used only for the time constant (``"tau"``) it
     gains nothing there (1.64): the drift has to be removed, not just weighed."""
-    off = fk.make("recommended", use_mag=False).run(scaled)
-    on = fk.make("recommended", use_mag=False, gyro_rate_estimate="correct").run(scaled)
+    off = fk.make("recommended", use_mag=False, gyro_rate_estimate="off").run(scaled)
+    on = fk.make("recommended", use_mag=False).run(scaled)  # "correct": the default since stop 21
+    assert fk.make("recommended").config.gyro_rate_estimate == "correct"
     e = on.diagnostics["gyro_rate_error"]
     np.testing.assert_allclose(np.diag(e), SCALE, atol=0.003)
     assert np.abs(e - np.diag(np.diag(e))).max() < 0.002
@@ -55,7 +56,7 @@ def test_no_rate_error_gives_zero_and_costs_nothing():
     """A gyro without scale error: the estimate stays below 0.05 % (measured 0.01 %), and the inclination
     is as without it (measured 0.028 against 0.026 deg)."""
     rec = turns((0.0, 0.0, 0.0))
-    off = fk.make("recommended", use_mag=False).run(rec)
+    off = fk.make("recommended", use_mag=False, gyro_rate_estimate="off").run(rec)
     on = fk.make("recommended", use_mag=False, gyro_rate_estimate="correct").run(rec)
     assert np.abs(on.diagnostics["gyro_rate_error"]).max() < 0.0005
     assert incl(on, rec) < incl(off, rec) + 0.01

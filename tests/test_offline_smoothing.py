@@ -34,7 +34,8 @@ def incl(res, rec):
 
 def average_and_smoothed(rec):
     """6D inclination RMSE (deg) of ``recommended`` offline: the passes fused as they are, and smoothed."""
-    inner = fk.make("recommended", use_mag=False)
+    # the gyro's errors as the passes see them: without the rate error's estimate, which removes most of them
+    inner = fk.make("recommended", use_mag=False, gyro_rate_estimate="off")
     return (incl(OfflineFilter(inner, inclination="average").run(rec), rec),
             incl(OfflineFilter(inner).run(rec), rec))
 

@@ -88,12 +88,13 @@ class RecommendedConfig(FilterConfig):
         "velocity the body got, do not tilt the estimate (recommended.md). None: off (the behaviour before stop 21)",
         gt=1)
     gyro_rate_estimate: Literal["off", "tau", "correct"] = param(
-        "off", unit="-", description="the gyro's rate error (scale factors and non-orthogonality, E's symmetric part) "
+        "correct", unit="-", description="the gyro's rate error (scale factors and non-orthogonality, E's symmetric part) "
         "estimated online from what the bias in motion leaves of the inclination correction, gyro_rate_error its "
         "prior (inertial-tilt's rate_error_estimate; recommended.md). correct: removed from the gyro, and the "
         "adaptive time constant uses the estimate's uncertainty; tau: only the adaptive time constant uses it (the "
-        "estimate and its uncertainty instead of gyro_rate_error); off: gyro_rate_error throughout. Needs the bias "
-        "in motion (motion_bias_tau, bias_filter kalman)")
+        "estimate and its uncertainty instead of gyro_rate_error); off: gyro_rate_error throughout (the default before stop 21). Needs the "
+        "bias in motion (motion_bias_tau, bias_filter kalman): without it the default is off, asking for it an error. "
+        "With correct, diagnostics['bias'] is what the next propagation removes: the bias and the last sample's E w")
     tau_mag: float = param(15.0, unit="s", description="heading_gain fixed: time constant of the heading correction",
                            gt=0)
     heading_gain: Literal["fixed", "kalman"] = param(
@@ -184,8 +185,12 @@ class RecommendedConfig(FilterConfig):
     @model_validator(mode="after")
     def _gyro_rate_estimate_needs_the_bias_filter(self):
         """The rate error is learned from the Kalman bias filter's residual (inertial-tilt): without it,
-        nothing would be learned."""
+        nothing would be learned. Asked for, that is an error; as the default it is off there (the
+        compositions without the bias filter in motion stay what they were)."""
         if self.gyro_rate_estimate != "off" and (self.motion_bias_tau is None or self.bias_filter != "kalman"):
+            if "gyro_rate_estimate" not in self.model_fields_set:
+                self.__dict__["gyro_rate_estimate"] = "off"
+                return self
             raise ValueError(f"gyro_rate_estimate {self.gyro_rate_estimate!r} needs the bias in motion "
                              "(motion_bias_tau, bias_filter 'kalman'; inertial-tilt's rate_error_estimate)")
         return self
