@@ -109,3 +109,19 @@ def test_a_reader_before_its_publisher_is_refused():
     _pipeline([tilt, head])
     _pipeline([head])
     _pipeline([{"name": "mag-heading", "params": {"gain": "kalman"}}, tilt])
+
+
+def test_only_what_a_configuration_publishes_counts():
+    """inertial-tilt publishes only with tau_adapt: without it two of them (a composition the
+    pipeline took before the channel) are not two publishers, and a reader before one is not reading
+    what it publishes. Two that publish are ambiguous only to a reader of the quantity."""
+    plain = {"name": "inertial-tilt", "params": {"tau_adapt": False}}
+    adapt = {"name": "inertial-tilt", "params": {"tau_adapt": True}}
+    head = {"name": "mag-heading", "params": {"gain": "kalman", "inclination_noise": True}}
+    _pipeline([plain, plain])
+    _pipeline([head, plain])
+    _pipeline([adapt, adapt])
+    with pytest.raises(ConfigError, match="both publish"):
+        _pipeline([adapt, adapt, head])
+    with pytest.raises(ConfigError, match="put the publisher first"):
+        _pipeline([head, adapt])
