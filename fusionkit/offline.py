@@ -123,6 +123,7 @@ from __future__ import annotations
 
 import copy
 import math
+import numbers
 from typing import ClassVar
 
 import numpy as np
@@ -552,7 +553,8 @@ class OfflineFilter(Filter):
 
     def __init__(self, inner: Filter, disturbance_gap: float | None = DISTURBANCE_GAP,
                  calibration: str = "recording", mag_timing: str = "recording",
-                 calibration_test: str = "norm", inclination: str = "smoothed", gyro_timing: str = "as-is") -> None:
+                 calibration_test: str = "norm", inclination: str = "smoothed",
+                 gyro_timing: str | float = "as-is") -> None:
         why = supports_offline(inner)
         if why is not None:
             raise PluginError(f"filter {inner.name!r} does not support offline=True: {why}")
@@ -570,7 +572,7 @@ class OfflineFilter(Filter):
         if mag_timing not in _MAG_TIMINGS:
             raise ConfigError(f"mag_timing must be one of {', '.join(map(repr, _MAG_TIMINGS))}, got {mag_timing!r}")
         limit = TimeOffsetModel.Config().max_offset
-        given = isinstance(gyro_timing, (int, float)) and not isinstance(gyro_timing, bool)
+        given = isinstance(gyro_timing, numbers.Real) and not isinstance(gyro_timing, (bool, np.bool_))
         if not (gyro_timing in _GYRO_TIMINGS if isinstance(gyro_timing, str)
                 else given and math.isfinite(gyro_timing) and abs(gyro_timing) <= limit):
             raise ConfigError(f"gyro_timing must be one of {', '.join(map(repr, _GYRO_TIMINGS))} or the gyro's delay "

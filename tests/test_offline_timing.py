@@ -204,6 +204,12 @@ def test_gyro_timing_option_is_checked(bad):
         OfflineFilter(fk.make("recommended"), gyro_timing=bad)
 
 
+@pytest.mark.parametrize("given", [0.005, np.float32(0.005), np.float64(0.005), np.int64(0), 0])
+def test_gyro_timing_takes_any_real_number(given):
+    # a delay read from a numpy array (float32, an integer type) is a delay like a float
+    assert OfflineFilter(fk.make("recommended"), gyro_timing=given).gyro_timing == float(given)
+
+
 def test_a_known_gyro_delay_is_applied_as_given():
     # a delay the user knows (a datasheet's group delay): the gyro moved by it, nothing estimated
     rec = sim.scenario("late-gyro")  # the gyro 5 ms late
