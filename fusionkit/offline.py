@@ -645,7 +645,7 @@ class OfflineFilter(Filter):
         fwd = inner.run(rec, backend=backend, progress=progress, state=state)
         n = len(rec)
         if n < 2:  # nothing after the sample: the forward pass is all there is
-            fwd.diagnostics["offline"] = True
+            fwd.diagnostics.update({"offline": True, "mag_timing": timing, "gyro_timing": gyro_timing})
             return fwd
         back = type(inner)(reversed_config(inner, rec.nominal_dt))
         bwd = back.run(reverse_recording(rec), backend=backend, progress=progress)

@@ -258,3 +258,14 @@ def test_gyro_delay_is_applied_only_where_both_time_scales_show_one_delay(monkey
     out, info = OfflineFilter._gyro_retimed(rec, fk.make("recommended").config, "numba")
     assert info["applied"] is applied
     assert (out is rec) is not applied
+
+
+@pytest.mark.parametrize("timing", ["recording", 0.002])
+def test_a_one_sample_recording_reports_its_timings(timing):
+    # nothing after the sample: the forward pass is all there is, and its diagnostics still say what
+    # the offline mode did with the timings (None: nothing estimated or applied; a given delay: applied)
+    rec = sim.scenario("late-gyro").slice(0, 1)
+    res = OfflineFilter(fk.make("recommended"), gyro_timing=timing).run(rec)
+    assert res.diagnostics["offline"] and res.diagnostics["mag_timing"] is None
+    assert res.diagnostics["gyro_timing"] == (None if timing == "recording" else
+                                              {"delay": 0.002, "std": 0.0, "applied": True})
