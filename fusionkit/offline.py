@@ -541,7 +541,8 @@ class OfflineFilter(Filter):
     #: with little angular acceleration, e.g. at rest, informs the estimate little and keeps it)
     MAG_DELAY_SIGMAS: ClassVar[float] = 3.0
     #: the segment length (s) of the second estimate of the gyro's delay (``gyro_timing="recording"``):
-    #: five times the ``time-offset`` model's 0.02 s, a band five times lower. A pure delay is the same
+    #: five times the ``time-offset`` model's 0.02 s, a band five times lower (below 50 Hz, where that
+    #: segment is one sample, five samples). A pure delay is the same
     #: at every time scale; a bias from linear accelerations that come with the rotation (a hand's) is
     #: not, as their share of the direction's change and the delay's (the angular acceleration times
     #: the delay) scale differently with the frequency
@@ -750,7 +751,11 @@ class OfflineFilter(Filter):
         args = (rec, getattr(config, "gyr_range", None), getattr(config, "acc_range", None),
                 getattr(config, "acc_delay", None), used)
         delay, std = gyro_delay_recording(*args)
-        check, check_std = gyro_delay_recording(*args, segment_time=cls.GYRO_CHECK_SEGMENT)
+        # a segment closes on a sample: below 50 Hz the model's 0.02 s segment is one sample long, and the
+        # check's stays GYRO_CHECK_SEGMENT / 0.02 times longer (at 10 Hz a 0.1 s one would be the same estimate)
+        short = TimeOffsetModel.Config().segment_time
+        check, check_std = gyro_delay_recording(*args, segment_time=cls.GYRO_CHECK_SEGMENT
+                                                * max(1.0, rec.nominal_dt / short))
         k = cls.MAG_DELAY_SIGMAS
         applied = bool(np.all(np.isfinite([delay, std, check, check_std])) and abs(delay) > k * std
                        and abs(check) > k * check_std and abs(delay - check) < k * math.hypot(std, check_std))

@@ -269,3 +269,22 @@ def test_a_one_sample_recording_reports_its_timings(timing):
     assert res.diagnostics["offline"] and res.diagnostics["mag_timing"] is None
     assert res.diagnostics["gyro_timing"] == (None if timing == "recording" else
                                               {"delay": 0.002, "std": 0.0, "applied": True})
+
+
+@pytest.mark.parametrize("rate", [200.0, 50.0, 20.0, 10.0])
+def test_the_check_segment_is_five_of_the_estimates_at_any_rate(monkeypatch, rate):
+    # the model's segment closes on a sample: below 50 Hz the 0.02 s one is a sample long, so a 0.1 s check
+    # would be as short (10 Hz: the same estimate twice, a check that always agrees). The check's segments
+    # stay five times the estimate's
+    import fusionkit.offline as offline
+
+    seen = []
+
+    def fake(rec, *args, segment_time=None):
+        seen.append(segment_time)
+        return 0.0, 1.0
+
+    monkeypatch.setattr(offline, "gyro_delay_recording", fake)
+    rec = sim.simulate([Rest(1.0)], rate=rate, gnss_rate=None)
+    OfflineFilter._gyro_retimed(rec, fk.make("recommended").config, "numba")
+    assert seen[0] is None and seen[1] == pytest.approx(max(OfflineFilter.GYRO_CHECK_SEGMENT, 5.0 / rate))
