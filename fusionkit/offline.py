@@ -123,6 +123,7 @@ from __future__ import annotations
 
 import copy
 import math
+import numbers
 from typing import ClassVar
 
 import numpy as np
@@ -540,7 +541,8 @@ class OfflineFilter(Filter):
     #: with little angular acceleration, e.g. at rest, informs the estimate little and keeps it)
     MAG_DELAY_SIGMAS: ClassVar[float] = 3.0
     #: the segment length (s) of the second estimate of the gyro's delay (``gyro_timing="recording"``):
-    #: five times the ``time-offset`` model's 0.02 s, a band five times lower. A pure delay is the same
+    #: five times the ``time-offset`` model's 0.02 s, a band five times lower (below 50 Hz, where that
+    #: segment is one sample, five samples). A pure delay is the same
     #: at every time scale; a bias from linear accelerations that come with the rotation (a hand's) is
     #: not, as their share of the direction's change and the delay's (the angular acceleration times
     #: the delay) scale differently with the frequency
@@ -552,7 +554,8 @@ class OfflineFilter(Filter):
 
     def __init__(self, inner: Filter, disturbance_gap: float | None = DISTURBANCE_GAP,
                  calibration: str = "recording", mag_timing: str = "recording",
-                 calibration_test: str = "norm", inclination: str = "smoothed", gyro_timing: str = "as-is") -> None:
+                 calibration_test: str = "norm", inclination: str = "smoothed",
+                 gyro_timing: str | float = "as-is") -> None:
         why = supports_offline(inner)
         if why is not None:
             raise PluginError(f"filter {inner.name!r} does not support offline=True: {why}")
@@ -570,7 +573,7 @@ class OfflineFilter(Filter):
         if mag_timing not in _MAG_TIMINGS:
             raise ConfigError(f"mag_timing must be one of {', '.join(map(repr, _MAG_TIMINGS))}, got {mag_timing!r}")
         limit = TimeOffsetModel.Config().max_offset
-        given = isinstance(gyro_timing, (int, float)) and not isinstance(gyro_timing, bool)
+        given = isinstance(gyro_timing, numbers.Real) and not isinstance(gyro_timing, (bool, np.bool_))
         if not (gyro_timing in _GYRO_TIMINGS if isinstance(gyro_timing, str)
                 else given and math.isfinite(gyro_timing) and abs(gyro_timing) <= limit):
             raise ConfigError(f"gyro_timing must be one of {', '.join(map(repr, _GYRO_TIMINGS))} or the gyro's delay "
@@ -643,7 +646,7 @@ class OfflineFilter(Filter):
         fwd = inner.run(rec, backend=backend, progress=progress, state=state)
         n = len(rec)
         if n < 2:  # nothing after the sample: the forward pass is all there is
-            fwd.diagnostics["offline"] = True
+            fwd.diagnostics.update({"offline": True, "mag_timing": timing, "gyro_timing": gyro_timing})
             return fwd
         back = type(inner)(reversed_config(inner, rec.nominal_dt))
         bwd = back.run(reverse_recording(rec), backend=backend, progress=progress)
@@ -748,7 +751,11 @@ class OfflineFilter(Filter):
         args = (rec, getattr(config, "gyr_range", None), getattr(config, "acc_range", None),
                 getattr(config, "acc_delay", None), used)
         delay, std = gyro_delay_recording(*args)
-        check, check_std = gyro_delay_recording(*args, segment_time=cls.GYRO_CHECK_SEGMENT)
+        # a segment closes on a sample: below 50 Hz the model's 0.02 s segment is one sample long, and the
+        # check's stays GYRO_CHECK_SEGMENT / 0.02 times longer (at 10 Hz a 0.1 s one would be the same estimate)
+        short = TimeOffsetModel.Config().segment_time
+        check, check_std = gyro_delay_recording(*args, segment_time=cls.GYRO_CHECK_SEGMENT
+                                                * max(1.0, rec.nominal_dt / short))
         k = cls.MAG_DELAY_SIGMAS
         applied = bool(np.all(np.isfinite([delay, std, check, check_std])) and abs(delay) > k * std
                        and abs(check) > k * check_std and abs(delay - check) < k * math.hypot(std, check_std))

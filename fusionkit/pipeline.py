@@ -36,7 +36,9 @@ correctors share named quantities. One that declares ``publishes`` writes them i
 state's channel block, and one after it that declares ``reads`` reads them in the same sample
 (``inertial-tilt`` publishes its inclination error, ``mag-heading`` with ``inclination_noise``
 counts it in its measurement variance); the composition is refused where a corrector reads
-(:meth:`Corrector.channel_reads`) what only a later one publishes, or two publish one name. The
+(:meth:`Corrector.channel_reads`) what only one that runs later publishes
+(:meth:`Corrector.channel_publishes`; the bias correctors run first), or two publish a name that
+one reads. The
 block starts at 0 ("nothing known") and is part of the run state, so a split run and
 ``update()`` carry it; both paths hand the same block to the same correctors.
 
@@ -543,19 +545,26 @@ class Pipeline(Filter):
 
 def _check_channel(correctors) -> None:
     """A ConfigError where a corrector reads a :class:`Channel` quantity that only a later one
-    publishes (it would read the previous sample's value) or two publish the same one."""
+    publishes (it would read the previous sample's value), or two publish one that some corrector
+    reads (which one it reads would depend on the order). What a corrector publishes and reads
+    with its configuration counts (:meth:`Corrector.channel_publishes`, :meth:`Corrector.channel_reads`),
+    in the order they run in a sample: the bias correctors before the propagation, wherever they are
+    listed, then the others as listed."""
+    correctors = sorted(correctors, key=lambda c: c.mode != "bias")  # (stable: the list's order within)
+    read = {name: c.name for c in reversed(correctors) for name in c.channel_reads()}  # the first reader
     by = {}
     for i, c in enumerate(correctors):
-        for name in c.publishes:
-            if name in by:
+        for name in c.channel_publishes():
+            if name in by and name in read:
                 raise ConfigError(f"correctors {correctors[by[name]].name!r} and {c.name!r} both publish "
-                                  f"{Channel(name).name}: keep one")
-            by[name] = i
+                                  f"{Channel(name).name}, which {read[name]!r} reads: keep one")
+            by.setdefault(name, i)
     for i, c in enumerate(correctors):
         for name in c.channel_reads():
             if by.get(name, -1) >= i:
+                later = " (a bias corrector runs before the others)" if c.mode == "bias" else ""
                 raise ConfigError(f"corrector {c.name!r} reads {Channel(name).name}, which "
-                                  f"{correctors[by[name]].name!r} publishes after it: put the publisher first")
+                                  f"{correctors[by[name]].name!r} publishes after it{later}: put the publisher first")
 
 
 def _progress(n: int, progress: bool | None, desc: str):

@@ -220,7 +220,8 @@ class Corrector(Plugin, ABC):
     #: makes the pipeline hand it the channel: ``channel=`` (a view, read and write) to
     #: :meth:`correct` / :meth:`FactorCorrector.compose` / :meth:`BiasCorrector.update_bias`, and
     #: ``ch`` to its kernel (:class:`CorrectorKernel`). Class attributes: a kernel's signature does
-    #: not change with the configuration (:meth:`channel_reads` says what a configuration reads)
+    #: not change with the configuration (:meth:`channel_reads` and :meth:`channel_publishes` say
+    #: what a configuration reads and writes)
     publishes: ClassVar[tuple[Channel, ...]] = ()
     reads: ClassVar[tuple[Channel, ...]] = ()
 
@@ -233,6 +234,12 @@ class Corrector(Plugin, ABC):
         """What it reads with its configuration (``reads`` unless an option is off): the pipeline
         refuses a composition where one of these is published only after it."""
         return self.reads
+
+    def channel_publishes(self) -> tuple[Channel, ...]:
+        """What it writes with its configuration (``publishes`` unless an option is off): the
+        pipeline's order check counts these, so a configuration that writes nothing is neither
+        a second publisher nor one a reader must follow."""
+        return self.publishes
 
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         """The corrector's own state (empty by default); ``dt`` is the nominal sample interval,

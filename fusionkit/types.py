@@ -48,8 +48,10 @@ class Channel(enum.IntEnum):
     ``publishes`` and what it reads in ``reads`` (:class:`~fusionkit.protocols.Corrector`); each
     name is an index into the run state's channel block (``CHANNEL_SIZE`` numbers, all 0 at the
     start: "nothing known", which every reader must take as the method without the quantity).
-    The pipeline refuses a composition where a corrector reads a quantity that only a later one
-    publishes (it would read the previous sample's value), or where two publish the same one.
+    The pipeline refuses a composition where a corrector reads a quantity that only one that runs
+    later in the sample publishes (it would read the previous sample's value; the bias correctors
+    run first), or where two publish one that a corrector reads (what each publishes and reads
+    with its configuration counts).
     A value stays until its publisher writes it again (a sample without its sensor leaves it)."""
 
     #: rad^2: the variance of the inclination error about one horizontal axis that has no direction

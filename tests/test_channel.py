@@ -109,3 +109,102 @@ def test_a_reader_before_its_publisher_is_refused():
     _pipeline([tilt, head])
     _pipeline([head])
     _pipeline([{"name": "mag-heading", "params": {"gain": "kalman"}}, tilt])
+
+
+def test_only_what_a_configuration_publishes_counts():
+    """inertial-tilt publishes only with tau_adapt: without it two of them (a composition the
+    pipeline took before the channel) are not two publishers, and a reader before one is not reading
+    what it publishes. Two that publish are ambiguous only to a reader of the quantity."""
+    plain = {"name": "inertial-tilt", "params": {"tau_adapt": False}}
+    adapt = {"name": "inertial-tilt", "params": {"tau_adapt": True}}
+    head = {"name": "mag-heading", "params": {"gain": "kalman", "inclination_noise": True}}
+    _pipeline([plain, plain])
+    _pipeline([head, plain])
+    _pipeline([adapt, adapt])
+    with pytest.raises(ConfigError, match="both publish"):
+        _pipeline([adapt, adapt, head])
+    with pytest.raises(ConfigError, match="put the publisher first"):
+        _pipeline([head, adapt])
+
+
+def test_bias_and_rate_correctors_get_the_channel_on_both_paths():
+    """The channel reaches every corrector mode, not only factor ones: a bias corrector that publishes
+    (the time since the start, as INCLINATION_TIME) and a rate corrector after it that turns the
+    estimate by what it reads; reference == compiled (the kernels take ``ch`` after their parameters),
+    also across a split run, and the reader reads 0 without the publisher."""
+    from fusionkit._numba import njit
+    from fusionkit.pipeline import Pipeline
+    from fusionkit.protocols import BiasCorrector, Correction, Corrector, CorrectorKernel
+    from fusionkit.registry import Registry
+
+    t_idx = int(Channel.INCLINATION_TIME)
+
+    @njit(cache=False)
+    def clock(s, b, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, ch):
+        ch[t_idx] += dt
+        return 0
+
+    @njit(cache=False)
+    def spin(q, s, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p, rate, ch):
+        rate[2] += p[0] * ch[t_idx]
+        return 0
+
+    class Clock(BiasCorrector):
+        name = "test-clock"
+        publishes = (Channel.INCLINATION_TIME,)
+
+        def update_bias(self, state, bias, sample, flags, channel=None):
+            channel[t_idx] += sample.dt
+            return 0
+
+        def kernel(self, estimator):
+            return CorrectorKernel(clock, np.zeros(1), mode="bias")
+
+    class Spin(Corrector):
+        name = "test-spin"
+        mode = "rate"
+        reads = (Channel.INCLINATION_TIME,)
+
+        def correct(self, estimator, est_state, state, sample, flags, channel=None):
+            return Correction(np.array([0.0, 0.0, 1e-3 * channel[t_idx]]), 0)
+
+        def kernel(self, estimator):
+            return CorrectorKernel(spin, np.array([1e-3]), mode="rate")
+
+    reg = Registry()
+    reg.register(Clock)
+    reg.register(Spin)
+    rec = _translation(68.0).slice(0, 1500)
+
+    def make(names):
+        return Pipeline({"estimator": "poisson-quat", "correctors": names, "alignment": {"mode": "none"}},
+                        registry=reg)
+
+    both = make(["test-clock", "test-spin"])
+    out = backend_quats(both, rec)
+    assert np.abs(out["numba"] - out["reference"]).max() < 1e-12
+    split = backend_quats(both, rec, 700)
+    assert np.abs(split["numba"] - out["numba"]).max() < 1e-12
+    assert np.abs(split["reference"] - out["numba"]).max() < 1e-12
+    alone = backend_quats(make(["test-spin"]), rec)
+    assert np.abs(alone["numba"] - alone["reference"]).max() < 1e-12
+    # 7.5 s of a rate growing as 1e-3 t: about 0.028 rad about z more than the spin alone (which reads 0)
+    turn = 2 * np.arccos(np.clip(np.abs(np.sum(out["numba"][-1] * alone["numba"][-1])), 0, 1))
+    assert 0.02 < turn < 0.04
+    # the order that counts is the one they run in: bias correctors before the propagation, then the state
+    # and rate correctors, then the factor ones; a bias corrector listed after its reader still runs first
+    late = backend_quats(make(["test-spin", "test-clock"]), rec)
+    assert np.abs(late["numba"] - out["numba"]).max() < 1e-12
+
+    class Early(BiasCorrector):  # a bias corrector that reads what a factor corrector publishes
+        name = "test-early"
+        reads = (Channel.INCLINATION_TIME,)
+
+        def update_bias(self, state, bias, sample, flags, channel=None):
+            return 0
+
+    reg.register(Early)
+    reg.register(T.InertialTilt)
+    with pytest.raises(ConfigError, match="test-early.*put the publisher first"):
+        Pipeline({"estimator": "poisson-quat", "alignment": {"mode": "none"},
+                  "correctors": [{"name": "inertial-tilt", "params": {"tau_adapt": True}}, "test-early"]}, registry=reg)

@@ -204,6 +204,12 @@ def test_gyro_timing_option_is_checked(bad):
         OfflineFilter(fk.make("recommended"), gyro_timing=bad)
 
 
+@pytest.mark.parametrize("given", [0.005, np.float32(0.005), np.float64(0.005), np.int64(0), 0])
+def test_gyro_timing_takes_any_real_number(given):
+    # a delay read from a numpy array (float32, an integer type) is a delay like a float
+    assert OfflineFilter(fk.make("recommended"), gyro_timing=given).gyro_timing == float(given)
+
+
 def test_a_known_gyro_delay_is_applied_as_given():
     # a delay the user knows (a datasheet's group delay): the gyro moved by it, nothing estimated
     rec = sim.scenario("late-gyro")  # the gyro 5 ms late
@@ -252,3 +258,33 @@ def test_gyro_delay_is_applied_only_where_both_time_scales_show_one_delay(monkey
     out, info = OfflineFilter._gyro_retimed(rec, fk.make("recommended").config, "numba")
     assert info["applied"] is applied
     assert (out is rec) is not applied
+
+
+@pytest.mark.parametrize("timing", ["recording", 0.002])
+def test_a_one_sample_recording_reports_its_timings(timing):
+    # nothing after the sample: the forward pass is all there is, and its diagnostics still say what
+    # the offline mode did with the timings (None: nothing estimated or applied; a given delay: applied)
+    rec = sim.scenario("late-gyro").slice(0, 1)
+    res = OfflineFilter(fk.make("recommended"), gyro_timing=timing).run(rec)
+    assert res.diagnostics["offline"] and res.diagnostics["mag_timing"] is None
+    assert res.diagnostics["gyro_timing"] == (None if timing == "recording" else
+                                              {"delay": 0.002, "std": 0.0, "applied": True})
+
+
+@pytest.mark.parametrize("rate", [200.0, 50.0, 20.0, 10.0])
+def test_the_check_segment_is_five_of_the_estimates_at_any_rate(monkeypatch, rate):
+    # the model's segment closes on a sample: below 50 Hz the 0.02 s one is a sample long, so a 0.1 s check
+    # would be as short (10 Hz: the same estimate twice, a check that always agrees). The check's segments
+    # stay five times the estimate's
+    import fusionkit.offline as offline
+
+    seen = []
+
+    def fake(rec, *args, segment_time=None):
+        seen.append(segment_time)
+        return 0.0, 1.0
+
+    monkeypatch.setattr(offline, "gyro_delay_recording", fake)
+    rec = sim.simulate([Rest(1.0)], rate=rate, gnss_rate=None)
+    OfflineFilter._gyro_retimed(rec, fk.make("recommended").config, "numba")
+    assert seen[0] is None and seen[1] == pytest.approx(max(OfflineFilter.GYRO_CHECK_SEGMENT, 5.0 / rate))

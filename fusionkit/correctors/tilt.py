@@ -691,6 +691,10 @@ class InertialTilt(FactorCorrector):
     source: ClassVar[str] = "fusionkit (source 002's channel separation; low-pass in the inertial frame)"
     summary: ClassVar[str] = "inclination factor: the accelerometer low-passed in the almost-inertial frame"
 
+    def channel_publishes(self) -> tuple[Channel, ...]:
+        """Its inclination error with ``tau_adapt`` (what :func:`_publish` writes), else nothing."""
+        return self.publishes if self.config.tau_adapt else ()
+
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         s = np.zeros(_SIZE)
         s[_QA] = 1.0
