@@ -61,7 +61,7 @@ def test_heading_pairs_a_held_sample_with_its_fresh_orientation():
     base, hold, no_hold = _fixed(on_time), _fixed(held), _fixed(held, mag_hold=False)
     assert no_hold > base + 0.02
     assert hold < base + 0.01
-    # (the defaults: 0.183 against 0.173 measured since stop 21 learns the gyro's rate error; 0.188 against 0.178 before)
+    # (the defaults since stop 21, the gyro's rate error learned: 0.183 against 0.173; before, 0.188 against 0.178)
     assert _total(held) < _total(on_time) + 0.015
     a = fk.make("recommended").run(on_time)
     b = fk.make("recommended", mag_hold=False).run(on_time)
