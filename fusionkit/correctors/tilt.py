@@ -55,6 +55,9 @@ Options, each a separate idea:
   (:func:`_rate_error_step`); ``tau_adapt`` then uses it and its uncertainty instead of
   ``gyro_rate_error`` (which becomes its prior), and ``rate_error_correct`` also removes ``E w``
   from the next propagation (through the pipeline's bias, taken off again before the bias filter).
+  ``rate_error_interval``: its Kalman update once per that many seconds of motion, not every sample
+  (its measurement changes over the inclination's time constant; the noise scaled to keep the
+  information per second).
 
 After a timestamp gap or a saturated gyro (``restarts``) the low-pass starts again: the gravity
 seen in I before is stale. A sample without a valid accelerometer reading (or one the
