@@ -523,17 +523,20 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     u0, u1, u2 = x[_UP], x[_UP + 1], x[_UP + 2]
     s0, s1, s2 = x[_EAST], x[_EAST + 1], x[_EAST + 2]
     n0, n1, n2 = u1 * s2 - u2 * s1, u2 * s0 - u0 * s2, u0 * s1 - u1 * s0
-    g = x[_SCR:_SCR + 12]  # the regressor before the low-pass: east then north row of the columns 00, 11, 22, 01, 02, 12
+    # the regressor before the low-pass (x[_SCR:_SCR + 12]): east then north row of the columns 00, 11, 22, 01, 02, 12
+    # (flat indices, no array views: this part runs every sample)
+    g = _SCR
     for k in range(2):
         a0, a1, a2 = (s0, s1, s2) if k == 0 else (n0, n1, n2)
         r0 = a0 * r[0] + a1 * r[3] + a2 * r[6]
         r1 = a0 * r[1] + a1 * r[4] + a2 * r[7]
         r2 = a0 * r[2] + a1 * r[5] + a2 * r[8]
-        g[6 * k], g[6 * k + 1], g[6 * k + 2] = r0 * w0, r1 * w1, r2 * w2
-        g[6 * k + 3], g[6 * k + 4], g[6 * k + 5] = r0 * w1 + r1 * w0, r0 * w2 + r2 * w0, r1 * w2 + r2 * w1
+        i = g + 6 * k
+        x[i], x[i + 1], x[i + 2] = r0 * w0, r1 * w1, r2 * w2
+        x[i + 3], x[i + 4], x[i + 5] = r0 * w1 + r1 * w0, r0 * w2 + r2 * w0, r1 * w2 + r2 * w1
     if x[_EREADY] == 0.0:  # start in the steady state of this sample
         for m in range(12):
-            x[_HZ1 + m], x[_HZ2 + m] = g[m] * c1, g[m] * c2
+            x[_HZ1 + m], x[_HZ2 + m] = x[g + m] * c1, x[g + m] * c2
         x[_ECO], x[_ECO + 1], x[_EREADY] = c1, c2, 1.0
     elif c1 != x[_ECO] or c2 != x[_ECO + 1]:  # new coefficients (tau_adapt, dt): the delay lines' steady state
         q1, q2 = c1 / x[_ECO], c2 / x[_ECO + 1]
@@ -542,12 +545,12 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
             x[_HZ2 + m] *= q2
         x[_ECO], x[_ECO + 1] = c1, c2
     b0, b1, b2, a1, a2 = x[_B], x[_B + 1], x[_B + 2], x[_B + 3], x[_B + 4]
-    h = x[_SCR + 12:_SCR + 24].reshape((2, 6))
-    for m in range(12):
-        y = b0 * g[m] + x[_HZ1 + m]
-        x[_HZ1 + m] = b1 * g[m] - a1 * y + x[_HZ2 + m]
-        x[_HZ2 + m] = b2 * g[m] - a2 * y
-        h[m // 6, m % 6] = y
+    for m in range(12):  # the low-passed regressor H (2 x 6) at x[_SCR + 12:_SCR + 24]
+        gm = x[g + m]
+        y = b0 * gm + x[_HZ1 + m]
+        x[_HZ1 + m] = b1 * gm - a1 * y + x[_HZ2 + m]
+        x[_HZ2 + m] = b2 * gm - a2 * y
+        x[g + 12 + m] = y
     p0 = kappa0 * kappa0 / 3.0
     v = p0 * dt / forget
     for m in range(6):
@@ -559,6 +562,7 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
         x[_ENACC] += 1.0
         update = x[_ETACC] + 0.5 * dt >= interval
     if update:
+        h = x[_SCR + 12:_SCR + 24].reshape((2, 6))
         # the linear acceleration the low-pass lets through turns its vector by sigma_v / (g tau), changing over tau:
         # as white noise of the same low-frequency power, 2 sigma_v^2 / (g^2 tau^3 dt) on the rate (tau_adapt's
         # statistics; 0 without them)
