@@ -55,6 +55,9 @@ Options, each a separate idea:
   (:func:`_rate_error_step`); ``tau_adapt`` then uses it and its uncertainty instead of
   ``gyro_rate_error`` (which becomes its prior), and ``rate_error_correct`` also removes ``E w``
   from the next propagation (through the pipeline's bias, taken off again before the bias filter).
+  ``rate_error_interval``: its Kalman update once per that many seconds of motion, not every sample
+  (its measurement changes over the inclination's time constant; the noise scaled to keep the
+  information per second).
 
 After a timestamp gap or a saturated gyro (``restarts``) the low-pass starts again: the gravity
 seen in I before is stale. A sample without a valid accelerometer reading (or one the
@@ -112,7 +115,9 @@ RATE_ERROR, RATE_KAPPA2 = _E, _KAP2  # where a run's state holds E and kappa^2 (
 # tau_adapt: the dt its per-sample factors are for, and those factors: min(dt / tau0, 1), dt / window, and the
 # rests' variance's growth sigma_m^2 dt / forget (:func:`_adapt_step`: divisions once per distinct dt)
 _ADT, _AF, _AK, _AV = _SCR + 36, _SCR + 37, _SCR + 38, _SCR + 39
-_SIZE = _SCR + 40
+# rate_error_interval: the seconds and the samples in motion since the rate error's last Kalman update
+_ETACC, _ENACC = _SCR + 40, _SCR + 41
+_SIZE = _SCR + 42
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
 _REST = int(Flag.REST)
@@ -478,7 +483,8 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
             -r2 + hb2 - u2 * hu - (h[6] * b[0] + h[7] * b[1] + h[8] * b[2]))
 
 
-def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0, forget, emax, correct):
+def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0, forget, emax, correct,
+                     interval):
     """The gyro's rate error estimated online (``rate_error_estimate``), one sample: the output
     quaternion ``e`` (body -> levelled), the body rate ``w`` (gyro minus bias), the bias filter's
     residual ``f`` after its update (:meth:`InertialTilt._kalman`), a REST sample.
@@ -503,24 +509,34 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     ``correct`` (``rate_error_correct``): the estimate is removed from the gyro (the caller adds
     ``E w`` to the pipeline's bias for the next propagation), so the residual measures what is left,
     ``E - E_applied`` with ``E_applied`` the estimate itself: the innovation is the residual, and
-    ``kappa^2`` is the variance alone."""
+    ``kappa^2`` is the variance alone.
+
+    ``interval`` (``rate_error_interval``): the Kalman update runs once per ``interval`` s of motion
+    (0: every sample). Its measurement is low-passed at the inclination's time constant (at least
+    ``tau_min``), so consecutive samples carry almost the same information: the update of the
+    interval's last sample, its noise divided by the samples the interval spans, keeps the
+    information per second. The regressor's low-pass, the covariance's growth and ``E w`` still
+    run every sample."""
     c1, c2 = 1.0 - x[_B], x[_B + 2] - x[_B + 4]
     r = dcm_entries(e0, e1, e2, e3)
     # the levelled frame's two horizontal axes (east and north = up x east): rows of R seen along them
     u0, u1, u2 = x[_UP], x[_UP + 1], x[_UP + 2]
     s0, s1, s2 = x[_EAST], x[_EAST + 1], x[_EAST + 2]
     n0, n1, n2 = u1 * s2 - u2 * s1, u2 * s0 - u0 * s2, u0 * s1 - u1 * s0
-    g = x[_SCR:_SCR + 12]  # the regressor before the low-pass: east then north row of the columns 00, 11, 22, 01, 02, 12
+    # the regressor before the low-pass (x[_SCR:_SCR + 12]): east then north row of the columns 00, 11, 22, 01, 02, 12
+    # (flat indices, no array views: this part runs every sample)
+    g = _SCR
     for k in range(2):
         a0, a1, a2 = (s0, s1, s2) if k == 0 else (n0, n1, n2)
         r0 = a0 * r[0] + a1 * r[3] + a2 * r[6]
         r1 = a0 * r[1] + a1 * r[4] + a2 * r[7]
         r2 = a0 * r[2] + a1 * r[5] + a2 * r[8]
-        g[6 * k], g[6 * k + 1], g[6 * k + 2] = r0 * w0, r1 * w1, r2 * w2
-        g[6 * k + 3], g[6 * k + 4], g[6 * k + 5] = r0 * w1 + r1 * w0, r0 * w2 + r2 * w0, r1 * w2 + r2 * w1
+        i = g + 6 * k
+        x[i], x[i + 1], x[i + 2] = r0 * w0, r1 * w1, r2 * w2
+        x[i + 3], x[i + 4], x[i + 5] = r0 * w1 + r1 * w0, r0 * w2 + r2 * w0, r1 * w2 + r2 * w1
     if x[_EREADY] == 0.0:  # start in the steady state of this sample
         for m in range(12):
-            x[_HZ1 + m], x[_HZ2 + m] = g[m] * c1, g[m] * c2
+            x[_HZ1 + m], x[_HZ2 + m] = x[g + m] * c1, x[g + m] * c2
         x[_ECO], x[_ECO + 1], x[_EREADY] = c1, c2, 1.0
     elif c1 != x[_ECO] or c2 != x[_ECO + 1]:  # new coefficients (tau_adapt, dt): the delay lines' steady state
         q1, q2 = c1 / x[_ECO], c2 / x[_ECO + 1]
@@ -529,18 +545,24 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
             x[_HZ2 + m] *= q2
         x[_ECO], x[_ECO + 1] = c1, c2
     b0, b1, b2, a1, a2 = x[_B], x[_B + 1], x[_B + 2], x[_B + 3], x[_B + 4]
-    h = x[_SCR + 12:_SCR + 24].reshape((2, 6))
-    for m in range(12):
-        y = b0 * g[m] + x[_HZ1 + m]
-        x[_HZ1 + m] = b1 * g[m] - a1 * y + x[_HZ2 + m]
-        x[_HZ2 + m] = b2 * g[m] - a2 * y
-        h[m // 6, m % 6] = y
+    for m in range(12):  # the low-passed regressor H (2 x 6) at x[_SCR + 12:_SCR + 24]
+        gm = x[g + m]
+        y = b0 * gm + x[_HZ1 + m]
+        x[_HZ1 + m] = b1 * gm - a1 * y + x[_HZ2 + m]
+        x[_HZ2 + m] = b2 * gm - a2 * y
+        x[g + 12 + m] = y
     p0 = kappa0 * kappa0 / 3.0
     v = p0 * dt / forget
     for m in range(6):
         if x[_PE + 7 * m] < p0:
             x[_PE + 7 * m] += v
-    if not rest:
+    update = False
+    if not rest:  # the interval: seconds of motion compared with half a sample of margin (a split run equals one run)
+        x[_ETACC] += dt
+        x[_ENACC] += 1.0
+        update = x[_ETACC] + 0.5 * dt >= interval
+    if update:
+        h = x[_SCR + 12:_SCR + 24].reshape((2, 6))
         # the linear acceleration the low-pass lets through turns its vector by sigma_v / (g tau), changing over tau:
         # as white noise of the same low-frequency power, 2 sigma_v^2 / (g^2 tau^3 dt) on the rate (tau_adapt's
         # statistics; 0 without them)
@@ -560,7 +582,9 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
                 t0 += x[_PE + 6 * m + n] * h[0, n]
                 t1 += x[_PE + 6 * m + n] * h[1, n]
             a[m, 0], a[m, 1] = t0, t1
-        m00, m01, m11 = x[_N + 1] + wa, 0.0, x[_N + 1] + wa  # S = H P H^T + (wm + wa) I
+        wn = (x[_N + 1] + wa) / x[_ENACC]  # the interval's samples, one update: each sample's noise / their count
+        x[_ETACC] = x[_ENACC] = 0.0
+        m00, m01, m11 = wn, 0.0, wn  # S = H P H^T + (wm + wa) / n I
         for n in range(6):
             m00 += h[0, n] * a[n, 0]
             m01 += h[0, n] * a[n, 1]
@@ -640,6 +664,11 @@ class InertialTiltConfig(PluginConfig):
         "of the sample, added to the pipeline's bias for the next propagation and taken off again before the bias "
         "filter); kappa is then the estimate's uncertainty alone. False: the estimate only sets kappa")
     rate_error_max: float = param(0.05, unit="-", description="rate_error_estimate: the largest entry of E", gt=0)
+    rate_error_interval: float = param(
+        0.0, unit="s", description="rate_error_estimate: the time of motion between the estimate's Kalman updates, "
+        "each with the measurement noise divided by the samples it spans (the same information per second; the "
+        "measurement is low-passed at tau, consecutive samples say almost the same). The regressor's low-pass "
+        "and the correction E w run every sample. 0: an update every sample", ge=0)
     tau_min: float = param(0.5, unit="s", description="tau_adapt: the shortest time constant", gt=0)
     tau_max: float = param(4.0, unit="s", description="tau_adapt: the longest time constant (the velocity estimate, "
                            "leaking with tau, does not see accelerations slower than a few tau)", gt=0)
@@ -773,7 +802,7 @@ class InertialTilt(FactorCorrector):
             res = self._kalman(x, quat_to_matrix(out), r, bias, dt, rest)
             if c.rate_error_estimate and np.all(np.isfinite(w_b)):  # (a sample without a valid gyro: nothing to learn)
                 _rate_error_step(x, *out, *w_b, *res, rest, dt, c.gyro_rate_error, c.motion_bias_tau,
-                                 c.rate_error_max, c.rate_error_correct)
+                                 c.rate_error_max, c.rate_error_correct, c.rate_error_interval)
         elif c.motion_bias_tau is not None and not rest and x[_READY]:
             # the correction as a rate in the levelled frame is the gyro drift; seen in the body,
             # it is the (horizontal part of the) bias error
@@ -838,7 +867,8 @@ class InertialTilt(FactorCorrector):
                       c.bias_sigma_rest if c.bias_sigma_rest is not None else 0.0, c.bias_vertical_forgetting,
                       float(c.tau_adapt), c.gyro_rate_error, c.tau_min, c.tau_max, c.adapt_window,
                       c.impulse_clip if c.impulse_clip is not None else 0.0, c.impulse_window, c.impulse_floor,
-                      float(c.rate_error_estimate), c.rate_error_max, float(c.rate_error_correct)])
+                      float(c.rate_error_estimate), c.rate_error_max, float(c.rate_error_correct),
+                      c.rate_error_interval])
         return CorrectorKernel(inertial_tilt_kernel, p, mode="factor")
 
 
@@ -849,7 +879,7 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
     motion_bias_tau (0: off), bias_max, kalman (1) or lowpass (0), bias_sigma_init, bias_sigma_motion,
     bias_sigma_rest (0: None), bias_vertical_forgetting, tau_adapt, gyro_rate_error, tau_min, tau_max,
     adapt_window, impulse_clip (0: None), impulse_window, impulse_floor, rate_error_estimate, rate_error_max,
-    rate_error_correct)``; ``ch`` the pipeline's channel."""
+    rate_error_correct, rate_error_interval)``; ``ch`` the pipeline's channel."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
         v0, v1, v2 = k_rot(p0, p1, p2, p3, a0, a1, a2)
@@ -909,7 +939,7 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
             f0, f1, f2 = _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, (flags & _REST) != 0, dt, p)
             if p[18] != 0.0 and math.isfinite(wb0) and math.isfinite(wb1) and math.isfinite(wb2):
                 _k_rate_error_step(s, e0, e1, e2, e3, wb0, wb1, wb2, f0, f1, f2, (flags & _REST) != 0, dt, p[11],
-                                   p[3], p[19], p[20] != 0.0)
+                                   p[3], p[19], p[20] != 0.0, p[21])
         elif p[3] > 0.0 and (flags & _REST) == 0 and s[_READY] != 0.0:
             sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
             if sn > 0.0:
