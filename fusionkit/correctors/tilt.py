@@ -40,8 +40,8 @@ Options, each a separate idea:
   10 s statistics tau comes from resolve; computing the set and scaling the delay lines every sample
   put a tangent, divisions and 30 products on each sample's chain).
 
-- **impulses** (``impulse_clip``, off by default; ``recommended``: 10): before the low-pass, the specific force's departure
-  from the low-passed vector is limited to ``impulse_clip`` times its running RMS (:func:`_impulse_clip`,
+- **impulses** (``impulse_clip``, off by default; ``recommended``: 10): before the low-pass, the
+  specific force's departure from the low-passed vector is limited to ``impulse_clip`` times its running RMS (:func:`_impulse_clip`,
   a Huber step whose scale learns from the limited departures over ``impulse_window``): a knock on the
   sensor, tens of g for a few ms that the sampled accelerometer does not integrate to the velocity the
   body got, then does not tilt the estimate for the next ``tau``.
@@ -106,8 +106,8 @@ _TAUC = 81  # tau_adapt: tau / dt of the low-passes' coefficient set (0: none ye
 _IMS, _IMN = 82, 83
 _IVAR = 84  # tau_adapt: the bias's part of the inclination error's variance about one horizontal axis at this tau
 # the gyro's rate error estimated (rate_error_estimate): E's symmetric part (00, 11, 22, 01, 02, 12), its covariance
-# (6 x 6), the regressor's low-pass delay lines (its east and north rows, 12 each), kappa^2 for tau_adapt, the delay lines' (1 - b0, b2 - a2) and
-# whether the regressor's low-pass started
+# (6 x 6), the regressor's low-pass delay lines (its east and north rows, 12 each), kappa^2 for tau_adapt, the
+# delay lines' (1 - b0, b2 - a2) and whether the regressor's low-pass started
 # and (rate_error_correct) the rate error E w the pipeline's bias carries for the next propagation
 _E, _PE, _HZ1, _HZ2, _KAP2, _ECO, _EREADY, _EW = 85, 91, 127, 139, 151, 152, 154, 155
 _SCR = 158  # rate_error_estimate's working space for one sample (no allocation per sample in the compiled loop)

@@ -88,13 +88,14 @@ class RecommendedConfig(FilterConfig):
         "velocity the body got, do not tilt the estimate (recommended.md). None: off (the behaviour before stop 21)",
         gt=1)
     gyro_rate_estimate: Literal["off", "tau", "correct"] = param(
-        "correct", unit="-", description="the gyro's rate error (scale factors and non-orthogonality, E's symmetric part) "
-        "estimated online from what the bias in motion leaves of the inclination correction, gyro_rate_error its "
-        "prior (inertial-tilt's rate_error_estimate; recommended.md). correct: removed from the gyro, and the "
-        "adaptive time constant uses the estimate's uncertainty; tau: only the adaptive time constant uses it (the "
-        "estimate and its uncertainty instead of gyro_rate_error); off: gyro_rate_error throughout (the default before stop 21). Needs the "
-        "bias in motion (motion_bias_tau, bias_filter kalman): without it the default is off, asking for it an error. "
-        "With correct, diagnostics['bias'] is what the next propagation removes: the bias and the last sample's E w")
+        "correct", unit="-", description="the gyro's rate error (scale factors and non-orthogonality, E's "
+        "symmetric part) estimated online from what the bias in motion leaves of the inclination correction, "
+        "gyro_rate_error its prior (inertial-tilt's rate_error_estimate; recommended.md). correct: removed from the "
+        "gyro, and the adaptive time constant uses the estimate's uncertainty; tau: only the adaptive time constant "
+        "uses it (the estimate and its uncertainty instead of gyro_rate_error); off: gyro_rate_error throughout (the "
+        "default before stop 21). Needs the bias in motion (motion_bias_tau, bias_filter kalman): without it the "
+        "default is off, asking for it an error. With correct, diagnostics['bias'] is what the next propagation "
+        "removes: the bias and the last sample's E w")
     gyro_rate_interval: float = param(
         0.05, unit="s", description="gyro_rate_estimate: the time of motion between the rate error's Kalman updates "
         "(inertial-tilt's rate_error_interval): its measurement is low-passed at the inclination's time constant "
@@ -274,7 +275,7 @@ class RecommendedFilter(Pipeline):
     def _diagnostics(self, st, flags, crit, backend) -> dict[str, Any]:
         d = super()._diagnostics(st, flags, crit, backend)
         tilt = [i for i, c in enumerate(self.correctors) if c.name == "inertial-tilt"]
-        if tilt and self.config.gyro_rate_estimate != "off":  # the rate error E (3 x 3) at the end, and tau_adapt's kappa
+        if tilt and self.config.gyro_rate_estimate != "off":  # the rate error E (3 x 3) at the end, tau_adapt's kappa
             s = st["cor"][tilt[0]]
             e00, e11, e22, e01, e02, e12 = s[TILT_RATE_ERROR:TILT_RATE_ERROR + 6]  # its symmetric part
             d["gyro_rate_error"] = np.array([[e00, e01, e02], [e01, e11, e12], [e02, e12, e22]])
