@@ -41,8 +41,9 @@ Options, each a separate idea:
   put a tangent, divisions and 30 products on each sample's chain).
 
 - **impulses** (``impulse_clip``, off by default; ``recommended``: 10): before the low-pass, the
-  specific force's departure from the low-passed vector is limited to ``impulse_clip`` times its running RMS (:func:`_impulse_clip`,
-  a Huber step whose scale learns from the limited departures over ``impulse_window``): a knock on the
+  specific force's departure from the low-passed vector is limited to ``impulse_clip`` times its
+  running RMS (:func:`_impulse_clip`, a Huber step whose scale learns from the limited departures over
+  ``impulse_window``): a knock on the
   sensor, tens of g for a few ms that the sampled accelerometer does not integrate to the velocity the
   body got, then does not tilt the estimate for the next ``tau``.
 - **what its inclination error is, for the correctors after it** (with ``tau_adapt``; the pipeline's
