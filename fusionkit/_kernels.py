@@ -46,18 +46,22 @@ def qnormalize(q):
     q[3] *= r
 
 
-@njit
-def rotvec_quat(r0, r1, r2, out):
-    """Exact quaternion of a rotation vector (rotations.quat_from_rotvec)."""
+@njit(inline="always")
+def rotvec_quat_exact_entries(r0, r1, r2):
+    """Exact quaternion of a rotation vector as a tuple (rotations.quat_from_rotvec: the same
+    operations, its series below 1e-8 rad)."""
     a = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
     if a < 1e-8:
         k = 0.5 - a * a / 48.0
     else:
         k = math.sin(0.5 * a) / a
-    out[0] = math.cos(0.5 * a)
-    out[1] = k * r0
-    out[2] = k * r1
-    out[3] = k * r2
+    return math.cos(0.5 * a), k * r0, k * r1, k * r2
+
+
+@njit
+def rotvec_quat(r0, r1, r2, out):
+    """Exact quaternion of a rotation vector (rotations.quat_from_rotvec), stored in ``out[0:4]``."""
+    out[0], out[1], out[2], out[3] = rotvec_quat_exact_entries(r0, r1, r2)
 
 
 @njit(inline="always")

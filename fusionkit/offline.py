@@ -128,7 +128,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ._kernels import validity_all
+from ._kernels import rotvec_quat_exact_entries, validity_all
 from ._numba import resolve_backend, njit
 from .config import FilterConfig
 from .conventions import change_frame
@@ -513,11 +513,9 @@ def _rate(gyr, k, bias):
 
 @njit(inline="always")
 def _turn(q0, q1, q2, q3, r0, r1, r2):
-    """``q (x) exp(r)``, ``r`` a rotation vector (rad); :func:`quat_from_rotvec`'s series below 1e-8 rad."""
-    a = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-    c = math.cos(0.5 * a)
-    f = 0.5 - a * a / 48.0 if a < 1e-8 else math.sin(0.5 * a) / a
-    return k_qmul(q0, q1, q2, q3, c, r0 * f, r1 * f, r2 * f)
+    """``q (x) exp(r)``, ``r`` a rotation vector (rad); :func:`quat_from_rotvec`'s operations."""
+    e0, e1, e2, e3 = rotvec_quat_exact_entries(r0, r1, r2)
+    return k_qmul(q0, q1, q2, q3, e0, e1, e2, e3)
 
 
 class OfflineFilter(Filter):
