@@ -588,8 +588,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         vu = v0 * s[ax + 6] + v1 * s[ax + 7] + v2 * s[ax + 8]
         sd = max(-1.0, min(1.0, vu / norm))
         dip = math.asin(sd)
-        err = _k_heading_error(v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2],
-                               v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5], s[_HC], s[_HS])
+        me, mn = v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2], v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5]
+        err = _k_heading_error(me, mn, s[_HC], s[_HS])  # (me, mn: the field's east and north in the levelled frame)
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
         if p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0 and k_follow_field(s, norm, dip, p[8], p[9]):
             s[_RELEARN] = 1.0  # (the reference's state sits at the start of the corrector's)
@@ -597,8 +597,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         if p[25] != 0.0:
             le = ch[_CH_LET] * s[ax] + ch[_CH_LET + 1] * s[ax + 1] + ch[_CH_LET + 2] * s[ax + 2]
             ln = ch[_CH_LET] * s[ax + 3] + ch[_CH_LET + 1] * s[ax + 4] + ch[_CH_LET + 2] * s[ax + 5]
-            incl = _k_inclination_noise(ch, v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2],
-                                        v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5], le, ln)
+            incl = _k_inclination_noise(ch, me, mn, le, ln)
         r = _k_kf_noise(s, norm, dip, dt, p[22], p[23], p[24], 1.0 - sd * sd, incl) if kalman else 0.0
         code = magnetic_step(s, norm, dip, rate, dt, p[7], p[8], p[9], p[10], p[11], p[12])
         if code != MAG_LEARNING:
