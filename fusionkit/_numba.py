@@ -509,6 +509,151 @@ class _BlockCopy:
         return self._real.deepcopy(x, memo)
 
 
+# -- numba's SSA reconstruction visits every block once per variable it repairs -------------
+#
+# ``numba.core.ssa._run_ssa`` repairs each variable assigned more than once ("violator") by two
+# rewrites over every block of the function: fresh names for its definitions, then each use
+# re-associated with the definition that reaches it (phi nodes inserted where needed). A block
+# that does not mention the variable comes out of both rewrites as it went in, yet is visited, so
+# the pass costs (violators) x (statements): in an inlined loop, where each kernel brings its own
+# violators and the function holds every kernel's statements, it was the largest single item of
+# the compile (about a quarter of the front end's time for ``recommended``). The version below
+# gives each violator's two rewrites only the blocks that mention it (a phi node may also go into
+# a block that does not: that block is then copied with the phi in front), in the function's
+# block order, with numba's own handlers: the same statements, names and phi nodes, in the same
+# order, as numba's pass (tests/test_numba_ssa.py compares the two on the kernels' IR).
+
+
+NUMBA_ORIGINAL: dict = {}  # numba's functions that the two passes below replace, by name (for the tests)
+
+
+def _run_ssa_local(blocks):
+    """``numba.core.ssa._run_ssa`` with each violator's rewrites on the blocks that mention it."""
+    from numba.core import ir, ssa
+    from numba.core.analysis import compute_cfg_from_blocks
+
+    if not blocks:
+        return {}
+    cfg = compute_cfg_from_blocks(blocks)
+    df_plus = ssa._iterated_domfronts(cfg)
+    violators = ssa._find_defs_violators(blocks, cfg)
+    cache_list_vars = ssa._CacheListVars()
+    where: dict = {v: [] for v in violators}
+    for label, blk in blocks.items():
+        named = set()
+        for stmt in blk.body:
+            named.update(v.name for v in stmt.list_vars())
+        for name in named.intersection(where):
+            where[name].append(label)
+    blocks = dict(blocks)
+    for varname in violators:
+        sub = {label: blocks[label] for label in where[varname]}
+        states = ssa._make_states(blocks)
+        states["varname"] = varname
+        states["defmap"] = defmap = ssa.defaultdict(list)
+        sub = ssa._run_block_rewrite(sub, states, ssa._FreshVarHandler())
+        states = ssa._make_states(blocks)
+        states.update(varname=varname, defmap=defmap, phimap=ssa.defaultdict(list), cfg=cfg,
+                      phi_locations=ssa._compute_phi_locations(df_plus, defmap))
+        sub = ssa._run_block_rewrite(sub, states, ssa._FixSSAVars(cache_list_vars))
+        for label, philist in states["phimap"].items():
+            blk = sub.get(label)
+            if blk is None:  # a phi where the variable is not named: the block, copied
+                old = blocks[label]
+                blk = sub[label] = ir.Block(scope=old.scope, loc=old.loc)
+                blk.body = list(old.body)
+            blk.body = philist + blk.body
+        blocks.update(sub)  # (keys kept in their places: the function's block order)
+    if compute_cfg_from_blocks(blocks) != cfg:
+        from numba.core import errors
+
+        raise errors.CompilerError("CFG mutated in SSA pass")
+    return blocks
+
+
+def _install_local_ssa() -> None:
+    from numba.core import ssa
+
+    needed = ("_iterated_domfronts", "_find_defs_violators", "_CacheListVars", "_make_states",
+              "_run_block_rewrite", "_FreshVarHandler", "_FixSSAVars", "_compute_phi_locations")
+    if ssa._run_ssa is not _run_ssa_local and all(hasattr(ssa, n) for n in needed):
+        NUMBA_ORIGINAL.setdefault("_run_ssa", ssa._run_ssa)
+        ssa._run_ssa = _run_ssa_local
+
+
+# -- numba's liveness analysis unions sets of names -------------------------------------------
+#
+# ``numba.core.analysis.compute_live_map`` (run by every ``PostProcessor``, several times per
+# compile on the whole function) first finds, for each block, every variable defined or used on
+# some path to it, as a ``set`` of names that each block passes on to its successors: in a long
+# function most blocks carry most of its names, so the sets' unions cost (blocks) x (variables).
+# The version below runs the same two fix-points (definitions reaching each block, then
+# liveness pushed backwards where a definition reaches) on integers used as bit sets, one bit
+# per name, and returns the same sets: the least fix-point of the same equations, which does not
+# depend on how it is reached (tests/test_numba_ssa.py compares the two on the kernels' IR).
+
+
+def _live_map_bits(cfg, blocks, var_use_map, var_def_map):
+    """``numba.core.analysis.compute_live_map`` on bit sets: the variables live at each block's entry."""
+    index: dict = {}
+
+    def bits(names) -> int:
+        b = 0
+        for name in names:
+            i = index.get(name)
+            if i is None:
+                i = index[name] = len(index)
+            b |= 1 << i
+        return b
+
+    topo = cfg.topo_order()
+    use = {k: bits(v) for k, v in var_use_map.items()}
+    dfn = {k: bits(v) for k, v in var_def_map.items()}
+    succ = {k: [s for s, _ in cfg.successors(k)] for k in topo}
+    pred = {k: [p for p, _ in cfg.predecessors(k)] for k in topo}
+    reach: dict = {}
+    changed = True
+    while changed:  # the definitions (and uses) reaching each block's entry, forwards
+        changed = False
+        for k in topo:
+            v = reach.get(k, 0) | dfn[k] | use[k]
+            if v != reach.get(k):
+                reach[k], changed = v, True
+            for s in succ[k]:
+                w = reach.get(s, 0) | v
+                if w != reach.get(s):
+                    reach[s], changed = w, True
+    live = {k: use[k] for k in blocks}
+    changed = True
+    while changed:  # what is used before it is defined, backwards where a definition reaches
+        changed = False
+        for k in reversed(topo):
+            v = live[k]
+            for p in pred[k]:
+                w = live[p] | (v & reach.get(p, 0) & ~dfn[p])
+                if w != live[p]:
+                    live[p], changed = w, True
+    names = list(index)
+    out = {}
+    for k, v in live.items():
+        s = set()
+        while v:
+            low = v & -v
+            s.add(names[low.bit_length() - 1])
+            v ^= low
+        out[k] = s
+    return out
+
+
+def _install_live_map_bits() -> None:
+    from numba.core import analysis, ir_utils
+
+    NUMBA_ORIGINAL.setdefault("compute_live_map", analysis.compute_live_map)
+    for mod in (analysis, ir_utils):
+        if getattr(mod, "compute_live_map", None) is not None:
+            mod.compute_live_map = _live_map_bits
+
+
 if HAVE_NUMBA:
     from numba.core import event as _event
 
@@ -518,10 +663,11 @@ if HAVE_NUMBA:
         def on_start(self, event):
             if not self.done:  # (kept registered: removing it while numba broadcasts would skip the next one)
                 self.done = True
-                try:
-                    _install_linear_inline_copy()
-                except Exception:  # an unexpected numba: its own copies
-                    pass
+                for install in (_install_linear_inline_copy, _install_local_ssa, _install_live_map_bits):
+                    try:
+                        install()
+                    except Exception:  # an unexpected numba: its own pass
+                        pass
 
         def on_end(self, event):
             pass
