@@ -50,7 +50,9 @@ Around it, each a separate idea:
   removed: another norm and dip), so the reference is learned again over ``magnetic.init_time`` s
   (:func:`fusionkit.detectors.magnetic.follow_field`), as at the start, unless the reference
   describes that first sample of it (a calibrated field has the same norm and dip at every
-  orientation, so one sample tells; a small calibration changes nothing). It assumes the learning
+  orientation, so one sample tells; a small calibration changes nothing) or the calibration cannot
+  be what took it off the reference (:func:`_moved`: it moved the field by less than the thresholds
+  and the field was off the reference before it too, an earth-fixed disturbance). It assumes the learning
   seconds undisturbed, and the new-field test recovers where they were not. The heading keeps its
   filter meanwhile (no fast-start mean: it has a heading to follow from). False: the reference
   learned before is kept (calibrated samples of a large offset then look disturbed);
@@ -125,7 +127,10 @@ _RELEARN = _E2 + 1
 _PHH, _PHB, _PHS = _E2 + 2, _E2 + 3, _E2 + 4
 # cos and sin of delta / 2 (the output's Rz(delta) as a quaternion), turned with delta by each step (:func:`_turn`)
 _HC, _HS = _E2 + 5, _E2 + 6
-_SIZE = _E2 + 7
+# the previous magnetometer sample's norm and dip in the levelled frame (follow_calibration: did a recalibration
+# move the field?)
+_PN, _PD = _E2 + 7, _E2 + 8
+_SIZE = _E2 + 9
 #: where the heading's variance (gain kalman, rad^2) sits in the corrector's state
 HEADING_VARIANCE = _PHH
 #: the most the heading's variance grows to: a heading uniform on the circle (pi^2 / 3)
@@ -311,8 +316,10 @@ class MagHeading(FactorCorrector):
         norm, dip = field_norm_dip(m, up)
         mc = c.magnetic
         kalman = c.gain == "kalman"
-        if recalibrated and follow_field(x[_MAG:_MAG + MAG_SIZE], norm, dip, mc.norm_threshold, mc.dip_threshold):
+        if recalibrated and _moved(x, norm, dip, mc.norm_threshold, mc.dip_threshold) and follow_field(
+                x[_MAG:_MAG + MAG_SIZE], norm, dip, mc.norm_threshold, mc.dip_threshold):
             x[_RELEARN] = 1.0  # learned again; the heading keeps its filter meanwhile
+        x[_PN], x[_PD] = norm, dip
         r = _kf_noise(x, norm, dip, dt, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time, None,
                       incl) if kalman else 0.0
         err = _heading_error(float(m @ east), float(m @ north), x[_HC], x[_HS])  # wrap(target - delta)
@@ -417,6 +424,21 @@ def _inclination_noise(ch, me, mn, le, ln) -> float:
     return (ch[_CH_VAR] + c) * ch[_CH_TIME]
 
 
+def _moved(x, norm, dip, norm_th, dip_th) -> bool:
+    """At a recalibration (``follow_calibration``): whether the new calibration can be what takes
+    this sample (``norm``, ``dip``) away from the reference: it moved the field by more than the
+    thresholds (against the previous sample, read through the calibration before; the
+    orientation between two samples is the gyro's, so what differs is the calibration), or the
+    previous sample was one the reference describes. Where neither holds, the field was off the
+    reference before the calibration changed too (an earth-fixed disturbance the calibration was
+    applied during) and the reference is kept: learned again there, it would describe the
+    disturbance, and the earth's field after it would be rejected until the new-field test
+    accepts it. The same statements in the reference and, compiled, in the kernel."""
+    pn, pd, rn, rd = x[_PN], x[_PD], x[_MAG], x[_MAG + 1]
+    return (abs(norm - pn) > norm_th * pn or abs(dip - pd) > dip_th
+            or (abs(pn - rn) <= norm_th * rn and abs(pd - rd) <= dip_th))
+
+
 def _kf_gain(x, r) -> float:
     """gain kalman: the gain for a magnetometer heading of variance ``r``; the heading's variance and
     covariances it leaves (the considered errors' own are not measured)."""
@@ -507,6 +529,7 @@ _k_kf_noise = njit(_kf_noise)
 _k_kf_gain = njit(_kf_gain)
 _k_inclination_noise = njit(_inclination_noise)
 _k_kf_mean = njit(_kf_mean)
+_k_moved = njit(_moved)
 _k_gate = njit(_gate)
 
 
@@ -591,8 +614,10 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         me, mn = v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2], v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5]
         err = _k_heading_error(me, mn, s[_HC], s[_HS])  # (me, mn: the field's east and north in the levelled frame)
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
-        if p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0 and k_follow_field(s, norm, dip, p[8], p[9]):
+        if p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0 and _k_moved(s, norm, dip, p[8], p[9]) and \
+                k_follow_field(s, norm, dip, p[8], p[9]):
             s[_RELEARN] = 1.0  # (the reference's state sits at the start of the corrector's)
+        s[_PN], s[_PD] = norm, dip
         incl = 0.0
         if p[25] != 0.0:
             le = ch[_CH_LET] * s[ax] + ch[_CH_LET + 1] * s[ax + 1] + ch[_CH_LET + 2] * s[ax + 2]
