@@ -736,6 +736,18 @@ class InertialTilt(FactorCorrector):
         s[_KAP2] = self.config.gyro_rate_error ** 2
         return s
 
+    def rate_error(self, state: np.ndarray) -> np.ndarray | None:
+        """The gyro's rate error as this state holds it (``rate_error_estimate``; None without it):
+        ``(E's symmetric part 00, 11, 22, 01, 02, 12, kappa, c0, c1, c2)``, ``kappa`` the rate error
+        ``tau_adapt`` assumes now (:func:`_rate_error_step`'s ``sqrt(kappa^2)``) and ``c`` the ``E w``
+        the pipeline's bias carries for the next propagation (``rate_error_correct``; zeros without
+        it). The offline mode's smoothing reads it: the bias without ``c``, and the same ``E`` and
+        ``kappa`` as the pass (:func:`fusionkit.offline.gyro_trace`)."""
+        if not self.config.rate_error_estimate:
+            return None
+        c = state[_EW:_EW + 3] if self.config.rate_error_correct else np.zeros(3)
+        return np.concatenate([state[_E:_E + 6], [math.sqrt(max(state[_KAP2], 0.0))], c])
+
     def restart(self, state: np.ndarray) -> None:
         """The low-pass starts again (the fast start's running mean, or the next sample)."""
         state[_READY] = state[_NMEAN] = state[_TACC] = 0.0
