@@ -359,15 +359,16 @@ def bias_trace(filt: Filter, rec: Recording, state=None, step: float = 1.0, back
 
 def gyro_trace(filt: Filter, rec: Recording, state=None, step: float = 1.0,
                backend: str = "auto") -> tuple[np.ndarray, np.ndarray | None] | None:
-    """What ``filt`` takes off the gyroscope over ``rec``, per sample, read as :func:`bias_trace`
-    reads the bias: ``(bias (N, 3), rate (N, 7) or None)``. ``rate``: the gyro's rate error the
-    filter estimates (a pipeline's ``diagnostics["rate_error_at"]``, e.g. ``inertial-tilt``'s
-    ``rate_error_estimate``): E's symmetric part (00, 11, 22, 01, 02, 12) and the rate error still
-    assumed (``kappa``); None where the filter estimates none. ``bias`` is then the bias itself:
-    with ``rate_error_correct`` the pipeline's bias also carries the sample's ``E w`` for the next
-    propagation, a term of that instant's rate, which interpolated over a second would be a wrong
-    bias (on BROAD up to 2 deg/s); it is taken off, and ``E`` is applied per sample instead
-    (:func:`smooth_reference`). None when the filter reports no bias or no state."""
+    """What ``filt`` takes off the gyroscope over ``rec`` and the time constant of its inclination
+    low-pass, per sample, read as :func:`bias_trace` reads the bias: ``(bias (N, 3), model (N, 7) or
+    None)``. ``model``: a pipeline's ``diagnostics["inclination_model_at"]`` (``inertial-tilt``'s
+    ``inclination_model``): the gyro's rate error E it removes (symmetric part 00, 11, 22, 01, 02,
+    12; zeros without ``rate_error_estimate``) and the low-pass's time constant ``tau``; None where
+    the filter has none. ``bias`` is then the bias itself: with ``rate_error_correct`` the
+    pipeline's bias also carries the sample's ``E w`` for the next propagation, a term of that
+    instant's rate, which interpolated over a second would be a wrong bias (on BROAD up to 2
+    deg/s); it is taken off, and ``E`` is applied per sample instead (:func:`smooth_reference`).
+    None when the filter reports no bias or no state."""
     read = _probe(filt, rec, state, step, backend)
     if read is None:
         return None
@@ -375,7 +376,7 @@ def gyro_trace(filt: Filter, rec: Recording, state=None, step: float = 1.0,
     n = len(rec)
     if rate is None:
         return _interp(n, ends, bias), None
-    return _interp(n, ends, bias - rate[:, 7:10]), _interp(n, ends, rate[:, :7])
+    return _interp(n, ends, bias - rate[:, 6:9]), _interp(n, ends, rate[:, [0, 1, 2, 3, 4, 5, 9]])
 
 
 def _interp(n: int, ends: list[int], v: np.ndarray) -> np.ndarray:
@@ -387,7 +388,7 @@ def _interp(n: int, ends: list[int], v: np.ndarray) -> np.ndarray:
 
 def _probe(filt, rec, state, step, backend):
     """``filt`` run over ``rec`` (from ``state``) and read every ``step`` s: ``(ends, bias (m, 3),
-    rate error (m, 10) or None)`` (:func:`bias_trace`, :func:`gyro_trace`), None when the filter
+    inclination model (m, 10) or None)`` (:func:`bias_trace`, :func:`gyro_trace`), None when the filter
     reports no bias or no state."""
     n = len(rec)
     m = max(2, int(round(step / rec.nominal_dt)))
@@ -400,7 +401,7 @@ def _probe(filt, rec, state, step, backend):
     if isinstance(filt, Pipeline):  # one run, read at the pieces' ends: the same numbers
         res = filt.run(rec, backend=backend, progress=False, state=state, bias_at=[b - 1 for b in cuts[1:]])
         ends, values = [b - 1 for b in cuts[1:]], list(res.diagnostics["bias_at"])
-        rate = res.diagnostics.get("rate_error_at")
+        rate = res.diagnostics.get("inclination_model_at")
     for a, b in zip(cuts[:-1], cuts[1:]) if not ends else ():
         res = filt.run(_piece(rec, a, b), backend=backend, progress=False, state=state)
         state, bias = res.diagnostics.get("state"), res.diagnostics.get("bias")
@@ -437,13 +438,15 @@ def _smooth_state(p: np.ndarray) -> np.ndarray:
 
 
 def rate_rows(n: int, p: np.ndarray, rate: np.ndarray | None = None) -> np.ndarray:
-    """The rate error per sample for :func:`smooth_reference` ``(n, 7)``: ``rate`` (:func:`gyro_trace`)
-    as a contiguous array, or, where the filter estimates none, no ``E`` and the assumed
-    ``gyro_rate_error`` (``p[5]``, :func:`smoothing_params`) as ``kappa``."""
+    """The pass's model per sample for :func:`smooth_reference` ``(n, 7)``: ``rate`` (:func:`gyro_trace`:
+    E's symmetric part, the time constant) as a contiguous array, or, where the filter reports none,
+    no ``E`` and no time constant (NaN: the second low-pass chooses its own, :func:`smooth_reference`)."""
     if rate is not None:
-        return np.ascontiguousarray(np.where(np.isfinite(rate), rate, 0.0), dtype=float)
+        out = np.ascontiguousarray(rate, dtype=float).copy()
+        out[:, :6] = np.where(np.isfinite(out[:, :6]), out[:, :6], 0.0)
+        return out
     out = np.zeros((n, 7))
-    out[:, 6] = p[5]
+    out[:, 6] = np.nan
     return out
 
 
@@ -461,11 +464,13 @@ def smooth_reference(q_est: np.ndarray, gyr: np.ndarray, acc: np.ndarray, dt: np
     there with the ``inertial-tilt`` corrector's second-order Butterworth, whose time constant is
     chosen per sample as the passes choose it (``p``, :func:`smoothing_params`; with the adaptive
     time constant from the specific force, rotated into I at the middle of each step, and the REST
-    samples ``rest``). ``rate`` ``(N, 7)`` (:func:`rate_rows`): the gyro's rate error the pass
-    estimated, E's symmetric part and ``kappa``, per sample; the frame's rate is then ``(I - E) (gyr -
-    bias)`` (a gyro reading ``(I + E) w + b``), as the pass removed it, and the adaptive time constant
-    assumes ``kappa`` (the rate error not yet removed) where ``p`` has ``gyro_rate_error``. None: no
-    ``E``, ``kappa`` the assumed one. A sample flagged ``gap`` (a
+    samples ``rest``). ``rate`` ``(N, 7)`` (:func:`rate_rows`): the pass's model per sample, E's
+    symmetric part and its time constant. The frame's rate is then ``(I - E) (gyr - bias)`` (a gyro
+    reading ``(I + E) w + b``), as the pass removed it, and the low-pass takes the pass's own time
+    constant where it is given (finite): a pass is ``H(tau(t))``, and the same low-pass run the
+    other way makes the forward-backward ``|H|^2`` at every sample, where a time constant chosen
+    again from the statistics of the other direction of time would pair two different filters.
+    None: no ``E``, the time constant chosen here by the passes' model. A sample flagged ``gap`` (a
     timestamp gap before it) starts the low-pass again. A pass is ``H`` on the accelerometer and
     ``1 - H`` on the gyroscope's errors; this low-pass, run the other way, makes that ``|H|^2`` and
     ``1 - |H|^2`` (a forward-backward filter): see :class:`OfflineFilter`'s ``inclination``."""
@@ -496,13 +501,15 @@ def smooth_reference(q_est: np.ndarray, gyr: np.ndarray, acc: np.ndarray, dt: np
         r = quat_to_matrix(qi)
         v = r @ (quat_to_matrix(q_est[k]).T @ np.array([0.0, 0.0, g]))  # the estimate's vertical, in I
         tau = p[0]
-        if p[8] != 0.0 and np.all(np.isfinite(acc[k])):
+        if np.isfinite(err[k, 6]):  # the pass's own time constant
+            tau = err[k, 6]
+        elif p[8] != 0.0 and np.all(np.isfinite(acc[k])):
             w = body_rate(k)
             mid = quat_to_matrix(quat_mul(qi, quat_from_rotvec(-0.5 * w * dt[k])))  # the middle of the step
             y = x[tilt._Y:tilt._Y + 3]
             z = r.T @ (y / np.linalg.norm(y)) if x[tilt._NST] > 0.0 else np.zeros(3)
             tau = tilt._adapt_step(x, *(mid @ acc[k]), *(mid @ w), *z, bool(rest[k]), dt[k], p[0], p[1], p[2],
-                                   p[3], p[4], err[k, 6], p[6], p[7])
+                                   p[3], p[4], p[5], p[6], p[7])
         elif p[8] != 0.0 and x[tilt._TAU] > 0.0:
             tau = x[tilt._TAU]
         tilt._set_tau(x, *tilt.lowpass_coefficients(tau, dt[k]))
@@ -537,7 +544,9 @@ def _smooth_kernel(q_est, gyr, acc, dt, bias, err, rest, gap, reverse, p, x0, ou
         u0, u1, u2 = k_rot(e0, -e1, -e2, -e3, 0.0, 0.0, g)
         v0, v1, v2 = k_rot(i0, i1, i2, i3, u0, u1, u2)
         tau = p[0]
-        if p[8] != 0.0 and math.isfinite(acc[k, 0]) and math.isfinite(acc[k, 1]) and math.isfinite(acc[k, 2]):
+        if math.isfinite(err[k, 6]):
+            tau = err[k, 6]
+        elif p[8] != 0.0 and math.isfinite(acc[k, 0]) and math.isfinite(acc[k, 1]) and math.isfinite(acc[k, 2]):
             r0, r1, r2 = _rate(gyr, k, bias, err)
             m0, m1, m2, m3 = _turn(i0, i1, i2, i3, -0.5 * r0 * dt[k], -0.5 * r1 * dt[k], -0.5 * r2 * dt[k])
             a0, a1, a2 = k_rot(m0, m1, m2, m3, acc[k, 0], acc[k, 1], acc[k, 2])
@@ -547,7 +556,7 @@ def _smooth_kernel(q_est, gyr, acc, dt, bias, err, rest, gap, reverse, p, x0, ou
                 ny = math.sqrt(x[_T_Y] * x[_T_Y] + x[_T_Y + 1] * x[_T_Y + 1] + x[_T_Y + 2] * x[_T_Y + 2])
                 z0, z1, z2 = k_rot(i0, -i1, -i2, -i3, x[_T_Y] / ny, x[_T_Y + 1] / ny, x[_T_Y + 2] / ny)
             tau = _k_adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest[k], dt[k], p[0], p[1], p[2], p[3], p[4],
-                                err[k, 6], p[6], p[7])
+                                p[5], p[6], p[7])
         elif p[8] != 0.0 and x[_T_TAU] > 0.0:
             tau = x[_T_TAU]
         b0, b1, b2, c1, c2 = _lp_coeffs(tau, dt[k])
