@@ -144,7 +144,8 @@ from .correctors.tilt import _k_adapt_step, _k_lowpass_vertical, _k_set_tau, _lp
 
 __all__ = ["OfflineFilter", "reverse_recording", "reversed_config", "information", "fuse_reference",
            "supports_offline", "disturbance_mask", "calibration_passes", "select_calibration", "mag_delay_recording",
-           "retime_mag", "smooth_reference", "smoothing_params", "bias_trace", "gyro_delay_recording", "retime_gyro"]
+           "retime_mag", "smooth_reference", "smoothing_params", "bias_trace", "gyro_trace", "rate_rows",
+           "gyro_delay_recording", "retime_gyro"]
 
 #: the sensor model whose magnetometer calibration the offline mode decides with the whole recording
 _MAG_CALIBRATION = "mag-calibration"
@@ -352,6 +353,43 @@ def bias_trace(filt: Filter, rec: Recording, state=None, step: float = 1.0, back
     (held before the first). None when the filter reports no bias or no state. ``state``: the
     initial state, as for ``run``. Costs one more run of the filter: a pipeline's in one call
     (``run(..., bias_at=...)``), any other filter's a call per piece."""
+    read = _probe(filt, rec, state, step, backend)
+    return None if read is None else _interp(len(rec), read[0], read[1])
+
+
+def gyro_trace(filt: Filter, rec: Recording, state=None, step: float = 1.0,
+               backend: str = "auto") -> tuple[np.ndarray, np.ndarray | None] | None:
+    """What ``filt`` takes off the gyroscope over ``rec`` and the time constant of its inclination
+    low-pass, per sample, read as :func:`bias_trace` reads the bias: ``(bias (N, 3), model (N, 7) or
+    None)``. ``model``: a pipeline's ``diagnostics["inclination_model_at"]`` (``inertial-tilt``'s
+    ``inclination_model``): the gyro's rate error E it removes (symmetric part 00, 11, 22, 01, 02,
+    12; zeros without ``rate_error_estimate``) and the low-pass's time constant ``tau``; None where
+    the filter has none. ``bias`` is then the bias itself: with ``rate_error_correct`` the
+    pipeline's bias also carries the sample's ``E w`` for the next propagation, a term of that
+    instant's rate, which interpolated over a second would be a wrong bias (on BROAD up to 2
+    deg/s); it is taken off, and ``E`` is applied per sample instead (:func:`smooth_reference`).
+    None when the filter reports no bias or no state."""
+    read = _probe(filt, rec, state, step, backend)
+    if read is None:
+        return None
+    ends, bias, rate = read
+    n = len(rec)
+    if rate is None:
+        return _interp(n, ends, bias), None
+    return _interp(n, ends, bias - rate[:, 6:9]), _interp(n, ends, rate[:, [0, 1, 2, 3, 4, 5, 9]])
+
+
+def _interp(n: int, ends: list[int], v: np.ndarray) -> np.ndarray:
+    """The values ``v`` read after the samples ``ends``, per sample of ``n``: interpolated linearly,
+    held before the first."""
+    k = np.arange(n)
+    return np.stack([np.interp(k, ends, v[:, i]) for i in range(v.shape[1])], axis=1)
+
+
+def _probe(filt, rec, state, step, backend):
+    """``filt`` run over ``rec`` (from ``state``) and read every ``step`` s: ``(ends, bias (m, 3),
+    inclination model (m, 10) or None)`` (:func:`bias_trace`, :func:`gyro_trace`), None when the filter
+    reports no bias or no state."""
     n = len(rec)
     m = max(2, int(round(step / rec.nominal_dt)))
     cuts = list(range(0, n, m)) + [n]
@@ -359,10 +397,11 @@ def bias_trace(filt: Filter, rec: Recording, state=None, step: float = 1.0, back
         del cuts[-2]
     from .pipeline import Pipeline
 
-    ends, values = [], []
+    ends, values, rate = [], [], None
     if isinstance(filt, Pipeline):  # one run, read at the pieces' ends: the same numbers
         res = filt.run(rec, backend=backend, progress=False, state=state, bias_at=[b - 1 for b in cuts[1:]])
         ends, values = [b - 1 for b in cuts[1:]], list(res.diagnostics["bias_at"])
+        rate = res.diagnostics.get("inclination_model_at")
     for a, b in zip(cuts[:-1], cuts[1:]) if not ends else ():
         res = filt.run(_piece(rec, a, b), backend=backend, progress=False, state=state)
         state, bias = res.diagnostics.get("state"), res.diagnostics.get("bias")
@@ -370,9 +409,7 @@ def bias_trace(filt: Filter, rec: Recording, state=None, step: float = 1.0, back
             return None
         ends.append(b - 1)
         values.append(np.asarray(bias, dtype=float))
-    v = np.array(values)
-    k = np.arange(n)
-    return np.stack([np.interp(k, ends, v[:, i]) for i in range(3)], axis=1)
+    return ends, np.array(values), rate
 
 
 def _piece(rec: Recording, a: int, b: int) -> Recording:
@@ -400,8 +437,22 @@ def _smooth_state(p: np.ndarray) -> np.ndarray:
     return x
 
 
+def rate_rows(n: int, p: np.ndarray, rate: np.ndarray | None = None) -> np.ndarray:
+    """The pass's model per sample for :func:`smooth_reference` ``(n, 7)``: ``rate`` (:func:`gyro_trace`:
+    E's symmetric part, the time constant) as a contiguous array, or, where the filter reports none,
+    no ``E`` and no time constant (NaN: the second low-pass chooses its own, :func:`smooth_reference`)."""
+    if rate is not None:
+        out = np.ascontiguousarray(rate, dtype=float).copy()
+        out[:, :6] = np.where(np.isfinite(out[:, :6]), out[:, :6], 0.0)
+        return out
+    out = np.zeros((n, 7))
+    out[:, 6] = np.nan
+    return out
+
+
 def smooth_reference(q_est: np.ndarray, gyr: np.ndarray, acc: np.ndarray, dt: np.ndarray, bias: np.ndarray,
-                     rest: np.ndarray, gap: np.ndarray, reverse: bool, p: np.ndarray) -> np.ndarray:
+                     rest: np.ndarray, gap: np.ndarray, reverse: bool, p: np.ndarray,
+                     rate: np.ndarray | None = None) -> np.ndarray:
     """One pass's inclination smoothed by the inclination low-pass run in the *other* direction of
     time (the readable reference of :func:`_smooth_kernel`): ``q_est`` ``(N, 4)`` body -> ENU, at the
     end of each gyro step; the result has the same heading and the inclination of the low-passed
@@ -413,7 +464,13 @@ def smooth_reference(q_est: np.ndarray, gyr: np.ndarray, acc: np.ndarray, dt: np
     there with the ``inertial-tilt`` corrector's second-order Butterworth, whose time constant is
     chosen per sample as the passes choose it (``p``, :func:`smoothing_params`; with the adaptive
     time constant from the specific force, rotated into I at the middle of each step, and the REST
-    samples ``rest``). A sample flagged ``gap`` (a
+    samples ``rest``). ``rate`` ``(N, 7)`` (:func:`rate_rows`): the pass's model per sample, E's
+    symmetric part and its time constant. The frame's rate is then ``(I - E) (gyr - bias)`` (a gyro
+    reading ``(I + E) w + b``), as the pass removed it, and the low-pass takes the pass's own time
+    constant where it is given (finite): a pass is ``H(tau(t))``, and the same low-pass run the
+    other way makes the forward-backward ``|H|^2`` at every sample, where a time constant chosen
+    again from the statistics of the other direction of time would pair two different filters.
+    None: no ``E``, the time constant chosen here by the passes' model. A sample flagged ``gap`` (a
     timestamp gap before it) starts the low-pass again. A pass is ``H`` on the accelerometer and
     ``1 - H`` on the gyroscope's errors; this low-pass, run the other way, makes that ``|H|^2`` and
     ``1 - |H|^2`` (a forward-backward filter): see :class:`OfflineFilter`'s ``inclination``."""
@@ -423,14 +480,20 @@ def smooth_reference(q_est: np.ndarray, gyr: np.ndarray, acc: np.ndarray, dt: np
     out = np.empty_like(q_est)
     x = _smooth_state(p)
     g = p[9]
+    err = rate_rows(n, p, rate)
+
+    def body_rate(k):  # the gyro minus the bias, less the rate error E w
+        w = np.where(np.isfinite(gyr[k]), gyr[k] - bias[k], 0.0)
+        e00, e11, e22, e01, e02, e12 = err[k, :6]
+        return w - np.array([[e00, e01, e02], [e01, e11, e12], [e02, e12, e22]]) @ w
+
     qi = np.array([1.0, 0.0, 0.0, 0.0])
     order = range(n - 1, -1, -1) if reverse else range(n)
     first = True
     for k in order:
         if not first:
             s = k + 1 if reverse else k  # the gyro step between this sample and the one before it
-            rate = np.where(np.isfinite(gyr[s]), gyr[s] - bias[s], 0.0)
-            qi = quat_mul(qi, quat_from_rotvec(rate * dt[s] * (-1.0 if reverse else 1.0)))
+            qi = quat_mul(qi, quat_from_rotvec(body_rate(s) * dt[s] * (-1.0 if reverse else 1.0)))
             qi = qi / np.linalg.norm(qi)
             if gap[s]:
                 x = _smooth_state(p)
@@ -438,12 +501,14 @@ def smooth_reference(q_est: np.ndarray, gyr: np.ndarray, acc: np.ndarray, dt: np
         r = quat_to_matrix(qi)
         v = r @ (quat_to_matrix(q_est[k]).T @ np.array([0.0, 0.0, g]))  # the estimate's vertical, in I
         tau = p[0]
-        if p[8] != 0.0 and np.all(np.isfinite(acc[k])):
-            rate = np.where(np.isfinite(gyr[k]), gyr[k] - bias[k], 0.0)
-            mid = quat_to_matrix(quat_mul(qi, quat_from_rotvec(-0.5 * rate * dt[k])))  # the middle of the step
+        if np.isfinite(err[k, 6]):  # the pass's own time constant
+            tau = err[k, 6]
+        elif p[8] != 0.0 and np.all(np.isfinite(acc[k])):
+            w = body_rate(k)
+            mid = quat_to_matrix(quat_mul(qi, quat_from_rotvec(-0.5 * w * dt[k])))  # the middle of the step
             y = x[tilt._Y:tilt._Y + 3]
             z = r.T @ (y / np.linalg.norm(y)) if x[tilt._NST] > 0.0 else np.zeros(3)
-            tau = tilt._adapt_step(x, *(mid @ acc[k]), *(mid @ rate), *z, bool(rest[k]), dt[k], p[0], p[1], p[2],
+            tau = tilt._adapt_step(x, *(mid @ acc[k]), *(mid @ w), *z, bool(rest[k]), dt[k], p[0], p[1], p[2],
                                    p[3], p[4], p[5], p[6], p[7])
         elif p[8] != 0.0 and x[tilt._TAU] > 0.0:
             tau = x[tilt._TAU]
@@ -457,8 +522,9 @@ def smooth_reference(q_est: np.ndarray, gyr: np.ndarray, acc: np.ndarray, dt: np
 
 
 @njit
-def _smooth_kernel(q_est, gyr, acc, dt, bias, rest, gap, reverse, p, x0, out):
-    """:func:`smooth_reference` compiled (``x0``: a fresh state, :func:`_smooth_state`)."""
+def _smooth_kernel(q_est, gyr, acc, dt, bias, err, rest, gap, reverse, p, x0, out):
+    """:func:`smooth_reference` compiled (``err``: :func:`rate_rows`; ``x0``: a fresh state,
+    :func:`_smooth_state`)."""
     n = q_est.shape[0]
     x = x0.copy()
     g = p[9]
@@ -468,7 +534,7 @@ def _smooth_kernel(q_est, gyr, acc, dt, bias, rest, gap, reverse, p, x0, out):
         k = n - 1 - j if reverse else j
         if j > 0:
             s = k + 1 if reverse else k
-            r0, r1, r2 = _rate(gyr, s, bias)
+            r0, r1, r2 = _rate(gyr, s, bias, err)
             i0, i1, i2, i3 = _turn(i0, i1, i2, i3, sg * r0 * dt[s], sg * r1 * dt[s], sg * r2 * dt[s])
             nq = math.sqrt(i0 * i0 + i1 * i1 + i2 * i2 + i3 * i3)
             i0, i1, i2, i3 = i0 / nq, i1 / nq, i2 / nq, i3 / nq
@@ -478,8 +544,10 @@ def _smooth_kernel(q_est, gyr, acc, dt, bias, rest, gap, reverse, p, x0, out):
         u0, u1, u2 = k_rot(e0, -e1, -e2, -e3, 0.0, 0.0, g)
         v0, v1, v2 = k_rot(i0, i1, i2, i3, u0, u1, u2)
         tau = p[0]
-        if p[8] != 0.0 and math.isfinite(acc[k, 0]) and math.isfinite(acc[k, 1]) and math.isfinite(acc[k, 2]):
-            r0, r1, r2 = _rate(gyr, k, bias)
+        if math.isfinite(err[k, 6]):
+            tau = err[k, 6]
+        elif p[8] != 0.0 and math.isfinite(acc[k, 0]) and math.isfinite(acc[k, 1]) and math.isfinite(acc[k, 2]):
+            r0, r1, r2 = _rate(gyr, k, bias, err)
             m0, m1, m2, m3 = _turn(i0, i1, i2, i3, -0.5 * r0 * dt[k], -0.5 * r1 * dt[k], -0.5 * r2 * dt[k])
             a0, a1, a2 = k_rot(m0, m1, m2, m3, acc[k, 0], acc[k, 1], acc[k, 2])
             w0, w1, w2 = k_rot(m0, m1, m2, m3, r0, r1, r2)
@@ -503,12 +571,16 @@ def _smooth_kernel(q_est, gyr, acc, dt, bias, rest, gap, reverse, p, x0, out):
 
 
 @njit(inline="always")
-def _rate(gyr, k, bias):
-    """The gyro's rate minus ``bias[k]`` at sample ``k`` (0 where it is not finite)."""
+def _rate(gyr, k, bias, err):
+    """The gyro's rate minus ``bias[k]`` at sample ``k``, less the rate error ``E w`` (``err[k]``:
+    :func:`rate_rows`; 0 where the gyro is not finite)."""
     g0, g1, g2 = gyr[k, 0], gyr[k, 1], gyr[k, 2]
     if not (math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2)):
         return 0.0, 0.0, 0.0
-    return g0 - bias[k, 0], g1 - bias[k, 1], g2 - bias[k, 2]
+    w0, w1, w2 = g0 - bias[k, 0], g1 - bias[k, 1], g2 - bias[k, 2]
+    e00, e11, e22, e01, e02, e12 = err[k, 0], err[k, 1], err[k, 2], err[k, 3], err[k, 4], err[k, 5]
+    return (w0 - (e00 * w0 + e01 * w1 + e02 * w2), w1 - (e01 * w0 + e11 * w1 + e12 * w2),
+            w2 - (e02 * w0 + e12 * w1 + e22 * w2))
 
 
 @njit(inline="always")
@@ -795,22 +867,22 @@ class OfflineFilter(Filter):
         inner, back, prec, state = passes
         out = []
         for q, filt, r, st, reverse in ((qf, inner, prec, state, True), (qb, back, None, None, False)):
-            if r is None:  # the backward pass: its bias, of the negated gyro, in the recording's order
-                b = bias_trace(filt, reverse_recording(prec), None, self.BIAS_STEP, used)
-                bias = None if b is None else -b[::-1]
+            if r is None:  # the backward pass: its bias, of the negated gyro, in the recording's order (E: the same)
+                t = gyro_trace(filt, reverse_recording(prec), None, self.BIAS_STEP, used)
+                t = None if t is None else (-t[0][::-1], None if t[1] is None else t[1][::-1])
             else:
-                bias = bias_trace(filt, r, st, self.BIAS_STEP, used)
-            if bias is None:
-                bias = np.zeros((len(rec), 3))
+                t = gyro_trace(filt, r, st, self.BIAS_STEP, used)
+            bias, rate = (np.zeros((len(rec), 3)), None) if t is None else t
             bias = np.ascontiguousarray(np.where(np.isfinite(bias), bias, 0.0))
+            err = rate_rows(len(rec), p, rate)
             q = np.ascontiguousarray(q, dtype=float)
             if used == "numba":
                 o = np.empty_like(q)
                 gyr, acc = np.ascontiguousarray(rec.gyr, dtype=float), np.ascontiguousarray(rec.acc, dtype=float)
-                _smooth_kernel(q, gyr, acc, np.ascontiguousarray(rec.dt, dtype=float), bias, rest, gap, reverse, p,
-                               _smooth_state(p), o)
+                _smooth_kernel(q, gyr, acc, np.ascontiguousarray(rec.dt, dtype=float), bias, err, rest, gap, reverse,
+                               p, _smooth_state(p), o)
             else:
-                o = smooth_reference(q, rec.gyr, rec.acc, rec.dt, bias, rest, gap, reverse, p)
+                o = smooth_reference(q, rec.gyr, rec.acc, rec.dt, bias, rest, gap, reverse, p, err)
             out.append(o)
         return out[0], out[1]
 

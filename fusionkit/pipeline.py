@@ -370,12 +370,15 @@ class Pipeline(Filter):
         """Process ``rec``; start from ``state`` (``Result.diagnostics["state"]`` of an earlier
         run) to continue a split recording. ``bias_at``: increasing sample indices after which the
         gyro bias the filter uses is read, returned as ``diagnostics["bias_at"]`` ``(len, 3)`` (what
-        runs split after those samples would report as ``diagnostics["bias"]``, in one run)."""
+        runs split after those samples would report as ``diagnostics["bias"]``, in one run) and the
+        inclination's model there as ``diagnostics["inclination_model_at"]`` ``(len, 10)`` (a corrector's
+        ``inclination_model(state)``, e.g. ``inertial-tilt``'s; None where no corrector has one)."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         n = len(rec)
         probe_ends = _probe_ends(bias_at, n)
         biases: list[np.ndarray] = []
+        models: list[np.ndarray | None] = []  # the inclination's model at the same samples (:meth:`_inclination_model`)
         self._set_body(self.body_axes(rec))
         inputs = {"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}
         if self.models:  # a sensor model may change a sample before it is judged: the input first
@@ -408,7 +411,8 @@ class Pipeline(Filter):
         restart = (gaps | _after_saturation(rec.gyr, self.spec.gyr_range)) if self._restarts else np.zeros(n, bool)
         cuts = np.flatnonzero(restart).tolist()
         if used == "numba":
-            probe = (probe_ends, lambda s: biases.append(s["align"][BIAS:BIAS + 3].copy())) if probe_ends else None
+            probe = (probe_ends, lambda s: (biases.append(s["align"][BIAS:BIAS + 3].copy()),
+                                            models.append(self._inclination_model(s)))) if probe_ends else None
             self._run_compiled(st, kernels, gyr, rec.acc, mag_row, dt, has_mag, out_q, out_f, out_c, restart, cuts, gn,
                                bar, probe)
         else:
@@ -422,6 +426,7 @@ class Pipeline(Filter):
                     out_q[k], out_f[k], out_c[k] = q, f, c
                     if probe_ends and len(biases) < len(probe_ends) and k + 1 == probe_ends[len(biases)]:
                         biases.append(st["align"][BIAS:BIAS + 3].copy())
+                        models.append(self._inclination_model(st))
                 if bar is not None:
                     bar.update(stop - start)
         if bar is not None:
@@ -431,9 +436,19 @@ class Pipeline(Filter):
         diag = self._diagnostics(st, out_f, out_c, used)
         if bias_at is not None:
             diag["bias_at"] = np.array(biases).reshape(len(probe_ends), 3)
+            diag["inclination_model_at"] = None if not models or models[0] is None else np.array(models)
         report_disturbed(st["align"], st["dt"], self.spec.alignment.duration)
         mark_gaps(out_f, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.spec.max_gap))
         return Result(out_q, out_f, self.spec.frame, diag)
+
+    def _inclination_model(self, st) -> np.ndarray | None:
+        """What the first corrector with an ``inclination_model(state)`` (``inertial-tilt``'s: the
+        gyro's rate error E, the E w the bias carries, the time constant) holds in ``st``, else None."""
+        for cor, s in zip(self.correctors, st["cor"]):
+            r = getattr(cor, "inclination_model", None)
+            if r is not None:
+                return r(s)
+        return None
 
     def _restart(self, st) -> None:
         """Before a sample after a gap or a saturated gyro: the correctors that declare

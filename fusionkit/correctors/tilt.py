@@ -736,6 +736,20 @@ class InertialTilt(FactorCorrector):
         s[_KAP2] = self.config.gyro_rate_error ** 2
         return s
 
+    def inclination_model(self, state: np.ndarray) -> np.ndarray:
+        """What this state's inclination low-pass assumes now: ``(E's symmetric part 00, 11, 22, 01,
+        02, 12, c0, c1, c2, tau)``. ``E`` the gyro's rate error removed (``rate_error_estimate``;
+        zeros without it), ``c`` the ``E w`` the pipeline's bias carries for the next propagation
+        (``rate_error_correct``; zeros without it), ``tau`` the low-pass's time constant (with
+        ``tau_adapt`` the adaptive one, else ``tau``). The offline mode's smoothing reads it: the bias
+        without ``c``, the frame turned by the gyro less ``E w``, and the low-pass run the other way
+        with the pass's own ``tau`` (:func:`fusionkit.offline.gyro_trace`)."""
+        c = self.config
+        e = state[_E:_E + 6] if c.rate_error_estimate else np.zeros(6)
+        w = state[_EW:_EW + 3] if c.rate_error_correct else np.zeros(3)
+        tau = state[_TAU] if c.tau_adapt and state[_TAU] > 0.0 else c.tau
+        return np.concatenate([e, w, [tau]])
+
     def restart(self, state: np.ndarray) -> None:
         """The low-pass starts again (the fast start's running mean, or the next sample)."""
         state[_READY] = state[_NMEAN] = state[_TACC] = 0.0
