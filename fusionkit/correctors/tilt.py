@@ -746,6 +746,13 @@ class InertialTilt(FactorCorrector):
         """Its inclination error with ``tau_adapt`` (what :func:`_publish` writes), else nothing."""
         return self.publishes if self.config.tau_adapt else ()
 
+    def _publishing(self) -> bool:
+        """Whether it writes the channel each sample: with ``tau_adapt`` and a corrector in the pipeline
+        that reads it (``channel_read``, set by the pipeline; the sum, rotation, square root and division
+        of :func:`_publish` every sample are ~1 % of ``recommended``'s loop). Nobody reading, the channel
+        stays 0."""
+        return bool(self.config.tau_adapt and getattr(self, "channel_read", self.publishes))
+
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         s = np.zeros(_SIZE)
         s[_QA] = 1.0
@@ -778,7 +785,7 @@ class InertialTilt(FactorCorrector):
             self._tilt(state, r @ sample.acc, quat, bias, sample.dt, bool(flags & _REST), r @ w_b, z, w_b)
             if self.config.rate_error_correct:
                 bias += state[_EW:_EW + 3]
-            if self.config.tau_adapt and channel is not None:
+            if channel is not None and self._publishing():
                 _publish(state, channel)
         return quat_mul(state[_QA:_QA + 4], quat), 0
 
@@ -897,7 +904,7 @@ class InertialTilt(FactorCorrector):
                       float(c.tau_adapt), c.gyro_rate_error, c.tau_min, c.tau_max, c.adapt_window,
                       c.impulse_clip if c.impulse_clip is not None else 0.0, c.impulse_window, c.impulse_floor,
                       float(c.rate_error_estimate), c.rate_error_max, float(c.rate_error_correct),
-                      c.rate_error_interval, c.bias_update_interval])
+                      c.rate_error_interval, c.bias_update_interval, float(self._publishing())])
         return CorrectorKernel(inertial_tilt_kernel, p, mode="factor")
 
 
@@ -908,7 +915,8 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
     motion_bias_tau (0: off), bias_max, kalman (1) or lowpass (0), bias_sigma_init, bias_sigma_motion,
     bias_sigma_rest (0: None), bias_vertical_forgetting, tau_adapt, gyro_rate_error, tau_min, tau_max,
     adapt_window, impulse_clip (0: None), impulse_window, impulse_floor, rate_error_estimate, rate_error_max,
-    rate_error_correct, rate_error_interval, bias_update_interval)``; ``ch`` the pipeline's channel."""
+    rate_error_correct, rate_error_interval, bias_update_interval, publish (1: a corrector reads the channel))``;
+    ``ch`` the pipeline's channel."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
         v0, v1, v2 = k_rot(p0, p1, p2, p3, a0, a1, a2)
@@ -977,7 +985,7 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
         if p[20] != 0.0:  # rate_error_correct: the next propagation removes this sample's E w
             b[0], b[1], b[2] = b[0] + s[_EW], b[1] + s[_EW + 1], b[2] + s[_EW + 2]
         q[0], q[1], q[2], q[3] = e0, e1, e2, e3
-        if p[10] != 0.0:
+        if p[23] != 0.0:  # (tau_adapt, and something reads it)
             _k_publish(s, ch)
         return 0
     q[0], q[1], q[2], q[3] = k_qmul(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], q[0], q[1], q[2], q[3])
