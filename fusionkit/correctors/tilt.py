@@ -49,7 +49,8 @@ Options, each a separate idea:
 - **what its inclination error is, for the correctors after it** (with ``tau_adapt``; the pipeline's
   channel, :class:`fusionkit.types.Channel`): the linear acceleration the low-pass lets through now
   as the tilt it makes, the bias's part of the drift over ``tau``, and ``tau`` (:func:`_publish`;
-  ``mag-heading`` with ``inclination_noise`` reads them).
+  ``mag-heading`` with ``inclination_noise`` reads them; written only where a corrector after it
+  reads them, else the channel stays 0).
 - **the gyro's rate error estimated** (``rate_error_estimate``, off; ``recommended``'s
   ``gyro_rate_estimate``): the symmetric part of the gyro's scale and misalignment matrix E,
   learned by a Kalman filter from what the bias filter leaves of the correction
@@ -736,7 +737,8 @@ class InertialTilt(FactorCorrector):
     Config = InertialTiltConfig
     restarts: ClassVar[bool] = True
     #: with ``tau_adapt``, every sample with an accelerometer reading: the inclination error's bias
-    #: part, time constant and let-through tilt (:func:`_publish`; without ``tau_adapt``: nothing)
+    #: part, time constant and let-through tilt (:func:`_publish`; without ``tau_adapt``, or with no
+    #: corrector reading them, nothing)
     publishes: ClassVar[tuple[Channel, ...]] = (Channel.INCLINATION_VARIANCE, Channel.INCLINATION_TIME,
                                                 Channel.LET_THROUGH)
     source: ClassVar[str] = "fusionkit (source 002's channel separation; low-pass in the inertial frame)"
