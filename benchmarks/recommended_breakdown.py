@@ -54,8 +54,8 @@ def variants() -> dict[str, fk.Filter]:
         "without mag-heading": make(without("mag-heading")),
         "without inertial-tilt": make(without("inertial-tilt")),
         "inertial-tilt without the bias in motion": make(
-            lambda d: [c["params"].update(motion_bias_tau=None) for c in d["correctors"]
-                       if c["name"] == "inertial-tilt"]),
+            lambda d: [c["params"].update(motion_bias_tau=None, rate_error_estimate=False, rate_error_correct=False)
+                       for c in d["correctors"] if c["name"] == "inertial-tilt"]),
         "without rest-bias-lowpass": make(without("rest-bias-lowpass")),
     }
 

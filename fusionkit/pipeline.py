@@ -142,6 +142,9 @@ class Pipeline(Filter):
                               "state and rate corrector (reorder the correctors)")
         self._restarts = any(c.restarts for c in self.correctors)
         _check_channel(self.correctors)
+        read = {name for c in self.correctors for name in c.channel_reads()}
+        for c in self.correctors:  # what of its channel quantities a corrector after it reads (it may skip the rest)
+            c.channel_read = tuple(name for name in c.channel_publishes() if name in read)
         for c in self.correctors:
             if c.state_layout and c.state_layout != self.estimator.state_layout:
                 raise ConfigError(f"corrector {c.name!r} works on a {c.state_layout!r} estimator state, but estimator "

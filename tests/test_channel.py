@@ -49,8 +49,9 @@ def test_reference_equals_numba(steep, split):
 
 def test_the_tilt_publishes_its_inclination_error(steep):
     """inertial-tilt with tau_adapt writes its gyro part, time constant and let-through tilt into the
-    channel; without tau_adapt nothing (the channel stays 0, 'nothing known')."""
-    f = fk.make("recommended")
+    channel when a corrector reads it; without tau_adapt, or with no reader (``recommended``'s default:
+    mag-heading without ``inclination_noise``), nothing (the channel stays 0, 'nothing known')."""
+    f = fk.make("recommended", heading_inclination_noise=True)
     st = f.run(steep.slice(0, 3000)).diagnostics["state"]
     ch = st["align"][_CHAN:_CHAN + CHANNEL_SIZE]
     (i,) = [k for k, c in enumerate(f.correctors) if c.name == "inertial-tilt"]
@@ -60,6 +61,9 @@ def test_the_tilt_publishes_its_inclination_error(steep):
     assert 0.0 < np.linalg.norm(ch[Channel.LET_THROUGH:Channel.LET_THROUGH + 3]) < 10 * DEG
     st = fk.make("recommended", tau_adapt=False).run(steep.slice(0, 3000)).diagnostics["state"]
     assert not st["align"][_CHAN:_CHAN + CHANNEL_SIZE].any()
+    for backend in ("numba", "reference"):
+        st = fk.make("recommended").run(steep.slice(0, 300), backend=backend).diagnostics["state"]
+        assert not st["align"][_CHAN:_CHAN + CHANNEL_SIZE].any(), backend
 
 
 def test_the_coupling_at_a_steep_dip_shrinks(steep):

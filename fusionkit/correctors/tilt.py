@@ -49,7 +49,8 @@ Options, each a separate idea:
 - **what its inclination error is, for the correctors after it** (with ``tau_adapt``; the pipeline's
   channel, :class:`fusionkit.types.Channel`): the linear acceleration the low-pass lets through now
   as the tilt it makes, the bias's part of the drift over ``tau``, and ``tau`` (:func:`_publish`;
-  ``mag-heading`` with ``inclination_noise`` reads them).
+  ``mag-heading`` with ``inclination_noise`` reads them; written only where a corrector after it
+  reads them, else the channel stays 0).
 - **the gyro's rate error estimated** (``rate_error_estimate``, off; ``recommended``'s
   ``gyro_rate_estimate``): the symmetric part of the gyro's scale and misalignment matrix E,
   learned by a Kalman filter from what the bias filter leaves of the correction
@@ -59,6 +60,8 @@ Options, each a separate idea:
   ``rate_error_interval``: its Kalman update once per that many seconds of motion, not every sample
   (its measurement changes over the inclination's time constant; the noise scaled to keep the
   information per second).
+  ``bias_update_interval`` likewise for the bias filter's Kalman update (its low-passes and its
+  covariance's growth run every sample).
 
 After a timestamp gap or a saturated gyro (``restarts``) the low-pass starts again: the gravity
 seen in I before is stale. A sample without a valid accelerometer reading (or one the
@@ -118,7 +121,9 @@ RATE_ERROR, RATE_KAPPA2 = _E, _KAP2  # where a run's state holds E and kappa^2 (
 _ADT, _AF, _AK, _AV = _SCR + 36, _SCR + 37, _SCR + 38, _SCR + 39
 # rate_error_interval: the seconds and the samples in motion since the rate error's last Kalman update
 _ETACC, _ENACC = _SCR + 40, _SCR + 41
-_SIZE = _SCR + 42
+# bias_update_interval: the seconds and the samples in motion since the bias filter's last Kalman update
+_KTACC, _KNACC = _SCR + 42, _SCR + 43
+_SIZE = _SCR + 44
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
 _REST = int(Flag.REST)
@@ -450,6 +455,18 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
         return 0.0, 0.0, 0.0
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
     hu = u0 * hb0 + u1 * hb1 + u2 * hb2
+    if p[22] > 0.0:  # bias_update_interval: the update once per interval of motion, its noise over the samples
+        s[_KTACC] += dt
+        s[_KNACC] += 1.0
+        if s[_KTACC] + 0.5 * dt < p[22]:  # not yet: the covariance grew; the residual with the bias as it is
+            _sym_store(s, _P, q00, q01, q02, q11, q12, q22)
+            if p[18] == 0.0:
+                return 0.0, 0.0, 0.0
+            return (-r0 + hb0 - u0 * hu - (h[0] * b[0] + h[1] * b[1] + h[2] * b[2]),
+                    -r1 + hb1 - u1 * hu - (h[3] * b[0] + h[4] * b[1] + h[5] * b[2]),
+                    -r2 + hb2 - u2 * hu - (h[6] * b[0] + h[7] * b[1] + h[8] * b[2]))
+        wm, wv = wm / s[_KNACC], wv / s[_KNACC]
+        s[_KTACC] = s[_KNACC] = 0.0
     f0 = -r0 + hb0 - u0 * hu - (h[0] * b[0] + h[1] * b[1] + h[2] * b[2])
     f1 = -r1 + hb1 - u1 * hu - (h[3] * b[0] + h[4] * b[1] + h[5] * b[2])
     f2 = -r2 + hb2 - u2 * hu - (h[6] * b[0] + h[7] * b[1] + h[8] * b[2])
@@ -670,6 +687,11 @@ class InertialTiltConfig(PluginConfig):
         "each with the measurement noise divided by the samples it spans (the same information per second; the "
         "measurement is low-passed at tau, consecutive samples say almost the same). The regressor's low-pass "
         "and the correction E w run every sample. 0: an update every sample", ge=0)
+    bias_update_interval: float = param(
+        0.0, unit="s", description="kalman: the time of motion between the bias filter's Kalman updates, each with "
+        "the measurement noise divided by the samples it spans (the same information per second: the measurement "
+        "is the correction rate low-passed at tau, consecutive samples say almost the same). The low-passes and "
+        "the covariance's growth run every sample. 0: an update every sample", ge=0)
     tau_min: float = param(0.5, unit="s", description="tau_adapt: the shortest time constant", gt=0)
     tau_max: float = param(4.0, unit="s", description="tau_adapt: the longest time constant (the velocity estimate, "
                            "leaking with tau, does not see accelerations slower than a few tau)", gt=0)
@@ -715,7 +737,8 @@ class InertialTilt(FactorCorrector):
     Config = InertialTiltConfig
     restarts: ClassVar[bool] = True
     #: with ``tau_adapt``, every sample with an accelerometer reading: the inclination error's bias
-    #: part, time constant and let-through tilt (:func:`_publish`; without ``tau_adapt``: nothing)
+    #: part, time constant and let-through tilt (:func:`_publish`; without ``tau_adapt``, or with no
+    #: corrector reading them, nothing)
     publishes: ClassVar[tuple[Channel, ...]] = (Channel.INCLINATION_VARIANCE, Channel.INCLINATION_TIME,
                                                 Channel.LET_THROUGH)
     source: ClassVar[str] = "fusionkit (source 002's channel separation; low-pass in the inertial frame)"
@@ -724,6 +747,13 @@ class InertialTilt(FactorCorrector):
     def channel_publishes(self) -> tuple[Channel, ...]:
         """Its inclination error with ``tau_adapt`` (what :func:`_publish` writes), else nothing."""
         return self.publishes if self.config.tau_adapt else ()
+
+    def _publishing(self) -> bool:
+        """Whether it writes the channel each sample: with ``tau_adapt`` and a corrector in the pipeline
+        that reads it (``channel_read``, set by the pipeline; the sum, rotation, square root and division
+        of :func:`_publish` every sample are ~1 % of ``recommended``'s loop). Nobody reading, the channel
+        stays 0."""
+        return bool(self.config.tau_adapt and getattr(self, "channel_read", self.publishes))
 
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         s = np.zeros(_SIZE)
@@ -771,7 +801,7 @@ class InertialTilt(FactorCorrector):
             self._tilt(state, r @ sample.acc, quat, bias, sample.dt, bool(flags & _REST), r @ w_b, z, w_b)
             if self.config.rate_error_correct:
                 bias += state[_EW:_EW + 3]
-            if self.config.tau_adapt and channel is not None:
+            if channel is not None and self._publishing():
                 _publish(state, channel)
         return quat_mul(state[_QA:_QA + 4], quat), 0
 
@@ -862,6 +892,13 @@ class InertialTilt(FactorCorrector):
                 p -= p @ np.linalg.inv(p + wr * np.eye(3)) @ p
             return np.zeros(3)
         up = x[_UP:_UP + 3]
+        if c.bias_update_interval > 0.0:  # once per interval of motion, the noise over the samples it spans
+            x[_KTACC] += dt
+            x[_KNACC] += 1.0
+            if x[_KTACC] + 0.5 * dt < c.bias_update_interval:
+                return -r + hb - up * (up @ hb) - h @ bias
+            wm, wv = wm / x[_KNACC], wv / x[_KNACC]
+            x[_KTACC] = x[_KNACC] = 0.0
         e = -r + hb - up * (up @ hb) - h @ bias
         ne = float(np.linalg.norm(e))
         if ne > c.bias_max:
@@ -883,7 +920,7 @@ class InertialTilt(FactorCorrector):
                       float(c.tau_adapt), c.gyro_rate_error, c.tau_min, c.tau_max, c.adapt_window,
                       c.impulse_clip if c.impulse_clip is not None else 0.0, c.impulse_window, c.impulse_floor,
                       float(c.rate_error_estimate), c.rate_error_max, float(c.rate_error_correct),
-                      c.rate_error_interval])
+                      c.rate_error_interval, c.bias_update_interval, float(self._publishing())])
         return CorrectorKernel(inertial_tilt_kernel, p, mode="factor")
 
 
@@ -894,7 +931,8 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
     motion_bias_tau (0: off), bias_max, kalman (1) or lowpass (0), bias_sigma_init, bias_sigma_motion,
     bias_sigma_rest (0: None), bias_vertical_forgetting, tau_adapt, gyro_rate_error, tau_min, tau_max,
     adapt_window, impulse_clip (0: None), impulse_window, impulse_floor, rate_error_estimate, rate_error_max,
-    rate_error_correct, rate_error_interval)``; ``ch`` the pipeline's channel."""
+    rate_error_correct, rate_error_interval, bias_update_interval, publish (1: a corrector reads the channel))``;
+    ``ch`` the pipeline's channel."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
         v0, v1, v2 = k_rot(p0, p1, p2, p3, a0, a1, a2)
@@ -963,7 +1001,7 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
         if p[20] != 0.0:  # rate_error_correct: the next propagation removes this sample's E w
             b[0], b[1], b[2] = b[0] + s[_EW], b[1] + s[_EW + 1], b[2] + s[_EW + 2]
         q[0], q[1], q[2], q[3] = e0, e1, e2, e3
-        if p[10] != 0.0:
+        if p[23] != 0.0:  # (tau_adapt, and something reads it)
             _k_publish(s, ch)
         return 0
     q[0], q[1], q[2], q[3] = k_qmul(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], q[0], q[1], q[2], q[3])

@@ -102,6 +102,12 @@ class RecommendedConfig(FilterConfig):
         "(0.5-4 s), so consecutive samples say almost the same; each update's noise is divided by the samples it "
         "spans (the same information per second). 0.05 s: a tenth of the shortest time constant, 0.5 s "
         "(recommended.md). 0: an update every sample (the behaviour before)", ge=0)
+    bias_update_interval: float = param(
+        0.05, unit="s", description="bias_filter kalman: the time of motion between the bias filter's Kalman updates "
+        "(inertial-tilt's bias_update_interval): like gyro_rate_interval, its measurement is the correction low-passed "
+        "at the inclination's time constant, each update's noise divided by the samples it spans (the same "
+        "information per second); the low-passes and the covariance's growth run every sample (recommended.md). "
+        "0: an update every sample (the behaviour before)", ge=0)
     tau_mag: float = param(15.0, unit="s", description="heading_gain fixed: time constant of the heading correction",
                            gt=0)
     heading_gain: Literal["fixed", "kalman"] = param(
@@ -232,7 +238,8 @@ class RecommendedFilter(Pipeline):
             "bias_sigma_motion": c.bias_sigma_motion, "bias_sigma_rest": c.bias_sigma_rest if c.rest_bias else None,
             "tau_adapt": c.tau_adapt, "gyro_rate_error": c.gyro_rate_error, "impulse_clip": c.impulse_clip,
             "rate_error_estimate": c.gyro_rate_estimate != "off",
-            "rate_error_correct": c.gyro_rate_estimate == "correct", "rate_error_interval": c.gyro_rate_interval}))
+            "rate_error_correct": c.gyro_rate_estimate == "correct", "rate_error_interval": c.gyro_rate_interval,
+            "bias_update_interval": c.bias_update_interval}))
         if c.use_mag:
             magnetic = c.magnetic if c.fast_start else c.magnetic.model_copy(update={"init_time": 0.0})
             correctors.append(PluginSpec(name="mag-heading", params={

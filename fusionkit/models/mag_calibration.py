@@ -117,9 +117,11 @@ STATE_SOFT = 33 + 88
 # fill, then the raw field and the accelerometer's direction at the last _GK segment ends
 _GK = 32
 _GI, _GC, _GBUF = 0, 1, 2
-_GE = 17  # per segment end: the raw field, the accelerometer, |m|, |a|, the raw dip's sine, the segment's
-# first raw field and its turn (the quaternion body a -> body k) for the earth-frame test, and the raw field's
-# squared change across it (the earth-frame test's raw term: it depends on the segment alone)
+_GE = 22  # per segment end: the raw field, the accelerometer, |m|, |a|, the raw dip's sine, the segment's
+# first raw field and its turn (body a -> body k, as the rotation matrix C = R(dq), row-major: the earth-frame
+# test turns every ring entry at each check, and the matrix is computed once here instead of from the
+# quaternion at each check), and the raw field's squared change across it (the earth-frame test's raw term:
+# it depends on the segment alone)
 GATE = 2 + _GE * _GK
 # soft iron, after the gate: the inverse of the information matrix as of the last segment that entered the
 # fit, and whether it exists (the next segment's misfit test needs it: computed once, not twice)
@@ -355,16 +357,17 @@ def _turned(w, x, y, z, c) -> bool:
 def _ring_push(s, g, m, a, ma, dq):
     """A segment's end into the gate's ring (at ``s[g:]``): the raw field ``m`` and the
     accelerometer ``a`` (zeros when invalid), the segment's first raw field ``ma`` and its turn
-    ``dq`` (body a -> body k). The same statements in the reference and, compiled, in the kernel."""
+    ``dq`` (body a -> body k, stored as its rotation matrix). The same statements in the reference
+    and, compiled, in the kernel."""
     i = int(s[g + _GI])
     k = g + _GBUF + _GE * i
     for j in range(3):
         s[k + j] = m[j]
         s[k + 3 + j] = a[j]
         s[k + 9 + j] = ma[j]
-    for j in range(4):
-        s[k + 12 + j] = dq[j]
-    s[k + 16] = _field_change(m[0], m[1], m[2], ma[0], ma[1], ma[2], dq[0], dq[1], dq[2], dq[3])
+    (s[k + 12], s[k + 13], s[k + 14], s[k + 15], s[k + 16], s[k + 17], s[k + 18], s[k + 19],
+     s[k + 20]) = dcm_entries(dq[0], dq[1], dq[2], dq[3])
+    s[k + 21] = _field_change(m[0], m[1], m[2], ma[0], ma[1], ma[2], s, k + 12)
     # what the gate computes of the raw field at every check, once: its norm, the accelerometer's, the dip's sine
     nr = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
     na = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
@@ -464,14 +467,14 @@ def _earth_change(s, g, w, c, work):
         k = g + _GBUF + _GE * i
         mk0, mk1, mk2 = s[k], s[k + 1], s[k + 2]
         ma0, ma1, ma2 = s[k + 9], s[k + 10], s[k + 11]
-        raw[i] = s[k + 16]  # _field_change, computed when the segment entered the ring
+        raw[i] = s[k + 21]  # _field_change, computed when the segment entered the ring
         uk0 = w[0, 0] * mk0 + w[0, 1] * mk1 + w[0, 2] * mk2 - c[0]
         uk1 = w[1, 0] * mk0 + w[1, 1] * mk1 + w[1, 2] * mk2 - c[1]
         uk2 = w[2, 0] * mk0 + w[2, 1] * mk1 + w[2, 2] * mk2 - c[2]
         ua0 = w[0, 0] * ma0 + w[0, 1] * ma1 + w[0, 2] * ma2 - c[0]
         ua1 = w[1, 0] * ma0 + w[1, 1] * ma1 + w[1, 2] * ma2 - c[1]
         ua2 = w[2, 0] * ma0 + w[2, 1] * ma1 + w[2, 2] * ma2 - c[2]
-        cal[i] = _field_change(uk0, uk1, uk2, ua0, ua1, ua2, s[k + 12], s[k + 13], s[k + 14], s[k + 15])
+        cal[i] = _field_change(uk0, uk1, uk2, ua0, ua1, ua2, s, k + 12)
         nm = mk0 * mk0 + mk1 * mk1 + mk2 * mk2
         if nm > 0.0:
             size += ((uk0 - mk0) ** 2 + (uk1 - mk1) ** 2 + (uk2 - mk2) ** 2) / nm
@@ -479,12 +482,13 @@ def _earth_change(s, g, w, c, work):
 
 
 @njit(inline="always")
-def _field_change(mk0, mk1, mk2, ma0, ma1, ma2, qw, qx, qy, qz):
+def _field_change(mk0, mk1, mk2, ma0, ma1, ma2, s, i):
     """A field's squared change in the earth frame across one segment, ``|m_k - C^T m_a|^2``
-    (:func:`_earth_change`; ``C = R(q)``, the segment's turn): the raw field's depends on the
-    segment alone, so :func:`_ring_push` computes it once; the calibrated field's is taken at each
-    check. The same statements in the reference and, compiled, in the kernel."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = dcm_entries(qw, qx, qy, qz)  # C = R(dq)
+    (:func:`_earth_change`; ``C = R(dq)``, the segment's turn, row-major at ``s[i:i + 9]``): the raw
+    field's depends on the segment alone, so :func:`_ring_push` computes it once; the calibrated
+    field's is taken at each check. The same statements in the reference and, compiled, in the kernel."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = s[i], s[i + 1], s[i + 2], s[i + 3], s[i + 4], s[i + 5], \
+        s[i + 6], s[i + 7], s[i + 8]
     d0 = mk0 - (r00 * ma0 + r10 * ma1 + r20 * ma2)
     d1 = mk1 - (r01 * ma0 + r11 * ma1 + r21 * ma2)
     d2 = mk2 - (r02 * ma0 + r12 * ma1 + r22 * ma2)
