@@ -521,7 +521,8 @@ class _BlockCopy:
 # gives each violator's two rewrites only the blocks that mention it (a phi node may also go into
 # a block that does not: that block is then copied with the phi in front), in the function's
 # block order, with numba's own handlers: the same statements, names and phi nodes, in the same
-# order, as numba's pass (tests/test_numba_ssa.py compares the two on the kernels' IR).
+# order, as numba's pass (tests/test_numba_ssa.py compares the two on the kernels' IR). Installed
+# only where numba's functions have the source it was checked against (:data:`_NUMBA_SOURCES`).
 
 
 NUMBA_ORIGINAL: dict = {}  # numba's functions that the two passes below replace, by name (for the tests)
@@ -571,12 +572,32 @@ def _run_ssa_local(blocks):
     return blocks
 
 
+# The sources of the numba functions the two passes stand in for, as checked equal (numba 0.68.1,
+# tests/test_numba_ssa.py): another numba whose sources differ keeps its own passes.
+_NUMBA_SOURCES = {"_run_ssa": "c497422bcf049990", "_fix_ssa_vars": "3f183045a5355bf4",
+                  "_fresh_vars": "4a4d13bc0ec57cfb", "compute_live_map": "713c4c094977e93b"}
+
+
+def _same_source(func) -> bool:
+    """Whether numba's ``func`` has the source the replacement was checked against."""
+    import hashlib
+    import inspect
+
+    try:
+        digest = hashlib.sha256(inspect.getsource(func).encode()).hexdigest()[:16]
+    except (OSError, TypeError):
+        return False
+    return digest == _NUMBA_SOURCES.get(func.__name__)
+
+
 def _install_local_ssa() -> None:
     from numba.core import ssa
 
     needed = ("_iterated_domfronts", "_find_defs_violators", "_CacheListVars", "_make_states",
               "_run_block_rewrite", "_FreshVarHandler", "_FixSSAVars", "_compute_phi_locations")
-    if ssa._run_ssa is not _run_ssa_local and all(hasattr(ssa, n) for n in needed):
+    if ssa._run_ssa is _run_ssa_local or not all(hasattr(ssa, n) for n in needed):
+        return
+    if all(_same_source(getattr(ssa, n)) for n in ("_run_ssa", "_fix_ssa_vars", "_fresh_vars")):
         NUMBA_ORIGINAL.setdefault("_run_ssa", ssa._run_ssa)
         ssa._run_ssa = _run_ssa_local
 
@@ -648,6 +669,8 @@ def _live_map_bits(cfg, blocks, var_use_map, var_def_map):
 def _install_live_map_bits() -> None:
     from numba.core import analysis, ir_utils
 
+    if analysis.compute_live_map is _live_map_bits or not _same_source(analysis.compute_live_map):
+        return
     NUMBA_ORIGINAL.setdefault("compute_live_map", analysis.compute_live_map)
     for mod in (analysis, ir_utils):
         if getattr(mod, "compute_live_map", None) is not None:
@@ -672,7 +695,8 @@ if HAVE_NUMBA:
         def on_end(self, event):
             pass
 
-    _event.register("numba:compile", _FirstCompile())
+    FIRST_COMPILE = _FirstCompile()  # (its ``done``: the tests install again after restoring numba's passes)
+    _event.register("numba:compile", FIRST_COMPILE)
 
 
 _INLINED: dict = {}

@@ -363,7 +363,7 @@ def gyro_trace(filt: Filter, rec: Recording, state=None, step: float = 1.0,
     low-pass, per sample, read as :func:`bias_trace` reads the bias: ``(bias (N, 3), model (N, 7) or
     None)``. ``model``: a pipeline's ``diagnostics["inclination_model_at"]`` (``inertial-tilt``'s
     ``inclination_model``): the gyro's rate error E it removes (symmetric part 00, 11, 22, 01, 02,
-    12; zeros without ``rate_error_estimate``) and the low-pass's time constant ``tau``; None where
+    12; zeros without ``rate_error_correct``: only where the pass removed it) and the low-pass's time constant ``tau``; None where
     the filter has none. ``bias`` is then the bias itself: with ``rate_error_correct`` the
     pipeline's bias also carries the sample's ``E w`` for the next propagation, a term of that
     instant's rate, which interpolated over a second would be a wrong bias (on BROAD up to 2
@@ -437,7 +437,7 @@ def _smooth_state(p: np.ndarray) -> np.ndarray:
     return x
 
 
-def rate_rows(n: int, p: np.ndarray, rate: np.ndarray | None = None) -> np.ndarray:
+def rate_rows(n: int, rate: np.ndarray | None = None) -> np.ndarray:
     """The pass's model per sample for :func:`smooth_reference` ``(n, 7)``: ``rate`` (:func:`gyro_trace`:
     E's symmetric part, the time constant) as a contiguous array, or, where the filter reports none,
     no ``E`` and no time constant (NaN: the second low-pass chooses its own, :func:`smooth_reference`)."""
@@ -480,7 +480,7 @@ def smooth_reference(q_est: np.ndarray, gyr: np.ndarray, acc: np.ndarray, dt: np
     out = np.empty_like(q_est)
     x = _smooth_state(p)
     g = p[9]
-    err = rate_rows(n, p, rate)
+    err = rate_rows(n, rate)
 
     def body_rate(k):  # the gyro minus the bias, less the rate error E w
         w = np.where(np.isfinite(gyr[k]), gyr[k] - bias[k], 0.0)
@@ -874,7 +874,7 @@ class OfflineFilter(Filter):
                 t = gyro_trace(filt, r, st, self.BIAS_STEP, used)
             bias, rate = (np.zeros((len(rec), 3)), None) if t is None else t
             bias = np.ascontiguousarray(np.where(np.isfinite(bias), bias, 0.0))
-            err = rate_rows(len(rec), p, rate)
+            err = rate_rows(len(rec), rate)
             q = np.ascontiguousarray(q, dtype=float)
             if used == "numba":
                 o = np.empty_like(q)

@@ -143,7 +143,8 @@ class Pipeline(Filter):
         self._restarts = any(c.restarts for c in self.correctors)
         _check_channel(self.correctors)
         read = {name for c in self.correctors for name in c.channel_reads()}
-        for c in self.correctors:  # what of its channel quantities a corrector after it reads (it may skip the rest)
+        for c in self.correctors:  # what of its channel quantities another corrector reads (it may skip the rest;
+            # _check_channel has made sure every reader comes after its publisher)
             c.channel_read = tuple(name for name in c.channel_publishes() if name in read)
         for c in self.correctors:
             if c.state_layout and c.state_layout != self.estimator.state_layout:

@@ -110,3 +110,31 @@ def test_the_bias_update_every_interval_learns_as_every_sample(scaled):
     assert not np.array_equal(spaced.quat, every.quat)  # (the interval is applied)
     with pytest.raises(fk.ConfigError, match="bias_update_interval"):
         fk.make("recommended", bias_update_interval=-0.1)
+
+
+def test_a_restart_starts_the_decimated_updates_counting_again():
+    """After a gap (``restart``) the bias filter's and the rate error's low-passes start again, and so
+    do the samples counted towards their next once-per-interval update: an update right after the
+    gap must not divide by the samples of before it."""
+    from fusionkit.correctors import tilt
+
+    (c,) = [c for c in fk.make("recommended").correctors if c.name == "inertial-tilt"]
+    x = c.initial_state(0.01, "ENU")
+    for i in (tilt._KTACC, tilt._KNACC, tilt._ETACC, tilt._ENACC):
+        x[i] = 0.04
+    c.restart(x)
+    assert x[[tilt._KTACC, tilt._KNACC, tilt._ETACC, tilt._ENACC]].tolist() == [0.0] * 4
+
+
+@pytest.mark.parametrize("mode", ["tau", "correct"])
+def test_the_offline_smoothing_reads_E_only_where_the_pass_removed_it(mode):
+    """``inclination_model`` (what the offline smoothing turns its frame with): E where the pass
+    took ``E w`` off the gyro (``correct``), zeros where E only sets the time constant (``tau``)."""
+    from fusionkit.correctors import tilt
+
+    (c,) = [c for c in fk.make("recommended", gyro_rate_estimate=mode).correctors if c.name == "inertial-tilt"]
+    x = c.initial_state(0.01, "ENU")
+    x[tilt._E:tilt._E + 6] = [0.01, -0.02, 0.015, 0.001, 0.002, 0.003]
+    m = c.inclination_model(x)
+    expected = x[tilt._E:tilt._E + 6] if mode == "correct" else np.zeros(6)
+    np.testing.assert_array_equal(m[:6], expected)

@@ -57,13 +57,46 @@ def test_ssa_and_live_map_equal_numbas(kernel):
     assert sum(map(len, expected.values())) > 100  # (variables live across blocks: a real check)
 
 
-def test_the_passes_are_installed_at_the_first_compile():
+def _restore_numbas():
     from numba.core import analysis, ir_utils, ssa
 
-    import fusionkit as fk
-    from fusionkit import sim
+    numba_ssa, numba_live = _originals()
+    ssa._run_ssa = numba_ssa
+    analysis.compute_live_map = ir_utils.compute_live_map = numba_live
 
-    fk.make("gradient-descent").run(sim.simulate([sim.Rest(0.5)], rate=50.0), backend="numba")
+
+def test_the_passes_are_installed_at_the_first_compile():
+    """numba's own passes restored: the next compile in the process installs fusionkit's."""
+    import numba
+    from numba.core import analysis, ir_utils, ssa
+
+    _restore_numbas()
+    fn.FIRST_COMPILE.done = False
+    try:
+        assert ssa._run_ssa is not fn._run_ssa_local
+        numba.njit(lambda x: x + 1.0)(1.0)  # (a function of its own: compiled, not loaded)
+    finally:
+        fn._install_local_ssa()
+        fn._install_live_map_bits()
+    assert fn.FIRST_COMPILE.done
     assert ssa._run_ssa is fn._run_ssa_local
     assert analysis.compute_live_map is fn._live_map_bits
     assert ir_utils.compute_live_map is fn._live_map_bits
+
+
+def test_a_numba_with_other_sources_keeps_its_own_passes(monkeypatch):
+    from numba.core import analysis, ssa
+
+    _restore_numbas()
+    try:
+        monkeypatch.setitem(fn._NUMBA_SOURCES, "_run_ssa", "0" * 16)
+        monkeypatch.setitem(fn._NUMBA_SOURCES, "compute_live_map", "0" * 16)
+        fn._install_local_ssa()
+        fn._install_live_map_bits()
+        assert ssa._run_ssa is fn.NUMBA_ORIGINAL["_run_ssa"]
+        assert analysis.compute_live_map is fn.NUMBA_ORIGINAL["compute_live_map"]
+    finally:
+        monkeypatch.undo()
+        fn._install_local_ssa()
+        fn._install_live_map_bits()
+    assert ssa._run_ssa is fn._run_ssa_local

@@ -65,7 +65,7 @@ def test_kernel_equals_reference():
             for r in (None, rate):
                 ref = smooth_reference(q, gyr, acc, dt, bias, rest, gap, reverse, p, r)
                 out = np.empty_like(q)
-                offline._smooth_kernel(q, gyr, acc, dt, bias, offline.rate_rows(n, p, r), rest, gap, reverse, p,
+                offline._smooth_kernel(q, gyr, acc, dt, bias, offline.rate_rows(n, r), rest, gap, reverse, p,
                                        offline._smooth_state(p), out)
                 np.testing.assert_allclose(out, ref, rtol=0, atol=1e-9)
                 assert np.all(np.isfinite(out))

@@ -768,14 +768,14 @@ class InertialTilt(FactorCorrector):
 
     def inclination_model(self, state: np.ndarray) -> np.ndarray:
         """What this state's inclination low-pass assumes now: ``(E's symmetric part 00, 11, 22, 01,
-        02, 12, c0, c1, c2, tau)``. ``E`` the gyro's rate error removed (``rate_error_estimate``;
-        zeros without it), ``c`` the ``E w`` the pipeline's bias carries for the next propagation
+        02, 12, c0, c1, c2, tau)``. ``E`` the gyro's rate error removed (``rate_error_correct``;
+        zeros without it, also where E is only estimated: the pass's propagation kept ``E w`` then), ``c`` the ``E w`` the pipeline's bias carries for the next propagation
         (``rate_error_correct``; zeros without it), ``tau`` the low-pass's time constant (with
         ``tau_adapt`` the adaptive one, else ``tau``). The offline mode's smoothing reads it: the bias
         without ``c``, the frame turned by the gyro less ``E w``, and the low-pass run the other way
         with the pass's own ``tau`` (:func:`fusionkit.offline.gyro_trace`)."""
         c = self.config
-        e = state[_E:_E + 6] if c.rate_error_estimate else np.zeros(6)
+        e = state[_E:_E + 6] if c.rate_error_correct else np.zeros(6)  # (estimated only: the pass kept E w)
         w = state[_EW:_EW + 3] if c.rate_error_correct else np.zeros(3)
         tau = state[_TAU] if c.tau_adapt and state[_TAU] > 0.0 else c.tau
         return np.concatenate([e, w, [tau]])
@@ -788,6 +788,8 @@ class InertialTilt(FactorCorrector):
         state[_NST] = 0.0  # and the adaptive time constant's statistics
         state[_IMN] = 0.0  # and the impulse clip's mean square
         state[_EREADY] = 0.0  # and the rate error's regressor (E and its covariance are the gyro's: kept)
+        # and the samples counted towards the next decimated updates (bias filter, rate error)
+        state[_KTACC] = state[_KNACC] = state[_ETACC] = state[_ENACC] = 0.0
 
     def compose(self, state, quat, sample, bias, rate, flags, channel=None):
         if sample.acc is not None:
