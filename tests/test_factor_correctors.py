@@ -167,8 +167,12 @@ def test_fast_start():
 
 
 def test_output_lead_changes_the_output_only(rec):
-    a = composition(["inertial-tilt"]).run(rec)
-    b = composition(["inertial-tilt", {"name": "output-lead", "params": {"lead": 0.02}}]).run(rec)
+    """In recommended's compositions with and without it (test_recommended compiles both): what
+    output-lead does not touch is the same whatever the correctors before it."""
+    lead = fk.make("recommended", output_lead=0.02)
+    assert lead.correctors[-1].name == "output-lead"
+    assert "output-lead" not in [c.name for c in fk.make("recommended").correctors]
+    a, b = fk.make("recommended").run(rec), lead.run(rec)
     np.testing.assert_allclose(a.diagnostics["state"]["x"], b.diagnostics["state"]["x"], atol=1e-12)
     moving = rec.movement & (np.linalg.norm(rec.gyr, axis=1) > 0.5)
     assert broad_errors(a.quat, b.quat)["total"][moving].min() > 0.3  # |w| lead > 0.5 rad/s * 20 ms

@@ -250,7 +250,7 @@ def test_gnss_gap_detector_and_gst_gnss_compile_together():
     crit = a.diagnostics["criteria"]
     assert (crit[(rec.time > 20.6) & (rec.time < 30.0)] == 1).all() and (crit[rec.time < 11.0] == 2).all()
     assert (crit[(rec.time > 18.0) & (rec.time < 20.0)] == 0).all()  # above 5 m/s
-    bare = fk.Recording(gyr=rec.gyr, acc=rec.acc, rate=100.0)
+    bare = fk.Recording(gyr=rec.gyr[:1500], acc=rec.acc[:1500], rate=100.0)  # the alignment, then 10 s of gaps
     c, d = p.run(bare, backend="numba"), p.run(bare, backend="reference")
     assert np.abs(c.quat - d.quat).max() < 1e-9 and np.array_equal(c.flags, d.flags)
     assert (c.diagnostics["criteria"] == 1).all()

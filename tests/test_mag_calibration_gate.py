@@ -73,13 +73,15 @@ def test_no_body_fixed_iron_leaves_the_output_unchanged(runs, name):
 
 def test_confidence_alone_takes_the_earth_fixed_magnet_for_iron():
     """The model before the gate (``consistency=False``, still available) applies a calibration
-    near the desk magnet; the gate refuses it."""
+    near the desk magnet; the gate refuses it. In the kernel test's composition below (with
+    gradient-descent): the gate's decision does not depend on it, and a composition is a compile."""
     rec = sim.scenarios.magnet_nearby()
     conf = {}
     for gate in (False, True):
         p = fk.compose({"estimator": "poisson-quat", "models": [{"name": "mag-calibration",
                                                                  "params": {"consistency": gate}}],
-                        "alignment": {"mode": "fixed", "duration": 1.0}})
+                        "correctors": [{"name": "gradient-descent", "params": {"use_mag": True}}],
+                        "alignment": {"mode": "fixed", "duration": 1.0, "heading": "auto"}})
         conf[gate] = p.run(rec).diagnostics["state"]["mod"][0][CONF]
     assert conf == {False: 1.0, True: 0.0}
 
