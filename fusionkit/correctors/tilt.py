@@ -455,6 +455,9 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
         return 0.0, 0.0, 0.0
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
     hu = u0 * hb0 + u1 * hb1 + u2 * hb2
+    f0 = -r0 + hb0 - u0 * hu - (h[0] * b[0] + h[1] * b[1] + h[2] * b[2])
+    f1 = -r1 + hb1 - u1 * hu - (h[3] * b[0] + h[4] * b[1] + h[5] * b[2])
+    f2 = -r2 + hb2 - u2 * hu - (h[6] * b[0] + h[7] * b[1] + h[8] * b[2])
     if p[22] > 0.0:  # bias_update_interval: the update once per interval of motion, its noise over the samples
         s[_KTACC] += dt
         s[_KNACC] += 1.0
@@ -462,14 +465,9 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
             _sym_store(s, _P, q00, q01, q02, q11, q12, q22)
             if p[18] == 0.0:
                 return 0.0, 0.0, 0.0
-            return (-r0 + hb0 - u0 * hu - (h[0] * b[0] + h[1] * b[1] + h[2] * b[2]),
-                    -r1 + hb1 - u1 * hu - (h[3] * b[0] + h[4] * b[1] + h[5] * b[2]),
-                    -r2 + hb2 - u2 * hu - (h[6] * b[0] + h[7] * b[1] + h[8] * b[2]))
+            return f0, f1, f2
         wm, wv = wm / s[_KNACC], wv / s[_KNACC]
         s[_KTACC] = s[_KNACC] = 0.0
-    f0 = -r0 + hb0 - u0 * hu - (h[0] * b[0] + h[1] * b[1] + h[2] * b[2])
-    f1 = -r1 + hb1 - u1 * hu - (h[3] * b[0] + h[4] * b[1] + h[5] * b[2])
-    f2 = -r2 + hb2 - u2 * hu - (h[6] * b[0] + h[7] * b[1] + h[8] * b[2])
     ne2 = f0 * f0 + f1 * f1 + f2 * f2  # (the square root only to clamp)
     if ne2 > p[4] * p[4]:
         g = p[4] / math.sqrt(ne2)
@@ -894,14 +892,14 @@ class InertialTilt(FactorCorrector):
                 p -= p @ np.linalg.inv(p + wr * np.eye(3)) @ p
             return np.zeros(3)
         up = x[_UP:_UP + 3]
+        e = -r + hb - up * (up @ hb) - h @ bias
         if c.bias_update_interval > 0.0:  # once per interval of motion, the noise over the samples it spans
             x[_KTACC] += dt
             x[_KNACC] += 1.0
             if x[_KTACC] + 0.5 * dt < c.bias_update_interval:
-                return -r + hb - up * (up @ hb) - h @ bias
+                return e  # (the residual with the bias as it is)
             wm, wv = wm / x[_KNACC], wv / x[_KNACC]
             x[_KTACC] = x[_KNACC] = 0.0
-        e = -r + hb - up * (up @ hb) - h @ bias
         ne = float(np.linalg.norm(e))
         if ne > c.bias_max:
             e *= c.bias_max / ne
