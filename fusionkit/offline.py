@@ -698,8 +698,7 @@ class OfflineFilter(Filter):
             rec, gyro_timing = self._gyro_retimed(rec, inner.config, used)
         elif isinstance(self.gyro_timing, float) and self.gyro_timing != 0.0:  # a delay the user knows
             gyro_timing = {"delay": self.gyro_timing, "std": 0.0, "applied": True}
-            rec = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
-            rec.gyr = retime_gyro(rec.gyr, rec.time, self.gyro_timing)
+            rec = _with_gyro_retimed(rec, self.gyro_timing)
         choice = None
         if self.calibration == "recording" and len(rec) >= 2 and self.dimension(rec) == "9D":
             split = _split_calibration(inner)
@@ -832,10 +831,8 @@ class OfflineFilter(Filter):
         info = {"delay": delay, "std": std, "check": check, "check_std": check_std, "applied": applied}
         if not applied:
             return rec, info
-        out = copy.copy(rec)  # a shallow copy: the samples passed the Recording's checks already
         limit = TimeOffsetModel.Config().max_offset
-        out.gyr = retime_gyro(rec.gyr, rec.time, min(max(delay, -limit), limit))
-        return out, info
+        return _with_gyro_retimed(rec, min(max(delay, -limit), limit)), info
 
     @staticmethod
     def _without(rec, disturbed, inner, back, backend, progress, state):
@@ -1069,6 +1066,14 @@ def _delay_state(rec, gyr_range, acc_range, backend, segment_time=None):
     else:
         _model_reference(model, s, rec.gyr, rec.acc, mag, dt, gyr_range, acc_range)
     return s, model
+
+
+def _with_gyro_retimed(rec: Recording, delay: float) -> Recording:
+    """``rec`` with its gyroscope ``delay`` s earlier (:func:`retime_gyro`): a shallow copy, the
+    samples passed the Recording's checks already."""
+    out = copy.copy(rec)
+    out.gyr = retime_gyro(rec.gyr, rec.time, delay)
+    return out
 
 
 def retime_gyro(gyr: np.ndarray, time: np.ndarray, delay: float) -> np.ndarray:
