@@ -224,6 +224,10 @@ class Corrector(Plugin, ABC):
     #: what a configuration reads and writes)
     publishes: ClassVar[tuple[Channel, ...]] = ()
     reads: ClassVar[tuple[Channel, ...]] = ()
+    #: which of its :meth:`channel_publishes` a corrector after it reads, set by the pipeline that
+    #: hosts it; None outside a pipeline (all of them, as far as it can know). A publisher may skip
+    #: writing what nobody reads (the channel then keeps 0, "nothing known")
+    channel_read: tuple[Channel, ...] | None = None
 
     @property
     def uses_channel(self) -> bool:

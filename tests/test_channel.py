@@ -212,3 +212,19 @@ def test_bias_and_rate_correctors_get_the_channel_on_both_paths():
     with pytest.raises(ConfigError, match="test-early.*put the publisher first"):
         Pipeline({"estimator": "poisson-quat", "alignment": {"mode": "none"},
                   "correctors": [{"name": "inertial-tilt", "params": {"tau_adapt": True}}, "test-early"]}, registry=reg)
+
+
+def test_the_pipeline_tells_a_publisher_what_is_read():
+    """``Corrector.channel_read``: the pipeline sets it to what of a corrector's publications a later
+    corrector reads (inertial-tilt skips writing the rest); outside a pipeline it is None and the
+    corrector writes everything it publishes."""
+    def tilt_of(f):
+        (c,) = [c for c in f.correctors if c.name == "inertial-tilt"]
+        return c
+
+    read = tilt_of(fk.make("recommended", heading_inclination_noise=True))
+    assert Channel.INCLINATION_VARIANCE in read.channel_read and read._publishing()
+    unread = tilt_of(fk.make("recommended"))
+    assert unread.channel_read == () and not unread._publishing()
+    alone = type(unread)(unread.config)
+    assert alone.channel_read is None and alone._publishing()

@@ -748,10 +748,11 @@ class InertialTilt(FactorCorrector):
 
     def _publishing(self) -> bool:
         """Whether it writes the channel each sample: with ``tau_adapt`` and a corrector in the pipeline
-        that reads it (``channel_read``, set by the pipeline; the sum, rotation, square root and division
-        of :func:`_publish` every sample are ~1 % of ``recommended``'s loop). Nobody reading, the channel
-        stays 0."""
-        return bool(self.config.tau_adapt and getattr(self, "channel_read", self.publishes))
+        that reads it (:attr:`~fusionkit.protocols.Corrector.channel_read`; the sum, rotation, square root
+        and division of :func:`_publish` every sample are ~1 % of ``recommended``'s loop). Nobody
+        reading, the channel stays 0."""
+        read = self.publishes if self.channel_read is None else self.channel_read
+        return bool(self.config.tau_adapt and read)
 
     def initial_state(self, dt: float, frame: str) -> np.ndarray:
         s = np.zeros(_SIZE)
