@@ -40,8 +40,8 @@ Options, each a separate idea:
   10 s statistics tau comes from resolve; computing the set and scaling the delay lines every sample
   put a tangent, divisions and 30 products on each sample's chain).
 
-- **the low-pass at ``tau_max``** (``tau_max_parallel``, off): with ``tau_adapt``, a second low-pass at
-  ``tau_max`` runs from the start; when ``tau`` reaches ``tau_max`` the inclination low-pass takes its delay
+- **the low-pass at ``tau_max``** (``tau_max_parallel``, off; ``recommended``: on): with ``tau_adapt``, a
+  second low-pass at ``tau_max`` runs from the start; when ``tau`` reaches ``tau_max`` the inclination low-pass takes its delay
   lines (:func:`_parallel_switch`): a rescaled low-pass keeps what the shorter ``tau`` let through at the
   onset of a sustained shaking. ``q_tilt`` takes the jump apart from the correction, so the bias filter does
   not read it as drift.
@@ -864,6 +864,8 @@ class InertialTilt(FactorCorrector):
             w_b = sample.gyr - bias  # (with rate_error_correct: the rate the propagation used, E w removed)
             if self.config.rate_error_correct:
                 bias -= state[_EW:_EW + 3]  # the bias itself, for the bias filter
+                if not state[_READY]:  # (a restart's fast start: the E w of a sample before it is stale)
+                    state[_EW:_EW + 3] = 0.0
             self._tilt(state, r @ sample.acc, quat, bias, sample.dt, bool(flags & _REST), r @ w_b, z, w_b)
             if self.config.rate_error_correct:
                 bias += state[_EW:_EW + 3]
@@ -1024,6 +1026,8 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
         wb0, wb1, wb2 = g0 - b[0], g1 - b[1], g2 - b[2]  # the body rate before the bias filter's update
         if p[20] != 0.0:  # rate_error_correct: the bias itself, for the bias filter
             b[0], b[1], b[2] = b[0] - s[_EW], b[1] - s[_EW + 1], b[2] - s[_EW + 2]
+            if s[_READY] == 0.0:  # (a restart's fast start: the E w of a sample before it is stale)
+                s[_EW], s[_EW + 1], s[_EW + 2] = 0.0, 0.0, 0.0
         if p[10] != 0.0:
             w0, w1, w2 = k_rot(p0, p1, p2, p3, wb0, wb1, wb2)
             z0 = z1 = z2 = 0.0
@@ -1070,7 +1074,8 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                 ru = 1.0 / math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
                 rw = 1.0 / math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
                 u0, u1, u2, w0, w1, w2 = u0 * ru, u1 * ru, u2 * ru, w0 * rw, w1 * rw, w2 * rw
-                j0, j1, j2, j3 = 1.0 + u0 * w0 + u1 * w1 + u2 * w2, u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
+                j0 = 1.0 + u0 * w0 + u1 * w1 + u2 * w2
+                j1, j2, j3 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
                 rj = 1.0 / math.sqrt(j0 * j0 + j1 * j1 + j2 * j2 + j3 * j3)
                 t0, t1, t2, t3 = k_qmul(j0 * rj, j1 * rj, j2 * rj, j3 * rj, s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3])
                 s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3] = t0, t1, t2, t3
