@@ -10,7 +10,7 @@ import fusionkit as fk
 from fusionkit import sim
 from fusionkit.benchmarking.metrics import broad_errors
 from fusionkit.conventions import change_frame, euler_to_quat, up_vector
-from fusionkit.correctors.tilt import _TAU
+from fusionkit.correctors.tilt import _PMAX, _TAU
 from fusionkit.rotations import quat_to_matrix
 from fusionkit.types import CHANNEL_SIZE, Flag
 
@@ -176,18 +176,22 @@ def test_a_rest_does_not_pin_the_bias_in_motion():
     # (None: a rest says nothing about the error in motion) learns it (0.60); lowpass 2.00, none 2.74. The
     # bias filters compared at the fixed time constant (tau_adapt=False); the adaptive one (default) shortens
     # it under this turn (the scale factor's drift): 0.43, and lowpass 0.91. The bias models compared without
-    # the rate error's estimate (gyro_rate_estimate "off"), which takes E w out of the bias's way (the default)
+    # the rate error's estimate (gyro_rate_estimate "off"), which takes E w out of the bias's way (the default):
+    # with it the rest's bias is the bias in motion, and the default pins it (bias_sigma_rest 0.03 deg/s since
+    # issue 14's tau_max_parallel stop): 0.21, the same as without the pin (0.21)
     segs = [sim.Rest(8.0)] + [sim.Rotate((1, 0.5, 0.2), 360 * DEG, 2.0) for _ in range(25)] + [sim.Rest(1.0)]
     r = sim.simulate(segs, rate=200.0, noise=sim.Noise(gyr_noise=0.005, gyr_bias=(0.004, -0.006, 0.003),
                      acc_noise=0.03), seed=0, errors=sim.SensorErrors(gyr_scale=(0.01, -0.015, 0.02)))
     late = np.arange(len(r)) > len(r) // 2
     err = {k: inclination(fk.make("recommended", use_mag=False, **kw).run(r), r)[late].mean() for k, kw in
-           {"fixed": {"tau_adapt": False, "gyro_rate_estimate": "off"},
+           {"fixed": {"tau_adapt": False, "gyro_rate_estimate": "off", "bias_sigma_rest": None},
             "vqf": {"tau_adapt": False, "bias_sigma_rest": 0.03 * DEG, "gyro_rate_estimate": "off"},
-            "lowpass": {"tau_adapt": False, "bias_filter": "lowpass"}, "default": {}}.items()}
+            "lowpass": {"tau_adapt": False, "bias_filter": "lowpass"}, "default": {},
+            "unpinned": {"bias_sigma_rest": None}}.items()}
     assert err["fixed"] < 0.4 * err["vqf"]
     assert err["fixed"] < 0.4 * err["lowpass"]
     assert err["default"] < 0.8 * err["fixed"]
+    assert err["default"] < err["unpinned"] + 0.02
 
 
 def translation(seed=1, n=40):
@@ -221,6 +225,46 @@ def test_adaptive_time_constant_under_translation():
     # a still sensor keeps tau_acc (a turn shortens it: test_a_rest_does_not_pin_the_bias_in_motion)
     still = sim.simulate([sim.Rest(20.0)], rate=100.0, noise=sim.Noise(gyr_noise=0.002, acc_noise=0.02), seed=0)
     assert f.run(still).diagnostics["state"]["cor"][tilt][_TAU] == pytest.approx(2.0, abs=0.01)
+
+
+def test_tau_max_parallel_drops_what_the_onset_let_through():
+    # the pushes start after a rest: tau climbs from tau_acc (2 s) to tau_max (4 s) in the first seconds, and the
+    # adaptive low-pass (its delay lines rescaled) keeps what 2 s let through; tau_max_parallel takes the low-pass
+    # at tau_max run from the start instead (issue 14, BROAD trial 15's onset). Seed 1, RMS over 6-20 s (the
+    # onset) / the whole motion, deg: before (neither, bias_sigma_rest None) 0.53 / 0.235; tau_max_parallel 0.43 /
+    # 0.206; the rest's pin alone 0.91 / 0.360 (a known bias lengthens tau sooner, and the onset is kept longer);
+    # both (the default) 0.17 / 0.152, as tau_max throughout (0.15 / 0.147)
+    r = translation()
+    t = np.arange(len(r.gyr)) * 0.01
+    onset = r.movement & (t > 6.0) & (t < 20.0)
+    err = {k: inclination(fk.make("recommended", use_mag=False, **kw).run(r), r) for k, kw in
+           {"before": {"tau_max_parallel": False, "bias_sigma_rest": None}, "parallel": {"bias_sigma_rest": None},
+            "pin": {"tau_max_parallel": False}, "default": {}}.items()}
+
+    def rms(k, m):
+        return float(np.sqrt(np.mean(err[k][m] ** 2)))
+
+    assert rms("parallel", onset) < 0.85 * rms("before", onset)
+    assert rms("parallel", r.movement) < 0.92 * rms("before", r.movement)
+    assert rms("default", onset) < 0.4 * rms("before", onset)
+    assert rms("default", r.movement) < 0.75 * rms("before", r.movement)
+    assert rms("pin", r.movement) > 1.5 * rms("default", r.movement)
+    # a motion whose tau never reaches tau_max is not touched
+    c = fk.make("recommended", use_mag=False).run(knocked(0))
+    np.testing.assert_array_equal(c.quat, fk.make("recommended", use_mag=False, tau_max_parallel=False)
+                                  .run(knocked(0)).quat)
+
+
+def test_tau_max_parallel_reference_equals_numba():
+    r = translation(n=6)  # the switch to the low-pass at tau_max at about 9 s
+    f = fk.make("recommended", use_mag=False, tau_max_parallel=True)
+    a, b = f.run(r, backend="numba"), f.run(r, backend="reference")
+    np.testing.assert_allclose(a.quat, b.quat, atol=1e-9)
+    np.testing.assert_allclose(flat_state(a), flat_state(b), atol=1e-9)
+    tilt = next(i for i, c in enumerate(f.correctors) if c.name == "inertial-tilt")
+    assert a.diagnostics["state"]["cor"][tilt][_PMAX] == 1.0  # at tau_max at the end, switched on the way
+    plain = fk.make("recommended", use_mag=False, tau_max_parallel=False).run(r)
+    assert np.abs(inclination(a, r) - inclination(plain, r)).max() > 0.05  # deg: the switch moved the output
 
 
 def knocked(seed, knocks=True):

@@ -251,8 +251,9 @@ def test_the_error_a_saturated_gyro_causes_is_bounded(spun, name):
     res = fk.make(name, gyr_range=30.0).run(spun)
     last = np.flatnonzero(res.flags & Flag.GYR_SATURATED)[-1]
     e = errors(res, spun)
-    if name == "recommended":
-        assert e[last + 1:].max() < 2.0
+    if name == "recommended":  # 0.18 deg: the rate error's E w of the last sample before the restart is not
+        # carried through the restart's fast start (it was: 1.33, with the rest's pin 3.19, a stale -1 to -3 deg/s)
+        assert e[last + 1:].max() < 0.5
     else:
         assert e[-1] < e[last + 1] / 3.0
 

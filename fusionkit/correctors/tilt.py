@@ -40,6 +40,12 @@ Options, each a separate idea:
   10 s statistics tau comes from resolve; computing the set and scaling the delay lines every sample
   put a tangent, divisions and 30 products on each sample's chain).
 
+- **the low-pass at ``tau_max``** (``tau_max_parallel``, off; ``recommended``: on): with ``tau_adapt``, a
+  second low-pass at ``tau_max`` runs from the start; when ``tau`` reaches ``tau_max`` the inclination low-pass takes its delay
+  lines (:func:`_parallel_switch`): a rescaled low-pass keeps what the shorter ``tau`` let through at the
+  onset of a sustained shaking. ``q_tilt`` takes the jump apart from the correction, so the bias filter does
+  not read it as drift.
+
 - **impulses** (``impulse_clip``, off by default; ``recommended``: 10): before the low-pass, the
   specific force's departure from the low-passed vector is limited to ``impulse_clip`` times its
   running RMS (:func:`_impulse_clip`, a Huber step whose scale learns from the limited departures over
@@ -123,7 +129,10 @@ _ADT, _AF, _AK, _AV = _SCR + 36, _SCR + 37, _SCR + 38, _SCR + 39
 _ETACC, _ENACC = _SCR + 40, _SCR + 41
 # bias_update_interval: the seconds and the samples in motion since the bias filter's last Kalman update
 _KTACC, _KNACC = _SCR + 42, _SCR + 43
-_SIZE = _SCR + 44
+# tau_max_parallel: the second low-pass's (at tau_max) delay lines, its coefficients for the last dt, whether it
+# started, and whether the last sample's tau was tau_max
+_PZ1, _PZ2, _PB, _PREADY, _PMAX = _SCR + 44, _SCR + 47, _SCR + 50, _SCR + 55, _SCR + 56
+_SIZE = _SCR + 57
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
 _REST = int(Flag.REST)
@@ -276,6 +285,56 @@ def _set_tau(x, b0, b1, b2, a1, a2):
 
 
 _k_set_tau = njit(inline="always")(_set_tau)
+
+
+def _parallel_switch(x, at_max, dt, tau_max) -> bool:
+    """``tau_max_parallel``: whether this sample switches the inclination low-pass to the one at ``tau_max``
+    (``tau`` reaches ``tau_max`` now, the low-pass ran before). Why: the adaptive low-pass keeps, when ``tau``
+    grows, what the shorter one let through (its delay lines are rescaled, not recomputed); a sustained
+    shaking that starts at ``tau_acc`` is then held by ``tau_max`` for ``tau_max`` s. The low-pass at
+    ``tau_max`` run from the start is the average over the whole past at the time constant now chosen.
+    Its cost: a second low-pass per sample, and the gyro's drift over ``tau_max`` of the time before, which
+    the statistics that chose ``tau_max`` now say is small against what the motion lets through."""
+    sw = at_max and x[_PMAX] == 0.0 and x[_READY] != 0.0 and x[_PREADY] != 0.0
+    x[_PMAX] = 1.0 if at_max else 0.0
+    if sw:
+        x[_TAUC] = tau_max / dt
+    return sw
+
+
+_k_parallel_switch = njit(inline="always")(_parallel_switch)
+
+
+def _parallel_lowpass(x, v0, v1, v2) -> None:
+    """``tau_max_parallel``: one step of the low-pass at ``tau_max`` (coefficients ``_PB``) on the specific
+    force in I; it starts where the inclination low-pass starts (the fast start's mean, or the sample)."""
+    b0, b1, b2, a1, a2 = x[_PB], x[_PB + 1], x[_PB + 2], x[_PB + 3], x[_PB + 4]
+    if x[_PREADY] == 0.0:
+        t0, t1, t2 = (x[_MEAN], x[_MEAN + 1], x[_MEAN + 2]) if x[_NMEAN] > 0 else (v0, v1, v2)
+        x[_PZ1], x[_PZ1 + 1], x[_PZ1 + 2] = t0 * (1.0 - b0), t1 * (1.0 - b0), t2 * (1.0 - b0)
+        x[_PZ2], x[_PZ2 + 1], x[_PZ2 + 2] = t0 * (b2 - a2), t1 * (b2 - a2), t2 * (b2 - a2)
+        x[_PREADY] = 1.0
+    for i, v in ((0, v0), (1, v1), (2, v2)):
+        y = b0 * v + x[_PZ1 + i]
+        x[_PZ1 + i] = b1 * v - a1 * y + x[_PZ2 + i]
+        x[_PZ2 + i] = b2 * v - a2 * y
+
+
+_k_parallel_lowpass = njit(inline="always")(_parallel_lowpass)
+
+
+def _take_parallel(x, v0, v1, v2):
+    """``tau_max_parallel``'s switch (the coefficients already ``_PB``): the inclination low-pass's delay lines
+    become the one's at ``tau_max``; returns the low-passed vector the adaptive one would have given now
+    (the caller turns ``q_tilt`` by the difference, so the bias filter's correction rate does not see it)."""
+    b0 = x[_B]
+    o0, o1, o2 = b0 * v0 + x[_Z1], b0 * v1 + x[_Z1 + 1], b0 * v2 + x[_Z1 + 2]
+    for i in range(3):
+        x[_Z1 + i], x[_Z2 + i] = x[_PZ1 + i], x[_PZ2 + i]
+    return o0, o1, o2
+
+
+_k_take_parallel = njit(inline="always")(_take_parallel)
 
 
 @njit(inline="always")
@@ -695,6 +754,12 @@ class InertialTiltConfig(PluginConfig):
                            "leaking with tau, does not see accelerations slower than a few tau)", gt=0)
     adapt_window: float = param(10.0, unit="s", description="tau_adapt: the time over which the velocity's and "
                                 "the rate's mean squares are averaged", gt=0)
+    tau_max_parallel: bool = param(
+        False, unit="-", description="tau_adapt: a second inclination low-pass at tau_max runs beside the adaptive "
+        "one from the start, and when tau reaches tau_max the adaptive one's delay lines are replaced by it (the "
+        "output jumps to the average over the whole past at tau_max): what a shorter tau let through before "
+        "(the onset of a sustained shaking) is not kept for the next tau_max s. The bias filter does not see the "
+        "jump. False: the delay lines are rescaled to the new tau (the behaviour before)")
     impulse_clip: float | None = param(
         None, unit="-", description="impulses (knocks, taps): the specific force's departure from the low-passed "
         "vector limited to this many times its running RMS before the low-pass (a Huber step; the RMS learns from "
@@ -786,6 +851,7 @@ class InertialTilt(FactorCorrector):
         state[_KREADY] = 0.0  # the bias filter's low-passes start again with the inclination's
         state[_NST] = 0.0  # and the adaptive time constant's statistics
         state[_IMN] = 0.0  # and the impulse clip's mean square
+        state[_PREADY] = state[_PMAX] = 0.0  # and the low-pass at tau_max (tau_max_parallel)
         state[_EREADY] = 0.0  # and the rate error's regressor (E and its covariance are the gyro's: kept)
         # and the samples counted towards the next decimated updates (bias filter, rate error)
         state[_KTACC] = state[_KNACC] = state[_ETACC] = state[_ENACC] = 0.0
@@ -799,6 +865,8 @@ class InertialTilt(FactorCorrector):
             w_b = sample.gyr - bias  # (with rate_error_correct: the rate the propagation used, E w removed)
             if self.config.rate_error_correct:
                 bias -= state[_EW:_EW + 3]  # the bias itself, for the bias filter
+                if not state[_READY]:  # (a restart's fast start: the E w of a sample before it is stale)
+                    state[_EW:_EW + 3] = 0.0
             self._tilt(state, r @ sample.acc, quat, bias, sample.dt, bool(flags & _REST), r @ w_b, z, w_b)
             if self.config.rate_error_correct:
                 bias += state[_EW:_EW + 3]
@@ -809,6 +877,7 @@ class InertialTilt(FactorCorrector):
     def _tilt(self, x, a_i, quat, bias, dt, rest, w_i, z, w_b) -> None:
         c = self.config
         y = x[_Y:_Y + 3]
+        par = c.tau_adapt and c.tau_max_parallel
         tau = _adapt_step(x, *a_i, *w_i, *z, rest, dt, c.tau, c.adapt_window, c.bias_sigma_motion, c.bias_sigma_init,
                           c.motion_bias_tau or _FORGET,
                           math.sqrt(x[_KAP2]) if c.rate_error_estimate else c.gyro_rate_error,
@@ -827,12 +896,27 @@ class InertialTilt(FactorCorrector):
                 if c.motion_bias_tau is not None and c.bias_filter == "kalman":
                     x[_N:_N + 5] = _kf_noise(dt, c.motion_bias_tau, c.bias_sigma_init, c.bias_sigma_motion,
                                              c.bias_sigma_rest or 0.0, c.bias_vertical_forgetting)
-            if c.tau_adapt and abs(tau - x[_TAUC] * dt) > _TAU_STEP * x[_TAUC] * dt:
+                if par:
+                    x[_PB:_PB + 5] = lowpass_coefficients(c.tau_max, dt)
+            sw = par and _parallel_switch(x, tau >= c.tau_max, dt, c.tau_max)
+            if sw:  # the low-pass at tau_max replaces the adaptive one (its coefficients, then its delay lines)
+                _set_tau(x, *x[_PB:_PB + 5])
+            elif c.tau_adapt and abs(tau - x[_TAUC] * dt) > _TAU_STEP * x[_TAUC] * dt:
                 x[_TAUC] = tau / dt  # the coefficients of this sample's time constant
                 _set_tau(x, *lowpass_coefficients(tau, dt))
             if c.impulse_clip is not None:
                 a_i = _impulse_clip(x, a_i, dt, c.impulse_clip, c.impulse_window, c.impulse_floor)
+            if sw:
+                y_old = np.array(_take_parallel(x, *a_i))
+            if par:
+                _parallel_lowpass(x, *a_i)
             _lowpass_vertical(x, a_i)
+            if sw:  # q_tilt turned by the switch's jump: the correction below is the one the old vector asks
+                rq = quat_to_matrix(x[_QA:_QA + 4])
+                u, w = rq @ y, rq @ y_old
+                u, w = u / np.linalg.norm(u), w / np.linalg.norm(w)
+                qj = np.array([1.0 + u @ w, *np.cross(u, w)])
+                x[_QA:_QA + 4] = quat_mul(qj / np.linalg.norm(qj), x[_QA:_QA + 4])
         # the smallest rotation taking the low-passed vector (levelled frame) to the vertical
         up = x[_UP:_UP + 3]
         v = quat_to_matrix(x[_QA:_QA + 4]) @ y
@@ -921,7 +1005,8 @@ class InertialTilt(FactorCorrector):
                       float(c.tau_adapt), c.gyro_rate_error, c.tau_min, c.tau_max, c.adapt_window,
                       c.impulse_clip if c.impulse_clip is not None else 0.0, c.impulse_window, c.impulse_floor,
                       float(c.rate_error_estimate), c.rate_error_max, float(c.rate_error_correct),
-                      c.rate_error_interval, c.bias_update_interval, float(self._publishing())])
+                      c.rate_error_interval, c.bias_update_interval, float(self._publishing()),
+                      float(c.tau_adapt and c.tau_max_parallel)])
         return CorrectorKernel(inertial_tilt_kernel, p, mode="factor")
 
 
@@ -932,7 +1017,8 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
     motion_bias_tau (0: off), bias_max, kalman (1) or lowpass (0), bias_sigma_init, bias_sigma_motion,
     bias_sigma_rest (0: None), bias_vertical_forgetting, tau_adapt, gyro_rate_error, tau_min, tau_max,
     adapt_window, impulse_clip (0: None), impulse_window, impulse_floor, rate_error_estimate, rate_error_max,
-    rate_error_correct, rate_error_interval, bias_update_interval, publish (1: a corrector reads the channel))``;
+    rate_error_correct, rate_error_interval, bias_update_interval, publish (1: a corrector reads the channel),
+    tau_max_parallel (with tau_adapt))``;
     ``ch`` the pipeline's channel."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
@@ -941,6 +1027,8 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
         wb0, wb1, wb2 = g0 - b[0], g1 - b[1], g2 - b[2]  # the body rate before the bias filter's update
         if p[20] != 0.0:  # rate_error_correct: the bias itself, for the bias filter
             b[0], b[1], b[2] = b[0] - s[_EW], b[1] - s[_EW + 1], b[2] - s[_EW + 2]
+            if s[_READY] == 0.0:  # (a restart's fast start: the E w of a sample before it is stale)
+                s[_EW], s[_EW + 1], s[_EW + 2] = 0.0, 0.0, 0.0
         if p[10] != 0.0:
             w0, w1, w2 = k_rot(p0, p1, p2, p3, wb0, wb1, wb2)
             z0 = z1 = z2 = 0.0
@@ -964,13 +1052,34 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                     s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4] = _lp_coeffs(p[0], dt)
                 if p[3] > 0.0 and p[5] != 0.0:
                     s[_N], s[_N + 1], s[_N + 2], s[_N + 3], s[_N + 4] = _k_kf_noise(dt, p[3], p[6], p[7], p[8], p[9])
-            if p[10] != 0.0 and abs(tau - s[_TAUC] * dt) > _TAU_STEP * s[_TAUC] * dt:
+                if p[24] != 0.0:
+                    s[_PB], s[_PB + 1], s[_PB + 2], s[_PB + 3], s[_PB + 4] = _lp_coeffs(p[13], dt)
+            sw = p[24] != 0.0 and _k_parallel_switch(s, tau >= p[13], dt, p[13])
+            if sw:
+                _k_set_tau(s, s[_PB], s[_PB + 1], s[_PB + 2], s[_PB + 3], s[_PB + 4])
+            elif p[10] != 0.0 and abs(tau - s[_TAUC] * dt) > _TAU_STEP * s[_TAUC] * dt:
                 s[_TAUC] = tau / dt
                 t0, t1, t2, t3, t4 = _lp_coeffs(tau, dt)
                 _k_set_tau(s, t0, t1, t2, t3, t4)
             if p[15] != 0.0:
                 v0, v1, v2 = _k_impulse_clip(s, v0, v1, v2, dt, p[15], p[16], p[17])
-            _k_lowpass_vertical(s, v0, v1, v2)
+            o0 = o1 = o2 = 0.0
+            if sw:
+                o0, o1, o2 = _k_take_parallel(s, v0, v1, v2)
+            if p[24] != 0.0:
+                _k_parallel_lowpass(s, v0, v1, v2)
+            y0, y1, y2 = _k_lowpass_vertical(s, v0, v1, v2)
+            if sw:  # q_tilt turned by the switch's jump (the reference's comment)
+                u0, u1, u2 = k_rot(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], y0, y1, y2)
+                w0, w1, w2 = k_rot(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], o0, o1, o2)
+                ru = 1.0 / math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+                rw = 1.0 / math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+                u0, u1, u2, w0, w1, w2 = u0 * ru, u1 * ru, u2 * ru, w0 * rw, w1 * rw, w2 * rw
+                j0 = 1.0 + u0 * w0 + u1 * w1 + u2 * w2
+                j1, j2, j3 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
+                rj = 1.0 / math.sqrt(j0 * j0 + j1 * j1 + j2 * j2 + j3 * j3)
+                t0, t1, t2, t3 = k_qmul(j0 * rj, j1 * rj, j2 * rj, j3 * rj, s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3])
+                s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3] = t0, t1, t2, t3
         v0, v1, v2 = k_rot(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], s[_Y], s[_Y + 1], s[_Y + 2])
         # (normalised by one reciprocal: a division costs several multiplications, and the loop is bound
         # by its divisions and square roots)

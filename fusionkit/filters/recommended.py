@@ -81,6 +81,11 @@ class RecommendedConfig(FilterConfig):
     gyro_rate_error: float = param(
         0.015, unit="-", description="tau_adapt: the gyro's error proportional to the rate (scale factor, "
         "misalignment; consumer MEMS data sheets: 1-3 %)", ge=0)
+    tau_max_parallel: bool = param(
+        True, unit="-", description="tau_adapt: inertial-tilt's second low-pass at the longest time constant (4 s), "
+        "run from the start; when the adaptive time constant reaches it, the inclination is taken from it, so what "
+        "the shorter one let through at a shaking's onset is not kept (recommended.md). False: the adaptive "
+        "low-pass's delay lines rescaled (the behaviour before)")
     impulse_clip: float | None = param(
         10.0, unit="-", description="inertial-tilt's impulse clip: the specific force's departure from the "
         "low-passed vector limited to this many times its running RMS (over about 1 s) before the inclination "
@@ -148,10 +153,11 @@ class RecommendedConfig(FilterConfig):
         math.radians(0.1), unit="rad/s", description="kalman: the steady-state standard deviation of a bias learned "
         "in motion (VQF's biasSigmaMotion)", gt=0)
     bias_sigma_rest: float | None = param(
-        None, unit="rad/s", description="kalman: how well a rest tells the bias in motion (the rest's bias learned "
-        "with this standard deviation shrinks the covariance, VQF's biasSigmaRest 0.03 deg/s). None: not at all, the "
-        "rest measures the zero-rate bias only, the error in motion adds the scale factor's and misalignment's, "
-        "proportional to the rate (recommended.md)", gt=0)
+        math.radians(0.03), unit="rad/s", description="kalman: how well a rest tells the bias in motion (the rest's "
+        "bias learned with this standard deviation shrinks the covariance; VQF's biasSigmaRest, 0.03 deg/s). A rest "
+        "measures the zero-rate bias; the error in motion adds the scale factor's and misalignment's, proportional to "
+        "the rate, which gyro_rate_estimate correct removes (recommended.md). None: not at all (the default before "
+        "tau_max_parallel)", gt=0)
     mag_bias: bool = param(
         False, unit="-", description="the in-motion bias also learns from the heading correction (vertical axis); "
         "lets the magnetometer reach roll and pitch through the bias (costs 0.08 deg on BROAD)")
@@ -237,6 +243,7 @@ class RecommendedFilter(Pipeline):
             "bias_sigma_init": c.bias_sigma_init,
             "bias_sigma_motion": c.bias_sigma_motion, "bias_sigma_rest": c.bias_sigma_rest if c.rest_bias else None,
             "tau_adapt": c.tau_adapt, "gyro_rate_error": c.gyro_rate_error, "impulse_clip": c.impulse_clip,
+            "tau_max_parallel": c.tau_max_parallel,
             "rate_error_estimate": c.gyro_rate_estimate != "off",
             "rate_error_correct": c.gyro_rate_estimate == "correct", "rate_error_interval": c.gyro_rate_interval,
             "bias_update_interval": c.bias_update_interval}))
