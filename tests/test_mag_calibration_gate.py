@@ -101,6 +101,33 @@ def test_gate_kernel_equals_reference(soft_iron, test):
     assert np.abs(fast.diagnostics["state"]["mod"][0] - ref.diagnostics["state"]["mod"][0]).max() < 1e-9
 
 
+def test_gate_interval_keeps_a_refusal_and_tests_less(monkeypatch):
+    """``gate_interval`` (0.5 s by default): near the desk magnet the gate refuses a confident
+    estimate at every segment; a refusal is kept for the segments of the next 0.5 s, so the gate
+    tests a fraction of the segments (reference path, the tests counted) with the same verdict, the
+    kernel equals the reference with it, and ``gate_interval=0`` tests at every segment (the kernel
+    equal to the reference there too; the offset alone shares the code: the tests above)."""
+    from fusionkit.models import mag_calibration as mc
+
+    rec = sim.scenarios.magnet_nearby()
+    calls = []
+    gate = mc._gate
+    monkeypatch.setattr(mc, "_gate", lambda *a: calls.append(1) or gate(*a))
+    tested, state = {}, {}
+    for interval in (0.0, 0.5):
+        p = fk.compose({"estimator": "poisson-quat", "models": [{"name": "mag-calibration", "params": {
+                            "gate_interval": interval}}],
+                        "correctors": [{"name": "gradient-descent", "params": {"use_mag": True}}],
+                        "alignment": {"mode": "fixed", "duration": 1.0, "heading": "auto"}})
+        calls.clear()
+        ref, fast = p.run(rec, backend="reference"), p.run(rec, backend="numba")
+        tested[interval], state[interval] = len(calls), ref.diagnostics["state"]["mod"][0]
+        assert np.abs(fast.quat - ref.quat).max() < 1e-9
+        assert np.abs(fast.diagnostics["state"]["mod"][0] - ref.diagnostics["state"]["mod"][0]).max() < 1e-9
+        assert state[interval][CONF] == 0.0  # refused
+    assert tested[0.0] >= 20 and tested[0.5] < 0.7 * tested[0.0]  # (33 and 19: the walk turns slowly)
+
+
 def test_gate_median_equals_numpys():
     """The earth test's median sorts only the half it needs, in place: numpy's median (NaN where an
     entry is) on lists of every length up to the ring's 32, with ties, sorted either way."""

@@ -130,7 +130,11 @@ _HC, _HS = _E2 + 5, _E2 + 6
 # the previous magnetometer sample's norm and dip in the levelled frame (follow_calibration: did a recalibration
 # move the field?)
 _PN, _PD = _E2 + 7, _E2 + 8
-_SIZE = _E2 + 9
+# the last magnetometer sample's dip as its sine, and its east and north parts in the levelled frame: a held
+# sample (mag_hold) has the fresh one's reading and pairing, so the kernel takes these, its norm and its dip
+# from there instead of turning the field and taking the dip's arcsine again
+_SD, _ME, _MN = _E2 + 9, _E2 + 10, _E2 + 11
+_SIZE = _E2 + 12
 #: where the heading's variance (gain kalman, rad^2) sits in the corrector's state
 HEADING_VARIANCE = _PHH
 #: the most the heading's variance grows to: a heading uniform on the circle (pi^2 / 3)
@@ -322,7 +326,9 @@ class MagHeading(FactorCorrector):
         x[_PN], x[_PD] = norm, dip
         r = _kf_noise(x, norm, dip, dt, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time, None,
                       incl) if kalman else 0.0
-        err = _heading_error(float(m @ east), float(m @ north), x[_HC], x[_HS])  # wrap(target - delta)
+        me, mn = float(m @ east), float(m @ north)
+        x[_SD], x[_ME], x[_MN] = max(-1.0, min(1.0, float(m @ up) / norm)), me, mn
+        err = _heading_error(me, mn, x[_HC], x[_HS])  # wrap(target - delta)
         code = self.magnetic.reference_step(x[_MAG:_MAG + MAG_SIZE], norm, dip, _norm3(x[_LW:_LW + 3]),
                                             dt)
         if code != MAG_LEARNING:
@@ -606,12 +612,16 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             p0, p1, p2, p3 = s[_QH], s[_QH + 1], s[_QH + 2], s[_QH + 3]
             c0, c1, c2, c3 = p0, p1, p2, p3
         s[_PM], s[_PM + 1], s[_PM + 2] = m0, m1, m2
-        v0, v1, v2 = k_rot(p0, p1, p2, p3, m0, m1, m2)
-        norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-        vu = v0 * s[ax + 6] + v1 * s[ax + 7] + v2 * s[ax + 8]
-        sd = max(-1.0, min(1.0, vu / norm))
-        dip = math.asin(sd)
-        me, mn = v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2], v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5]
+        if fresh:
+            v0, v1, v2 = k_rot(p0, p1, p2, p3, m0, m1, m2)
+            norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+            vu = v0 * s[ax + 6] + v1 * s[ax + 7] + v2 * s[ax + 8]
+            sd = max(-1.0, min(1.0, vu / norm))
+            dip = math.asin(sd)
+            me, mn = v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2], v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5]
+            s[_SD], s[_ME], s[_MN] = sd, me, mn
+        else:  # a held sample: the fresh one's reading and pairing, so its levelled field (the same numbers)
+            norm, dip, sd, me, mn = s[_PN], s[_PD], s[_SD], s[_ME], s[_MN]
         err = _k_heading_error(me, mn, s[_HC], s[_HS])  # (me, mn: the field's east and north in the levelled frame)
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
         if p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0 and _k_moved(s, norm, dip, p[8], p[9]) and \

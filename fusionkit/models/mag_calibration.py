@@ -122,7 +122,10 @@ _GE = 22  # per segment end: the raw field, the accelerometer, |m|, |a|, the raw
 # test turns every ring entry at each check, and the matrix is computed once here instead of from the
 # quaternion at each check), and the raw field's squared change across it (the earth-frame test's raw term:
 # it depends on the segment alone)
-GATE = 2 + _GE * _GK
+# gate_interval: the seconds of segments since the gate's last test, and its verdict then (0: none for the
+# segment before this one, 1: passed, 2: refused)
+_GT, _GV = 2 + _GE * _GK, 3 + _GE * _GK
+GATE = 4 + _GE * _GK
 # soft iron, after the gate: the inverse of the information matrix as of the last segment that entered the
 # fit, and whether it exists (the next segment's misfit test needs it: computed once, not twice)
 _SINV = STATE_SOFT + GATE
@@ -167,6 +170,11 @@ class MagCalibrationConfig(PluginConfig):
     min_reduction: float = param(
         2.0, unit="-", description="the factor by which the calibration must reduce the field norm's variance: an F "
         "test at the 32 segment ends' degrees of freedom (F(31, 31) at 97%)", gt=1)
+    gate_interval: float = param(
+        0.5, unit="s", description="consistency: a confident estimate the gate refused is tested again only once the "
+        "segments since that test span this long (the ring of 32 segment ends it judges changes by one entry per "
+        "segment); the segments between stay refused. An applied estimate is tested at every segment, and a segment "
+        "that is not confident ends the refusal. 0: a test at every segment", ge=0)
 
 
 class MagCalibrationModel(SensorModel):
@@ -187,7 +195,7 @@ class MagCalibrationModel(SensorModel):
         c = self.config
         return np.array([c.segment_angle, c.segment_time, c.forget_time, c.max_std, float(c.min_segments),
                          c.outlier_sigma, float(c.outlier_count), float(c.soft_iron), _gate_code(c),
-                         c.min_reduction, math.cos(0.5 * c.segment_angle)])
+                         c.min_reduction, math.cos(0.5 * c.segment_angle), c.gate_interval])
 
     def kernel(self) -> SensorModelKernel:
         return SensorModelKernel(mag_calibration_apply, self.params())
@@ -231,6 +239,7 @@ class MagCalibrationModel(SensorModel):
     def _segment(self, s, ct, m) -> None:
         """One closed segment: ``(I - C^T) b = m_k - C^T m_a`` into the forgetting least squares."""
         c = self.config
+        prev, s[STATE + _GV] = s[STATE + _GV], 0.0  # (gate_interval: the last verdict, for this segment only)
         h = np.eye(3) - ct
         r = m - ct @ s[_MA:_MA + 3]
         n = s[_N]
@@ -264,8 +273,9 @@ class MagCalibrationModel(SensorModel):
         lmin = _min_eig_sym3(a)
         field = float(np.linalg.norm(m - best))
         if s[_N] >= c.min_segments and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= c.max_std * field:
-            if c.consistency and not _gate(_gate_code(c), s, STATE, np.eye(3), best, c.min_reduction,
-                                            s[_CONF] == 1.0, c.max_std, np.empty(2 * _GK)):
+            if c.consistency and not _gate_timed(_gate_code(c), s, STATE, np.eye(3), best, c.min_reduction,
+                                                  s[_CONF] == 1.0, c.max_std, np.empty(2 * _GK), prev, s[_T],
+                                                  c.gate_interval):
                 s[_B:_B + 3] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
                 s[_CONF] = 0.0
                 return
@@ -275,6 +285,7 @@ class MagCalibrationModel(SensorModel):
     def _segment_soft(self, s, ct, m) -> None:
         """One closed segment, soft iron: ``(I - C^T) c - E m_k + C^T E m_a = m_k - C^T m_a``."""
         c = self.config
+        prev, s[STATE_SOFT + _GV] = s[STATE_SOFT + _GV], 0.0  # (gate_interval: the last verdict, for this segment only)
         h = np.empty((3, _NP))
         _soft_rows(ct, s[_MA:_MA + 3], m, h)
         r = m - ct @ s[_MA:_MA + 3]
@@ -309,8 +320,9 @@ class MagCalibrationModel(SensorModel):
         field = float(np.linalg.norm(w @ m - best[5:8]))
         std = np.sqrt(s[_VAR] * np.diag(inv))
         if s[_N] >= c.min_segments and std[5:8].max() <= c.max_std * field and std[:5].max() <= c.max_std:
-            if c.consistency and not _gate(_gate_code(c), s, STATE_SOFT, w, best[5:8], c.min_reduction,
-                                            s[_CONF] == 1.0, c.max_std, np.empty(2 * _GK)):
+            if c.consistency and not _gate_timed(_gate_code(c), s, STATE_SOFT, w, best[5:8], c.min_reduction,
+                                                  s[_CONF] == 1.0, c.max_std, np.empty(2 * _GK), prev, s[_T],
+                                                  c.gate_interval):
                 s[_SAPP:_SAPP + _NP] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
                 s[_B:_B + 3] = 0.0
                 s[_CONF] = 0.0
@@ -441,6 +453,32 @@ def _gate(code, s, g, w, c, min_reduction, applied, max_std, work) -> bool:
         return cal <= min_reduction * raw
     return cal <= raw and ((min_reduction * cal <= raw and change >= max_std)
                            or _consistent(s, g, w, c, min_reduction))
+
+
+def _gate_kept(s, g, prev, seg_t, interval) -> bool:
+    """``gate_interval``: whether the gate's refusal in the segment before (``prev`` 2; 1: it passed,
+    0: not tested) stands for this segment of ``seg_t`` s, and if so counts the segment towards the
+    next test. The gate judges a confident estimate over the ring of the last 32 segment ends, which
+    a segment changes by one entry, while the estimate moves by about its standard deviation: tested
+    at every segment while the body turns fast (a segment every 0.1 s), a refused estimate is judged
+    again on nearly the same ring, at about 0.6 us each. So a refusal is kept for the segments of the
+    next ``interval`` s: a calibration is applied up to ``interval`` s later. An applied one is
+    tested at every segment (withdrawn as soon as before). The same statements in the reference and,
+    compiled, in the kernel."""
+    if prev == 2.0 and s[g + _GT] + seg_t < interval:
+        s[g + _GT] += seg_t
+        s[g + _GV] = prev
+        return True
+    return False
+
+
+def _gate_timed(code, s, g, w, c, min_reduction, applied, max_std, work, prev, seg_t, interval) -> bool:
+    """:func:`_gate`, or its refusal kept (:func:`_gate_kept`)."""
+    if _gate_kept(s, g, prev, seg_t, interval):
+        return False
+    ok = _gate(code, s, g, w, c, min_reduction, applied, max_std, work)
+    s[g + _GT], s[g + _GV] = 0.0, 1.0 if ok else 2.0
+    return ok
 
 
 def _earth_change(s, g, w, c, work):
@@ -676,6 +714,19 @@ def _k_gate(code, s, g, w, c, min_reduction, applied, max_std, work):
                            or _k_consistent(s, g, w, c, min_reduction))
 
 
+_k_gate_kept = njit(_gate_kept)
+
+
+@njit
+def _k_gate_timed(code, s, g, w, c, min_reduction, applied, max_std, work, prev, seg_t, interval):
+    """:func:`_gate_timed`, compiled."""
+    if _k_gate_kept(s, g, prev, seg_t, interval):
+        return False
+    ok = _k_gate(code, s, g, w, c, min_reduction, applied, max_std, work)
+    s[g + _GT], s[g + _GV] = 0.0, 1.0 if ok else 2.0
+    return ok
+
+
 _k_applied = njit(_applied)
 _k_changed = njit(_changed)
 
@@ -718,9 +769,9 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
             _k_ring_push(s, STATE_SOFT if soft else STATE, (m0, m1, m2), acc, s[_MA:_MA + 3], s[_DQ:_DQ + 4])
             conf, applied = s[_CONF], _k_applied(s, soft)
             if soft:
-                _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red)
+                _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11])
             else:
-                _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red)
+                _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11])
             flags = _k_changed(conf, applied, s[_CONF], _k_applied(s, soft))
             s[_ANCHOR] = 0.0
     if gyr_ok and s[_ANCHOR] == 0.0:
@@ -755,7 +806,8 @@ def k_forget_accumulate(s, ia, iy, irr, ine, h, r, lam, a):
 
 
 @njit(cold=True)
-def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red):
+def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, interval):
+    prev, s[STATE + _GV] = s[STATE + _GV], 0.0
     c9 = np.empty(9)
     quat_to_dcm(s[_DQ:_DQ + 4], c9)
     ct = np.empty((3, 3))  # R(dq)^T, as quat_to_matrix(dq).T
@@ -803,8 +855,8 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
     f0, f1, f2 = m0 - s[_BEST], m1 - s[_BEST + 1], m2 - s[_BEST + 2]
     field = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
     if s[_N] >= min_seg and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= max_std * field:
-        if gate != 0.0 and not _k_gate(gate, s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red,
-                                               s[_CONF] == 1.0, max_std, np.empty(2 * _GK)):
+        if gate != 0.0 and not _k_gate_timed(gate, s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red,
+                                             s[_CONF] == 1.0, max_std, np.empty(2 * _GK), prev, s[_T], interval):
             s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
             s[_CONF] = 0.0
             return
@@ -813,7 +865,8 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
 
 
 @njit(cold=True)
-def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red):
+def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, interval):
+    prev, s[STATE_SOFT + _GV] = s[STATE_SOFT + _GV], 0.0
     # one allocation for every working array (views into it): a segment closes every few samples
     # while the body turns, and each small array allocated and freed cost about as much as the arithmetic
     buf = np.empty(_SEG_BUF)
@@ -893,8 +946,8 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
         else:
             std_c = max(std_c, sd)
     if s[_N] >= min_seg and std_c <= max_std * field and std_e <= max_std:
-        if gate != 0.0 and not _k_gate(gate, s, STATE_SOFT, w, t[5:8], min_red, s[_CONF] == 1.0,
-                                           max_std, buf[0:2 * _GK]):  # (the arrays in buf[0:64] are done with)
+        if gate != 0.0 and not _k_gate_timed(gate, s, STATE_SOFT, w, t[5:8], min_red, s[_CONF] == 1.0,
+                                             max_std, buf[0:2 * _GK], prev, s[_T], interval):  # (the arrays in buf[0:64] are done with)
             for i in range(_NP):
                 s[_SAPP + i] = 0.0
             s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
