@@ -8,6 +8,8 @@ recalibration are bit-identical to the reference kept; the kernels equal the ref
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -144,12 +146,12 @@ def test_gate_median_equals_numpys():
         assert got == want or (np.isnan(want) and np.isnan(got))
 
 
-def _recommended(follow=True, gain="kalman", **model):
+def _recommended(follow=True, gain="kalman", reexpress=True, **model):
     """``recommended`` with ``mag-calibration`` (``model`` parameters) and ``mag-heading``'s
-    ``follow_calibration`` (and heading ``gain``)."""
+    ``follow_calibration`` and ``reexpress`` (and heading ``gain``)."""
     cfg = fk.make("recommended", heading_gain=gain).pipeline_config()
-    cors = [c.model_copy(update={"params": {**c.params, "follow_calibration": follow}}) if c.name == "mag-heading"
-            else c for c in cfg.correctors]
+    cors = [c.model_copy(update={"params": {**c.params, "follow_calibration": follow, "reexpress": reexpress}})
+            if c.name == "mag-heading" else c for c in cfg.correctors]
     return Pipeline(cfg.model_copy(update={"models": [PluginSpec(name="mag-calibration", params=model)],
                                            "correctors": cors}))
 
@@ -175,6 +177,35 @@ def test_a_magnet_carried_at_3cm_is_calibrated_and_used(close):
     assert not (res.flags[at[-1]:] & Flag.MAG_DISTURBED).any()
 
 
+def test_the_heading_learned_from_the_raw_field_is_reexpressed_through_the_calibration(close):
+    """The 3 cm magnet (37 uT): the heading is learned at rest from the raw field, 20-30 deg off at
+    that orientation, and the calibration applies at 7.3 s, moving the field by more than the
+    reference's thresholds. Re-expressed (the learned field read through the new calibration has the
+    calibrated field's norm and dip, so the magnet was there when it was learned: the heading moves
+    by what the calibration changes in that field's heading), the heading is 0.07 deg off over the
+    last 20 s (19.5 deg over the run, most of it before the calibration); kept filtering from the raw
+    field's heading (``reexpress=False``, the method before), 1.58 (22.7 over the run)."""
+    on, off = _recommended().run(close), _recommended(reexpress=False).run(close)
+    np.testing.assert_array_equal(on.flags & _RECAL, off.flags & _RECAL)  # the same calibration
+    assert _late_heading_deg(close, on) < 0.8
+    assert _late_heading_deg(close, off) > 1.3
+    assert _heading_deg(close, on) < _heading_deg(close, off) - 2.0
+
+
+def test_a_magnet_attached_after_the_heading_was_learned_is_not_reexpressed():
+    """The 5 cm magnet (8 uT) attached at 3 s, after the heading was learned at rest from the clean
+    field (BROAD 32-36's order): the calibration applies (10.9 s) and its field is the one the heading
+    was learned from, so the learned field read through it has another norm or dip than the calibrated
+    sample and nothing moves: bit-identical to ``reexpress=False``."""
+    rec = sim.scenarios.carried_magnet(distance=0.05)
+    mag = rec.mag.copy()
+    mag[rec.time < 3.0] -= rec.meta["mag_offset"]
+    rec = dataclasses.replace(rec, mag=mag)
+    on, off = _recommended().run(rec), _recommended(reexpress=False).run(rec)
+    assert (on.flags & _RECAL).any()
+    np.testing.assert_array_equal(on.quat, off.quat)
+
+
 @pytest.mark.parametrize("name", ["undisturbed", "nearby"])
 def test_without_a_recalibration_following_changes_nothing(runs, name):
     """No calibration applied (an undisturbed field; a magnet on the desk, refused by the gate): no
@@ -189,11 +220,13 @@ def test_without_a_recalibration_following_changes_nothing(runs, name):
 @pytest.mark.parametrize("distance", ["carried 5 cm", "carried 10 cm"])
 def test_a_calibration_the_reference_describes_is_not_learned_again(runs, distance):
     """8 and 1 uT: the calibration is applied (flag), but its first sample is within the
-    reference's thresholds, so the reference is kept: bit-identical to follow_calibration=False."""
+    reference's thresholds, so the reference is kept: without the heading's re-expression
+    (``reexpress``, which moves the heading, not the reference) bit-identical to
+    follow_calibration=False."""
     rec, on = runs[distance][:2]
-    kept = _recommended(follow=False).run(rec)
+    kept, alone = _recommended(follow=False).run(rec), _recommended(reexpress=False).run(rec)
     assert (on.flags & _RECAL).any()
-    np.testing.assert_array_equal(on.quat, kept.quat)
+    np.testing.assert_array_equal(alone.quat, kept.quat)
 
 
 def test_follow_field_kernel_equals_reference():
@@ -220,6 +253,9 @@ def test_following_kernel_equals_reference(close, soft_iron):
     p = _recommended(soft_iron=soft_iron)
     ref, fast = p.run(rec, backend="reference"), p.run(rec, backend="numba")
     assert (ref.flags & _RECAL).any()
+    at = np.nonzero(ref.flags & _RECAL)[0][0]  # the heading re-expressed there (reexpress): it moves at the flag
+    kept = _recommended(soft_iron=soft_iron, reexpress=False).run(rec)
+    assert np.abs(kept.quat[at - 1] - fast.quat[at - 1]).max() < 1e-12 < np.abs(kept.quat[at] - fast.quat[at]).max()
     np.testing.assert_array_equal(ref.flags, fast.flags)
     assert np.abs(fast.quat - ref.quat).max() < 1e-9
     for k in ("mod", "cor"):

@@ -56,6 +56,19 @@ Around it, each a separate idea:
   seconds undisturbed, and the new-field test recovers where they were not. The heading keeps its
   filter meanwhile (no fast-start mean: it has a heading to follow from). False: the reference
   learned before is kept (calibrated samples of a large offset then look disturbed);
+- **the heading re-expressed through the calibration** (``reexpress``, with ``follow_calibration``): a
+  heading learned from the raw field of a magnetised body carries the iron's error at the orientation
+  it was learned in, and the filter's variance does not know it. At a recalibration the field the
+  heading was learned from is read through the new calibration (its mean plus the calibration's
+  change of the field, this sample against the previous one, turned by the learning's mean
+  orientation); where that matches the calibrated sample's norm and dip within a calibrated
+  sample's precision and better than the learned field does (the iron was there when the heading
+  was learned), the heading moves by the change of the learned field's heading (:func:`_reexpress`),
+  as if it had been learned through the calibration. It assumes the calibration's change the same
+  for the learned field as for this sample (a hard iron; a soft iron's change differs by its
+  distortion of the two fields' difference); where the norm and dip do not tell the two apart (an
+  iron across the field at the learning's orientation) it can move the heading by the iron's
+  effect there though the iron came later;
 - **fast start**: while the reference is learned (the first ``magnetic.init_time`` s), ``delta``
   is the mean heading of the samples so far; ``init_time = 0``: it starts from the first sample;
 - **vertical bias** (``mag_bias``, with ``motion_bias_tau``): the correction as a rate about the
@@ -131,10 +144,16 @@ _HC, _HS = _E2 + 5, _E2 + 6
 # move the field?)
 _PN, _PD = _E2 + 7, _E2 + 8
 # the last magnetometer sample's dip as its sine, and its east and north parts in the levelled frame: a held
-# sample (mag_hold) has the fresh one's reading and pairing, so the kernel takes these, its norm and its dip
-# from there instead of turning the field and taking the dip's arcsine again
+# sample (mag_hold) has the fresh one's reading and pairing, so the kernel takes these, its norm, its dip and its
+# levelled field (_PL) from there instead of turning the field and taking the dip's arcsine again
 _SD, _ME, _MN = _E2 + 9, _E2 + 10, _E2 + 11
-_SIZE = _E2 + 12
+# follow_calibration: the mean of the levelled field over the reference's learning, the mean of the levelled
+# orientation's rotation matrix over the same samples (row-major), and the previous sample's levelled field
+# (:func:`_reexpress`)
+# and the weight the learned heading keeps in delta, delta's first-order sensitivity to a change of the
+# calibration (body frame) through the steps since (:func:`_trace`)
+_RL, _RM, _PL, _RW, _RS = _E2 + 12, _E2 + 15, _E2 + 24, _E2 + 27, _E2 + 28
+_SIZE = _E2 + 31
 #: where the heading's variance (gain kalman, rad^2) sits in the corrector's state
 HEADING_VARIANCE = _PHH
 #: the most the heading's variance grows to: a heading uniform on the circle (pi^2 / 3)
@@ -211,6 +230,11 @@ class MagHeadingConfig(PluginConfig):
         "MAG_RECALIBRATED), learn the magnetic reference again from the calibrated field over magnetic.init_time s "
         "(the heading keeps its filter meanwhile); False: keep the reference learned from the field before (the "
         "method before issue 14)")
+    reexpress: bool = param(
+        True, unit="-", description="follow_calibration: where the reference is learned again, move the heading by "
+        "what the new calibration changes in the field it was learned from (that field read through the new "
+        "calibration), if that field then has this sample's norm and dip (the iron was there when it was learned); "
+        "False: the heading keeps its filter alone")
 
 
 class MagHeading(FactorCorrector):
@@ -277,7 +301,7 @@ class MagHeading(FactorCorrector):
                 incl = _inclination_noise(channel, float(ml @ ax[0:3]), float(ml @ ax[3:6]), float(channel[
                     _CH_LET:_CH_LET + 3] @ ax[0:3]), float(channel[_CH_LET:_CH_LET + 3] @ ax[3:6]))
             out, code = self._heading(x, ml, quat, bias, dt, bool(flags & _REST),
-                                      c.follow_calibration and bool(flags & _MAG_RECALIBRATED), incl)
+                                      c.follow_calibration and bool(flags & _MAG_RECALIBRATED), incl, qm)
             if c.mag_delay_estimate and fresh:
                 self._estimate(x, qc, m, g - bias, dt, code == MAG_USE and rate_ok)
         x[_PMOK] = float(sample.mag is not None)
@@ -310,20 +334,34 @@ class MagHeading(FactorCorrector):
             x[b + _DQ:b + _DQ + 4] = qc
             x[b + _T] = 0.0
 
-    def _heading(self, x, m, q6, bias, dt, rest, recalibrated, incl=0.0) -> tuple[int, int]:
+    def _heading(self, x, m, q6, bias, dt, rest, recalibrated, incl=0.0, qm=None) -> tuple[int, int]:
         """One magnetometer sample (``m`` in the levelled frame): the reference's verdict and the
         heading step; the flag bits and the verdict (MAG_USE, MAG_DISTURBED, MAG_LEARNING).
         ``recalibrated``: the first sample of a new calibration, to follow; ``incl``: the
-        inclination error's variance times its time constant (``inclination_noise``; rad^2 s)."""
+        inclination error's variance times its time constant (``inclination_noise``; rad^2 s); ``qm``: the
+        orientation ``m`` was levelled with (body -> levelled)."""
         c = self.config
         east, north, up = x[_AX:_AX + 3], x[_AX + 3:_AX + 6], x[_AX + 6:_AX + 9]
         norm, dip = field_norm_dip(m, up)
         mc = c.magnetic
         kalman = c.gain == "kalman"
+        qm = q6 if qm is None else qm
+        rm = quat_to_matrix(qm)
+        if recalibrated and c.reexpress:
+            d = rm.T @ (m - x[_PL:_PL + 3])  # the calibration's change of the field, body frame
+            rl = x[_RL:_RL + 3]
+            v = rl + x[_RM:_RM + 9].reshape(3, 3) @ d
+            ok, step = _reexpress(x, float(rl @ east), float(rl @ north), float(rl @ up), float(v @ east),
+                                  float(v @ north), float(v @ up), float(x[_RS:_RS + 3] @ d), float(d @ d), norm,
+                                  dip, 2.0 * c.mag_noise ** 2 + c.field_error ** 2)
+            if ok:
+                x[_RL:_RL + 3] = v  # the learned field, through the calibration now applied
+                _turn(x, step)
         if recalibrated and _moved(x, norm, dip, mc.norm_threshold, mc.dip_threshold) and follow_field(
                 x[_MAG:_MAG + MAG_SIZE], norm, dip, mc.norm_threshold, mc.dip_threshold):
             x[_RELEARN] = 1.0  # learned again; the heading keeps its filter meanwhile
         x[_PN], x[_PD] = norm, dip
+        x[_PL:_PL + 3] = m
         r = _kf_noise(x, norm, dip, dt, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time, None,
                       incl) if kalman else 0.0
         me, mn = float(m @ east), float(m @ north)
@@ -333,8 +371,9 @@ class MagHeading(FactorCorrector):
                                             dt)
         if code != MAG_LEARNING:
             x[_RELEARN] = 0.0
-        elif not x[_RELEARN]:  # the heading is the mean over the reference's learning time
+        if code == MAG_LEARNING and not x[_RELEARN]:  # the heading is the mean over the reference's learning time
             n = x[_MAG + MAG_COUNT]
+            _learn(x, n, m[0], m[1], m[2], qm[0], qm[1], qm[2], qm[3])  # the field and orientation it is learned from
             x[_DELTA] = wrap_angle(x[_DELTA] + (err if n == 1.0 else err / n))
             _set_half(x)
             if kalman:
@@ -342,8 +381,13 @@ class MagHeading(FactorCorrector):
             return 0, code
         if code == MAG_DISTURBED and c.rejection:
             return _MAG_DISTURBED, code
-        step = (_kf_gain(x, r) if kalman else x[_KM]) * err
+        k = _kf_gain(x, r) if kalman else x[_KM]
+        step = k * err
         _turn(x, step)
+        if c.reexpress:  # delta's sensitivity to the calibration: this sample's field, R^T g
+            me, mn = float(m @ east), float(m @ north)
+            g = rm.T @ ((mn * east - me * north) / max(me * me + mn * mn, 1e-300))
+            _trace(x, k, g[0], g[1], g[2])
         if c.mag_bias and not rest:  # the correction as a rate about the vertical: the gyro's vertical drift
             bias_step(bias, up * (step / dt), q6, dt, c.motion_bias_tau, c.bias_max)
         return 0, code
@@ -355,7 +399,7 @@ class MagHeading(FactorCorrector):
                       float(c.mag_hold), float(c.mag_delay_estimate), c.delay_max_std, c.delay_forget_time,
                       float(c.follow_calibration), float(c.gain == "kalman"), c.gyro_noise ** 2, c.bias_sigma ** 2,
                       c.scale_sigma ** 2, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time,
-                      float(c.inclination_noise)])
+                      float(c.inclination_noise), float(c.reexpress), 2.0 * c.mag_noise ** 2 + c.field_error ** 2])
         return CorrectorKernel(mag_heading_kernel, p, mode="factor")
 
 
@@ -443,6 +487,80 @@ def _moved(x, norm, dip, norm_th, dip_th) -> bool:
     pn, pd, rn, rd = x[_PN], x[_PD], x[_MAG], x[_MAG + 1]
     return (abs(norm - pn) > norm_th * pn or abs(dip - pd) > dip_th
             or (abs(pn - rn) <= norm_th * rn and abs(pd - rd) <= dip_th))
+
+
+def _learn(x, n, m0, m1, m2, w, a, b, c) -> None:
+    """While the reference is learned (``n`` samples so far, this one included): the running means of
+    the levelled field (``m0, m1, m2``) and of the rotation matrix of the orientation it was levelled
+    with (the unit quaternion ``w, a, b, c``, body -> levelled; row-major), what :func:`_reexpress` turns
+    the calibration's change with. The same statements in the reference and, compiled, in the kernel."""
+    f = 1.0 / n if n > 1.0 else 1.0
+    x[_RW] = 1.0  # the heading is this learning's mean alone
+    x[_RS] = x[_RS + 1] = x[_RS + 2] = 0.0
+    x[_RL] += f * (m0 - x[_RL])
+    x[_RL + 1] += f * (m1 - x[_RL + 1])
+    x[_RL + 2] += f * (m2 - x[_RL + 2])
+    r = (1.0 - 2.0 * (b * b + c * c), 2.0 * (a * b - w * c), 2.0 * (a * c + w * b),
+         2.0 * (a * b + w * c), 1.0 - 2.0 * (a * a + c * c), 2.0 * (b * c - w * a),
+         2.0 * (a * c - w * b), 2.0 * (b * c + w * a), 1.0 - 2.0 * (a * a + b * b))
+    for i in range(9):
+        x[_RM + i] += f * (r[i] - x[_RM + i])
+
+
+def _trace(x, k, g0, g1, g2) -> None:
+    """``reexpress``, after a heading step of gain ``k``: delta is ``(1 - k)`` of what it was plus ``k``
+    of this sample's heading, so the learned heading's weight in it shrinks by ``1 - k`` and its
+    first-order sensitivity to a change ``d`` of the calibration (body frame) becomes ``(1 - k)`` of
+    the one before plus ``k`` of this sample's, ``g = R^T (n e - e n) / h^2`` (``e, n``: the field's
+    east and north, ``h^2`` their squares' sum; the heading ``atan2(e, n)`` moves by ``g . d`` when the
+    field moves by ``R d``). The same statements in the reference and, compiled, in the kernel."""
+    u = 1.0 - k
+    x[_RW] *= u
+    x[_RS] = u * x[_RS] + k * g0
+    x[_RS + 1] = u * x[_RS + 1] + k * g1
+    x[_RS + 2] = u * x[_RS + 2] + k * g2
+
+
+def _reexpress(x, e0, n0, u0, e1, n1, u1, sd, dd, norm, dip, var):
+    """``reexpress``, at a recalibration (``follow_calibration``): the heading was learned from the
+    field before it (``e0, n0, u0``: the learning's mean field, east, north and up in the levelled
+    frame). That field read through the new calibration is ``(e1, n1, u1)``: the mean plus the
+    calibration's change of the field (this sample's field less the previous one's, in the body
+    frame: one sample apart, what differs is the calibration), turned by the learning's mean
+    orientation. A right calibration gives the same norm and dip at every orientation, so where that
+    field matches this calibrated sample's (``norm``, ``dip``) within two standard deviations of a
+    calibrated sample's error (``var``: the magnetometer's noise twice and the field error a
+    calibration leaves, as fractions of the field; the squared relative norm plus the squared dip
+    difference within ``4 var``) and better than the learned field itself does, the iron was there when the heading was learned. Then the
+    heading is moved as if every sample it was made of had been read through the new calibration:
+    the learned heading's change (exact) times the weight it keeps in delta, plus the steps since,
+    to first order (``sd``: their sensitivity times the calibration's change, :func:`_trace`); its
+    variance grows by that sample's (over the horizontal part ``cos(dip)^2``). A change of the
+    calibration (``dd``: its squared norm) within two standard deviations of a calibrated sample's
+    error (``4 var norm^2``) is one the heading's filter already weighed its samples as carrying (its
+    ``field_error``), and it is two noisy samples' difference: nothing moves, the trace is kept.
+    Whether it does and the step (the caller turns the heading by it and keeps ``(e1, n1, u1)`` as
+    the learned field).
+    Otherwise (the iron came after the heading was learned, a disturbed sample, a calibration the
+    learned field does not fit) nothing moves, and the heading is no longer traced to the learned
+    field (weight and sensitivity 0). The same statements in the reference and, compiled, in the
+    kernel."""
+    h0, h1 = e0 * e0 + n0 * n0, e1 * e1 + n1 * n1
+    if dd <= 4.0 * var * norm * norm:  # a change within a calibrated sample's error
+        return False, 0.0
+    if x[_RW] == 0.0 and x[_RS] == 0.0 and x[_RS + 1] == 0.0 and x[_RS + 2] == 0.0 or h0 == 0.0 or h1 == 0.0:
+        return False, 0.0  # nothing learned, or the heading no longer traced to it
+    v0, v1 = math.sqrt(h0 + u0 * u0), math.sqrt(h1 + u1 * u1)
+    a0 = (v0 - norm) / norm
+    b0 = math.asin(max(-1.0, min(1.0, u0 / v0))) - dip
+    a1 = (v1 - norm) / norm
+    b1 = math.asin(max(-1.0, min(1.0, u1 / v1))) - dip
+    d1 = a1 * a1 + b1 * b1
+    if d1 > 4.0 * var or d1 >= a0 * a0 + b0 * b0:
+        x[_RW] = x[_RS] = x[_RS + 1] = x[_RS + 2] = 0.0
+        return False, 0.0
+    x[_PHH] = min(x[_PHH] + var * v1 * v1 / h1, _P_MAX)
+    return True, _kwrap(x[_RW] * _kwrap(math.atan2(e1, n1) - math.atan2(e0, n0)) + sd)
 
 
 def _kf_gain(x, r) -> float:
@@ -536,6 +654,9 @@ _k_kf_gain = njit(_kf_gain)
 _k_inclination_noise = njit(_inclination_noise)
 _k_kf_mean = njit(_kf_mean)
 _k_moved = njit(_moved)
+_k_learn = njit(_learn)
+_k_reexpress = njit(_reexpress)
+_k_trace = njit(_trace)
 _k_gate = njit(_gate)
 
 
@@ -582,7 +703,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
     """The kernel of :meth:`MagHeading.compose`: ``p = (tau, rejection, mag_delay (NaN: None), rate_tau,
     mag_bias, motion_bias_tau, bias_max, *magnetic params (6), mag_hold, mag_delay_estimate, delay_max_std,
     delay_forget_time, follow_calibration, kalman (1) or fixed (0), gyro_noise^2, bias_sigma^2, scale_sigma^2,
-    mag_noise^2, field_error^2, field_error_time, inclination_noise)``; ``ch`` the pipeline's channel."""
+    mag_noise^2, field_error^2, field_error_time, inclination_noise, reexpress, a calibrated sample's variance
+    (2 mag_noise^2 + field_error^2))``; ``ch`` the pipeline's channel."""
     if s[_DT] != dt:
         s[_DT], s[_KM], s[_KW] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[3])
     if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and (acc_ok or (flags & _ACC_REJECTED) != 0):
@@ -621,13 +743,31 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             me, mn = v0 * s[ax] + v1 * s[ax + 1] + v2 * s[ax + 2], v0 * s[ax + 3] + v1 * s[ax + 4] + v2 * s[ax + 5]
             s[_SD], s[_ME], s[_MN] = sd, me, mn
         else:  # a held sample: the fresh one's reading and pairing, so its levelled field (the same numbers)
+            v0, v1, v2 = s[_PL], s[_PL + 1], s[_PL + 2]
             norm, dip, sd, me, mn = s[_PN], s[_PD], s[_SD], s[_ME], s[_MN]
-        err = _k_heading_error(me, mn, s[_HC], s[_HS])  # (me, mn: the field's east and north in the levelled frame)
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
-        if p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0 and _k_moved(s, norm, dip, p[8], p[9]) and \
-                k_follow_field(s, norm, dip, p[8], p[9]):
+        recal = p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0
+        if recal and p[26] != 0.0:  # reexpress: the calibration's change of the field, body frame, as learned
+            d0, d1, d2 = k_rot(p0, -p1, -p2, -p3, v0 - s[_PL], v1 - s[_PL + 1], v2 - s[_PL + 2])
+            f0 = s[_RL] + s[_RM] * d0 + s[_RM + 1] * d1 + s[_RM + 2] * d2
+            f1 = s[_RL + 1] + s[_RM + 3] * d0 + s[_RM + 4] * d1 + s[_RM + 5] * d2
+            f2 = s[_RL + 2] + s[_RM + 6] * d0 + s[_RM + 7] * d1 + s[_RM + 8] * d2
+            ok, st = _k_reexpress(s, s[_RL] * s[ax] + s[_RL + 1] * s[ax + 1] + s[_RL + 2] * s[ax + 2],
+                              s[_RL] * s[ax + 3] + s[_RL + 1] * s[ax + 4] + s[_RL + 2] * s[ax + 5],
+                              s[_RL] * s[ax + 6] + s[_RL + 1] * s[ax + 7] + s[_RL + 2] * s[ax + 8],
+                              f0 * s[ax] + f1 * s[ax + 1] + f2 * s[ax + 2],
+                              f0 * s[ax + 3] + f1 * s[ax + 4] + f2 * s[ax + 5],
+                              f0 * s[ax + 6] + f1 * s[ax + 7] + f2 * s[ax + 8],
+                              s[_RS] * d0 + s[_RS + 1] * d1 + s[_RS + 2] * d2, d0 * d0 + d1 * d1 + d2 * d2, norm,
+                              dip, p[27])
+            if ok:
+                s[_RL], s[_RL + 1], s[_RL + 2] = f0, f1, f2
+                _k_turn(s, st)
+        if recal and _k_moved(s, norm, dip, p[8], p[9]) and k_follow_field(s, norm, dip, p[8], p[9]):
             s[_RELEARN] = 1.0  # (the reference's state sits at the start of the corrector's)
         s[_PN], s[_PD] = norm, dip
+        s[_PL], s[_PL + 1], s[_PL + 2] = v0, v1, v2
+        err = _k_heading_error(me, mn, s[_HC], s[_HS])  # (me, mn: the field's east and north in the levelled frame)
         incl = 0.0
         if p[25] != 0.0:
             le = ch[_CH_LET] * s[ax] + ch[_CH_LET + 1] * s[ax + 1] + ch[_CH_LET + 2] * s[ax + 2]
@@ -639,6 +779,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             s[_RELEARN] = 0.0
         if code == MAG_LEARNING and s[_RELEARN] == 0.0:
             n = s[MAG_COUNT]
+            _k_learn(s, n, v0, v1, v2, p0, p1, p2, p3)
             s[_DELTA] = _kwrap(s[_DELTA] + (err if n == 1.0 else err / n))
             _k_set_half(s)
             if kalman:
@@ -646,8 +787,14 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         elif code == MAG_DISTURBED and p[1] != 0.0:
             out = _MAG_DISTURBED
         else:
-            step = (_k_kf_gain(s, r) if kalman else s[_KM]) * err
+            k = _k_kf_gain(s, r) if kalman else s[_KM]
+            step = k * err
             _k_turn(s, step)
+            if p[26] != 0.0:  # reexpress: delta's sensitivity to the calibration, R^T g
+                hh = max(me * me + mn * mn, 1e-300)
+                u0, u1, u2 = k_rot(p0, -p1, -p2, -p3, (mn * s[ax] - me * s[ax + 3]) / hh,
+                                   (mn * s[ax + 1] - me * s[ax + 4]) / hh, (mn * s[ax + 2] - me * s[ax + 5]) / hh)
+                _k_trace(s, k, u0, u1, u2)
             if p[4] != 0.0 and (flags & _REST) == 0:
                 r = step / dt
                 k_bias_step(b, q[0], q[1], q[2], q[3], s[ax + 6] * r, s[ax + 7] * r, s[ax + 8] * r, dt / p[5], p[6])
