@@ -1096,7 +1096,10 @@ def gyro_delay_lever(rec: Recording, pairing: float | None = None, band: tuple[f
     regressors are band-passed (``band``: a second-order Butterworth run forward and backward,
     which removes gravity, the drift and the accelerometer's bias) and ``[d, r]`` fitted by least
     squares; the lever arm's term computed from a late gyro is late too, so the delay's column gets
-    ``R_I d/dt (K r)`` with the fitted ``r`` and the fit is repeated (``iterations``, Gauss-Newton).
+    ``R_I d/dt (K r)`` with the fitted ``r`` and the fit is repeated (``iterations``, Gauss-Newton). The
+    strapdown's own errors are fitted with them: the gyro's scale and misalignment ``E`` (9) and its
+    bias (3) turn I by ``th = int R_I (E w + b) dt``, which tilts gravity by ``-th x g_I`` (an angle,
+    where the delay's term is a rate: they separate).
     ``std``: a jackknife over ``blocks`` blocks of the recording. ``bound``: the residual's RMS over
     that of the delay's column with the lever arm's columns projected out, the most the residual
     could move the delay if all of it correlated with the delay's signature: small where the model
@@ -1135,25 +1138,29 @@ def gyro_delay_lever(rec: Recording, pairing: float | None = None, band: tuple[f
     sos = butter(2, [lo, hi], btype="band", fs=fs, output="sos")
     bp = lambda v: sosfiltfilt(sos, v, axis=0)  # noqa: E731
     yf, sigf, rkf = bp(y), bp(sig), bp(rk)
+    # the strapdown's own errors: a gyro reading (I + E) w + b turns I by th = int R_I (E w + b) dt, which
+    # tilts gravity in I by -th x g_I (g_I: y low-passed at a fifth of the band's lowest frequency)
+    g_i = sosfiltfilt(butter(2, 0.2 * lo, fs=fs, output="sos"), y, axis=0)
+    rates = np.concatenate([gyr, np.ones((n, 1))], axis=1) * dt[:, None]  # w_j dt, and dt for the bias
+    own = np.stack([bp(-np.cross(np.cumsum(rot[:, :, i] * rates[:, j:j + 1], axis=0), g_i))
+                    for i in range(3) for j in range(4)], axis=2)
     lever, delay = np.zeros(3), 0.0
     for _ in range(iterations):
         # the lever arm's term from a late gyro is late: the accelerometer has R_I (K r)(t), the fit R_I (K r)(t - d)
         kr_dot = np.gradient(np.einsum("nij,j->ni", k, lever), t, axis=0)
         col = sigf + bp(np.einsum("nij,nj->ni", rot, kr_dot))
-        a = np.concatenate([col[:, :, None], rkf], axis=2).reshape(-1, 4)
+        a = np.concatenate([col[:, :, None], rkf, own], axis=2).reshape(-1, 4 + own.shape[2])
         sol = np.linalg.lstsq(a, yf.reshape(-1), rcond=None)[0]
-        step, delay, lever = abs(sol[0] - delay), float(sol[0]), sol[1:]
+        step, delay, lever = abs(sol[0] - delay), float(sol[0]), sol[1:4]
         if step < 1e-3 * rec.nominal_dt:
             break
     res = yf.reshape(-1) - a @ sol
     c = a[:, 0] - a[:, 1:] @ np.linalg.lstsq(a[:, 1:], a[:, 0], rcond=None)[0]
     bound = float(np.sqrt(np.mean(res ** 2) / np.mean(c ** 2)))
-    edges = np.linspace(0, n, blocks + 1).astype(int)
-    est = []
-    rows = np.repeat(np.arange(n), 3)
-    for b in range(blocks):
-        keep = (rows < edges[b]) | (rows >= edges[b + 1])
-        est.append(np.linalg.lstsq(a[keep], yf.reshape(-1)[keep], rcond=None)[0][0])
+    edges = 3 * np.linspace(0, n, blocks + 1).astype(int)  # the rows of each block (3 per sample)
+    ab = [(a[i:j].T @ a[i:j], a[i:j].T @ yf.reshape(-1)[i:j]) for i, j in zip(edges[:-1], edges[1:])]
+    aa, ay = sum(x for x, _ in ab), sum(x for _, x in ab)
+    est = [np.linalg.lstsq(aa - x, ay - z, rcond=None)[0][0] for x, z in ab]  # each block left out
     std = float(np.sqrt((blocks - 1) / blocks * np.sum((np.array(est) - np.mean(est)) ** 2)))
     # the fit is against the accelerometer at its instant in the step (pairing): counted from there
     return delay, std, bound, np.asarray(lever, dtype=float)

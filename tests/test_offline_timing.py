@@ -298,8 +298,8 @@ def test_the_check_segment_is_five_of_the_estimates_at_any_rate(monkeypatch, rat
 def test_lever_fit_finds_a_late_gyro_on_a_hand_held_sensor_and_retiming_removes_it():
     # a sensor 15 cm from the point it turns about, its gyro 1 sample late: the tangential and centripetal
     # accelerations come with the angular acceleration and keep the segment estimate from applying
-    # (+1.78 +- 1.26 samples, refused); the fit with the lever arm finds the delay (measured 1.005 +- 0.070
-    # samples, the lever arm (0.147, 0.030, -0.049) m) and the re-timed result is the on-time one:
+    # (+1.78 +- 1.26 samples, refused); the fit with the lever arm finds the delay (measured 1.008 +- 0.071
+    # samples, the lever arm (0.150, 0.030, -0.050) m) and the re-timed result is the on-time one:
     # 6D 0.553 -> 0.079 deg (0.079 without the delay)
     rec = perturbed("hand-held", errors={"gyr_delay": 1.0 / RATE})
     inner = fk.make("recommended", use_mag=False)
@@ -316,7 +316,7 @@ def test_lever_fit_finds_a_late_gyro_on_a_hand_held_sensor_and_retiming_removes_
     ("hand-held", {"gyr_lowpass": 40.0}, sim.lowpass_delay(40.0, RATE))])
 def test_lever_fit_recovers_simulated_delays_to_a_tenth_of_a_sample(name, errors, expected):
     # the rule for a self-estimated offset: a delay, a low-pass's group delay, with a lever arm
-    # (measured 1.000, 2.175 for 2.176, 0.979 for 0.973 samples), and applied
+    # (measured 1.000, 2.175 for 2.176, 0.982 for 0.973 samples), and applied
     rec = perturbed(name, errors=errors)
     out, t = OfflineFilter._gyro_retimed_lever(rec, fk.make("recommended").config, "numba")
     assert t["applied"] and out is not rec and abs(t["delay"] * RATE - expected) < 0.1
@@ -324,7 +324,7 @@ def test_lever_fit_recovers_simulated_delays_to_a_tenth_of_a_sample(name, errors
 
 @pytest.mark.parametrize("name", ["hand-held", "scaled-gyro", "magnet-nearby", "tapped", "vibrating"])
 def test_lever_fit_gives_zero_where_the_sensors_are_in_step(name):
-    # no delay: not applied (hand-held 0.022 +- 0.027 samples; vibrating -23 +- 9, its bound 41 samples)
+    # no delay: not applied (hand-held 0.021 +- 0.028 samples; vibrating -2.4 +- 9.1, its bound 44 samples)
     rec = sim.scenario(name)
     out, t = OfflineFilter._gyro_retimed_lever(rec, fk.make("recommended").config, "numba")
     assert out is rec and not t["applied"]
