@@ -133,17 +133,20 @@ def make_filter(name: str, dims: str):
     """``name`` as a 6D or 9D filter: ``mode`` for the peers, ``use_mag`` for fusionkit's own.
     ``NAME+offline`` is fusionkit's offline mode of ``NAME`` (``fk.make(NAME, offline=True)``),
     ``NAME+offline-gyro-timing`` the same with the gyroscope re-timed onto the accelerometer's clock
-    (``OfflineFilter(..., gyro_timing="recording")``)."""
+    (``OfflineFilter(..., gyro_timing="recording")``), ``NAME+offline-gyro-lever`` with the delay fitted
+    jointly with a lever arm (``gyro_timing="lever"``)."""
     name, _, option = name.partition("+")
-    if option not in ("", "offline", "offline-gyro-timing"):
-        raise SystemExit(f"{name}+{option}: the options are '+offline' and '+offline-gyro-timing'")
+    if option not in ("", "offline", "offline-gyro-timing", "offline-gyro-lever"):
+        raise SystemExit(f"{name}+{option}: the options are '+offline', '+offline-gyro-timing' and "
+                         "'+offline-gyro-lever'")
     fields = fk.get(name, "filter").Config.model_fields
     if "mode" in fields and not option:
         return fk.make(name, mode=dims)
-    if "use_mag" in fields and option == "offline-gyro-timing":
+    if "use_mag" in fields and option in ("offline-gyro-timing", "offline-gyro-lever"):
         from fusionkit.offline import OfflineFilter
 
-        return OfflineFilter(fk.make(name, use_mag=dims == "9D"), gyro_timing="recording")
+        timing = "recording" if option == "offline-gyro-timing" else "lever"
+        return OfflineFilter(fk.make(name, use_mag=dims == "9D"), gyro_timing=timing)
     if "use_mag" in fields:
         return fk.make(name, offline=option == "offline", use_mag=dims == "9D")
     raise SystemExit(f"{name}: no 'mode' or 'use_mag' parameter to choose 6D or 9D with")

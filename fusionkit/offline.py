@@ -107,8 +107,12 @@ test, and so is the estimate over ``GYRO_CHECK_SEGMENT`` s segments, and the two
 moved earlier by it before every other step (:func:`retime_gyro`): the output then follows the
 accelerometer's clock. Not the default: the estimate assumes linear accelerations that do not
 correlate with the angular acceleration, which a hand-held sensor's do (on BROAD it is several
-samples off; the second time scale refuses it there). A number (s) is a delay the user knows,
-applied as given.
+samples off; the second time scale refuses it there). ``"lever"``: the delay fitted jointly with
+the accelerometer's lever arm from the point the body turns about (:func:`gyro_delay_lever`), which
+removes the tangential and centripetal accelerations of a sensor turned about a fixed point, and
+applied only where the model explains the accelerometer well enough that the worst case of what it
+leaves could not undo the move (on BROAD, where the hand's turning point itself accelerates, it is
+refused on every trial). A number (s) is a delay the user knows, applied as given.
 
 Flags: REST where either pass detects rest (the future confirms a rest the past could not yet
 see), MAG_DISTURBED where the magnetometer was left out (the mask above) or both passes reject it
@@ -136,7 +140,7 @@ from .errors import ConfigError, InputError, PluginError
 from .models.mag_calibration import mag_calibration_apply
 from .models.time_offset import ACC, EST, MAG, NSEG, STD, TimeOffsetModel, time_offset_apply
 from .protocols import Filter
-from .rotations import quat_conj, quat_from_rotvec, quat_mul, quat_to_matrix, quat_to_rotvec
+from .rotations import quat_conj, quat_from_rotvec, quat_mul, quat_to_matrix, quat_to_rotvec, skew
 from .types import Flag, Recording, Result, hold_gaps, sample_validity
 from .correctors._factor import k_qmul, k_rot
 from .correctors.tilt import _FORGET, _Y as _T_Y, _NST as _T_NST, _TAU as _T_TAU
@@ -145,7 +149,7 @@ from .correctors.tilt import _k_adapt_step, _k_lowpass_vertical, _k_set_tau, _lp
 __all__ = ["OfflineFilter", "reverse_recording", "reversed_config", "information", "fuse_reference",
            "supports_offline", "disturbance_mask", "calibration_passes", "select_calibration", "mag_delay_recording",
            "retime_mag", "smooth_reference", "smoothing_params", "bias_trace", "gyro_trace", "rate_rows",
-           "gyro_delay_recording", "retime_gyro"]
+           "gyro_delay_recording", "gyro_delay_lever", "retime_gyro"]
 
 #: the sensor model whose magnetometer calibration the offline mode decides with the whole recording
 _MAG_CALIBRATION = "mag-calibration"
@@ -157,7 +161,7 @@ _CALIBRATION_TESTS = ("norm", "model")
 #: how the offline mode treats the magnetometer's timing (``OfflineFilter(mag_timing=...)``)
 _MAG_TIMINGS = ("recording", "as-is")
 #: how the offline mode treats the gyroscope's timing against the accelerometer (``OfflineFilter(gyro_timing=...)``)
-_GYRO_TIMINGS = ("as-is", "recording")
+_GYRO_TIMINGS = ("as-is", "recording", "lever")
 #: how the two passes' inclinations are combined (``OfflineFilter(inclination=...)``): ``"smoothed"``
 #: each pass's low-passed again in the other direction of time, then fused; ``"average"`` fused as they are
 _INCLINATIONS = ("smoothed", "average")
@@ -696,6 +700,8 @@ class OfflineFilter(Filter):
         gyro_timing = None
         if self.gyro_timing == "recording" and len(rec) >= 2:  # first: every later step reads the gyro
             rec, gyro_timing = self._gyro_retimed(rec, inner.config, used)
+        elif self.gyro_timing == "lever" and len(rec) >= 2:
+            rec, gyro_timing = self._gyro_retimed_lever(rec, inner.config, used)
         elif isinstance(self.gyro_timing, float) and self.gyro_timing != 0.0:  # a delay the user knows
             gyro_timing = {"delay": self.gyro_timing, "std": 0.0, "applied": True}
             rec = _with_gyro_retimed(rec, self.gyro_timing)
@@ -829,6 +835,23 @@ class OfflineFilter(Filter):
         applied = bool(np.all(np.isfinite([delay, std, check, check_std])) and abs(delay) > k * std
                        and abs(check) > k * check_std and abs(delay - check) < k * math.hypot(std, check_std))
         info = {"delay": delay, "std": std, "check": check, "check_std": check_std, "applied": applied}
+        if not applied:
+            return rec, info
+        limit = TimeOffsetModel.Config().max_offset
+        return _with_gyro_retimed(rec, min(max(delay, -limit), limit)), info
+
+    @classmethod
+    def _gyro_retimed_lever(cls, rec, config, used):
+        """``rec`` with its gyroscope moved onto the accelerometer's clock where :func:`gyro_delay_lever`'s
+        estimate is a delay the model accounts for: beyond ``MAG_DELAY_SIGMAS`` standard deviations, and
+        with the model's ``bound`` under half of it (then even a residual that all went into the
+        estimate leaves the gyro nearer its true timing after the move than before); clamped to the
+        ``time-offset`` model's ``max_offset``. Else ``rec`` itself. And ``{"delay", "std", "bound",
+        "lever", "applied"}`` (s; the lever arm in m)."""
+        delay, std, bound, lever = gyro_delay_lever(rec, getattr(config, "acc_delay", None), backend=used)
+        applied = bool(np.all(np.isfinite([delay, std, bound])) and abs(delay) > cls.MAG_DELAY_SIGMAS * std
+                       and bound < 0.5 * abs(delay))
+        info = {"delay": delay, "std": std, "bound": bound, "lever": lever, "applied": applied}
         if not applied:
             return rec, info
         limit = TimeOffsetModel.Config().max_offset
@@ -1049,6 +1072,98 @@ def gyro_delay_recording(rec: Recording, gyr_range: float | None = None, acc_ran
     # step; the filter pairs the accelerometer pairing before the end of the step
     middle = 0.5 * rec.nominal_dt
     return float(s[ACC + EST]) + (pairing - middle if pairing is not None else 0.0), float(s[ACC + STD])
+
+
+#: the band (Hz) in which :func:`gyro_delay_lever` compares the accelerometer with the gyro: a hand's
+#: and a body's turns, above the strapdown's drift and gravity, below where the angular acceleration's
+#: difference quotient departs from the derivative
+LEVER_BAND = (0.5, 3.0)
+
+
+def gyro_delay_lever(rec: Recording, pairing: float | None = None, band: tuple[float, float] = LEVER_BAND,
+                     backend: str = "auto", blocks: int = 20,
+                     iterations: int = 6) -> tuple[float, float, float, np.ndarray]:
+    """The gyroscope's delay against the accelerometer over the whole recording, fitted jointly with
+    the accelerometer's lever arm from the point the body turns about: ``(delay, std, bound, lever)``
+    (s, s, s, m body), ``delay`` counted from ``pairing`` as :func:`gyro_delay_recording` counts it
+    (positive: the gyro is late). NaN where there is too little to fit.
+
+    In the gyro's own strapdown frame ``I`` (no filter: the gyro integrated from the first sample, at
+    the accelerometer's instant in the step) the specific force is
+    ``y = R_I f = g_I + a_c + R_I K r - d (w_I x y)``: gravity (constant in I up to the strapdown's
+    slow drift), the turning point's own acceleration ``a_c``, the lever arm ``r``'s tangential and
+    centripetal terms (``K = [w_dot]x + [w]x^2`` from the gyro) and the delay ``d``'s. ``y`` and the
+    regressors are band-passed (``band``: a second-order Butterworth run forward and backward,
+    which removes gravity, the drift and the accelerometer's bias) and ``[d, r]`` fitted by least
+    squares; the lever arm's term computed from a late gyro is late too, so the delay's column gets
+    ``R_I d/dt (K r)`` with the fitted ``r`` and the fit is repeated (``iterations``, Gauss-Newton). The
+    strapdown's own errors are fitted with them: the gyro's scale and misalignment ``E`` (9) and its
+    bias (3) turn I by ``th = int R_I (E w + b) dt``, which tilts gravity by ``-th x g_I`` (an angle,
+    where the delay's term is a rate: they separate).
+    ``std``: a jackknife over ``blocks`` blocks of the recording. ``bound``: the residual's RMS over
+    that of the delay's column with the lever arm's columns projected out, the most the residual
+    could move the delay if all of it correlated with the delay's signature: small where the model
+    (a rigid body turning about a fixed point, one delay) explains the accelerometer, large where the
+    turning point's own acceleration (a hand's wrist and elbow) does not fit it. A disturbance that
+    looks exactly like a delay is not seen by any test. Assumes uniform sampling (the band-pass runs
+    on samples); invalid samples are interpolated over."""
+    from scipy.signal import butter, sosfiltfilt
+
+    from .navigation.strapdown import strapdown
+
+    n = len(rec)
+    nan = (math.nan, math.nan, math.nan, np.full(3, np.nan))
+    fs = 1.0 / rec.nominal_dt
+    lo, hi = float(band[0]), min(float(band[1]), 0.45 * fs)
+    if not (0.0 < lo < hi) or n < 10.0 * fs / lo:  # at least ten periods of the band's lowest frequency
+        return nan
+    t = np.asarray(rec.time, dtype=float)
+    gyr, acc = np.array(rec.gyr, dtype=float), np.array(rec.acc, dtype=float)
+    for x in (gyr, acc):
+        ok = np.isfinite(x).all(axis=1)
+        if ok.sum() < 2:
+            return nan
+        for i in range(3):
+            x[~ok, i] = np.interp(t[~ok], t[ok], x[ok, i])
+    dt = np.ascontiguousarray(rec.dt, dtype=float)
+    r_end = quat_to_matrix(strapdown(gyr, acc, dt, quat0=(1.0, 0.0, 0.0, 0.0), backend=backend).quat)
+    frac = 0.5 if pairing is None else min(max(pairing / rec.nominal_dt, 0.0), 1.0)  # before the step's end
+    rot = r_end.copy()
+    rot[1:] = (1.0 - frac) * r_end[1:] + frac * r_end[:-1]  # body -> I at the accelerometer's instant
+    y = np.einsum("nij,nj->ni", rot, acc)
+    sig = -np.cross(np.einsum("nij,nj->ni", rot, gyr), y)  # d/d(delay) of y
+    w = skew(gyr)
+    k = skew(np.gradient(gyr, t, axis=0)) + w @ w
+    rk = rot @ k
+    sos = butter(2, [lo, hi], btype="band", fs=fs, output="sos")
+    bp = lambda v: sosfiltfilt(sos, v, axis=0)  # noqa: E731
+    yf, sigf, rkf = bp(y), bp(sig), bp(rk)
+    # the strapdown's own errors: a gyro reading (I + E) w + b turns I by th = int R_I (E w + b) dt, which
+    # tilts gravity in I by -th x g_I (g_I: y low-passed at a fifth of the band's lowest frequency)
+    g_i = sosfiltfilt(butter(2, 0.2 * lo, fs=fs, output="sos"), y, axis=0)
+    rates = np.concatenate([gyr, np.ones((n, 1))], axis=1) * dt[:, None]  # w_j dt, and dt for the bias
+    own = np.stack([bp(-np.cross(np.cumsum(rot[:, :, i] * rates[:, j:j + 1], axis=0), g_i))
+                    for i in range(3) for j in range(4)], axis=2)
+    lever, delay = np.zeros(3), 0.0
+    for _ in range(iterations):
+        # the lever arm's term from a late gyro is late: the accelerometer has R_I (K r)(t), the fit R_I (K r)(t - d)
+        kr_dot = np.gradient(np.einsum("nij,j->ni", k, lever), t, axis=0)
+        col = sigf + bp(np.einsum("nij,nj->ni", rot, kr_dot))
+        a = np.concatenate([col[:, :, None], rkf, own], axis=2).reshape(-1, 4 + own.shape[2])
+        sol = np.linalg.lstsq(a, yf.reshape(-1), rcond=None)[0]
+        step, delay, lever = abs(sol[0] - delay), float(sol[0]), sol[1:4]
+        if step < 1e-3 * rec.nominal_dt:
+            break
+    res = yf.reshape(-1) - a @ sol
+    c = a[:, 0] - a[:, 1:] @ np.linalg.lstsq(a[:, 1:], a[:, 0], rcond=None)[0]
+    bound = float(np.sqrt(np.mean(res ** 2) / np.mean(c ** 2)))
+    edges = 3 * np.linspace(0, n, blocks + 1).astype(int)  # the rows of each block (3 per sample)
+    ab = [(a[i:j].T @ a[i:j], a[i:j].T @ yf.reshape(-1)[i:j]) for i, j in zip(edges[:-1], edges[1:])]
+    aa, ay = sum(x for x, _ in ab), sum(x for _, x in ab)
+    est = [np.linalg.lstsq(aa - x, ay - z, rcond=None)[0][0] for x, z in ab]  # each block left out
+    std = float(np.sqrt((blocks - 1) / blocks * np.sum((np.array(est) - np.mean(est)) ** 2)))
+    # the fit is against the accelerometer at its instant in the step (pairing): counted from there
+    return delay, std, bound, np.asarray(lever, dtype=float)
 
 
 def _delay_state(rec, gyr_range, acc_range, backend, segment_time=None):
