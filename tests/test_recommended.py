@@ -255,6 +255,23 @@ def test_tau_max_parallel_drops_what_the_onset_let_through():
                                   .run(knocked(0)).quat)
 
 
+def test_the_rest_pin_follows_the_rate_error():
+    """bias_sigma_rest "auto": a rest pins the bias in motion (VQF's 0.03 deg/s) only where the gyro's rate
+    error is removed (gyro_rate_estimate correct); with "tau" or "off" the bias in motion carries E w, which
+    a rest cannot see, so the rest leaves its covariance alone. A value the user gives is taken as given."""
+    def pin(**kw):
+        (c,) = [c for c in fk.make("recommended", **kw).correctors if c.name == "inertial-tilt"]
+        return c.config.bias_sigma_rest
+
+    assert pin() == pytest.approx(0.03 * DEG)
+    assert pin(gyro_rate_estimate="tau") is None and pin(gyro_rate_estimate="off") is None
+    assert pin(gyro_rate_estimate="off", bias_sigma_rest=0.001) == 0.001
+    assert pin(bias_sigma_rest=None) is None and pin(rest_bias=False) is None
+    for bad in ("often", -0.001):
+        with pytest.raises(fk.ConfigError, match="bias_sigma_rest"):
+            fk.make("recommended", bias_sigma_rest=bad)
+
+
 def test_tau_max_parallel_reference_equals_numba():
     r = translation(n=6)  # the switch to the low-pass at tau_max at about 9 s
     f = fk.make("recommended", use_mag=False, tau_max_parallel=True)

@@ -49,10 +49,10 @@ from __future__ import annotations
 
 import copy
 import math
-from typing import Any, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import model_validator
+from pydantic import Field, model_validator
 
 from ..config import AlignmentConfig, FilterConfig, PipelineConfig, PluginSpec, param
 from ..correctors._factor import initial_attitude
@@ -152,12 +152,13 @@ class RecommendedConfig(FilterConfig):
     bias_sigma_motion: float = param(
         math.radians(0.1), unit="rad/s", description="kalman: the steady-state standard deviation of a bias learned "
         "in motion (VQF's biasSigmaMotion)", gt=0)
-    bias_sigma_rest: float | None = param(
-        math.radians(0.03), unit="rad/s", description="kalman: how well a rest tells the bias in motion (the rest's "
-        "bias learned with this standard deviation shrinks the covariance; VQF's biasSigmaRest, 0.03 deg/s). A rest "
-        "measures the zero-rate bias; the error in motion adds the scale factor's and misalignment's, proportional to "
-        "the rate, which gyro_rate_estimate correct removes (recommended.md). None: not at all (the default before "
-        "tau_max_parallel)", gt=0)
+    bias_sigma_rest: Annotated[float, Field(gt=0)] | Literal["auto"] | None = param(
+        "auto", unit="rad/s", description="kalman: how well a rest tells the bias in motion (the rest's bias learned "
+        "with this standard deviation shrinks the covariance; VQF's biasSigmaRest, 0.03 deg/s). A rest measures the "
+        "zero-rate bias; the error in motion adds the scale factor's and misalignment's, proportional to the rate, "
+        "which only gyro_rate_estimate correct removes (recommended.md). auto: 0.03 deg/s with gyro_rate_estimate "
+        "correct, None otherwise. None: a rest does not touch the covariance (the default before "
+        "tau_max_parallel)")
     mag_bias: bool = param(
         False, unit="-", description="the in-motion bias also learns from the heading correction (vertical axis); "
         "lets the magnetometer reach roll and pitch through the bias (costs 0.08 deg on BROAD)")
@@ -224,6 +225,17 @@ class RecommendedFilter(Pipeline):
     source: ClassVar[str] = "fusionkit (sources 000-003 composed with the state of the art)"
     summary: ClassVar[str] = "channel-separated inclination/heading, inertial low-pass, bias and disturbance handling"
 
+    @staticmethod
+    def _bias_sigma_rest(c: RecommendedConfig) -> float | None:
+        """inertial-tilt's ``bias_sigma_rest``: None without the rest's bias; ``"auto"`` pins a rest's bias
+        (VQF's 0.03 deg/s) only where the gyro's rate error is removed, since otherwise the bias in motion
+        carries the rate-proportional error ``E w`` that a rest cannot see."""
+        if not c.rest_bias:
+            return None
+        if c.bias_sigma_rest == "auto":
+            return math.radians(0.03) if c.gyro_rate_estimate == "correct" else None
+        return c.bias_sigma_rest
+
     def pipeline_config(self) -> PipelineConfig:
         c = self.config
         detectors = [PluginSpec(name="rest", params=c.rest.model_dump())]
@@ -241,7 +253,7 @@ class RecommendedFilter(Pipeline):
             "tau": c.tau_acc, "fast_start": c.fast_start, "motion_bias_tau": c.motion_bias_tau,
             "bias_max": c.bias_max, "acc_delay": c.acc_delay, "bias_filter": c.bias_filter,
             "bias_sigma_init": c.bias_sigma_init,
-            "bias_sigma_motion": c.bias_sigma_motion, "bias_sigma_rest": c.bias_sigma_rest if c.rest_bias else None,
+            "bias_sigma_motion": c.bias_sigma_motion, "bias_sigma_rest": self._bias_sigma_rest(c),
             "tau_adapt": c.tau_adapt, "gyro_rate_error": c.gyro_rate_error, "impulse_clip": c.impulse_clip,
             "tau_max_parallel": c.tau_max_parallel,
             "rate_error_estimate": c.gyro_rate_estimate != "off",
