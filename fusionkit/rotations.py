@@ -30,11 +30,13 @@ __all__ = [
     "quat_angle",
     "small_rotation_quat",
     "skew",
+    "cross",
     "rodrigues",
     "orthonormalize",
 ]
 
 _SMALL = 1e-8  # below this rotation angle (rad) the Taylor branches are exact to double precision
+_EYE3 = np.eye(3)  # read only (rodrigues, per sample in the reference filters)
 
 
 def quat_mul(p, q):
@@ -64,6 +66,11 @@ def quat_conj(q):
 def quat_normalize(q):
     """Scale to unit norm."""
     q = np.asarray(q, dtype=float)
+    if q.ndim == 1:  # one quaternion: Python floats, as in quat_mul (the same sum and division)
+        w, x, y, z = q.tolist()
+        n = math.sqrt(w * w + x * x + y * y + z * z)
+        if 0.0 < n < math.inf:  # (zero and non-finite norms: numpy's path, its NaNs)
+            return np.array([w / n, x / n, y / n, z / n])
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
@@ -167,9 +174,25 @@ def quat_angle(p, q):
 def skew(v):
     """Skew-symmetric matrix ``[v x]`` with ``skew(a) @ b == cross(a, b)``."""
     v = np.asarray(v, dtype=float)
+    if v.ndim == 1:  # one vector: Python floats, as in quat_mul
+        x, y, w = v.tolist()
+        return np.array([[0.0, -w, y], [w, 0.0, -x], [-y, x, 0.0]])
     z = np.zeros(v.shape[:-1])
     x, y, w = np.moveaxis(v, -1, 0)
     return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
+
+
+def cross(a, b):
+    """Cross product ``a x b`` of 3-vectors, broadcasting like ``np.cross``. One pair (a reference
+    filter's per-sample step) on Python floats: the products and differences ``np.cross`` forms,
+    the same numbers without its per-call cost (axis handling, temporaries)."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    if a.ndim == b.ndim == 1 and a.size == b.size == 3:
+        a0, a1, a2 = a.tolist()
+        b0, b1, b2 = b.tolist()
+        return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+    return np.cross(a, b)
 
 
 def rodrigues(rv):
@@ -184,7 +207,7 @@ def rodrigues(rv):
     a = np.where(small, 1.0 - s**2 / 6.0 + s**4 / 120.0, np.sin(safe) / safe)
     b = np.where(small, 0.5 - s**2 / 24.0 + s**4 / 720.0, (1.0 - np.cos(safe)) / safe**2)
     bm = skew(rv)
-    return np.eye(3) + a * bm + b * (bm @ bm)
+    return _EYE3 + a * bm + b * (bm @ bm)
 
 
 def orthonormalize(c):
