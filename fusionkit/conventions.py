@@ -48,6 +48,7 @@ Gravity
 
 from __future__ import annotations
 
+import functools
 from typing import Literal
 
 import numpy as np
@@ -246,6 +247,13 @@ def check_body(body, name: str = "body", error: type[Exception] = ConfigError) -
 def body_matrix(src: str, dst: str) -> np.ndarray:
     """Matrix ``M`` with ``v_dst = M @ v_src`` for body-frame vectors (gyro, accelerometer,
     magnetometer) measured in axes ``src`` and re-expressed in axes ``dst``."""
+    if isinstance(src, str) and isinstance(dst, str):  # a reference step asks per sample: computed once
+        return _body_matrix(src, dst).copy()
+    return _body_matrix.__wrapped__(src, dst)
+
+
+@functools.lru_cache(maxsize=None)
+def _body_matrix(src: str, dst: str) -> np.ndarray:
     return _to_flu(check_body(dst)).T @ _to_flu(check_body(src))
 
 
