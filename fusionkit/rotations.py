@@ -201,7 +201,11 @@ def rodrigues(rv):
     ``s = |rv|``; for tiny ``s`` the Taylor series of both coefficients is used.
     """
     rv = np.asarray(rv, dtype=float)
-    s = np.linalg.norm(rv, axis=-1)[..., None, None]
+    if rv.ndim == 1:  # one rotation: its norm on Python floats (the same sum), numpy's scalars after
+        x, y, z = rv.tolist()
+        s = np.float64(math.sqrt(x * x + y * y + z * z))
+    else:
+        s = np.linalg.norm(rv, axis=-1)[..., None, None]
     small = s < 1e-4
     safe = np.where(small, 1.0, s)
     a = np.where(small, 1.0 - s**2 / 6.0 + s**4 / 120.0, np.sin(safe) / safe)
