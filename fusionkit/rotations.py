@@ -135,6 +135,10 @@ def matrix_to_quat(m):
     """Unit quaternion (with ``w >= 0``) of a rotation matrix, Shepperd's method."""
     m = np.asarray(m, dtype=float)
     single = m.ndim == 2
+    if single:  # one matrix: the same operations on Python floats, as in quat_mul
+        e = m.ravel().tolist()
+        if all(map(math.isfinite, e)):  # (non-finite entries: numpy's path, its NaNs)
+            return np.array(_shepperd(*e))
     m = m.reshape(-1, 3, 3)
     out = np.empty((m.shape[0], 4))
     for i, r in enumerate(m):
@@ -154,6 +158,28 @@ def matrix_to_quat(m):
     out = np.where(out[:, :1] < 0, -out, out)
     out /= np.linalg.norm(out, axis=-1, keepdims=True)
     return out[0] if single else out.reshape(m.shape[:-2] + (4,))
+
+
+def _shepperd(r00, r01, r02, r10, r11, r12, r20, r21, r22) -> list:
+    """:func:`matrix_to_quat` of one matrix with finite entries (its loop body, then its sign and
+    normalisation) on Python floats."""
+    tr = r00 + r11 + r22
+    if tr >= max(r00, r11, r22):
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q = [0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s]
+    elif r00 >= r11 and r00 >= r22:
+        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        q = [(r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s]
+    elif r11 >= r22:
+        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        q = [(r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s]
+    else:
+        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        q = [(r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s]
+    if q[0] < 0:
+        q = [-v for v in q]
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return [v / n for v in q]
 
 
 def quat_rotate(q, v):
