@@ -48,6 +48,7 @@ Gravity
 
 from __future__ import annotations
 
+import functools
 from typing import Literal
 
 import numpy as np
@@ -125,14 +126,27 @@ def east_vector(frame: str) -> np.ndarray:
 
 def change_frame(quat, src: str, dst: str) -> np.ndarray:
     """Re-express body->``src`` quaternions as body->``dst`` quaternions."""
-    q_dst_src = matrix_to_quat(frame_matrix(src, dst))
-    return quat_mul(q_dst_src, np.asarray(quat, dtype=float))
+    return quat_mul(_frame_quat(src, dst), np.asarray(quat, dtype=float))
+
+
+@functools.lru_cache(maxsize=None)
+def _frame_quat(src: str, dst: str) -> np.ndarray:
+    """The quaternion of ``frame_matrix(src, dst)`` (per sample in the alignment's reference path:
+    computed once per pair; read only)."""
+    q = matrix_to_quat(frame_matrix(src, dst))
+    q.flags.writeable = False
+    return q
 
 
 def _axis_quat(axis: int, angle):
     e = np.zeros(3)
     e[axis] = 1.0
-    return quat_from_axis_angle(e, np.asarray(angle, dtype=float))
+    angle = np.asarray(angle, dtype=float)
+    if angle.ndim == 0:  # one angle (per sample in the reference paths): quat_from_axis_angle's
+        half = 0.5 * angle  # operations on the unit axis, without its normalisation and concatenation
+        s = np.sin(half)
+        return np.array([np.cos(half), s * e[0], s * e[1], s * e[2]])
+    return quat_from_axis_angle(e, angle)
 
 
 def euler_to_quat(heading, pitch, roll, frame: str = DEFAULT_FRAME) -> np.ndarray:
@@ -246,6 +260,13 @@ def check_body(body, name: str = "body", error: type[Exception] = ConfigError) -
 def body_matrix(src: str, dst: str) -> np.ndarray:
     """Matrix ``M`` with ``v_dst = M @ v_src`` for body-frame vectors (gyro, accelerometer,
     magnetometer) measured in axes ``src`` and re-expressed in axes ``dst``."""
+    if isinstance(src, str) and isinstance(dst, str):  # a reference step asks per sample: computed once
+        return _body_matrix(src, dst).copy()
+    return _body_matrix.__wrapped__(src, dst)
+
+
+@functools.lru_cache(maxsize=None)
+def _body_matrix(src: str, dst: str) -> np.ndarray:
     return _to_flu(check_body(dst)).T @ _to_flu(check_body(src))
 
 

@@ -30,11 +30,13 @@ __all__ = [
     "quat_angle",
     "small_rotation_quat",
     "skew",
+    "cross",
     "rodrigues",
     "orthonormalize",
 ]
 
 _SMALL = 1e-8  # below this rotation angle (rad) the Taylor branches are exact to double precision
+_EYE3 = np.eye(3)  # read only (rodrigues, per sample in the reference filters)
 
 
 def quat_mul(p, q):
@@ -64,6 +66,11 @@ def quat_conj(q):
 def quat_normalize(q):
     """Scale to unit norm."""
     q = np.asarray(q, dtype=float)
+    if q.ndim == 1:  # one quaternion: Python floats, as in quat_mul (the same sum and division)
+        w, x, y, z = q.tolist()
+        n = math.sqrt(w * w + x * x + y * y + z * z)
+        if 0.0 < n < math.inf:  # (zero and non-finite norms: numpy's path, its NaNs)
+            return np.array([w / n, x / n, y / n, z / n])
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
@@ -128,6 +135,10 @@ def matrix_to_quat(m):
     """Unit quaternion (with ``w >= 0``) of a rotation matrix, Shepperd's method."""
     m = np.asarray(m, dtype=float)
     single = m.ndim == 2
+    if single:  # one matrix: the same operations on Python floats, as in quat_mul
+        e = m.ravel().tolist()
+        if all(map(math.isfinite, e)):  # (non-finite entries: numpy's path, its NaNs)
+            return np.array(_shepperd(*e))
     m = m.reshape(-1, 3, 3)
     out = np.empty((m.shape[0], 4))
     for i, r in enumerate(m):
@@ -149,6 +160,28 @@ def matrix_to_quat(m):
     return out[0] if single else out.reshape(m.shape[:-2] + (4,))
 
 
+def _shepperd(r00, r01, r02, r10, r11, r12, r20, r21, r22) -> list:
+    """:func:`matrix_to_quat` of one matrix with finite entries (its loop body, then its sign and
+    normalisation) on Python floats."""
+    tr = r00 + r11 + r22
+    if tr >= max(r00, r11, r22):
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q = [0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s]
+    elif r00 >= r11 and r00 >= r22:
+        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        q = [(r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s]
+    elif r11 >= r22:
+        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        q = [(r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s]
+    else:
+        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        q = [(r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s]
+    if q[0] < 0:
+        q = [-v for v in q]
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return [v / n for v in q]
+
+
 def quat_rotate(q, v):
     """Rotate body vectors ``v`` into the earth frame: ``q (x) v (x) q*``."""
     return np.einsum("...ij,...j->...i", quat_to_matrix(q), np.asarray(v, dtype=float))
@@ -167,9 +200,25 @@ def quat_angle(p, q):
 def skew(v):
     """Skew-symmetric matrix ``[v x]`` with ``skew(a) @ b == cross(a, b)``."""
     v = np.asarray(v, dtype=float)
+    if v.ndim == 1:  # one vector: Python floats, as in quat_mul
+        x, y, w = v.tolist()
+        return np.array([[0.0, -w, y], [w, 0.0, -x], [-y, x, 0.0]])
     z = np.zeros(v.shape[:-1])
     x, y, w = np.moveaxis(v, -1, 0)
     return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
+
+
+def cross(a, b):
+    """Cross product ``a x b`` of 3-vectors, broadcasting like ``np.cross``. One pair (a reference
+    filter's per-sample step) on Python floats: the products and differences ``np.cross`` forms,
+    the same numbers without its per-call cost (axis handling, temporaries)."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    if a.ndim == b.ndim == 1 and a.size == b.size == 3:
+        a0, a1, a2 = a.tolist()
+        b0, b1, b2 = b.tolist()
+        return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
+    return np.cross(a, b)
 
 
 def rodrigues(rv):
@@ -178,13 +227,17 @@ def rodrigues(rv):
     ``s = |rv|``; for tiny ``s`` the Taylor series of both coefficients is used.
     """
     rv = np.asarray(rv, dtype=float)
-    s = np.linalg.norm(rv, axis=-1)[..., None, None]
+    if rv.ndim == 1:  # one rotation: its norm on Python floats (the same sum), numpy's scalars after
+        x, y, z = rv.tolist()
+        s = np.float64(math.sqrt(x * x + y * y + z * z))
+    else:
+        s = np.linalg.norm(rv, axis=-1)[..., None, None]
     small = s < 1e-4
     safe = np.where(small, 1.0, s)
     a = np.where(small, 1.0 - s**2 / 6.0 + s**4 / 120.0, np.sin(safe) / safe)
     b = np.where(small, 0.5 - s**2 / 24.0 + s**4 / 720.0, (1.0 - np.cos(safe)) / safe**2)
     bm = skew(rv)
-    return np.eye(3) + a * bm + b * (bm @ bm)
+    return _EYE3 + a * bm + b * (bm @ bm)
 
 
 def orthonormalize(c):

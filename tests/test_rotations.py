@@ -3,8 +3,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from fusionkit import _kernels as K
+from fusionkit.conventions import euler_to_quat
 from fusionkit.rotations import (
-    matrix_to_quat, orthonormalize, quat_angle, quat_conj, quat_from_rotvec, quat_mul, quat_normalize,
+    cross, matrix_to_quat, orthonormalize, quat_angle, quat_conj, quat_from_rotvec, quat_mul, quat_normalize,
     quat_rotate, quat_to_matrix, quat_to_rotvec, rodrigues, skew, small_rotation_quat,
 )
 
@@ -79,3 +80,25 @@ def test_kernels_match_reference(i):
     rv = rng.normal(size=3) * (1e-9 if i % 2 else 1.0)
     K.rotvec_quat(*rv, out)
     np.testing.assert_allclose(out, quat_from_rotvec(rv), atol=1e-15)
+
+
+def test_one_item_paths_give_the_stacked_numbers_to_the_bit():
+    """The reference filters call these per sample on one item, which takes a path on Python
+    floats (numpy's per-call cost is most of a step): the same operations as the stacked path, so
+    the same numbers, signs of zero included."""
+    g = np.random.default_rng(8)
+    v = np.vstack([g.normal(size=(300, 3)), g.normal(size=(100, 3)) * 1e-6, np.zeros((1, 3))])
+    w = g.normal(size=v.shape)
+    m = np.vstack([quat_to_matrix(Q), g.normal(size=(100, 3, 3)) * 3.0])
+    q4 = g.normal(size=(200, 4))
+    ang = g.uniform(-4.0, 4.0, size=(200, 3))
+    checks = [(lambda x: quat_normalize(x), q4), (skew, v), (rodrigues, v), (matrix_to_quat, m)]
+    for f, x in checks:
+        stacked = f(x)
+        one = np.array([f(item) for item in x])
+        assert np.array_equal(one, stacked) and np.array_equal(np.signbit(one), np.signbit(stacked)), f
+    one = np.array([cross(a, b) for a, b in zip(v, w)])
+    assert np.array_equal(one, np.cross(v, w)) and np.array_equal(np.signbit(one), np.signbit(np.cross(v, w)))
+    one = np.array([euler_to_quat(*a, frame=fr) for a in ang for fr in ("ENU", "NUE")])
+    stacked = np.stack([euler_to_quat(*ang.T, frame=fr) for fr in ("ENU", "NUE")], axis=1).reshape(-1, 4)
+    assert np.array_equal(one, stacked) and np.array_equal(np.signbit(one), np.signbit(stacked))

@@ -38,7 +38,7 @@ from .._numba import njit
 from ..config import PluginConfig, param
 from ..conventions import frame_matrix
 from ..protocols import Correction, Corrector, CorrectorKernel
-from ..rotations import rodrigues
+from ..rotations import cross, rodrigues
 
 __all__ = ["DcmVertical", "DcmNorth", "DcmField", "frame_rows"]
 
@@ -79,7 +79,7 @@ def _orthonormalize(d) -> None:
     d[:, 2] /= np.linalg.norm(d[:, 2])
     d[:, 1] -= (d[:, 1] @ d[:, 2]) * d[:, 2]
     d[:, 1] /= np.linalg.norm(d[:, 1])
-    d[:, 0] = np.cross(d[:, 1], d[:, 2])
+    d[:, 0] = cross(d[:, 1], d[:, 2])
 
 
 def _horizontal_field(mag, d):
@@ -131,7 +131,7 @@ class DcmVertical(_DcmCorrector):
         if sample.acc is not None:
             a = sample.acc / np.linalg.norm(sample.acc)
             if c.method == "vectors":
-                d[:] = rodrigues(c.k_acc * sample.dt * np.cross(d[:, 2], a)) @ d
+                d[:] = rodrigues(c.k_acc * sample.dt * cross(d[:, 2], a)) @ d
             else:
                 d[:, 2] += c.k_acc * sample.dt * (a - d[:, 2])
                 d[:, 2] /= np.linalg.norm(d[:, 2])
@@ -166,7 +166,7 @@ class DcmNorth(_DcmCorrector):
         if sample.mag is not None:
             _, mh = _horizontal_field(sample.mag, d)
             if mh is not None and c.method == "vectors":
-                d[:] = rodrigues(c.k_mag * sample.dt * np.cross(d[:, 1], mh)) @ d
+                d[:] = rodrigues(c.k_mag * sample.dt * cross(d[:, 1], mh)) @ d
             elif mh is not None:
                 d[:, 1] += c.k_mag * sample.dt * (mh - d[:, 1])
         _orthonormalize(d)

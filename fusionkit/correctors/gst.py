@@ -52,7 +52,7 @@ from .._numba import njit
 from ..config import BodyAxes, PluginConfig, param
 from ..conventions import body_axis, east_vector, north_vector, resolve_body, up_vector
 from ..protocols import Correction, Corrector, CorrectorKernel
-from ..rotations import quat_from_axis_angle, quat_from_rotvec, quat_mul, quat_to_matrix, rodrigues
+from ..rotations import cross, quat_from_axis_angle, quat_from_rotvec, quat_mul, quat_to_matrix, rodrigues
 from ..types import Flag
 from ._factor import k_qmul as _qmul
 
@@ -184,7 +184,7 @@ class GstCorrector(Corrector):
                 e = e - (e @ up) * up
                 e /= np.linalg.norm(e)
                 turn = _kwrap(heading - s[_HPREV]) / dt if p[17] != 0.0 else -w_up
-                a_kin = s[_ALONG] * e + s[_V] * turn * np.cross(e, up)
+                a_kin = s[_ALONG] * e + s[_V] * turn * cross(e, up)
                 s[_LPG:_LPG + 3] += s[_KDT + 2] * ((f_h - a_kin) - s[_LPG:_LPG + 3])
             s[_LPA:_LPA + 3] += s[_KDT + 1] * (f_h - s[_LPA:_LPA + 3])
             horizontal = np.linalg.norm(s[_LPA:_LPA + 3]) > p[6]
@@ -202,7 +202,7 @@ class GstCorrector(Corrector):
                 d = k_auto * s[_LPA:_LPA + 3]
             if self.combined and not usable:
                 out |= Flag.GNSS_GAP
-            s[_WP:_WP + 3] = np.cross(up, d)
+            s[_WP:_WP + 3] = cross(up, d)
             if usable and p[18] > 0.0:  # the accelerometer bias: the residual seen in the body
                 s[_BA:_BA + 3] += (p[18] * dt) * (r.T @ s[_LPG:_LPG + 3])
         else:  # no specific force: the levelling pauses, the gyros go on

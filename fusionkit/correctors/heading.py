@@ -115,7 +115,7 @@ from ..detectors.magnetic import (MAG_COUNT, MAG_DISTURBED, MAG_LEARNING, MAG_SI
 from ..models.time_offset import _ANC, _DQ, _GA, _LINK, _NORM, _T, _U, CONF, EST, OFFSET, _enter, _k_enter
 from ..models.time_offset import _BLOCK as _EST_SIZE
 from ..protocols import CorrectorKernel, FactorCorrector
-from ..rotations import quat_mul, quat_to_matrix, wrap_angle
+from ..rotations import cross, quat_mul, quat_to_matrix, wrap_angle
 from ..types import Channel, Flag
 from .._kernels import rotvec_quat_entries
 from ._factor import (atan2_small, bias_step, frame_axes, gyro_lowpass, k_bias_step, k_gyro_lowpass, k_paired, k_qmul,
@@ -321,7 +321,7 @@ class MagHeading(FactorCorrector):
         closed = False
         if x[b + _ANC] and x[b + _T] >= _SEGMENT_TIME - 0.5 * dt:
             v = quat_to_matrix(qc).T @ (quat_to_matrix(x[b + _DQ:b + _DQ + 4]) @ x[b + _U:b + _U + 3])
-            xv = -np.cross(w - x[b + _GA:b + _GA + 3], v)
+            xv = -cross(w - x[b + _GA:b + _GA + 3], v)
             r = u - v
             closed = _fit(x, b, float(xv @ xv), float(xv @ r), float(r @ r),
                           math.exp(-x[b + _T] / self.config.delay_forget_time), self.config.delay_max_std * dt)

@@ -93,7 +93,7 @@ from .._kernels import dcm_entries
 from .._numba import njit
 from ..config import PluginConfig, param
 from ..protocols import CorrectorKernel, FactorCorrector
-from ..rotations import quat_mul, quat_to_matrix
+from ..rotations import cross, quat_mul, quat_to_matrix
 from ..types import Channel, Flag
 from ._factor import bias_step, frame_axes, k_bias_step, k_clamp3, k_paired, k_qmul, k_rot, paired
 
@@ -921,7 +921,7 @@ class InertialTilt(FactorCorrector):
         up = x[_UP:_UP + 3]
         v = quat_to_matrix(x[_QA:_QA + 4]) @ y
         v = v / np.linalg.norm(v)
-        qc = np.array([1.0 + v @ up, *np.cross(v, up)])
+        qc = np.array([1.0 + v @ up, *cross(v, up)])
         n = np.linalg.norm(qc)
         qc = qc / n if n > 1e-12 else np.array([0.0, *x[_EAST:_EAST + 3]])
         x[_QA:_QA + 4] = quat_mul(qc, x[_QA:_QA + 4])

@@ -74,7 +74,7 @@ from ..errors import InputError
 from ..navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, NGYR, PHASE, Aligner, align_step
 from ..navigation.earth import EARTH_RATE, normal_gravity, radii
 from ..protocols import Filter, Sample
-from ..rotations import matrix_to_quat, quat_mul, quat_to_matrix, rodrigues, skew
+from ..rotations import cross, matrix_to_quat, quat_mul, quat_to_matrix, rodrigues, skew
 from ..types import Flag, Recording, Result
 from ..validation import as_vector, check_finite_all, check_positive
 
@@ -370,9 +370,9 @@ class InsGnssFilter(Filter):
         v = x[_V:_V + 3].copy()
         w_ie, w_en = x[_WIE:_WIE + 3], x[_WEN:_WEN + 3]  # the earth model of the last covariance step
         th = w * dt
-        dv = c @ (f + 0.5 * np.cross(th, f)) * dt
+        dv = c @ (f + 0.5 * cross(th, f)) * dt
         c_new = rodrigues(-(w_ie + w_en) * dt) @ c @ rodrigues(th)
-        v_new = v + dv + (np.array([0.0, 0.0, x[_GRAV]]) - np.cross(2.0 * w_ie + w_en, v)) * dt
+        v_new = v + dv + (np.array([0.0, 0.0, x[_GRAV]]) - cross(2.0 * w_ie + w_en, v)) * dt
         x[_P:_P + 3] += np.array([x[_S0], x[_S1], 1.0]) * (0.5 * (v + v_new) * dt)
         x[_V:_V + 3] = v_new
         x[_C:_C + 9] = c_new.reshape(9)
@@ -512,7 +512,7 @@ class InsGnssFilter(Filter):
         pm = x[_COV:_COV + _N * _N].reshape(_N, _N).copy()
         dx = np.zeros(_N)
         cl = c @ lev
-        cwl = c @ np.cross(x[_W:_W + 3], lev)
+        cwl = c @ cross(x[_W:_W + 3], lev)
         for kind, z in ((0, gn[2:5]), (1, gn[5:8])):
             if not np.isfinite(z).all():
                 continue
@@ -575,7 +575,7 @@ class InsGnssFilter(Filter):
         for i, a in zip((1, 2), _nonholonomic_mount(x)):
             cu = c @ (np.eye(3)[i] - a * np.eye(3)[0])
             hm = np.zeros(_N)
-            hm[0:3] = np.cross(cu, v)
+            hm[0:3] = cross(cu, v)
             hm[3:6] = cu
             hp = hm @ pm
             si = hp @ hm + p[_NHC] ** 2

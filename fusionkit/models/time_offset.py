@@ -66,7 +66,7 @@ from .._numba import njit
 from ..config import PluginConfig, param
 from ..conventions import GRAVITY
 from ..protocols import Sample, SensorModel, SensorModelKernel
-from ..rotations import quat_from_rotvec, quat_mul, quat_to_matrix, rodrigues
+from ..rotations import cross, quat_from_rotvec, quat_mul, quat_to_matrix, rodrigues
 from ..types import GYR_LIMIT
 
 __all__ = ["ACC", "CONF", "EST", "MAG", "NSEG", "OFFSET", "STATE", "STD", "TimeOffsetConfig", "TimeOffsetModel",
@@ -207,7 +207,7 @@ class TimeOffsetModel(SensorModel):
                 ok = abs(norm / s[b + _NORM] - 1.0) <= c.mag_tol
             if ok:
                 v = quat_to_matrix(s[b + _DQ:b + _DQ + 4]).T @ s[b + _U:b + _U + 3]
-                x = -np.cross(g - s[b + _GA:b + _GA + 3], v)
+                x = -cross(g - s[b + _GA:b + _GA + 3], v)
                 _enter(s, b, float(x @ x), float(x @ (u - v)), math.exp(-s[b + _T] / c.forget_time),
                        c.max_std * s[_DT0], float(c.min_segments), c.max_offset)
             s[b + _ANC] = 0.0
