@@ -206,6 +206,20 @@ def test_a_magnet_attached_after_the_heading_was_learned_is_not_reexpressed():
     np.testing.assert_array_equal(on.quat, off.quat)
 
 
+def test_a_refused_reexpression_leaves_the_heading_untraced():
+    """After :func:`_reexpress` refused (weight and sensitivity 0), the heading steps that follow do not
+    trace it again: a later recalibration finds "nothing learned" instead of a sensitivity built from
+    the steps alone against a stale learned field. A traced heading (weight 1 after learning) is traced."""
+    from fusionkit.correctors import heading as H
+    for trace in (H._trace, H._k_trace):
+        x = np.zeros(H._SIZE)
+        trace(x, 0.1, 1.0, 2.0, 3.0)
+        assert not x[H._RW] and not x[H._RS:H._RS + 3].any()
+        x[H._RW] = 1.0
+        trace(x, 0.1, 1.0, 2.0, 3.0)
+        assert x[H._RW] == pytest.approx(0.9) and x[H._RS:H._RS + 3] == pytest.approx([0.1, 0.2, 0.3])
+
+
 @pytest.mark.parametrize("name", ["undisturbed", "nearby"])
 def test_without_a_recalibration_following_changes_nothing(runs, name):
     """No calibration applied (an undisturbed field; a magnet on the desk, refused by the gate): no

@@ -231,7 +231,7 @@ class MagHeadingConfig(PluginConfig):
         "(the heading keeps its filter meanwhile); False: keep the reference learned from the field before (the "
         "method before issue 14)")
     reexpress: bool = param(
-        True, unit="-", description="follow_calibration: where the reference is learned again, move the heading by "
+        True, unit="-", description="follow_calibration: at each recalibration it follows, move the heading by "
         "what the new calibration changes in the field it was learned from (that field read through the new "
         "calibration), if that field then has this sample's norm and dip (the iron was there when it was learned); "
         "False: the heading keeps its filter alone")
@@ -511,9 +511,12 @@ def _trace(x, k, g0, g1, g2) -> None:
     """``reexpress``, after a heading step of gain ``k``: delta is ``(1 - k)`` of what it was plus ``k``
     of this sample's heading, so the learned heading's weight in it shrinks by ``1 - k`` and its
     first-order sensitivity to a change ``d`` of the calibration (body frame) becomes ``(1 - k)`` of
-    the one before plus ``k`` of this sample's, ``g = R^T (n e - e n) / h^2`` (``e, n``: the field's
+    the one before plus ``k`` of this sample's (a heading no longer traced, weight and sensitivity 0
+    after :func:`_reexpress` refused, stays untraced), ``g = R^T (n e - e n) / h^2`` (``e, n``: the field's
     east and north, ``h^2`` their squares' sum; the heading ``atan2(e, n)`` moves by ``g . d`` when the
     field moves by ``R d``). The same statements in the reference and, compiled, in the kernel."""
+    if x[_RW] == 0.0 and x[_RS] == 0.0 and x[_RS + 1] == 0.0 and x[_RS + 2] == 0.0:
+        return  # no longer traced (a re-expression refused): so until the reference is learned again
     u = 1.0 - k
     x[_RW] *= u
     x[_RS] = u * x[_RS] + k * g0
