@@ -36,6 +36,18 @@ HEAVY_FIRST = ("test_inlined_loops_recommended.py", "test_inlined_loops.py", "te
 def pytest_configure(config):
     if hasattr(config.option, "loadscopereorder"):  # pytest-xdist: keep the order below
         config.option.loadscopereorder = False
+    # pytest rewrites the asserts of every module of a package that registers a pytest plugin, and
+    # hypothesis (imported by test_fuzz_extremes) is one: ~100 of its modules rewritten in each
+    # worker, 0.6 s of CPU, for asserts that are hypothesis's own. The tests' asserts are rewritten
+    # as before. pytest's internals: where they differ, everything is rewritten as it was.
+    try:
+        from _pytest.assertion.rewrite import assertstate_key
+
+        hook = config.stash[assertstate_key].hook
+        hook._must_rewrite.discard("hypothesis")
+        hook._marked_for_rewrite_cache.clear()
+    except (ImportError, KeyError, AttributeError):
+        pass
 
 
 def pytest_collection_modifyitems(items):

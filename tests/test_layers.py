@@ -16,7 +16,22 @@ LOWER = ["fusionkit._kernels", "fusionkit._numba", "fusionkit.config", "fusionki
          "fusionkit.estimators", "fusionkit.navigation", "fusionkit.sim", "fusionkit.io"]
 
 _PROBE = r"""
-import importlib, json, pkgutil, sys
+import importlib, importlib.machinery, json, pkgutil, sys
+
+# Each module is imported afresh many times below; its compiled code is kept from the first time
+# (where bytecode is not written, PYTHONDONTWRITEBYTECODE, each import compiled the source again:
+# half of this probe's CPU). The module's code still runs at every import, which is what is checked.
+_codes = {}
+_get_code = importlib.machinery.SourceFileLoader.get_code
+
+
+def get_code(self, fullname):
+    if self.path not in _codes:
+        _codes[self.path] = _get_code(self, fullname)
+    return _codes[self.path]
+
+
+importlib.machinery.SourceFileLoader.get_code = get_code
 
 def clear():
     for k in [k for k in sys.modules if k == "fusionkit" or k.startswith("fusionkit.")]:
