@@ -458,7 +458,8 @@ def _kf_noise(x, norm, dip, dt, mag_noise2, field_error2, field_time, cos2=None,
         dd = dip - x[_MAG + 1]
         e2 = max(e2, dn * dn + dd * dd)
     h2 = max(math.cos(dip) ** 2 if cos2 is None else cos2, 1e-6)
-    return (mag_noise2 + 2.0 * (e2 * field_time + (1.0 - h2) * incl) / dt) / h2
+    # (one division, not two in a row: the heading's gain waits on this every magnetometer sample)
+    return (mag_noise2 * dt + 2.0 * (e2 * field_time + (1.0 - h2) * incl)) / (h2 * dt)
 
 
 def _inclination_noise(ch, me, mn, le, ln) -> float:

@@ -1080,15 +1080,16 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                 rj = 1.0 / math.sqrt(j0 * j0 + j1 * j1 + j2 * j2 + j3 * j3)
                 t0, t1, t2, t3 = k_qmul(j0 * rj, j1 * rj, j2 * rj, j3 * rj, s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3])
                 s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3] = t0, t1, t2, t3
+        # the rotation taking v = R(q_tilt) y to the vertical, (1 + v.u, v x u) for v unit, taken as (|v| + v.u,
+        # v x u) for v as it is and normalised once: |v| = |y| (a rotation keeps the norm), whose square root
+        # runs beside the rotation instead of after it (the loop is bound by the chain of divisions and square
+        # roots from one sample's output to the next)
+        ny = math.sqrt(s[_Y] * s[_Y] + s[_Y + 1] * s[_Y + 1] + s[_Y + 2] * s[_Y + 2])
         v0, v1, v2 = k_rot(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], s[_Y], s[_Y + 1], s[_Y + 2])
-        # (normalised by one reciprocal: a division costs several multiplications, and the loop is bound
-        # by its divisions and square roots)
-        rn = 1.0 / math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
-        v0, v1, v2 = v0 * rn, v1 * rn, v2 * rn
         u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
-        c0, c1, c2, c3 = 1.0 + v0 * u0 + v1 * u1 + v2 * u2, v1 * u2 - v2 * u1, v2 * u0 - v0 * u2, v0 * u1 - v1 * u0
+        c0, c1, c2, c3 = ny + v0 * u0 + v1 * u1 + v2 * u2, v1 * u2 - v2 * u1, v2 * u0 - v0 * u2, v0 * u1 - v1 * u0
         n = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2 + c3 * c3)
-        if n > 1e-12:
+        if n > 1e-12 * ny:
             rn = 1.0 / n
             c0, c1, c2, c3 = c0 * rn, c1 * rn, c2 * rn, c3 * rn
         else:

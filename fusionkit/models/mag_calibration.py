@@ -95,7 +95,7 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-from .._kernels import dcm_entries, qmul_into, quat_to_dcm, rotvec_quat_entries
+from .._kernels import dcm_entries, qmul_entries, quat_to_dcm, rotvec_quat_entries
 from .._numba import njit
 from ..config import PluginConfig, param
 from ..protocols import Sample, SensorModel, SensorModelKernel
@@ -448,7 +448,7 @@ def _gate(code, s, g, w, c, min_reduction, applied, max_std, work) -> bool:
     ``work``: at least ``2 * 32`` entries of scratch for :func:`_earth_change`."""
     if code == 1.0:
         return _consistent(s, g, w, c, min_reduction)
-    raw, cal, change = _earth_change(s, g, w, c, work)
+    raw, cal, change = _earth_change(s, g, w, c, work, not applied)
     if applied:  # withdrawn where it makes the field significantly less constant in the earth frame
         return cal <= min_reduction * raw
     return cal <= raw and ((min_reduction * cal <= raw and change >= max_std)
@@ -481,7 +481,7 @@ def _gate_timed(code, s, g, w, c, min_reduction, applied, max_std, work, prev, s
     return ok
 
 
-def _earth_change(s, g, w, c, work):
+def _earth_change(s, g, w, c, work, size_too):
     """The medians over the ring's segments of the squared change of the field in the earth frame
     across the segment, raw and calibrated by ``W m - c``. Over one segment (body a -> body k,
     the gyro's turn ``C``) a field constant in the earth frame seen from the body satisfies
@@ -491,16 +491,21 @@ def _earth_change(s, g, w, c, work):
     turns in without moving far) is constant in the earth frame, so the raw change is already
     zero except in the few segments that enter or leave it, which the median ignores, and a
     calibration fitted to what it does to those segments makes the others' change larger. Third,
-    the calibration's own size: the RMS over the segment ends of ``|W m - c - m| / |m|``. (0, 0,
-    0) with fewer than 3 segments. ``work``: scratch of at least ``2 * 32`` entries for the two lists
-    the medians sort (the compiled segment's own buffer: no allocation per segment). The same
-    statements in the reference and, compiled, in the kernel."""
+    the calibration's own size: the RMS over the segment ends of ``|W m - c - m| / |m|``, where
+    ``size_too`` (0 otherwise: the test of an applied calibration does not read it, and it costs a
+    division per segment end). (0, 0, 0) with fewer than 3 segments. ``work``: scratch of at least
+    ``2 * 32`` entries for the two lists the medians sort (the compiled segment's own buffer: no
+    allocation per segment). The same statements in the reference and, compiled, in the kernel."""
     n = int(s[g + _GC])
     if n < 3:
         return 0.0, 0.0, 0.0
     raw = work[0:_GK]
     cal = work[_GK:2 * _GK]
     size = 0.0
+    # a segment starts at the sample that closed the one before (the next slot, unless the gyro or the
+    # magnetometer broke the chain): its calibrated start field is then the one before's end field, taken
+    # over instead of computed again (the same numbers: the same statements on the same values)
+    pk0 = pk1 = pk2 = pu0 = pu1 = pu2 = math.nan
     for i in range(n):
         k = g + _GBUF + _GE * i
         mk0, mk1, mk2 = s[k], s[k + 1], s[k + 2]
@@ -509,13 +514,18 @@ def _earth_change(s, g, w, c, work):
         uk0 = w[0, 0] * mk0 + w[0, 1] * mk1 + w[0, 2] * mk2 - c[0]
         uk1 = w[1, 0] * mk0 + w[1, 1] * mk1 + w[1, 2] * mk2 - c[1]
         uk2 = w[2, 0] * mk0 + w[2, 1] * mk1 + w[2, 2] * mk2 - c[2]
-        ua0 = w[0, 0] * ma0 + w[0, 1] * ma1 + w[0, 2] * ma2 - c[0]
-        ua1 = w[1, 0] * ma0 + w[1, 1] * ma1 + w[1, 2] * ma2 - c[1]
-        ua2 = w[2, 0] * ma0 + w[2, 1] * ma1 + w[2, 2] * ma2 - c[2]
+        if ma0 == pk0 and ma1 == pk1 and ma2 == pk2:
+            ua0, ua1, ua2 = pu0, pu1, pu2
+        else:
+            ua0 = w[0, 0] * ma0 + w[0, 1] * ma1 + w[0, 2] * ma2 - c[0]
+            ua1 = w[1, 0] * ma0 + w[1, 1] * ma1 + w[1, 2] * ma2 - c[1]
+            ua2 = w[2, 0] * ma0 + w[2, 1] * ma1 + w[2, 2] * ma2 - c[2]
+        pk0, pk1, pk2, pu0, pu1, pu2 = mk0, mk1, mk2, uk0, uk1, uk2
         cal[i] = _field_change(uk0, uk1, uk2, ua0, ua1, ua2, s, k + 12)
-        nm = mk0 * mk0 + mk1 * mk1 + mk2 * mk2
-        if nm > 0.0:
-            size += ((uk0 - mk0) ** 2 + (uk1 - mk1) ** 2 + (uk2 - mk2) ** 2) / nm
+        if size_too:
+            nm = mk0 * mk0 + mk1 * mk1 + mk2 * mk2
+            if nm > 0.0:
+                size += ((uk0 - mk0) ** 2 + (uk1 - mk1) ** 2 + (uk2 - mk2) ** 2) / nm
     return _median(raw, n), _median(cal, n), math.sqrt(size / n)
 
 
@@ -707,7 +717,7 @@ def _k_gate(code, s, g, w, c, min_reduction, applied, max_std, work):
     """:func:`_gate`, compiled."""
     if code == 1.0:
         return _k_consistent(s, g, w, c, min_reduction)
-    raw, cal, change = _k_earth_change(s, g, w, c, work)
+    raw, cal, change = _k_earth_change(s, g, w, c, work, not applied)
     if applied:
         return cal <= min_reduction * raw
     return cal <= raw and ((min_reduction * cal <= raw and change >= max_std)
@@ -755,7 +765,9 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
         s[_ANCHOR] = 0.0
     elif s[_ANCHOR] != 0.0:
         e0, e1, e2, e3 = rotvec_quat_entries(v[0] * dt, v[1] * dt, v[2] * dt)
-        qmul_into(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], e0, e1, e2, e3, s[_DQ:_DQ + 4])
+        # (entries, not a slice of s, here and below: no array view made at every sample)
+        s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3] = qmul_entries(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3],
+                                                                  e0, e1, e2, e3)
         s[_T] += dt
     if not mag_ok:
         if s[_T] > 2.0 * seg_time:
@@ -780,10 +792,10 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
         s[_T] = 0.0
         s[_ANCHOR] = 1.0
     if soft:
-        t = s[_SAPP:_SAPP + _NP]
-        v[6] = (1.0 + t[0]) * m0 + t[2] * m1 + t[3] * m2 - t[5]
-        v[7] = t[2] * m0 + (1.0 + t[1]) * m1 + t[4] * m2 - t[6]
-        v[8] = t[3] * m0 + t[4] * m1 + (1.0 - t[0] - t[1]) * m2 - t[7]
+        t0, t1, t2, t3, t4 = s[_SAPP], s[_SAPP + 1], s[_SAPP + 2], s[_SAPP + 3], s[_SAPP + 4]
+        v[6] = (1.0 + t0) * m0 + t2 * m1 + t3 * m2 - s[_SAPP + 5]
+        v[7] = t2 * m0 + (1.0 + t1) * m1 + t4 * m2 - s[_SAPP + 6]
+        v[8] = t3 * m0 + t4 * m1 + (1.0 - t0 - t1) * m2 - s[_SAPP + 7]
         return flags
     v[6], v[7], v[8] = m0 - s[_B], m1 - s[_B + 1], m2 - s[_B + 2]
     return flags
@@ -907,10 +919,13 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
         return
     s[_BAD] = 0.0
     a = buf[45:45 + _NP * _NP].reshape((_NP, _NP))
+    # A stays symmetric (it starts at zero, and lam A + H^T H is symmetric to the bit: each entry's products are
+    # the transposed entry's with their factors swapped), so its lower half is computed and mirrored
     for i in range(_NP):
-        for j in range(_NP):
-            a[i, j] = lam * s[_SA + _NP * i + j] + (h[0, i] * h[0, j] + h[1, i] * h[1, j] + h[2, i] * h[2, j])
-            s[_SA + _NP * i + j] = a[i, j]
+        for j in range(i + 1):
+            x = lam * s[_SA + _NP * i + j] + (h[0, i] * h[0, j] + h[1, i] * h[1, j] + h[2, i] * h[2, j])
+            a[i, j] = a[j, i] = x
+            s[_SA + _NP * i + j] = s[_SA + _NP * j + i] = x
     for i in range(_NP):
         s[_SY + i] = lam * s[_SY + i] + (h[0, i] * r[0] + h[1, i] * r[1] + h[2, i] * r[2])
     s[_RR] = lam * s[_RR] + (r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
