@@ -1106,7 +1106,11 @@ def gyro_delay_lever(rec: Recording, pairing: float | None = None, band: tuple[f
     (a rigid body turning about a fixed point, one delay) explains the accelerometer, large where the
     turning point's own acceleration (a hand's wrist and elbow) does not fit it. A disturbance that
     looks exactly like a delay is not seen by any test. Assumes uniform sampling (the band-pass runs
-    on samples); invalid samples are interpolated over."""
+    on samples); invalid samples are interpolated over. Known limit: ``pairing`` (clamped to one
+    step) moves the rotation to the accelerometer's instant but not the lever arm's regressors, which
+    stay on the gyro's samples, so with a lever arm the delay moves by less than a change of
+    ``pairing`` (about 0.6 of it on the hand-held simulation); the offline mode uses the default
+    (``None``, the middle of the step), where the simulated delays are recovered."""
     from scipy.signal import butter, sosfiltfilt
 
     from .navigation.strapdown import strapdown
@@ -1156,7 +1160,8 @@ def gyro_delay_lever(rec: Recording, pairing: float | None = None, band: tuple[f
             break
     res = yf.reshape(-1) - a @ sol
     c = a[:, 0] - a[:, 1:] @ np.linalg.lstsq(a[:, 1:], a[:, 0], rcond=None)[0]
-    bound = float(np.sqrt(np.mean(res ** 2) / np.mean(c ** 2)))
+    cc = float(np.mean(c ** 2))  # 0: nothing in the band turns (a still recording); no delay can be told
+    bound = float(np.sqrt(np.mean(res ** 2) / cc)) if cc > 0.0 else math.inf
     edges = 3 * np.linspace(0, n, blocks + 1).astype(int)  # the rows of each block (3 per sample)
     ab = [(a[i:j].T @ a[i:j], a[i:j].T @ yf.reshape(-1)[i:j]) for i, j in zip(edges[:-1], edges[1:])]
     aa, ay = sum(x for x, _ in ab), sum(x for _, x in ab)

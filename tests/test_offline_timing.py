@@ -361,6 +361,19 @@ def test_lever_fit_needs_ten_periods_of_its_band():
     assert out is rec and not t["applied"]
 
 
+def test_lever_fit_on_a_still_recording_tells_nothing_and_warns_nothing():
+    """Nothing in the band turns: the delay's column is zero, so the bound is infinite (not a division
+    by zero that warns) and nothing is applied."""
+    import warnings
+
+    rec = sim.simulate([Rest(30.0)], rate=200.0, gnss_rate=None)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        delay, std, bound, lever = gyro_delay_lever(rec)
+        res = OfflineFilter(fk.make("recommended", use_mag=False), gyro_timing="lever").run(rec)
+    assert bound == np.inf and not res.diagnostics["gyro_timing"]["applied"]
+
+
 def test_lever_fit_reference_equals_numba():
     # the strapdown inside is the only compiled part: its reference gives the same fit to 1e-9
     rec = perturbed("hand-held", errors={"gyr_delay": 1.0 / RATE})
