@@ -117,7 +117,7 @@ from ..models.time_offset import _BLOCK as _EST_SIZE
 from ..protocols import CorrectorKernel, FactorCorrector
 from ..rotations import cross, quat_mul, quat_to_matrix, wrap_angle
 from ..types import Channel, Flag
-from .._kernels import rotvec_quat_entries
+from .._kernels import dcm_entries, rotvec_quat_entries
 from ._factor import (atan2_small, bias_step, frame_axes, gyro_lowpass, k_bias_step, k_gyro_lowpass, k_paired, k_qmul,
                       k_rot, paired)
 
@@ -385,7 +385,6 @@ class MagHeading(FactorCorrector):
         step = k * err
         _turn(x, step)
         if c.reexpress:  # delta's sensitivity to the calibration: this sample's field, R^T g
-            me, mn = float(m @ east), float(m @ north)
             g = rm.T @ ((mn * east - me * north) / max(me * me + mn * mn, 1e-300))
             _trace(x, k, g[0], g[1], g[2])
         if c.mag_bias and not rest:  # the correction as a rate about the vertical: the gyro's vertical drift
@@ -501,11 +500,16 @@ def _learn(x, n, m0, m1, m2, w, a, b, c) -> None:
     x[_RL] += f * (m0 - x[_RL])
     x[_RL + 1] += f * (m1 - x[_RL + 1])
     x[_RL + 2] += f * (m2 - x[_RL + 2])
-    r = (1.0 - 2.0 * (b * b + c * c), 2.0 * (a * b - w * c), 2.0 * (a * c + w * b),
-         2.0 * (a * b + w * c), 1.0 - 2.0 * (a * a + c * c), 2.0 * (b * c - w * a),
-         2.0 * (a * c - w * b), 2.0 * (b * c + w * a), 1.0 - 2.0 * (a * a + b * b))
+    r = dcm_entries(w, a, b, c)
     for i in range(9):
         x[_RM + i] += f * (r[i] - x[_RM + i])
+
+
+@njit(inline="always")
+def _untraced(x) -> bool:
+    """``reexpress``: whether the heading is no longer traced to the learned field (weight and
+    sensitivity 0: nothing learned yet, or a re-expression refused)."""
+    return x[_RW] == 0.0 and x[_RS] == 0.0 and x[_RS + 1] == 0.0 and x[_RS + 2] == 0.0
 
 
 def _trace(x, k, g0, g1, g2) -> None:
@@ -516,7 +520,7 @@ def _trace(x, k, g0, g1, g2) -> None:
     after :func:`_reexpress` refused, stays untraced), ``g = R^T (n e - e n) / h^2`` (``e, n``: the field's
     east and north, ``h^2`` their squares' sum; the heading ``atan2(e, n)`` moves by ``g . d`` when the
     field moves by ``R d``). The same statements in the reference and, compiled, in the kernel."""
-    if x[_RW] == 0.0 and x[_RS] == 0.0 and x[_RS + 1] == 0.0 and x[_RS + 2] == 0.0:
+    if _untraced(x):
         return  # no longer traced (a re-expression refused): so until the reference is learned again
     u = 1.0 - k
     x[_RW] *= u
@@ -552,7 +556,7 @@ def _reexpress(x, e0, n0, u0, e1, n1, u1, sd, dd, norm, dip, var):
     h0, h1 = e0 * e0 + n0 * n0, e1 * e1 + n1 * n1
     if dd <= 4.0 * var * norm * norm:  # a change within a calibrated sample's error
         return False, 0.0
-    if x[_RW] == 0.0 and x[_RS] == 0.0 and x[_RS + 1] == 0.0 and x[_RS + 2] == 0.0 or h0 == 0.0 or h1 == 0.0:
+    if _untraced(x) or h0 == 0.0 or h1 == 0.0:
         return False, 0.0  # nothing learned, or the heading no longer traced to it
     v0, v1 = math.sqrt(h0 + u0 * u0), math.sqrt(h1 + u1 * u1)
     a0 = (v0 - norm) / norm
