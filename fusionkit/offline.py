@@ -835,10 +835,17 @@ class OfflineFilter(Filter):
         applied = bool(np.all(np.isfinite([delay, std, check, check_std])) and abs(delay) > k * std
                        and abs(check) > k * check_std and abs(delay - check) < k * math.hypot(std, check_std))
         info = {"delay": delay, "std": std, "check": check, "check_std": check_std, "applied": applied}
-        if not applied:
-            return rec, info
+        return cls._gyro_moved(rec, info), info
+
+    @staticmethod
+    def _gyro_moved(rec, info):
+        """``rec`` with its gyroscope moved by an estimate's ``info["delay"]`` where ``info["applied"]``
+        (clamped to the ``time-offset`` model's ``max_offset``, as the model clamps a sensor's delay),
+        else ``rec`` itself: what both gyro estimates do with their verdict."""
+        if not info["applied"]:
+            return rec
         limit = TimeOffsetModel.Config().max_offset
-        return _with_gyro_retimed(rec, min(max(delay, -limit), limit)), info
+        return _with_gyro_retimed(rec, min(max(info["delay"], -limit), limit))
 
     @classmethod
     def _gyro_retimed_lever(cls, rec, config, used):
@@ -852,10 +859,7 @@ class OfflineFilter(Filter):
         applied = bool(np.all(np.isfinite([delay, std, bound])) and abs(delay) > cls.MAG_DELAY_SIGMAS * std
                        and bound < 0.5 * abs(delay))
         info = {"delay": delay, "std": std, "bound": bound, "lever": lever, "applied": applied}
-        if not applied:
-            return rec, info
-        limit = TimeOffsetModel.Config().max_offset
-        return _with_gyro_retimed(rec, min(max(delay, -limit), limit)), info
+        return cls._gyro_moved(rec, info), info
 
     @staticmethod
     def _without(rec, disturbed, inner, back, backend, progress, state):
