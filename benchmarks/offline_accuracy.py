@@ -20,7 +20,12 @@ accelerometer's clock by its delay estimated over the recording (``gyro_timing="
 option; each trial's estimate is printed); ``--groups`` adds, per mode, the mean
 of each BROAD group (``trials.json`` in the data folder: rotation, translation, slow, fast,
 magnets ...) for every column: which kinds of motion the offline mode wins or loses against
-``vqf-offline``.
+``vqf-offline``; ``--bands`` adds, per column, where in frequency its inclination error is (the
+mean square of the tilt error in the body frame per band, deg^2, and the part of its 0.5-3 Hz band
+that follows the linear acceleration: deg per g and R^2); ``--lever-blocks`` prints, per trial, how
+far ``gyro_delay_lever``'s model explains the accelerometer: the delay's signature against the
+residual, and the fit's bound per stretch of one period of the band's lowest frequency (samples),
+in ``--lever-band LO,HI`` (Hz; default the option's ``LEVER_BAND``).
 """
 
 from __future__ import annotations
@@ -35,7 +40,13 @@ import numpy as np
 import fusionkit as fk
 from _common import data_dir, machine
 from fusionkit.benchmarking.metrics import rms_errors
-from fusionkit.offline import OfflineFilter
+from fusionkit.conventions import change_frame
+from fusionkit.offline import LEVER_BAND, OfflineFilter, _lever_fit, gyro_delay_lever
+from fusionkit.rotations import quat_to_matrix
+
+#: the frequency bands (Hz) of ``--bands``: the offsets and drift, the time constants' range
+#: (0.5-4 s), a hand's movements, and above
+BANDS = ((0.0, 0.05), (0.05, 0.2), (0.2, 0.5), (0.5, 1.0), (1.0, 3.0), (3.0, None))
 
 
 def _value(text: str):
@@ -75,6 +86,69 @@ def _groups(path: Path, recs, err: dict, key: str) -> None:
         print(f"| {g} ({len(idx)}) | " + " | ".join(f"{np.mean([err[n][i] for i in idx]):.3f}" for n in names) + " |")
 
 
+def _tilt_bands(res, rec) -> tuple[list[float], float, float]:
+    """The tilt error of ``res`` against ``rec.truth`` in the body frame (``z_est x z_ref``, deg: no
+    heading in it, which 6D does not know) split into :data:`BANDS` (the mean square over the
+    movement, deg^2, each band by a second-order Butterworth forward and backward; the error is
+    interpolated over the reference's gaps first), and its 0.5-3 Hz part regressed on the apparent
+    tilt the linear acceleration makes (``z_ref x a / g``, ``a`` the specific force less gravity
+    along the reference's vertical, same band): the coefficient (deg of error per g) and R^2."""
+    from scipy.signal import butter, sosfiltfilt
+
+    fs = 1.0 / rec.nominal_dt
+    q_ref = change_frame(rec.truth, rec.truth_frame, res.frame)
+    ok = np.isfinite(q_ref).all(axis=1) & np.isfinite(res.quat).all(axis=1)
+    q_ref = np.where(ok[:, None], q_ref, [1.0, 0.0, 0.0, 0.0])
+    z_ref, z_est = quat_to_matrix(q_ref)[:, 2, :], quat_to_matrix(np.where(ok[:, None], res.quat, 1.0))[:, 2, :]
+    err = np.degrees(np.cross(z_est, z_ref))
+    tilt = np.cross(z_ref, rec.acc - 9.81 * z_ref) / 9.81  # the apparent tilt of the linear acceleration (rad)
+    k = np.arange(len(rec))
+    for v in (err, tilt):
+        good = ok & np.isfinite(v).all(axis=1)
+        for i in range(3):
+            v[:, i] = np.interp(k, k[good], v[good, i])
+    move = (rec.movement if rec.movement is not None else np.ones(len(rec), bool)) & ok
+
+    def band(v, lo, hi):
+        if lo == 0.0:
+            sos = butter(2, hi, fs=fs, output="sos")
+        elif hi is None or hi >= 0.45 * fs:
+            sos = butter(2, lo, btype="high", fs=fs, output="sos")
+        else:
+            sos = butter(2, [lo, hi], btype="band", fs=fs, output="sos")
+        return sosfiltfilt(sos, v, axis=0)
+
+    ms = [float(np.mean(np.sum(band(err, lo, hi)[move] ** 2, axis=1))) for lo, hi in BANDS]
+    e, x = band(err, 0.5, 3.0)[move], np.degrees(band(tilt, 0.5, 3.0)[move])
+    xx = float(np.sum(x * x))
+    c = float(np.sum(e * x) / xx) if xx > 0.0 else float("nan")
+    r2 = 1.0 - float(np.sum((e - c * x) ** 2) / np.sum(e * e)) if xx > 0.0 else float("nan")
+    return ms, c * 57.29577951308232, r2  # deg of error per rad of apparent tilt -> per g (1 rad of a / g)
+
+
+def _lever_blocks(rec, band: tuple[float, float] = LEVER_BAND) -> str:
+    """One line on how far ``gyro_delay_lever``'s model explains ``rec``'s accelerometer (in ``band``,
+    Hz): its delay and jackknife standard deviation (samples), the RMS of the delay's signature for one sample of delay and of the fit's residual
+    (mm/s^2, in the band), and its bound (samples: the residual's RMS over the delay column's, the
+    lever arm's columns projected out) over the recording and per block of ``1 / band[0]`` s (one
+    period of the band's lowest frequency): 10th percentile, median, least, and the blocks under 4."""
+    fit = _lever_fit(rec, None, band, "auto", 6)
+    if fit is None:
+        return f"| {rec.name} | nothing to fit (under ten periods of {band[0]} Hz) |"
+    a, y, sol = fit
+    dt = rec.nominal_dt
+    std = gyro_delay_lever(rec, band=band)[1]
+    res = y - a @ sol
+    c = a[:, 0] - a[:, 1:] @ np.linalg.lstsq(a[:, 1:], a[:, 0], rcond=None)[0]
+    m = int(round(1.0 / band[0] / dt))
+    bounds = np.array([np.sqrt(np.mean(res[3 * i:3 * (i + m)] ** 2) / np.mean(c[3 * i:3 * (i + m)] ** 2)) / dt
+                       for i in range(0, len(y) // 3 - m + 1, m) if np.mean(c[3 * i:3 * (i + m)] ** 2) > 0.0])
+    return (f"| {rec.name} | {sol[0] / dt:+.2f} +- {std / dt:.2f} | {np.sqrt(np.mean(c ** 2)) * dt * 1e3:.1f} | "
+            f"{np.sqrt(np.mean(res ** 2)) * 1e3:.0f} | {np.sqrt(np.mean(res ** 2) / np.mean(c ** 2)) / dt:.1f} | "
+            f"{np.percentile(bounds, 10):.1f} / {np.median(bounds):.1f} / {bounds.min():.1f} | "
+            f"{int(np.sum(bounds < 4.0))} of {bounds.size} |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", default=str(data_dir() / "broad"))
@@ -91,6 +165,10 @@ def main() -> None:
     ap.add_argument("--gyro-timing", action="store_true",
                     help="add the gyroscope re-timed onto the accelerometer's clock (gyro_timing='recording')")
     ap.add_argument("--groups", action="store_true", help="add the mean per BROAD group (trials.json)")
+    ap.add_argument("--bands", action="store_true", help="add where in frequency each column's tilt error is")
+    ap.add_argument("--lever-blocks", action="store_true", help="print how far the lever fit explains each trial")
+    ap.add_argument("--lever-band", default=",".join(map(str, LEVER_BAND)),
+                    help="LO,HI (Hz): the band of --lever-blocks (default: the option's LEVER_BAND)")
     args = ap.parse_args()
     files = sorted(Path(args.data).glob("*.hdf5"))
     if args.trials:
@@ -102,6 +180,14 @@ def main() -> None:
     params = {k: _value(v) for k, v in params.items()}
     recs = [fk.load(f) for f in files]
     print(f"machine: {machine()}; recommended params: {params or 'defaults'}")
+    if args.lever_blocks:
+        lo, hi = (float(v) for v in args.lever_band.split(","))
+        print(f"\ngyro_delay_lever, {lo:g}-{hi:g} Hz: delay, RMS of one sample's signature and of "
+              f"the residual, bound over the recording and per {1.0 / lo:g} s block\n| trial | delay +- std "
+              "[samples] | signature [mm/s^2 per sample] | residual [mm/s^2] | bound [samples] | block bound p10 / "
+              "median / least | blocks under 4 |\n|---|---:|---:|---:|---:|---:|---:|")
+        for rec in recs:
+            print(_lever_blocks(rec, (lo, hi)))
     for mode in args.modes.split(","):
         six = mode == "6D"
         kw = dict(params, use_mag=False) if six else params
@@ -128,6 +214,7 @@ def main() -> None:
                                                          gyro_timing="recording")
         key = "inclination" if six else "total"
         err = {n: [] for n in runs}
+        bands = {n: [] for n in runs}
         secs = {n: 0.0 for n in runs}
         for f in runs.values():
             f.run(recs[0].slice(0, 500))  # compile
@@ -137,6 +224,8 @@ def main() -> None:
                 res = f.run(rec)
                 secs[n] += time.perf_counter() - t0
                 err[n].append(rms_errors(res, rec)[key])
+                if args.bands:
+                    bands[n].append(_tilt_bands(res, rec))
                 if n == "offline, gyro timing":
                     g = res.diagnostics["gyro_timing"]
                     print(f"{rec.name}: gyro delay {g['delay'] / rec.nominal_dt:+.2f} +- "
@@ -168,6 +257,18 @@ def main() -> None:
         print("| samples/s (end to end) | " + " | ".join(f"{total / secs[n]:,.0f}" for n in names) + " |")
         if args.groups:
             _groups(Path(args.data) / "trials.json", recs, err, key)
+        if args.bands:
+            heads = " | ".join(f"{lo:g}-{hi:g}" if hi else f">{lo:g}" for lo, hi in BANDS)
+            print(f"\n{mode}: tilt error (body frame) by band [deg^2] and its 0.5-3 Hz part that follows the "
+                  f"linear acceleration [deg/g, R^2]\n| trial | column | {heads} | deg/g | R^2 |")
+            print("|---|---|" + "---:|" * (len(BANDS) + 2))
+            for i, rec in enumerate(recs):
+                for n in names:
+                    ms, c, r2 = bands[n][i]
+                    print(f"| {rec.name[:2]} | {n} | " + " | ".join(f"{v:.4f}" for v in ms) + f" | {c:+.2f} | {r2:.2f} |")
+            for n in names:
+                print(f"| mean | {n} | " + " | ".join(f"{np.mean([b[0][j] for b in bands[n]]):.4f}"
+                                                for j in range(len(BANDS))) + " | | |")
 
 
 if __name__ == "__main__":

@@ -1115,22 +1115,48 @@ def gyro_delay_lever(rec: Recording, pairing: float | None = None, band: tuple[f
     stay on the gyro's samples, so with a lever arm the delay moves by less than a change of
     ``pairing`` (about 0.6 of it on the hand-held simulation); the offline mode uses the default
     (``None``, the middle of the step), where the simulated delays are recovered."""
+    nan = (math.nan, math.nan, math.nan, np.full(3, np.nan))
+    fit = _lever_fit(rec, pairing, band, backend, iterations)
+    if fit is None:
+        return nan
+    a, yf, sol = fit
+    n = len(rec)
+    res = yf - a @ sol
+    c = a[:, 0] - a[:, 1:] @ np.linalg.lstsq(a[:, 1:], a[:, 0], rcond=None)[0]
+    cc = float(np.mean(c ** 2))  # 0: nothing in the band turns (a still recording); no delay can be told
+    bound = float(np.sqrt(np.mean(res ** 2) / cc)) if cc > 0.0 else math.inf
+    edges = 3 * np.linspace(0, n, blocks + 1).astype(int)  # the rows of each block (3 per sample)
+    ab = [(a[i:j].T @ a[i:j], a[i:j].T @ yf[i:j]) for i, j in zip(edges[:-1], edges[1:])]
+    aa, ay = sum(x for x, _ in ab), sum(x for _, x in ab)
+    est = [np.linalg.lstsq(aa - x, ay - z, rcond=None)[0][0] for x, z in ab]  # each block left out
+    std = float(np.sqrt((blocks - 1) / blocks * np.sum((np.array(est) - np.mean(est)) ** 2)))
+    # the fit is against the accelerometer at its instant in the step (pairing): counted from there
+    return float(sol[0]), std, bound, np.asarray(sol[1:4], dtype=float)
+
+
+def _lever_fit(rec: Recording, pairing: float | None, band: tuple[float, float], backend: str,
+               iterations: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """:func:`gyro_delay_lever`'s least-squares system and its solution: ``(a, y, sol)``, ``a`` the
+    band-passed regressors ``(3 N, 16)`` (the delay's column, the lever arm's three, the strapdown's
+    twelve; three rows per sample), ``y`` the band-passed specific force in the gyro's strapdown frame
+    ``(3 N,)`` and ``sol`` ``[delay (s), lever arm (m, 3), the strapdown's errors (12)]``; None where
+    there is too little to fit. Kept apart so that a diagnostic can look at the residual per stretch
+    of the recording (``benchmarks/offline_accuracy.py --lever-blocks``)."""
     from scipy.signal import butter, sosfiltfilt
 
     from .navigation.strapdown import strapdown
 
     n = len(rec)
-    nan = (math.nan, math.nan, math.nan, np.full(3, np.nan))
     fs = 1.0 / rec.nominal_dt
     lo, hi = float(band[0]), min(float(band[1]), 0.45 * fs)
     if not (0.0 < lo < hi) or n < 10.0 * fs / lo:  # at least ten periods of the band's lowest frequency
-        return nan
+        return None
     t = np.asarray(rec.time, dtype=float)
     gyr, acc = np.array(rec.gyr, dtype=float), np.array(rec.acc, dtype=float)
     for x in (gyr, acc):
         ok = np.isfinite(x).all(axis=1)
         if ok.sum() < 2:
-            return nan
+            return None
         for i in range(3):
             x[~ok, i] = np.interp(t[~ok], t[ok], x[ok, i])
     dt = np.ascontiguousarray(rec.dt, dtype=float)
@@ -1162,17 +1188,7 @@ def gyro_delay_lever(rec: Recording, pairing: float | None = None, band: tuple[f
         step, delay, lever = abs(sol[0] - delay), float(sol[0]), sol[1:4]
         if step < 1e-3 * rec.nominal_dt:
             break
-    res = yf.reshape(-1) - a @ sol
-    c = a[:, 0] - a[:, 1:] @ np.linalg.lstsq(a[:, 1:], a[:, 0], rcond=None)[0]
-    cc = float(np.mean(c ** 2))  # 0: nothing in the band turns (a still recording); no delay can be told
-    bound = float(np.sqrt(np.mean(res ** 2) / cc)) if cc > 0.0 else math.inf
-    edges = 3 * np.linspace(0, n, blocks + 1).astype(int)  # the rows of each block (3 per sample)
-    ab = [(a[i:j].T @ a[i:j], a[i:j].T @ yf.reshape(-1)[i:j]) for i, j in zip(edges[:-1], edges[1:])]
-    aa, ay = sum(x for x, _ in ab), sum(x for _, x in ab)
-    est = [np.linalg.lstsq(aa - x, ay - z, rcond=None)[0][0] for x, z in ab]  # each block left out
-    std = float(np.sqrt((blocks - 1) / blocks * np.sum((np.array(est) - np.mean(est)) ** 2)))
-    # the fit is against the accelerometer at its instant in the step (pairing): counted from there
-    return delay, std, bound, np.asarray(lever, dtype=float)
+    return a, yf.reshape(-1), sol
 
 
 def _delay_state(rec, gyr_range, acc_range, backend, segment_time=None):
