@@ -250,6 +250,43 @@ def test_mag_calibration_kernel_equals_reference(soft_iron):
     assert ref.diagnostics["state"]["mod"][0][26] == 1.0  # it did get confident (the kernel had work to do)
 
 
+def test_a_provisional_offset_is_applied_before_the_confident_estimate():
+    """``provisional_std``: the 15/-8/5 offset (17.7 units on a 50-unit field) with the soft-iron
+    unknowns, whose distortion needs more rotation than the offset: the offset alone is applied
+    2-3 s before the estimate is confident (confidence 0.5), removing most of the iron (within a
+    quarter of it at every provisional sample), and the confident estimate then replaces it as
+    before. Off (the default), nothing is applied before the confidence."""
+    for seed in (1, 2):
+        rec = _tumbling(seed=seed)
+        b = np.array([15.0, -8.0, 5.0])
+        off = _model_run(rec.mag + b, rec)
+        on = _model_run(rec.mag + b, rec, provisional_std=0.05)
+        first_off = np.flatnonzero(off[:, 26] > 0)[0]
+        prov = np.flatnonzero(on[:, 26] == 0.5)
+        assert off[first_off, 26] == 1.0 and not (off[:, 26] == 0.5).any()
+        assert prov.size and prov[0] < first_off - 150  # applied 1.5 s earlier at least (100 Hz)
+        assert np.all(np.linalg.norm(on[prov, 0:3] - b, axis=1) < 0.25 * np.linalg.norm(b))
+        assert np.flatnonzero(on[:, 26] == 1.0)[0] == first_off  # the confident estimate as before
+        assert np.linalg.norm(on[-1, 0:3] - b) < 0.02 * np.linalg.norm(rec.mag[0])
+
+
+@pytest.mark.parametrize("soft_iron", [False, True])
+def test_mag_calibration_provisional_kernel_equals_reference(soft_iron):
+    """The provisional offset's branch: reference = numba to 1e-9 (outputs, state, flags)."""
+    rec = _tumbling(seed=1)
+    p = fk.compose({"estimator": "poisson-quat", "models": [{"name": "mag-calibration", "params": {
+                        "soft_iron": soft_iron, "provisional_std": 0.05}}],
+                    "correctors": [{"name": "gradient-descent", "params": {"use_mag": True}}],
+                    "alignment": {"mode": "fixed", "duration": 1.0, "heading": "auto"}})
+    bad = dataclasses.replace(rec, mag=rec.mag + np.array([15.0, -8.0, 5.0]))
+    ref, fast = p.run(bad, backend="reference"), p.run(bad, backend="numba")
+    assert np.abs(fast.quat - ref.quat).max() < 1e-9
+    assert np.abs(fast.diagnostics["state"]["mod"][0] - ref.diagnostics["state"]["mod"][0]).max() < 1e-9
+    np.testing.assert_array_equal(fast.flags, ref.flags)
+    st = _model_run(bad.mag, bad, soft_iron=soft_iron, provisional_std=0.05)
+    assert (st[:, 26] == 0.5).any()  # the provisional branch ran
+
+
 def test_mag_calibration_segment_test_is_the_rotation_angle():
     """The per-sample segment test (no arctangent): ``_turned`` says ``2 atan2(|v|, |w|) >= angle``
     for rotations of any norm, and an angle beyond pi is never reached."""

@@ -153,7 +153,11 @@ _SD, _ME, _MN = _E2 + 9, _E2 + 10, _E2 + 11
 # and the weight the learned heading keeps in delta, delta's first-order sensitivity to a change of the
 # calibration (body frame) through the steps since (:func:`_trace`)
 _RL, _RM, _PL, _RW, _RS = _E2 + 12, _E2 + 15, _E2 + 24, _E2 + 27, _E2 + 28
-_SIZE = _E2 + 31
+# and a change of the calibration not yet re-expressed (a re-expression deferred: the field it gives was closer to
+# this sample's than the learned one but not within a calibrated sample's precision): its sum (body frame) and its
+# steps' first-order part over the learned heading's weight then (:func:`_reexpress`)
+_RD, _RP = _E2 + 31, _E2 + 34
+_SIZE = _E2 + 35
 #: where the heading's variance (gain kalman, rad^2) sits in the corrector's state
 HEADING_VARIANCE = _PHH
 #: the most the heading's variance grows to: a heading uniform on the circle (pi^2 / 3)
@@ -349,11 +353,13 @@ class MagHeading(FactorCorrector):
         rm = quat_to_matrix(qm)
         if recalibrated and c.reexpress:
             d = rm.T @ (m - x[_PL:_PL + 3])  # the calibration's change of the field, body frame
+            dt_ = d + x[_RD:_RD + 3]  # with a deferred one's
             rl = x[_RL:_RL + 3]
-            v = rl + x[_RM:_RM + 9].reshape(3, 3) @ d
+            v = rl + x[_RM:_RM + 9].reshape(3, 3) @ dt_
             ok, step = _reexpress(x, float(rl @ east), float(rl @ north), float(rl @ up), float(v @ east),
-                                  float(v @ north), float(v @ up), float(x[_RS:_RS + 3] @ d), float(d @ d), norm,
-                                  dip, 2.0 * c.mag_noise ** 2 + c.field_error ** 2)
+                                  float(v @ north), float(v @ up), float(x[_RS:_RS + 3] @ d), float(dt_ @ dt_), norm,
+                                  dip, 2.0 * c.mag_noise ** 2 + c.field_error ** 2, float(d[0]), float(d[1]),
+                                  float(d[2]))
             if ok:
                 x[_RL:_RL + 3] = v  # the learned field, through the calibration now applied
                 _turn(x, step)
@@ -497,6 +503,7 @@ def _learn(x, n, m0, m1, m2, w, a, b, c) -> None:
     f = 1.0 / n if n > 1.0 else 1.0
     x[_RW] = 1.0  # the heading is this learning's mean alone
     x[_RS] = x[_RS + 1] = x[_RS + 2] = 0.0
+    x[_RD] = x[_RD + 1] = x[_RD + 2] = x[_RP] = 0.0
     x[_RL] += f * (m0 - x[_RL])
     x[_RL + 1] += f * (m1 - x[_RL + 1])
     x[_RL + 2] += f * (m2 - x[_RL + 2])
@@ -529,7 +536,7 @@ def _trace(x, k, g0, g1, g2) -> None:
     x[_RS + 2] = u * x[_RS + 2] + k * g2
 
 
-def _reexpress(x, e0, n0, u0, e1, n1, u1, sd, dd, norm, dip, var):
+def _reexpress(x, e0, n0, u0, e1, n1, u1, sd, dd, norm, dip, var, d0, d1, d2):
     """``reexpress``, at a recalibration (``follow_calibration``): the heading was learned from the
     field before it (``e0, n0, u0``: the learning's mean field, east, north and up in the levelled
     frame). That field read through the new calibration is ``(e1, n1, u1)``: the mean plus the
@@ -549,6 +556,12 @@ def _reexpress(x, e0, n0, u0, e1, n1, u1, sd, dd, norm, dip, var):
     ``field_error``), and it is two noisy samples' difference: nothing moves, the trace is kept.
     Whether it does and the step (the caller turns the heading by it and keeps ``(e1, n1, u1)`` as
     the learned field).
+    Deferred: where the field it gives is closer to this sample's than the learned field but not within
+    that precision (a calibration not yet precise, as ``mag-calibration``'s provisional offset), nothing
+    moves and the change is kept (``d0, d1, d2``: this recalibration's, body frame; ``sd`` its steps'
+    part): the next recalibration is judged, and moves the heading, with the sum of both (the caller
+    adds ``x[_RD:_RD + 3]`` to its change, and this adds ``x[_RW] x[_RP]``, the deferred steps' part
+    scaled as the learned heading's weight has shrunk since).
     Otherwise (the iron came after the heading was learned, a disturbed sample, a calibration the
     learned field does not fit) nothing moves, and the heading is no longer traced to the learned
     field (weight and sensitivity 0). The same statements in the reference and, compiled, in the
@@ -564,11 +577,20 @@ def _reexpress(x, e0, n0, u0, e1, n1, u1, sd, dd, norm, dip, var):
     a1 = (v1 - norm) / norm
     b1 = math.asin(max(-1.0, min(1.0, u1 / v1))) - dip
     d1 = a1 * a1 + b1 * b1
-    if d1 > 4.0 * var or d1 >= a0 * a0 + b0 * b0:
+    if d1 >= a0 * a0 + b0 * b0 or (d1 > 4.0 * var and x[_RW] == 0.0):  # (a weight 0 cannot scale a deferral)
         x[_RW] = x[_RS] = x[_RS + 1] = x[_RS + 2] = 0.0
+        x[_RD] = x[_RD + 1] = x[_RD + 2] = x[_RP] = 0.0
+        return False, 0.0
+    if d1 > 4.0 * var:  # closer than the learned field, not yet within the precision: deferred
+        x[_RD] += d0
+        x[_RD + 1] += d1
+        x[_RD + 2] += d2
+        x[_RP] += sd / x[_RW]
         return False, 0.0
     x[_PHH] = min(x[_PHH] + var * v1 * v1 / h1, _P_MAX)
-    return True, _kwrap(x[_RW] * _kwrap(math.atan2(e1, n1) - math.atan2(e0, n0)) + sd)
+    step = _kwrap(x[_RW] * (_kwrap(math.atan2(e1, n1) - math.atan2(e0, n0)) + x[_RP]) + sd)
+    x[_RD] = x[_RD + 1] = x[_RD + 2] = x[_RP] = 0.0
+    return True, step
 
 
 def _kf_gain(x, r) -> float:
@@ -757,17 +779,18 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         recal = p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0
         if recal and p[26] != 0.0:  # reexpress: the calibration's change of the field, body frame, as learned
             d0, d1, d2 = k_rot(p0, -p1, -p2, -p3, v0 - s[_PL], v1 - s[_PL + 1], v2 - s[_PL + 2])
-            f0 = s[_RL] + s[_RM] * d0 + s[_RM + 1] * d1 + s[_RM + 2] * d2
-            f1 = s[_RL + 1] + s[_RM + 3] * d0 + s[_RM + 4] * d1 + s[_RM + 5] * d2
-            f2 = s[_RL + 2] + s[_RM + 6] * d0 + s[_RM + 7] * d1 + s[_RM + 8] * d2
+            t0, t1, t2 = d0 + s[_RD], d1 + s[_RD + 1], d2 + s[_RD + 2]  # with a deferred one's
+            f0 = s[_RL] + s[_RM] * t0 + s[_RM + 1] * t1 + s[_RM + 2] * t2
+            f1 = s[_RL + 1] + s[_RM + 3] * t0 + s[_RM + 4] * t1 + s[_RM + 5] * t2
+            f2 = s[_RL + 2] + s[_RM + 6] * t0 + s[_RM + 7] * t1 + s[_RM + 8] * t2
             ok, st = _k_reexpress(s, s[_RL] * s[ax] + s[_RL + 1] * s[ax + 1] + s[_RL + 2] * s[ax + 2],
                               s[_RL] * s[ax + 3] + s[_RL + 1] * s[ax + 4] + s[_RL + 2] * s[ax + 5],
                               s[_RL] * s[ax + 6] + s[_RL + 1] * s[ax + 7] + s[_RL + 2] * s[ax + 8],
                               f0 * s[ax] + f1 * s[ax + 1] + f2 * s[ax + 2],
                               f0 * s[ax + 3] + f1 * s[ax + 4] + f2 * s[ax + 5],
                               f0 * s[ax + 6] + f1 * s[ax + 7] + f2 * s[ax + 8],
-                              s[_RS] * d0 + s[_RS + 1] * d1 + s[_RS + 2] * d2, d0 * d0 + d1 * d1 + d2 * d2, norm,
-                              dip, p[27])
+                              s[_RS] * d0 + s[_RS + 1] * d1 + s[_RS + 2] * d2, t0 * t0 + t1 * t1 + t2 * t2, norm,
+                              dip, p[27], d0, d1, d2)
             if ok:
                 s[_RL], s[_RL + 1], s[_RL + 2] = f0, f1, f2
                 _k_turn(s, st)

@@ -45,6 +45,17 @@ rotation than the offset alone. ``soft_iron=False`` estimates the offset alone, 
 soft-iron error then leaves a residual in every segment, which ``sigma_e`` absorbs and the gate
 then demands more rotation).
 
+A provisional offset (``provisional_std`` > 0; off by default): before the estimate is confident
+the samples carry the whole iron, though the offset may already be known to a few uT while the
+distortion (five more unknowns, which need more rotation) is not. Where the offset's standard
+deviation is below ``provisional_std`` of the field's norm and the offset exceeds three of them
+(so applying it removes more error than it leaves: ``|b|^2`` against ``3 std^2``), and the gate
+passes it, the offset alone is applied (``W = I``: the calibrated sample ``m - c``; confidence
+0.5); the confident estimate replaces it. It assumes the distortion small against the offset
+(a distortion of a few % leaves as much); it fails where its first sample lies inside an
+earth-fixed disturbance (``mag-heading`` then learns its reference there, as for a confident
+calibration applied there, only more often: the provisional offset comes earlier).
+
 Limits: the gyroscope's own bias turns ``C`` by ``bias * segment_time`` (small against the
 segment angle); the magnetometer and gyroscope are taken to be sampled at the same times (a
 magnetometer late by ``d`` seconds adds an error of ``|w| d`` per segment, which averages over
@@ -75,8 +86,8 @@ norm makes it switch the calibration off and on. ``consistency=False``: the conf
 
 What the correctors are told (flag MAG_RECALIBRATED): where a closed segment changes the field
 the correctors see by more than the fit's refinement (a new estimate applied: the confidence
-became 1, the first one or the first after the offset was learned again or the gate refused it;
-or the applied one stopped: the gate refused it), that sample carries the flag. A reader that
+became 1, the first one or the first after the offset was learned again or the gate refused it,
+or a provisional offset's 0.5, or from it 1; or the applied one stopped: the gate refused it), that sample carries the flag. A reader that
 judges the field against something it learned from it (``mag-heading``'s disturbance reference,
 ``follow_calibration``) learns that again. Refinements of an applied estimate carry no flag: they
 change the field by about the estimate's standard deviation, which a slowly following reference
@@ -132,6 +143,7 @@ _SINV = STATE_SOFT + GATE
 _SINVOK = _SINV + _NP * _NP
 _SEG_BUF = 255  # the compiled soft-iron segment's working arrays (_k_segment_soft)
 _RECALIBRATED = int(Flag.MAG_RECALIBRATED)
+_PROVISIONAL = 0.5  # the confidence of an offset applied before the estimate is confident (provisional_std)
 
 
 class MagCalibrationConfig(PluginConfig):
@@ -170,6 +182,11 @@ class MagCalibrationConfig(PluginConfig):
     min_reduction: float = param(
         2.0, unit="-", description="the factor by which the calibration must reduce the field norm's variance: an F "
         "test at the 32 segment ends' degrees of freedom (F(31, 31) at 97%)", gt=1)
+    provisional_std: float = param(
+        0.0, unit="-", description="before the estimate is confident (max_std), apply its offset alone (no "
+        "distortion) once the offset's standard deviation is below this fraction of the field's norm and the offset "
+        "exceeds three of its standard deviations (applying it then removes more error than it adds), where the "
+        "consistency gate passes; the confident estimate replaces it. 0: nothing before the confidence", ge=0)
     gate_interval: float = param(
         0.5, unit="s", description="consistency: a confident estimate the gate refused is tested again only once the "
         "segments since that test span this long (the ring of 32 segment ends it judges changes by one entry per "
@@ -195,7 +212,7 @@ class MagCalibrationModel(SensorModel):
         c = self.config
         return np.array([c.segment_angle, c.segment_time, c.forget_time, c.max_std, float(c.min_segments),
                          c.outlier_sigma, float(c.outlier_count), float(c.soft_iron), _gate_code(c),
-                         c.min_reduction, math.cos(0.5 * c.segment_angle), c.gate_interval])
+                         c.min_reduction, math.cos(0.5 * c.segment_angle), c.gate_interval, c.provisional_std])
 
     def kernel(self) -> SensorModelKernel:
         return SensorModelKernel(mag_calibration_apply, self.params())
@@ -281,6 +298,16 @@ class MagCalibrationModel(SensorModel):
                 return
             s[_B:_B + 3] = best
             s[_CONF] = 1.0
+        elif s[_N] >= c.min_segments and lmin > 0.0 and _provisional(s[_CONF], math.sqrt(s[_VAR] / lmin),
+                                                                       best, c.provisional_std * field):
+            if c.consistency and not _gate_timed(_gate_code(c), s, STATE, np.eye(3), best, c.min_reduction,
+                                                  s[_CONF] != 0.0, c.max_std, np.empty(2 * _GK), prev, s[_T],
+                                                  c.gate_interval):
+                s[_B:_B + 3] = 0.0
+                s[_CONF] = 0.0
+                return
+            s[_B:_B + 3] = best
+            s[_CONF] = _PROVISIONAL
 
     def _segment_soft(self, s, ct, m) -> None:
         """One closed segment, soft iron: ``(I - C^T) c - E m_k + C^T E m_a = m_k - C^T m_a``."""
@@ -330,6 +357,18 @@ class MagCalibrationModel(SensorModel):
             s[_SAPP:_SAPP + _NP] = best
             s[_B:_B + 3] = np.linalg.solve(w, best[5:8])  # the offset in the raw field's units, b = W^-1 c
             s[_CONF] = 1.0
+        elif s[_N] >= c.min_segments and _provisional(s[_CONF], std[5:8].max(), best[5:8], c.provisional_std * field):
+            if c.consistency and not _gate_timed(_gate_code(c), s, STATE_SOFT, np.eye(3), best[5:8], c.min_reduction,
+                                                  s[_CONF] != 0.0, c.max_std, np.empty(2 * _GK), prev, s[_T],
+                                                  c.gate_interval):
+                s[_SAPP:_SAPP + _NP] = 0.0
+                s[_B:_B + 3] = 0.0
+                s[_CONF] = 0.0
+                return
+            s[_SAPP:_SAPP + 5] = 0.0  # the offset alone: W = I, so b = c
+            s[_SAPP + 5:_SAPP + _NP] = best[5:8]
+            s[_B:_B + 3] = best[5:8]
+            s[_CONF] = _PROVISIONAL
 
 
 def _applied(s, soft) -> bool:
@@ -342,14 +381,26 @@ def _applied(s, soft) -> bool:
     return False
 
 
+def _provisional(conf, std, b, level) -> bool:
+    """``provisional_std``: whether an estimate not yet confident may be applied as the offset
+    alone: none confident is applied (``conf`` below 1), the offset's standard deviation ``std`` is
+    at most ``level`` (``provisional_std`` times the field's norm), and the offset ``b`` exceeds three
+    of it (its expected squared error after, ``3 std^2`` over three axes, is then well below the
+    ``|b|^2`` it removes). The same statements in the reference and, compiled, in the kernel."""
+    if conf == 1.0 or not (level > 0.0 and std <= level):  # (level 0: provisional_std off)
+        return False
+    return b[0] * b[0] + b[1] * b[1] + b[2] * b[2] >= 9.0 * std * std
+
+
 def _changed(conf, applied, conf_now, applied_now) -> int:
     """The flag bits of a closed segment, from the confidence and whether a calibration is applied
     before (``conf``, ``applied``) and after it (``conf_now``, ``applied_now``): MAG_RECALIBRATED where the field the correctors see changes by more than
-    the fit's refinement: a new estimate is applied (the confidence became 1: the first one, or the
-    first one after the offset was learned again or the gate refused it) or the applied one stopped
+    the fit's refinement: a new estimate is applied (the confidence rose: to 1, the first one, or the
+    first one after the offset was learned again or the gate refused it, or to a provisional offset's
+    0.5, or from it to 1) or the applied one stopped
     (the gate refused it: the samples pass unchanged). The same statements in the reference and,
     compiled, in the kernel."""
-    if (conf == 0.0 and conf_now == 1.0) or (applied and not applied_now):
+    if conf_now > conf or (applied and not applied_now):
         return _RECALIBRATED
     return 0
 
@@ -739,6 +790,7 @@ def _k_gate_timed(code, s, g, w, c, min_reduction, applied, max_std, work, prev,
 
 _k_applied = njit(_applied)
 _k_changed = njit(_changed)
+_k_provisional = njit(_provisional)
 
 
 @njit
@@ -781,9 +833,10 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
             _k_ring_push(s, STATE_SOFT if soft else STATE, (m0, m1, m2), acc, s[_MA:_MA + 3], s[_DQ:_DQ + 4])
             conf, applied = s[_CONF], _k_applied(s, soft)
             if soft:
-                _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11])
+                _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11],
+                                p[12])
             else:
-                _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11])
+                _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11], p[12])
             flags = _k_changed(conf, applied, s[_CONF], _k_applied(s, soft))
             s[_ANCHOR] = 0.0
     if gyr_ok and s[_ANCHOR] == 0.0:
@@ -818,7 +871,7 @@ def k_forget_accumulate(s, ia, iy, irr, ine, h, r, lam, a):
 
 
 @njit(cold=True)
-def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, interval):
+def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, interval, prov):
     prev, s[STATE + _GV] = s[STATE + _GV], 0.0
     c9 = np.empty(9)
     quat_to_dcm(s[_DQ:_DQ + 4], c9)
@@ -874,10 +927,20 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
             return
         s[_B], s[_B + 1], s[_B + 2] = s[_BEST], s[_BEST + 1], s[_BEST + 2]
         s[_CONF] = 1.0
+    elif s[_N] >= min_seg and lmin > 0.0 and _k_provisional(s[_CONF], math.sqrt(s[_VAR] / lmin),
+                                                            s[_BEST:_BEST + 3], prov * field):
+        if gate != 0.0 and not _k_gate_timed(gate, s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red,
+                                             s[_CONF] != 0.0, max_std, np.empty(2 * _GK), prev, s[_T], interval):
+            s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
+            s[_CONF] = 0.0
+            return
+        s[_B], s[_B + 1], s[_B + 2] = s[_BEST], s[_BEST + 1], s[_BEST + 2]
+        s[_CONF] = _PROVISIONAL
 
 
 @njit(cold=True)
-def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, interval):
+def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, interval,
+                    prov):
     prev, s[STATE_SOFT + _GV] = s[STATE_SOFT + _GV], 0.0
     # one allocation for every working array (views into it): a segment closes every few samples
     # while the body turns, and each small array allocated and freed cost about as much as the arithmetic
@@ -975,3 +1038,21 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
             for i in range(3):
                 s[_B + i] = winv[i, 0] * t[5] + winv[i, 1] * t[6] + winv[i, 2] * t[7]
         s[_CONF] = 1.0
+    elif s[_N] >= min_seg and _k_provisional(s[_CONF], std_c, t[5:8], prov * field):
+        eye = buf[182:191].reshape((3, 3))
+        for i in range(3):
+            for j in range(3):
+                eye[i, j] = 1.0 if i == j else 0.0
+        if gate != 0.0 and not _k_gate_timed(gate, s, STATE_SOFT, eye, t[5:8], min_red, s[_CONF] != 0.0,
+                                             max_std, buf[0:2 * _GK], prev, s[_T], interval):
+            for i in range(_NP):
+                s[_SAPP + i] = 0.0
+            s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
+            s[_CONF] = 0.0
+            return
+        for i in range(5):
+            s[_SAPP + i] = 0.0
+        for i in range(3):
+            s[_SAPP + 5 + i] = t[5 + i]
+            s[_B + i] = t[5 + i]
+        s[_CONF] = _PROVISIONAL
