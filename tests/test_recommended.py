@@ -68,9 +68,10 @@ def test_reference_equals_numba_every_option(rec):
                    {"acc_gate": 1.0}, {"output_lead": 0.02},
                    {"mag_rejection": False, "frame": "NED", "acc_delay": 0.0, "mag_delay": 0.0, "motion_bias_tau": None},
                    {"use_mag": False, "gyr_range": 1.0}, {"acc_delay": -0.01, "use_mag": False, "rest_bias": False, "gyro_rate_estimate": "correct"},
-                   {"bias_sigma_rest": 0.0005, "frame": "NWU", "gyro_rate_estimate": "tau", "bias_update_interval": 0.02},
+                   {"bias_sigma_rest": 0.0005, "frame": "NWU", "gyro_rate_estimate": "tau", "bias_update_interval": 0.02,
+                    "gyro_rate_acc_bias": 0.1},
                    {"frame": "NED", "gyro_rate_estimate": "correct", "gyro_rate_interval": 0.0,
-                    "bias_update_interval": 0.0}]:
+                    "bias_update_interval": 0.0, "gyro_rate_acc_bias": 0.1}]:
         f = fk.make("recommended", nan_policy="skip", **params)
         a, b = f.run(bad, backend="numba"), f.run(bad, backend="reference")
         np.testing.assert_allclose(a.quat, b.quat, atol=1e-9, err_msg=str(params))

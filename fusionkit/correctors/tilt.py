@@ -65,7 +65,9 @@ Options, each a separate idea:
   from the next propagation (through the pipeline's bias, taken off again before the bias filter).
   ``rate_error_interval``: its Kalman update once per that many seconds of motion, not every sample
   (its measurement changes over the inclination's time constant; the noise scaled to keep the
-  information per second).
+  information per second). ``rate_error_acc_bias``: the accelerometer's bias estimated beside E (a
+  body-fixed bias's tilt moves as the body turns, as a rate error's drift does), so that it is not
+  taken for E; it is not removed from the accelerometer.
   ``bias_update_interval`` likewise for the bias filter's Kalman update (its low-passes and its
   covariance's growth run every sample).
 
@@ -115,26 +117,29 @@ _TAUC = 81  # tau_adapt: tau / dt of the low-passes' coefficient set (0: none ye
 # impulse_clip: the mean square of the specific force's departure from the low-passed vector, the samples it averages
 _IMS, _IMN = 82, 83
 _IVAR = 84  # tau_adapt: the bias's part of the inclination error's variance about one horizontal axis at this tau
-# the gyro's rate error estimated (rate_error_estimate): E's symmetric part (00, 11, 22, 01, 02, 12), its covariance
-# (6 x 6), the regressor's low-pass delay lines (its east and north rows, 12 each), kappa^2 for tau_adapt, the
-# delay lines' (1 - b0, b2 - a2) and whether the regressor's low-pass started
+# the gyro's rate error estimated (rate_error_estimate): E's symmetric part (00, 11, 22, 01, 02, 12) and the
+# accelerometer's bias it is told apart from (rate_error_acc_bias; x, y, z, m/s^2), their covariance (9 x 9), the
+# regressor's low-pass delay lines (its east and north rows, 18 each), kappa^2 for tau_adapt, the delay lines'
+# (1 - b0, b2 - a2) and whether the regressor's low-pass started
 # and (rate_error_correct) the rate error E w the pipeline's bias carries for the next propagation
-_E, _PE, _HZ1, _HZ2, _KAP2, _ECO, _EREADY, _EW = 85, 91, 127, 139, 151, 152, 154, 155
-_SCR = 158  # rate_error_estimate's working space for one sample (no allocation per sample in the compiled loop)
+_NE = 9  # the rate error's states: E's 6 entries, then the accelerometer's bias (3)
+_E, _PE, _HZ1, _HZ2, _KAP2, _ECO, _EREADY, _EW = 85, 94, 175, 193, 211, 212, 214, 215
+_SCR = 218  # rate_error_estimate's working space for one sample (no allocation per sample in the compiled loop)
 RATE_ERROR, RATE_KAPPA2 = _E, _KAP2  # where a run's state holds E and kappa^2 (the recommended filter's diagnostics)
 # tau_adapt: the dt its per-sample factors are for, and those factors: min(dt / tau0, 1), dt / window, and the
 # rests' variance's growth sigma_m^2 dt / forget (:func:`_adapt_step`: divisions once per distinct dt)
-_ADT, _AF, _AK, _AV = _SCR + 36, _SCR + 37, _SCR + 38, _SCR + 39
+_ADT, _AF, _AK, _AV = _SCR + 54, _SCR + 55, _SCR + 56, _SCR + 57
 # rate_error_interval: the seconds and the samples in motion since the rate error's last Kalman update
-_ETACC, _ENACC = _SCR + 40, _SCR + 41
+_ETACC, _ENACC = _SCR + 58, _SCR + 59
 # bias_update_interval: the seconds and the samples in motion since the bias filter's last Kalman update
-_KTACC, _KNACC = _SCR + 42, _SCR + 43
+_KTACC, _KNACC = _SCR + 60, _SCR + 61
 # tau_max_parallel: the second low-pass's (at tau_max) delay lines, its coefficients for the last dt, whether it
 # started, and whether the last sample's tau was tau_max
-_PZ1, _PZ2, _PB, _PREADY, _PMAX = _SCR + 44, _SCR + 47, _SCR + 50, _SCR + 55, _SCR + 56
-_SIZE = _SCR + 57
+_PZ1, _PZ2, _PB, _PREADY, _PMAX = _SCR + 62, _SCR + 65, _SCR + 68, _SCR + 73, _SCR + 74
+_SIZE = _SCR + 75
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
+_G_INV = 1.0 / 9.81  # rate_error_acc_bias: the accelerometer's bias as a tilt, 1 / g (m/s^2 -> rad)
 _REST = int(Flag.REST)
 _CH_VAR, _CH_TIME, _CH_LET = int(Channel.INCLINATION_VARIANCE), int(Channel.INCLINATION_TIME), int(Channel.LET_THROUGH)
 _FORGET = 100.0  # tau_adapt without motion_bias_tau: the time in which the bias's variance grows by sigma_motion^2
@@ -559,7 +564,7 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
 
 
 def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0, forget, emax, correct,
-                     interval):
+                     interval, acc_sigma):
     """The gyro's rate error estimated online (``rate_error_estimate``), one sample: the output
     quaternion ``e`` (body -> levelled), the body rate ``w`` (gyro minus bias), the bias filter's
     residual ``f`` after its update (:meth:`InertialTilt._kalman`), a REST sample.
@@ -591,53 +596,78 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     ``tau_min``), so consecutive samples carry almost the same information: the update of the
     interval's last sample, its noise divided by the samples the interval spans, keeps the
     information per second. The regressor's low-pass, the covariance's growth and ``E w`` still
-    run every sample."""
+    run every sample.
+
+    ``acc_sigma`` (``rate_error_acc_bias``, m/s^2; 0: not modelled): the accelerometer's bias ``b_a``
+    estimated beside E, so that its drift is not taken for E's. A bias fixed in the body tilts the
+    low-passed vector by ``up x LP(R b_a) / g``; as the body turns, that tilt moves at
+    ``up x LP(R [w]x b_a) / g`` (``d/dt R = R [w]x``), which the correction follows and the bias filter
+    leaves in its residual: linear in ``b_a``, the column of ``b_a``'s axis ``j`` being
+    ``up x LP(R (w x e_j)) / g`` (east row ``-n . LP(R (w x e_j)) / g``, north row
+    ``s . LP(R (w x e_j)) / g``). Its prior is ``acc_sigma^2`` per axis, growing back in ``forget`` s
+    as E's. It is only told apart, never removed from the accelerometer; with ``acc_sigma`` 0 its
+    covariance stays 0 and the update is E's alone, to the bit."""
     c1, c2 = 1.0 - x[_B], x[_B + 2] - x[_B + 4]
     r = dcm_entries(e0, e1, e2, e3)
     # the levelled frame's two horizontal axes (east and north = up x east): rows of R seen along them
     u0, u1, u2 = x[_UP], x[_UP + 1], x[_UP + 2]
     s0, s1, s2 = x[_EAST], x[_EAST + 1], x[_EAST + 2]
     n0, n1, n2 = u1 * s2 - u2 * s1, u2 * s0 - u0 * s2, u0 * s1 - u1 * s0
-    # the regressor before the low-pass (x[_SCR:_SCR + 12]): east then north row of the columns 00, 11, 22, 01, 02, 12
-    # (flat indices, no array views: this part runs every sample)
+    # the regressor before the low-pass (x[_SCR:_SCR + 18]): east then north row of the columns 00, 11, 22, 01, 02, 12
+    # and of the accelerometer's bias x, y, z (flat indices, no array views: this part runs every sample); ne: the
+    # states estimated (without the bias its covariance is 0 and it would add nothing: not computed)
     g = _SCR
+    ne = _NE if acc_sigma > 0.0 else 6
     for k in range(2):
         a0, a1, a2 = (s0, s1, s2) if k == 0 else (n0, n1, n2)
         r0 = a0 * r[0] + a1 * r[3] + a2 * r[6]
         r1 = a0 * r[1] + a1 * r[4] + a2 * r[7]
         r2 = a0 * r[2] + a1 * r[5] + a2 * r[8]
-        i = g + 6 * k
+        i = g + _NE * k
         x[i], x[i + 1], x[i + 2] = r0 * w0, r1 * w1, r2 * w2
         x[i + 3], x[i + 4], x[i + 5] = r0 * w1 + r1 * w0, r0 * w2 + r2 * w0, r1 * w2 + r2 * w1
+        # the bias's columns, rows swapped: up x v along east is -n . v, along north s . v; the row here is
+        # east's (s^T R) for k 0, north's (n^T R) for k 1, each the other row's; w x e_j = (0, w2, -w1),
+        # (-w2, 0, w0), (w1, -w0, 0)
+        if ne > 6:
+            j = g + _NE * (1 - k) + 6
+            sg = _G_INV if k == 0 else -_G_INV
+            x[j], x[j + 1], x[j + 2] = sg * (r1 * w2 - r2 * w1), sg * (r2 * w0 - r0 * w2), sg * (r0 * w1 - r1 * w0)
     if x[_EREADY] == 0.0:  # start in the steady state of this sample
-        for m in range(12):
-            x[_HZ1 + m], x[_HZ2 + m] = x[g + m] * c1, x[g + m] * c2
+        for k in range(2):
+            for m in range(k * _NE, k * _NE + ne):
+                x[_HZ1 + m], x[_HZ2 + m] = x[g + m] * c1, x[g + m] * c2
         x[_ECO], x[_ECO + 1], x[_EREADY] = c1, c2, 1.0
     elif c1 != x[_ECO] or c2 != x[_ECO + 1]:  # new coefficients (tau_adapt, dt): the delay lines' steady state
         q1, q2 = c1 / x[_ECO], c2 / x[_ECO + 1]
-        for m in range(12):
-            x[_HZ1 + m] *= q1
-            x[_HZ2 + m] *= q2
+        for k in range(2):
+            for m in range(k * _NE, k * _NE + ne):
+                x[_HZ1 + m] *= q1
+                x[_HZ2 + m] *= q2
         x[_ECO], x[_ECO + 1] = c1, c2
     b0, b1, b2, a1, a2 = x[_B], x[_B + 1], x[_B + 2], x[_B + 3], x[_B + 4]
-    for m in range(12):  # the low-passed regressor H (2 x 6) at x[_SCR + 12:_SCR + 24]
-        gm = x[g + m]
-        y = b0 * gm + x[_HZ1 + m]
-        x[_HZ1 + m] = b1 * gm - a1 * y + x[_HZ2 + m]
-        x[_HZ2 + m] = b2 * gm - a2 * y
-        x[g + 12 + m] = y
-    p0 = kappa0 * kappa0 / 3.0
-    v = p0 * dt / forget
+    for k in range(2):  # the low-passed regressor H (2 x 9) at x[_SCR + 18:_SCR + 36]
+        for m in range(k * _NE, k * _NE + ne):
+            gm = x[g + m]
+            y = b0 * gm + x[_HZ1 + m]
+            x[_HZ1 + m] = b1 * gm - a1 * y + x[_HZ2 + m]
+            x[_HZ2 + m] = b2 * gm - a2 * y
+            x[g + 2 * _NE + m] = y
+    p0, pa = kappa0 * kappa0 / 3.0, acc_sigma * acc_sigma
+    v, va = p0 * dt / forget, pa * dt / forget
     for m in range(6):
-        if x[_PE + 7 * m] < p0:
-            x[_PE + 7 * m] += v
+        if x[_PE + (_NE + 1) * m] < p0:
+            x[_PE + (_NE + 1) * m] += v
+    for m in range(6, ne):
+        if x[_PE + (_NE + 1) * m] < pa:
+            x[_PE + (_NE + 1) * m] += va
     update = False
     if not rest:  # the interval: seconds of motion compared with half a sample of margin (a split run equals one run)
         x[_ETACC] += dt
         x[_ENACC] += 1.0
         update = x[_ETACC] + 0.5 * dt >= interval
     if update:
-        h = x[_SCR + 12:_SCR + 24].reshape((2, 6))
+        h = x[_SCR + 2 * _NE:_SCR + 4 * _NE].reshape((2, _NE))
         # the linear acceleration the low-pass lets through turns its vector by sigma_v / (g tau), changing over tau:
         # as white noise of the same low-frequency power, 2 sigma_v^2 / (g^2 tau^3 dt) on the rate (tau_adapt's
         # statistics; 0 without them)
@@ -646,36 +676,36 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
             t = x[_TAU]
             wa = 2.0 * x[_SV2] / ((x[_Y] * x[_Y] + x[_Y + 1] * x[_Y + 1] + x[_Y + 2] * x[_Y + 2]) * t * t * t * dt)
         v0, v1 = s0 * f0 + s1 * f1 + s2 * f2, n0 * f0 + n1 * f1 + n2 * f2  # the innovation
-        if not correct:
-            for n in range(6):
-                v0 -= h[0, n] * x[_E + n]
-                v1 -= h[1, n] * x[_E + n]
-        a = x[_SCR + 24:_SCR + 36].reshape((6, 2))  # P H^T
-        for m in range(6):
+        for n in range(0 if not correct else 6, ne):  # (the bias is never removed: its estimate always is)
+            v0 -= h[0, n] * x[_E + n]
+            v1 -= h[1, n] * x[_E + n]
+        a = x[_SCR + 4 * _NE:_SCR + 6 * _NE].reshape((_NE, 2))  # P H^T
+        for m in range(ne):
             t0 = t1 = 0.0
-            for n in range(6):
-                t0 += x[_PE + 6 * m + n] * h[0, n]
-                t1 += x[_PE + 6 * m + n] * h[1, n]
+            for n in range(ne):
+                t0 += x[_PE + _NE * m + n] * h[0, n]
+                t1 += x[_PE + _NE * m + n] * h[1, n]
             a[m, 0], a[m, 1] = t0, t1
         wn = (x[_N + 1] + wa) / x[_ENACC]  # the interval's samples, one update: each sample's noise / their count
         x[_ETACC] = x[_ENACC] = 0.0
         m00, m01, m11 = wn, 0.0, wn  # S = H P H^T + (wm + wa) / n I
-        for n in range(6):
+        for n in range(ne):
             m00 += h[0, n] * a[n, 0]
             m01 += h[0, n] * a[n, 1]
             m11 += h[1, n] * a[n, 1]
         d = 1.0 / (m00 * m11 - m01 * m01)
         i00, i01, i11 = m11 * d, -m01 * d, m00 * d
-        for m in range(6):  # K = P H^T S^-1 (row m), E += K nu, P -= K (P H^T)^T (symmetric: the upper half, mirrored)
+        for m in range(ne):  # K = P H^T S^-1 (row m), E += K nu, P -= K (P H^T)^T (symmetric: the upper half, mirrored)
             k0 = a[m, 0] * i00 + a[m, 1] * i01
             k1 = a[m, 0] * i01 + a[m, 1] * i11
-            x[_E + m] = min(max(x[_E + m] + k0 * v0 + k1 * v1, -emax), emax)
-            for n in range(m, 6):
-                x[_PE + 6 * m + n] -= k0 * a[n, 0] + k1 * a[n, 1]
-                x[_PE + 6 * n + m] = x[_PE + 6 * m + n]
+            x[_E + m] = min(max(x[_E + m] + k0 * v0 + k1 * v1, -emax), emax) if m < 6 else x[_E + m] + k0 * v0 + k1 * v1
+            for n in range(m, ne):
+                x[_PE + _NE * m + n] -= k0 * a[n, 0] + k1 * a[n, 1]
+                x[_PE + _NE * n + m] = x[_PE + _NE * m + n]
     k2 = 0.0
     for m in range(6):
-        k2 += (1.0 if m < 3 else 2.0) * (x[_PE + 7 * m] if correct else x[_E + m] * x[_E + m] + x[_PE + 7 * m])
+        k2 += (1.0 if m < 3 else 2.0) * (x[_PE + (_NE + 1) * m] if correct
+                                         else x[_E + m] * x[_E + m] + x[_PE + (_NE + 1) * m])
     x[_KAP2] = k2 / 3.0
     if correct:  # the rate error this sample's rate shows, for the next propagation: across the vertical only
         e00, e11, e22, e01, e02, e12 = x[_E], x[_E + 1], x[_E + 2], x[_E + 3], x[_E + 4], x[_E + 5]
@@ -739,6 +769,11 @@ class InertialTiltConfig(PluginConfig):
         "of the sample, added to the pipeline's bias for the next propagation and taken off again before the bias "
         "filter); kappa is then the estimate's uncertainty alone. False: the estimate only sets kappa")
     rate_error_max: float = param(0.05, unit="-", description="rate_error_estimate: the largest entry of E", gt=0)
+    rate_error_acc_bias: float = param(
+        0.0, unit="m/s^2", description="rate_error_estimate: the accelerometer's bias (its standard deviation per "
+        "axis) estimated beside E: a bias fixed in the body tilts the low-passed vector, and as the body turns that "
+        "tilt moves like a rate error's drift; modelled, it is not taken for E (it is not removed from the "
+        "accelerometer). 0: not modelled (the behaviour before)", ge=0)
     rate_error_interval: float = param(
         0.0, unit="s", description="rate_error_estimate: the time of motion between the estimate's Kalman updates, "
         "each with the measurement noise divided by the samples it spans (the same information per second; the "
@@ -826,7 +861,8 @@ class InertialTilt(FactorCorrector):
         s[_UP:_UP + 3], s[_EAST:_EAST + 3] = axes[6:9], axes[0:3]
         s[_P:_P + 9] = np.eye(3).ravel() * self.config.bias_sigma_init ** 2
         s[_VR] = self.config.bias_sigma_init ** 2
-        s[_PE:_PE + 36] = np.eye(6).ravel() * self.config.gyro_rate_error ** 2 / 3.0
+        s[_PE:_PE + _NE * _NE] = np.diag([self.config.gyro_rate_error ** 2 / 3.0] * 6
+                                         + [self.config.rate_error_acc_bias ** 2] * 3).ravel()
         s[_KAP2] = self.config.gyro_rate_error ** 2
         return s
 
@@ -932,7 +968,7 @@ class InertialTilt(FactorCorrector):
             res = self._kalman(x, quat_to_matrix(out), r, bias, dt, rest)
             if c.rate_error_estimate and np.all(np.isfinite(w_b)):  # (a sample without a valid gyro: nothing to learn)
                 _rate_error_step(x, *out, *w_b, *res, rest, dt, c.gyro_rate_error, c.motion_bias_tau,
-                                 c.rate_error_max, c.rate_error_correct, c.rate_error_interval)
+                                 c.rate_error_max, c.rate_error_correct, c.rate_error_interval, c.rate_error_acc_bias)
         elif c.motion_bias_tau is not None and not rest and x[_READY]:
             # the correction as a rate in the levelled frame is the gyro drift; seen in the body,
             # it is the (horizontal part of the) bias error
@@ -1006,7 +1042,7 @@ class InertialTilt(FactorCorrector):
                       c.impulse_clip if c.impulse_clip is not None else 0.0, c.impulse_window, c.impulse_floor,
                       float(c.rate_error_estimate), c.rate_error_max, float(c.rate_error_correct),
                       c.rate_error_interval, c.bias_update_interval, float(self._publishing()),
-                      float(c.tau_adapt and c.tau_max_parallel)])
+                      float(c.tau_adapt and c.tau_max_parallel), c.rate_error_acc_bias])
         return CorrectorKernel(inertial_tilt_kernel, p, mode="factor")
 
 
@@ -1018,7 +1054,7 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
     bias_sigma_rest (0: None), bias_vertical_forgetting, tau_adapt, gyro_rate_error, tau_min, tau_max,
     adapt_window, impulse_clip (0: None), impulse_window, impulse_floor, rate_error_estimate, rate_error_max,
     rate_error_correct, rate_error_interval, bias_update_interval, publish (1: a corrector reads the channel),
-    tau_max_parallel (with tau_adapt))``;
+    tau_max_parallel (with tau_adapt), rate_error_acc_bias)``;
     ``ch`` the pipeline's channel."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
@@ -1103,7 +1139,7 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
             f0, f1, f2 = _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, (flags & _REST) != 0, dt, p)
             if p[18] != 0.0 and math.isfinite(wb0) and math.isfinite(wb1) and math.isfinite(wb2):
                 _k_rate_error_step(s, e0, e1, e2, e3, wb0, wb1, wb2, f0, f1, f2, (flags & _REST) != 0, dt, p[11],
-                                   p[3], p[19], p[20] != 0.0, p[21])
+                                   p[3], p[19], p[20] != 0.0, p[21], p[25])
         elif p[3] > 0.0 and (flags & _REST) == 0 and s[_READY] != 0.0:
             sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
             if sn > 0.0:

@@ -107,6 +107,11 @@ class RecommendedConfig(FilterConfig):
         "(0.5-4 s), so consecutive samples say almost the same; each update's noise is divided by the samples it "
         "spans (the same information per second). 0.05 s: a tenth of the shortest time constant, 0.5 s "
         "(recommended.md). 0: an update every sample (the behaviour before)", ge=0)
+    gyro_rate_acc_bias: float = param(
+        0.0, unit="m/s^2", description="gyro_rate_estimate: the accelerometer's bias (standard deviation per axis) "
+        "estimated beside the rate error, so that the drift of the tilt a body-fixed accelerometer bias makes as "
+        "the body turns is not taken for the gyro's (inertial-tilt's rate_error_acc_bias; recommended.md); the bias "
+        "is not removed from the accelerometer. 0: not modelled", ge=0)
     bias_update_interval: float = param(
         0.05, unit="s", description="bias_filter kalman: the time of motion between the bias filter's Kalman updates "
         "(inertial-tilt's bias_update_interval): like gyro_rate_interval, its measurement is the correction low-passed "
@@ -258,6 +263,7 @@ class RecommendedFilter(Pipeline):
             "tau_max_parallel": c.tau_max_parallel,
             "rate_error_estimate": c.gyro_rate_estimate != "off",
             "rate_error_correct": c.gyro_rate_estimate == "correct", "rate_error_interval": c.gyro_rate_interval,
+            "rate_error_acc_bias": c.gyro_rate_acc_bias,
             "bias_update_interval": c.bias_update_interval}))
         if c.use_mag:
             magnetic = c.magnetic if c.fast_start else c.magnetic.model_copy(update={"init_time": 0.0})
@@ -306,6 +312,8 @@ class RecommendedFilter(Pipeline):
             e00, e11, e22, e01, e02, e12 = s[TILT_RATE_ERROR:TILT_RATE_ERROR + 6]  # its symmetric part
             d["gyro_rate_error"] = np.array([[e00, e01, e02], [e01, e11, e12], [e02, e12, e22]])
             d["gyro_rate_kappa"] = math.sqrt(float(s[TILT_KAPPA2]))
+            if self.config.gyro_rate_acc_bias > 0:  # the accelerometer's bias told apart from it (m/s^2, body axes)
+                d["gyro_rate_acc_bias"] = np.array(s[TILT_RATE_ERROR + 6:TILT_RATE_ERROR + 9])
         heading = [i for i, c in enumerate(self.correctors) if c.name == "mag-heading"]
         if heading:
             s = st["cor"][heading[0]]
