@@ -37,6 +37,9 @@ class Flag(enum.IntFlag):
     GAP = 1 << 11  #: the interval before this sample is a timestamp gap: the state is held across it, not integrated
     GNSS_REJECTED = 1 << 12  #: a GNSS measurement on this sample failed the innovation gate and was not used
     MAG_RECALIBRATED = 1 << 13  #: a sensor model started, replaced or stopped the magnetometer calibration it applies
+    #: the magnetometer sample repeats the previous reading (a magnetometer slower than the IMU holds it), though a
+    #: sensor model calibrates it otherwise than that one since: its value alone no longer tells it is held
+    MAG_HELD = 1 << 14
 
 
 class Channel(enum.IntEnum):
