@@ -132,54 +132,40 @@ def quat_to_matrix(q):
 
 
 def matrix_to_quat(m):
-    """Unit quaternion (with ``w >= 0``) of a rotation matrix, Shepperd's method."""
+    """Unit quaternion (with ``w >= 0``) of a rotation matrix, Shepperd's method (:func:`_shepperd`,
+    one matrix at a time on Python floats); a matrix with a non-finite entry gives NaN."""
     m = np.asarray(m, dtype=float)
-    single = m.ndim == 2
-    if single:  # one matrix: the same operations on Python floats, as in quat_mul
+    if m.ndim == 2:  # (the per-sample call: no array made for the finiteness test)
         e = m.ravel().tolist()
-        if all(map(math.isfinite, e)):  # (non-finite entries: numpy's path, its NaNs)
-            return np.array(_shepperd(*e))
-    m = m.reshape(-1, 3, 3)
-    out = np.empty((m.shape[0], 4))
-    for i, r in enumerate(m):
-        tr = r[0, 0] + r[1, 1] + r[2, 2]
-        if tr >= max(r[0, 0], r[1, 1], r[2, 2]):
-            s = 2.0 * np.sqrt(1.0 + tr)
-            out[i] = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
-        elif r[0, 0] >= r[1, 1] and r[0, 0] >= r[2, 2]:
-            s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-            out[i] = [(r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s]
-        elif r[1, 1] >= r[2, 2]:
-            s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-            out[i] = [(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s]
-        else:
-            s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-            out[i] = [(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s]
-    out = np.where(out[:, :1] < 0, -out, out)
-    out /= np.linalg.norm(out, axis=-1, keepdims=True)
-    return out[0] if single else out.reshape(m.shape[:-2] + (4,))
+        return np.array(_shepperd(*e) if all(map(math.isfinite, e)) else [math.nan] * 4)
+    e = m.reshape(-1, 9)
+    ok = np.isfinite(e).all(axis=1)
+    out = np.full((e.shape[0], 4), math.nan)
+    out[ok] = [_shepperd(*r) for r in e[ok].tolist()]
+    return out.reshape(m.shape[:-2] + (4,))
 
 
 def _shepperd(r00, r01, r02, r10, r11, r12, r20, r21, r22) -> list:
-    """:func:`matrix_to_quat` of one matrix with finite entries (its loop body, then its sign and
-    normalisation) on Python floats."""
+    """Shepperd's method on one matrix with finite entries: the quaternion from the largest of the
+    trace and the diagonal (the best-conditioned square root), its sign (``w >= 0``) and its
+    normalisation, on Python floats."""
     tr = r00 + r11 + r22
-    if tr >= max(r00, r11, r22):
+    if tr >= r00 and tr >= r11 and tr >= r22:
         s = 2.0 * math.sqrt(1.0 + tr)
-        q = [0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s]
+        w, x, y, z = 0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s
     elif r00 >= r11 and r00 >= r22:
         s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
-        q = [(r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s]
+        w, x, y, z = (r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s
     elif r11 >= r22:
         s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
-        q = [(r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s]
+        w, x, y, z = (r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s
     else:
         s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
-        q = [(r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s]
-    if q[0] < 0:
-        q = [-v for v in q]
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return [v / n for v in q]
+        w, x, y, z = (r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return [w / n, x / n, y / n, z / n]
 
 
 def quat_rotate(q, v):

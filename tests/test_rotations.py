@@ -102,3 +102,15 @@ def test_one_item_paths_give_the_stacked_numbers_to_the_bit():
     one = np.array([euler_to_quat(*a, frame=fr) for a in ang for fr in ("ENU", "NUE")])
     stacked = np.stack([euler_to_quat(*ang.T, frame=fr) for fr in ("ENU", "NUE")], axis=1).reshape(-1, 4)
     assert np.array_equal(one, stacked) and np.array_equal(np.signbit(one), np.signbit(stacked))
+
+
+def test_matrix_to_quat_of_a_non_finite_matrix_is_nan():
+    """A matrix with a non-finite entry has no rotation: NaN in all four components, one matrix or a
+    stack (before: numpy's arithmetic on it, e.g. ``[nan, 0, 0, 0]`` for an infinite diagonal entry),
+    and the finite matrices of the stack are unaffected."""
+    bad = np.eye(3)
+    bad[0, 0] = np.inf
+    good = quat_to_matrix(Q[:2])
+    assert np.isnan(matrix_to_quat(bad)).all()
+    out = matrix_to_quat(np.stack([good[0], bad, good[1]]))
+    assert np.isnan(out[1]).all() and np.array_equal(out[[0, 2]], matrix_to_quat(good))
