@@ -1123,9 +1123,12 @@ def gyro_delay_lever(rec: Recording, pairing: float | None = None, band: tuple[f
     nan = (math.nan, math.nan, math.nan, np.full(3, np.nan))
     fs = 1.0 / rec.nominal_dt
     lo, hi = float(band[0]), min(float(band[1]), 0.45 * fs)
-    if not (0.0 < lo < hi) or n < 10.0 * fs / lo:  # at least ten periods of the band's lowest frequency
-        return nan
     t = np.asarray(rec.time, dtype=float)
+    # at least ten periods of the band's lowest frequency, in time: the samples' span and the first one's
+    # interval (n / fs where the sampling is uniform; not the count at the median interval, which a
+    # jittery clock's shorter intervals make a larger rate)
+    if not (0.0 < lo < hi) or t[-1] - t[0] + rec.nominal_dt < 10.0 / lo:
+        return nan
     gyr, acc = np.array(rec.gyr, dtype=float), np.array(rec.acc, dtype=float)
     for x in (gyr, acc):
         ok = np.isfinite(x).all(axis=1)
