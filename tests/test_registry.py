@@ -72,6 +72,16 @@ def test_unknown_names_list_close_matches():
         fk.make("moton", kind="detector")
 
 
+def test_a_name_or_kind_that_is_not_a_string_is_named():
+    """Before: difflib's TypeError from the close-match hint, and AttributeError ``endswith`` for the
+    parameters passed as a dict where the kind goes."""
+    for name in (None, 3, ["recommended"]):
+        with pytest.raises(PluginError, match="a plugin name is a string"):
+            fk.make(name)
+    with pytest.raises(PluginError, match="kind must be one of .* parameters are keywords"):
+        fk.make("recommended", {"tau_acc": 1.0})
+
+
 def test_describe_lists_parameters_with_units_and_defaults():
     info = fk.describe("motion")
     rows = {p["name"]: p for p in info.parameters}
