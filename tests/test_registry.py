@@ -82,6 +82,15 @@ def test_a_name_or_kind_that_is_not_a_string_is_named():
         fk.make("recommended", {"tau_acc": 1.0})
 
 
+def test_a_boolean_for_a_number_is_refused():
+    """``tau_acc=True`` ran with 1 s (pydantic takes True as 1); a boolean stays valid for a boolean
+    field."""
+    for params in ({"tau_acc": True}, {"gyr_range": False}, {"mag_delay": True}):
+        with pytest.raises(fk.ConfigError, match="expected a number, got a boolean"):
+            fk.make("recommended", **params)
+    assert fk.make("recommended", use_mag=False).config.use_mag is False
+
+
 def test_describe_lists_parameters_with_units_and_defaults():
     info = fk.describe("motion")
     rows = {p["name"]: p for p in info.parameters}
