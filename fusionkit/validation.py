@@ -189,6 +189,14 @@ def check_positive(name: str, value: float) -> float:
 MAX_INTERVAL = 1.0
 
 
+def check_dt(dt: float) -> float:
+    """A streamed sample's interval ``dt``: :func:`check_positive`, and at most :data:`MAX_INTERVAL`."""
+    dt = check_positive("dt", dt)
+    if dt > MAX_INTERVAL:
+        raise InputError(f"dt must be at most {MAX_INTERVAL:g} s (the sample interval in s, not ms), got {dt:.4g}")
+    return dt
+
+
 # ---- the unit checks of a recording, in one pass -----------------------------------------------
 #
 # A Recording refuses an accelerometer that reads in g (median |a| in (0.3, 3)) and a gyroscope

@@ -91,6 +91,17 @@ def test_a_boolean_for_a_number_is_refused():
     assert fk.make("recommended", use_mag=False).config.use_mag is False
 
 
+def test_a_streamed_interval_is_bounded():
+    """``update(dt=100)`` (an interval in ms?) ended in a division by zero in recommended's kernel;
+    a boolean dt was taken as 1 s."""
+    for name in ("recommended", "ekf", "vqf"):
+        f = fk.make(name)
+        with pytest.raises(fk.InputError, match="dt must be at most 1 s"):
+            f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=100.0)
+        with pytest.raises(fk.InputError, match="dt must be one finite number"):
+            f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=True)
+
+
 def test_describe_lists_parameters_with_units_and_defaults():
     info = fk.describe("motion")
     rows = {p["name"]: p for p in info.parameters}
