@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import reprlib
+import types
+import typing
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -44,6 +46,22 @@ class PluginConfig(BaseModel):
     (``inf`` and NaN pass range checks such as ``gt=0`` and would reach the arithmetic)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True, allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_bool_number(cls, value: Any, info) -> Any:
+        """A boolean where a number is expected is refused (pydantic takes True as 1, so
+        ``tau_acc=True`` ran with 1 s)."""
+        if isinstance(value, bool) and _number_not_bool(cls.model_fields[info.field_name].annotation):
+            raise ValueError("expected a number, got a boolean")
+        return value
+
+
+def _number_not_bool(annotation: Any) -> bool:
+    """Whether a field's type takes a number (float or int, alone or in a union) and no boolean."""
+    args = typing.get_args(annotation) if typing.get_origin(annotation) in (typing.Union, types.UnionType) \
+        else (annotation,)
+    return bool not in args and any(a in (float, int) for a in args)
 
 
 def _body(value: str | None) -> str | None:

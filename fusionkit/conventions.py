@@ -97,10 +97,10 @@ _FROM_ENU = {
 }
 
 
-def check_frame(frame: str) -> str:
-    """Return ``frame`` if it is a known earth frame, else raise :class:`ConfigError`."""
-    if frame not in _FROM_ENU:
-        raise ConfigError(f"frame must be one of {FRAMES}, got {frame!r}")
+def check_frame(frame: str, name: str = "frame") -> str:
+    """Return ``frame`` if it is a known earth frame, else raise :class:`ConfigError` naming ``name``."""
+    if not isinstance(frame, str) or frame not in _FROM_ENU:
+        raise ConfigError(f"{name} must be one of {FRAMES}, got {frame!r}")
     return frame
 
 

@@ -35,6 +35,8 @@ def evaluate(filter_names=None, recordings=None, progress: bool | None = True):
     from .benchmarking.runner import Progress
 
     reg = default_registry()
+    for name in filter_names or ():  # names the user gave: a typo is an error, not a skipped row
+        reg.get(name, "filter")
     names = filter_names or [n for n in reg.names("filter") if n != "pipeline"]
     recordings = recordings or demo_recordings()
     rows, curves = [], {}

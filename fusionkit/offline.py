@@ -1149,9 +1149,12 @@ def _lever_fit(rec: Recording, pairing: float | None, band: tuple[float, float],
     n = len(rec)
     fs = 1.0 / rec.nominal_dt
     lo, hi = float(band[0]), min(float(band[1]), 0.45 * fs)
-    if not (0.0 < lo < hi) or n < 10.0 * fs / lo:  # at least ten periods of the band's lowest frequency
-        return None
     t = np.asarray(rec.time, dtype=float)
+    # at least ten periods of the band's lowest frequency, in time: the samples' span and the first one's
+    # interval (n / fs where the sampling is uniform; not the count at the median interval, which a
+    # jittery clock's shorter intervals make a larger rate)
+    if not (0.0 < lo < hi) or t[-1] - t[0] + rec.nominal_dt < 10.0 / lo:
+        return None
     gyr, acc = np.array(rec.gyr, dtype=float), np.array(rec.acc, dtype=float)
     for x in (gyr, acc):
         ok = np.isfinite(x).all(axis=1)

@@ -88,7 +88,7 @@ from .registry import Registry, default_registry
 from .types import (CHANNEL_SIZE, Channel, Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps,
                     sample_validity, stream_gap)
 from .filters._step_filter import _after_saturation
-from .validation import (as_vector, check_finite_all, check_finite_flagged, check_positive, check_sample_finite,
+from .validation import (as_vector, check_finite_all, check_finite_flagged, check_dt, check_sample_finite,
                          finite_sample)
 
 __all__ = ["Pipeline", "run_detector"]
@@ -506,7 +506,7 @@ class Pipeline(Filter):
         """:meth:`update` with every check, on either path."""
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
-        dt = check_positive("dt", dt)
+        dt = check_dt(dt)
         g = as_vector("gyr", gyr)
         a = as_vector("acc", acc)
         has_mag = mag is not None

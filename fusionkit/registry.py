@@ -182,12 +182,17 @@ class Registry:
         return {f"{k}s": self.names(k) for k in KINDS}
 
     def _check_kind(self, kind: str) -> str:
+        if not isinstance(kind, str):  # (make("x", {...}): the parameters passed where the kind goes)
+            raise PluginError(f"kind must be one of {KINDS}, got {kind!r:.80}; a plugin's parameters are keywords "
+                              "(make(name, tau=1.0)) or config=")
         kind = kind[:-1] if kind.endswith("s") and kind[:-1] in KINDS else kind
         if kind not in KINDS:
             raise PluginError(f"kind must be one of {KINDS}, got {kind!r}")
         return kind
 
     def _find(self, name: str, kind: str | None) -> _Entry:
+        if not isinstance(name, str):
+            raise PluginError(f"a plugin name is a string such as 'recommended', got {name!r:.80}")
         entries = self._discover()
         if kind is not None:
             kind = self._check_kind(kind)

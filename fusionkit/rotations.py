@@ -16,6 +16,8 @@ import math
 
 import numpy as np
 
+from .errors import InputError
+
 __all__ = [
     "wrap_angle",
     "quat_mul",
@@ -39,10 +41,28 @@ _SMALL = 1e-8  # below this rotation angle (rad) the Taylor branches are exact t
 _EYE3 = np.eye(3)  # read only (rodrigues, per sample in the reference filters)
 
 
+def _arr(x, name: str, tail: tuple):
+    """``x`` as a float array whose last axes are ``tail`` (one item, or a stack of them): a clear
+    :class:`~fusionkit.errors.InputError` naming ``name`` otherwise, not numpy's or an unpacking error
+    from inside the arithmetic."""
+    try:
+        a = np.asarray(x, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise InputError(f"{name} must be an array of numbers of shape {_shape_text(tail)}, got {x!r:.80} ({e})") \
+            from None
+    if a.shape[-len(tail):] != tail:
+        raise InputError(f"{name} must have shape {_shape_text(tail)}, got {a.shape}")
+    return a
+
+
+def _shape_text(tail: tuple) -> str:
+    one = ", ".join(map(str, tail))
+    return f"({one}{',' if len(tail) == 1 else ''}) or (N, {one})"
+
+
 def quat_mul(p, q):
     """Hamilton product ``p (x) q`` (source 000, "quaternion operations")."""
-    p = np.asarray(p, dtype=float)
-    q = np.asarray(q, dtype=float)
+    p, q = _arr(p, "p", (4,)), _arr(q, "q", (4,))
     # one product (a reference filter's per-sample step): the same operations on Python floats,
     # the same numbers at a tenth of the cost of numpy's per-call overhead
     single = p.ndim == q.ndim == 1
@@ -59,13 +79,13 @@ def quat_mul(p, q):
 
 def quat_conj(q):
     """Conjugate ``[w, -x, -y, -z]`` (the inverse of a unit quaternion)."""
-    q = np.asarray(q, dtype=float)
+    q = _arr(q, "q", (4,))
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
 def quat_normalize(q):
     """Scale to unit norm."""
-    q = np.asarray(q, dtype=float)
+    q = _arr(q, "q", (4,))
     if q.ndim == 1:  # one quaternion: Python floats, as in quat_mul (the same sum and division)
         w, x, y, z = q.tolist()
         n = math.sqrt(w * w + x * x + y * y + z * z)
@@ -76,7 +96,7 @@ def quat_normalize(q):
 
 def quat_from_axis_angle(axis, angle):
     """Quaternion of a rotation by ``angle`` (rad) about the unit vector ``axis``."""
-    axis = np.asarray(axis, dtype=float)
+    axis = _arr(axis, "axis", (3,))
     angle = np.asarray(angle, dtype=float)
     axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
     half = 0.5 * angle[..., None]
@@ -85,7 +105,7 @@ def quat_from_axis_angle(axis, angle):
 
 def quat_from_rotvec(rv):
     """Exact quaternion of the rotation vector ``rv`` (axis times angle, rad)."""
-    rv = np.asarray(rv, dtype=float)
+    rv = _arr(rv, "rv", (3,))
     if rv.ndim == 1:  # one rotation: the same operations on Python floats, as in quat_mul
         x, y, z = rv.tolist()
         a = math.sqrt(x * x + y * y + z * z)
@@ -102,7 +122,7 @@ def quat_from_rotvec(rv):
 
 def quat_to_rotvec(q):
     """Rotation vector (axis times angle in [0, pi]) of a unit quaternion."""
-    q = np.asarray(q, dtype=float)
+    q = _arr(q, "q", (4,))
     q = np.where(q[..., :1] < 0, -q, q)  # the shorter of q and -q
     v = q[..., 1:]
     s = np.linalg.norm(v, axis=-1, keepdims=True)
@@ -114,13 +134,13 @@ def quat_to_rotvec(q):
 
 def small_rotation_quat(rv):
     """Source 000's first-order small-rotation quaternion ``[1, rv/2]`` (not normalised)."""
-    rv = np.asarray(rv, dtype=float)
+    rv = _arr(rv, "rv", (3,))
     return np.concatenate([np.ones(rv.shape[:-1] + (1,)), 0.5 * rv], axis=-1)
 
 
 def quat_to_matrix(q):
     """Rotation matrix of a unit quaternion: ``quat_to_matrix(q) @ v_body == v_earth``."""
-    q = np.asarray(q, dtype=float)
+    q = _arr(q, "q", (4,))
     single = q.ndim == 1  # one quaternion: Python floats, as in quat_mul
     w, x, y, z = q.tolist() if single else np.moveaxis(q, -1, 0)
     rows = [
@@ -132,59 +152,46 @@ def quat_to_matrix(q):
 
 
 def matrix_to_quat(m):
-    """Unit quaternion (with ``w >= 0``) of a rotation matrix, Shepperd's method."""
-    m = np.asarray(m, dtype=float)
-    single = m.ndim == 2
-    if single:  # one matrix: the same operations on Python floats, as in quat_mul
+    """Unit quaternion (with ``w >= 0``) of a rotation matrix, Shepperd's method (:func:`_shepperd`,
+    one matrix at a time on Python floats); a matrix with a non-finite entry gives NaN."""
+    m = _arr(m, "m", (3, 3))
+    if m.ndim == 2:  # (the per-sample call: no array made for the finiteness test)
         e = m.ravel().tolist()
-        if all(map(math.isfinite, e)):  # (non-finite entries: numpy's path, its NaNs)
-            return np.array(_shepperd(*e))
-    m = m.reshape(-1, 3, 3)
-    out = np.empty((m.shape[0], 4))
-    for i, r in enumerate(m):
-        tr = r[0, 0] + r[1, 1] + r[2, 2]
-        if tr >= max(r[0, 0], r[1, 1], r[2, 2]):
-            s = 2.0 * np.sqrt(1.0 + tr)
-            out[i] = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
-        elif r[0, 0] >= r[1, 1] and r[0, 0] >= r[2, 2]:
-            s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-            out[i] = [(r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s]
-        elif r[1, 1] >= r[2, 2]:
-            s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-            out[i] = [(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s]
-        else:
-            s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-            out[i] = [(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s]
-    out = np.where(out[:, :1] < 0, -out, out)
-    out /= np.linalg.norm(out, axis=-1, keepdims=True)
-    return out[0] if single else out.reshape(m.shape[:-2] + (4,))
+        return np.array(_shepperd(*e) if all(map(math.isfinite, e)) else [math.nan] * 4)
+    e = m.reshape(-1, 9)
+    ok = np.isfinite(e).all(axis=1)
+    out = np.full((e.shape[0], 4), math.nan)
+    out[ok] = [_shepperd(*r) for r in e[ok].tolist()]
+    return out.reshape(m.shape[:-2] + (4,))
 
 
 def _shepperd(r00, r01, r02, r10, r11, r12, r20, r21, r22) -> list:
-    """:func:`matrix_to_quat` of one matrix with finite entries (its loop body, then its sign and
-    normalisation) on Python floats."""
+    """Shepperd's method on one matrix with finite entries: the quaternion from the largest of the
+    trace and the diagonal (the best-conditioned square root), its sign (``w >= 0``) and its
+    normalisation, on Python floats."""
     tr = r00 + r11 + r22
-    if tr >= max(r00, r11, r22):
+    if tr >= r00 and tr >= r11 and tr >= r22:
         s = 2.0 * math.sqrt(1.0 + tr)
-        q = [0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s]
+        w, x, y, z = 0.25 * s, (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s
     elif r00 >= r11 and r00 >= r22:
         s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
-        q = [(r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s]
+        w, x, y, z = (r21 - r12) / s, 0.25 * s, (r01 + r10) / s, (r02 + r20) / s
     elif r11 >= r22:
         s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
-        q = [(r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s]
+        w, x, y, z = (r02 - r20) / s, (r01 + r10) / s, 0.25 * s, (r12 + r21) / s
     else:
         s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
-        q = [(r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s]
-    if q[0] < 0:
-        q = [-v for v in q]
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return [v / n for v in q]
+        w, x, y, z = (r10 - r01) / s, (r02 + r20) / s, (r12 + r21) / s, 0.25 * s
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return [w / n, x / n, y / n, z / n]
 
 
 def quat_rotate(q, v):
     """Rotate body vectors ``v`` into the earth frame: ``q (x) v (x) q*``."""
-    return np.einsum("...ij,...j->...i", quat_to_matrix(q), np.asarray(v, dtype=float))
+    v = _arr(v, "v", (3,))  # (first: quat_to_matrix names q)
+    return np.einsum("...ij,...j->...i", quat_to_matrix(q), v)
 
 
 def quat_angle(p, q):
@@ -193,13 +200,14 @@ def quat_angle(p, q):
     ``2 atan2(|vec(e)|, |w(e)|)`` of ``e = p* (x) q``: accurate for tiny angles, where
     ``2 acos(|p.q|)`` loses half the digits.
     """
+    p, q = _arr(p, "p", (4,)), _arr(q, "q", (4,))
     e = quat_mul(quat_conj(quat_normalize(p)), quat_normalize(q))
     return 2.0 * np.arctan2(np.linalg.norm(e[..., 1:], axis=-1), np.abs(e[..., 0]))
 
 
 def skew(v):
     """Skew-symmetric matrix ``[v x]`` with ``skew(a) @ b == cross(a, b)``."""
-    v = np.asarray(v, dtype=float)
+    v = _arr(v, "v", (3,))
     if v.ndim == 1:  # one vector: Python floats, as in quat_mul
         x, y, w = v.tolist()
         return np.array([[0.0, -w, y], [w, 0.0, -x], [-y, x, 0.0]])
@@ -212,8 +220,7 @@ def cross(a, b):
     """Cross product ``a x b`` of 3-vectors, broadcasting like ``np.cross``. One pair (a reference
     filter's per-sample step) on Python floats: the products and differences ``np.cross`` forms,
     the same numbers without its per-call cost (axis handling, temporaries)."""
-    a = np.asarray(a, dtype=float)
-    b = np.asarray(b, dtype=float)
+    a, b = _arr(a, "a", (3,)), _arr(b, "b", (3,))
     if a.ndim == b.ndim == 1 and a.size == b.size == 3:
         a0, a1, a2 = a.tolist()
         b0, b1, b2 = b.tolist()
@@ -226,7 +233,7 @@ def rodrigues(rv):
 
     ``s = |rv|``; for tiny ``s`` the Taylor series of both coefficients is used.
     """
-    rv = np.asarray(rv, dtype=float)
+    rv = _arr(rv, "rv", (3,))
     if rv.ndim == 1:  # one rotation: its norm on Python floats (the same sum), numpy's scalars after
         x, y, z = rv.tolist()
         s = np.float64(math.sqrt(x * x + y * y + z * z))
@@ -242,7 +249,7 @@ def rodrigues(rv):
 
 def orthonormalize(c):
     """One symmetric (Bjorck) step ``C <- C - C (C^T C - I) / 2`` towards the nearest rotation."""
-    c = np.asarray(c, dtype=float)
+    c = _arr(c, "c", (3, 3))
     return c - 0.5 * c @ (np.swapaxes(c, -1, -2) @ c - np.eye(3))
 
 

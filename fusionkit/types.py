@@ -13,7 +13,7 @@ import numpy as np
 
 from .conventions import DEFAULT_FRAME, change_frame, check_body, check_frame, quat_to_euler, to_scipy
 from .errors import InputError
-from .validation import as_vectors, check_positive, check_time, check_units
+from .validation import MAX_INTERVAL, as_vectors, check_positive, check_time, check_units
 
 
 class Flag(enum.IntFlag):
@@ -37,6 +37,9 @@ class Flag(enum.IntFlag):
     GAP = 1 << 11  #: the interval before this sample is a timestamp gap: the state is held across it, not integrated
     GNSS_REJECTED = 1 << 12  #: a GNSS measurement on this sample failed the innovation gate and was not used
     MAG_RECALIBRATED = 1 << 13  #: a sensor model started, replaced or stopped the magnetometer calibration it applies
+    #: the magnetometer sample repeats the previous reading (a magnetometer slower than the IMU holds it), though a
+    #: sensor model calibrates it otherwise than that one since: its value alone no longer tells it is held
+    MAG_HELD = 1 << 14
 
 
 class Channel(enum.IntEnum):
@@ -213,7 +216,7 @@ class Gnss:
         self.vel = as_vectors("gnss.vel", self.vel)
         n = self.vel.shape[0]
         self.t = check_time(self.t, n, "gnss.t", "gnss.vel")
-        check_frame(self.frame)
+        check_frame(self.frame, "gnss.frame")
         valid = np.ones(n, bool) if self.valid is None else np.asarray(self.valid).astype(bool).reshape(-1)
         if valid.shape[0] != n:
             raise InputError(f"gnss.valid has {valid.shape[0]} epochs but gnss.vel has {n}")
@@ -289,20 +292,43 @@ class Recording:
             self.rate = check_positive("rate", self.rate)
         else:
             self.t = check_time(self.t, n)
+        self._check_interval()
         if self.body is not None:
             self.body = check_body(self.body, "body", InputError)
         self._check_units()
         if self.truth is not None:
             self.truth = as_vectors("truth", self.truth, n, width=4)
-            check_frame(self.truth_frame)
+            zero = ~(np.abs(self.truth).max(axis=1) > 0.0) & np.isfinite(self.truth).all(axis=1)
+            if zero.any():  # (a non-finite row is a sample without a reference: the metrics skip it)
+                i = int(np.argmax(zero))
+                raise InputError(f"truth[{i}] is {self.truth[i].tolist()}: a zero quaternion is no orientation (a "
+                                 "sample without a reference is NaN)")
+            check_frame(self.truth_frame, "truth_frame")
         if self.movement is not None:
-            self.movement = np.asarray(self.movement, dtype=bool).reshape(-1)
+            self.movement = np.asarray(self.movement, dtype=bool)
+            if self.movement.ndim != 1:
+                raise InputError(f"movement must have shape (N,) (one bool per sample), got {self.movement.shape}")
             if self.movement.shape[0] != n:
                 raise InputError(f"movement has {self.movement.shape[0]} samples but gyr has {n}")
         if self.gnss is not None:
             if not isinstance(self.gnss, Gnss):
                 raise InputError(f"gnss must be a fusionkit.Gnss, got {type(self.gnss).__name__}")
             self._clip_gnss()
+
+    def _check_interval(self) -> None:
+        """Refuse a typical interval above :data:`~fusionkit.validation.MAX_INTERVAL` (1 s: a unit
+        mistake, e.g. timestamps in ms, that would otherwise run into NaN)."""
+        n = len(self)
+        if self.rate is None and (n < 2 or (self.t[-1] - self.t[0]) / (n - 1) <= 0.5 * MAX_INTERVAL):
+            return  # (a median above MAX_INTERVAL needs a mean above half of it: no (N,) array made here)
+        dt = self.nominal_dt
+        if dt <= MAX_INTERVAL:
+            return
+        if self.rate is not None:
+            raise InputError(f"rate is {self.rate:.4g} Hz, one sample every {dt:.4g} s: rate is in Hz (not the "
+                             f"interval in s), and an IMU recording needs at least {1.0 / MAX_INTERVAL:g} Hz")
+        raise InputError(f"t's typical interval (median) is {dt:.4g} s: t must be in seconds (not ms or ns), and an "
+                         f"IMU recording needs at least {1.0 / MAX_INTERVAL:g} Hz")
 
     def _clip_gnss(self) -> None:
         """GNSS epochs outside the IMU's time span are dropped, with a warning."""

@@ -13,8 +13,21 @@ NAN_POLICIES = ("raise", "skip")
 
 
 def _no_bool(name: str, x) -> None:
-    if getattr(x, "dtype", None) == np.bool_ or (isinstance(x, (list, tuple)) and np.asarray(x).dtype == np.bool_):
+    """Refuse what float64 would take silently and wrongly: booleans (True/False become 1/0), complex
+    numbers (the imaginary part dropped) and dates or durations (their integer counts, in whatever unit
+    they hold). A ragged list is refused here too (numpy's own error would not name the argument)."""
+    if isinstance(x, (list, tuple)):
+        try:
+            x = np.asarray(x)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"{name} must be a numeric array with rows of equal length: {exc}") from None
+    kind = getattr(getattr(x, "dtype", None), "kind", None)
+    if kind == "b":
         raise InputError(f"{name} is a boolean array: sensor samples must be numbers (a mask passed by mistake?)")
+    if kind in ("c", "m", "M"):
+        what = {"c": "complex", "m": "a duration (timedelta64)", "M": "a date (datetime64)"}[kind]
+        raise InputError(f"{name} is {what}: it must be real numbers"
+                         + (" in seconds, e.g. (t - t[0]) / np.timedelta64(1, 's')" if kind in "mM" else ""))
 
 
 def as_vectors(name: str, x, n: int | None = None, width: int = 3) -> np.ndarray:
@@ -136,7 +149,11 @@ def check_sample_finite(policy: str, **vectors) -> None:
 
 def check_time(t, n: int, name: str = "t", other: str = "gyr") -> np.ndarray:
     """Timestamps as float64 ``(n,)``, finite and strictly increasing."""
-    t = np.asarray(t, dtype=np.float64).reshape(-1)
+    _no_bool(name, t)
+    try:
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name} must be numbers (timestamps in s): {exc}") from None
     if t.shape[0] != n:
         raise InputError(f"{name} has {t.shape[0]} samples but {other} has {n}; lengths must match")
     if n > 1 and math.isfinite(t[0]) and math.isfinite(t[-1]) and bool((t[1:] > t[:-1]).all()):
@@ -153,10 +170,31 @@ def check_time(t, n: int, name: str = "t", other: str = "gyr") -> np.ndarray:
 
 
 def check_positive(name: str, value: float) -> float:
-    v = float(value)
+    """``value`` as a float, finite and > 0, or an :class:`InputError` naming ``name`` (a boolean, an
+    array or text that is not a number included)."""
+    if isinstance(value, (bool, np.bool_)) or np.ndim(value) != 0:
+        raise InputError(f"{name} must be one finite number > 0, got {value!r:.80}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a finite number > 0, got {value!r:.80}") from None
     if not np.isfinite(v) or v <= 0:
         raise InputError(f"{name} must be a finite number > 0, got {value!r}")
     return v
+
+
+#: the longest sample interval a recording or a streamed sample may have (s; 1 Hz): below 1 Hz nothing
+#: integrates a gyroscope, and such an interval is a unit mistake (the interval passed as the rate,
+#: timestamps in ms or ns) that would otherwise run into time constants far shorter than a step (NaN)
+MAX_INTERVAL = 1.0
+
+
+def check_dt(dt: float) -> float:
+    """A streamed sample's interval ``dt``: :func:`check_positive`, and at most :data:`MAX_INTERVAL`."""
+    dt = check_positive("dt", dt)
+    if dt > MAX_INTERVAL:
+        raise InputError(f"dt must be at most {MAX_INTERVAL:g} s (the sample interval in s, not ms), got {dt:.4g}")
+    return dt
 
 
 # ---- the unit checks of a recording, in one pass -----------------------------------------------

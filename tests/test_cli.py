@@ -1,4 +1,5 @@
 import json
+import re
 import subprocess
 import sys
 
@@ -169,3 +170,26 @@ def test_bench_and_sweep_print_progress_lines_without_a_terminal(tmp_path, capsy
     assert "[4/4]" in cap.err and "mean over trials (deg)" in cap.out  # progress on stderr, units in the table
     assert main(["lags", "sim:fast-rotation"]) == 0
     assert "[1/1] sim:fast-rotation: done" in capsys.readouterr().err
+
+
+def test_cli_mistakes_are_named_before_any_run(tmp_path, capsys):
+    """Each used to end in a traceback (an empty grid value, a one-sample recording for ``lags``) or
+    in an answer that hid the mistake (an empty table for ``--filters ""``, a skipped row and exit 0
+    for a misspelt demo filter, "no parameter set ran on every trial" for a bad grid value or metric).
+    None of them runs a filter."""
+    from fusionkit import Recording, sim
+    from fusionkit.io.loaders import write_csv
+
+    rec = sim.demo_recordings()[0].slice(0, 50)
+    one = tmp_path / "one.csv"
+    write_csv(Recording(gyr=rec.gyr[:1], acc=rec.acc[:1], rate=200.0, truth=rec.truth[:1]), one)
+    data = ["--data", str(one), "--no-cache"]
+    cases = [(["bench", *data, "--filters", ""], 2, "no filters to run"),
+             (["sweep", "poisson", *data, "--grid", "step="], 2, r"step: Input should be 'first-order' or"),
+             (["sweep", "poisson", *data, "--grid", "step=exact", "--metric", "rmse"], 2, "metric must be one of"),
+             (["demo", "--filters", "poison", "--plot", ""], 2, "did you mean 'poisson'"),
+             (["lags", str(one)], 1, "too short to time")]
+    for argv, code, match in cases:
+        assert main(argv) == code, argv
+        cap = capsys.readouterr()
+        assert re.search(match, cap.err + cap.out), (argv, cap.err + cap.out)

@@ -361,6 +361,18 @@ def test_lever_fit_needs_ten_periods_of_its_band():
     assert out is rec and not t["applied"]
 
 
+def test_lever_fit_counts_ten_periods_in_time_not_samples():
+    """The ten periods are the recording's duration: 21.6 s of turns on a jittery clock (intervals
+    of 4, 4 and 7 ms, 5 ms on average) are fitted as on a steady one, though its median interval (4
+    ms) times its sample count says 17 s (before: refused, NaN)."""
+    rec = sim.scenario("late-gyro")
+    n = len(rec)
+    t = np.cumsum(np.resize([0.004, 0.004, 0.007], n))
+    jittery = fk.Recording(gyr=rec.gyr, acc=rec.acc, t=t - t[0])
+    assert n * jittery.nominal_dt < 20.0 <= t[-1] - t[0]
+    assert np.isfinite(gyro_delay_lever(jittery)[:3]).all() and np.isfinite(gyro_delay_lever(rec)[:3]).all()
+
+
 def test_lever_fit_on_a_still_recording_tells_nothing_and_warns_nothing():
     """Nothing in the band turns: the delay's column is zero, so the bound is infinite (not a division
     by zero that warns) and nothing is applied."""

@@ -72,6 +72,36 @@ def test_unknown_names_list_close_matches():
         fk.make("moton", kind="detector")
 
 
+def test_a_name_or_kind_that_is_not_a_string_is_named():
+    """Before: difflib's TypeError from the close-match hint, and AttributeError ``endswith`` for the
+    parameters passed as a dict where the kind goes."""
+    for name in (None, 3, ["recommended"]):
+        with pytest.raises(PluginError, match="a plugin name is a string"):
+            fk.make(name)
+    with pytest.raises(PluginError, match="kind must be one of .* parameters are keywords"):
+        fk.make("recommended", {"tau_acc": 1.0})
+
+
+def test_a_boolean_for_a_number_is_refused():
+    """``tau_acc=True`` ran with 1 s (pydantic takes True as 1); a boolean stays valid for a boolean
+    field."""
+    for params in ({"tau_acc": True}, {"gyr_range": False}, {"mag_delay": True}):
+        with pytest.raises(fk.ConfigError, match="expected a number, got a boolean"):
+            fk.make("recommended", **params)
+    assert fk.make("recommended", use_mag=False).config.use_mag is False
+
+
+def test_a_streamed_interval_is_bounded():
+    """``update(dt=100)`` (an interval in ms?) ended in a division by zero in recommended's kernel;
+    a boolean dt was taken as 1 s."""
+    for name in ("recommended", "ekf", "vqf"):
+        f = fk.make(name)
+        with pytest.raises(fk.InputError, match="dt must be at most 1 s"):
+            f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=100.0)
+        with pytest.raises(fk.InputError, match="dt must be one finite number"):
+            f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=True)
+
+
 def test_describe_lists_parameters_with_units_and_defaults():
     info = fk.describe("motion")
     rows = {p["name"]: p for p in info.parameters}

@@ -102,3 +102,35 @@ def test_one_item_paths_give_the_stacked_numbers_to_the_bit():
     one = np.array([euler_to_quat(*a, frame=fr) for a in ang for fr in ("ENU", "NUE")])
     stacked = np.stack([euler_to_quat(*ang.T, frame=fr) for fr in ("ENU", "NUE")], axis=1).reshape(-1, 4)
     assert np.array_equal(one, stacked) and np.array_equal(np.signbit(one), np.signbit(stacked))
+
+
+def test_matrix_to_quat_of_a_non_finite_matrix_is_nan():
+    """A matrix with a non-finite entry has no rotation: NaN in all four components, one matrix or a
+    stack (before: numpy's arithmetic on it, e.g. ``[nan, 0, 0, 0]`` for an infinite diagonal entry),
+    and the finite matrices of the stack are unaffected."""
+    bad = np.eye(3)
+    bad[0, 0] = np.inf
+    good = quat_to_matrix(Q[:2])
+    assert np.isnan(matrix_to_quat(bad)).all()
+    out = matrix_to_quat(np.stack([good[0], bad, good[1]]))
+    assert np.isnan(out[1]).all() and np.array_equal(out[[0, 2]], matrix_to_quat(good))
+
+
+@pytest.mark.parametrize("call, name, shape", [
+    (lambda x: quat_normalize(x), "q", r"\(4,\)"), (lambda x: quat_mul(x, Q[0]), "p", r"\(4,\)"),
+    (lambda x: quat_mul(Q[0], x), "q", r"\(4,\)"), (lambda x: quat_conj(x), "q", r"\(4,\)"),
+    (lambda x: quat_to_matrix(x), "q", r"\(4,\)"), (lambda x: quat_to_rotvec(x), "q", r"\(4,\)"),
+    (lambda x: quat_angle(x, Q[0]), "p", r"\(4,\)"), (lambda x: quat_rotate(Q[0], x), "v", r"\(3,\)"),
+    (lambda x: quat_from_rotvec(x), "rv", r"\(3,\)"), (lambda x: small_rotation_quat(x), "rv", r"\(3,\)"),
+    (lambda x: skew(x), "v", r"\(3,\)"), (lambda x: cross(x, [1.0, 0.0, 0.0]), "a", r"\(3,\)"),
+    (lambda x: rodrigues(x), "rv", r"\(3,\)"), (lambda x: matrix_to_quat(x), "m", r"\(3, 3\)"),
+    (lambda x: orthonormalize(x), "c", r"\(3, 3\)")])
+def test_wrong_shapes_name_the_argument(call, name, shape):
+    """Wrong-length items, a scalar, a transposed stack and text: an InputError naming the argument
+    and the shape expected, not numpy's broadcasting error or an unpacking error from inside."""
+    from fusionkit.errors import InputError
+
+    bad = [np.zeros(5), np.zeros(2), 1.0, np.zeros((4, 7)), np.zeros((3, 4, 5)), ["a", "b", "c", "d"]]
+    for x in bad:
+        with pytest.raises(InputError, match=rf"^{name} must .*shape {shape}"):
+            call(x)

@@ -29,6 +29,31 @@ def test_shapes_and_lengths_are_checked():
         rec(gyr=[["a", "b", "c"]] * 10)
 
 
+@pytest.mark.parametrize("kw, match", [
+    (dict(gyr=[[0.0, 0.0, 0.0]] * 9 + [[0.0, 0.0]]), "gyr must be a numeric array with rows of equal length"),
+    (dict(gyr=np.zeros((10, 3)) + 1j), "gyr is complex"),
+    (dict(rate=None, t=["a"] * 10), r"t must be numbers \(timestamps in s\)"),
+    (dict(rate=None, t=np.datetime64("2026-01-01") + np.arange(10).astype("timedelta64[ms]")), "t is a date"),
+    (dict(rate=None, t=np.arange(10) * 10.0), r"t's typical interval \(median\) is 10 s: t must be in seconds"),
+    (dict(rate=None, t=np.arange(10) * 10_000_000), "t must be in seconds"),
+    (dict(rate=0.01), "rate is 0.01 Hz, one sample every 100 s: rate is in Hz"),
+    (dict(rate=True), "rate must be one finite number > 0, got True"),
+    (dict(rate=np.array([100.0, 100.0])), "rate must be one finite number"),
+    (dict(rate="100 Hz"), "rate must be a finite number > 0, got '100 Hz'"),
+    (dict(movement=np.ones((10, 2), bool)), r"movement must have shape \(N,\)"),
+    (dict(truth=np.zeros((10, 4))), r"truth\[0\] is \[0.0, 0.0, 0.0, 0.0\]: a zero quaternion"),
+    (dict(truth=np.tile([1.0, 0, 0, 0], (10, 1)), truth_frame="XYZ"), "truth_frame must be one of"),
+])
+def test_what_a_new_user_might_pass_is_refused_by_name(kw, match):
+    """Input numpy would take silently and wrongly (complex, dates, a bool rate, timestamps in ms
+    or ns, the interval passed as the rate: filters then ran into NaN or a division by zero deep in
+    a kernel) or refuse with its own error (a ragged list, text timestamps, an array rate): an
+    InputError (ConfigError for a frame) naming the argument."""
+    with pytest.raises(fk.FusionkitError, match=match):
+        rec(**kw)
+    rec(rate=None, t=np.arange(10) * 1.0)  # 1 Hz, the slowest taken
+
+
 def test_time_must_increase():
     with pytest.raises(InputError, match=r"strictly increasing, but t\[3\]"):
         rec(rate=None, t=[0, 1, 2, 2, 4, 5, 6, 7, 8, 9])

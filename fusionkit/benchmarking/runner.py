@@ -79,7 +79,7 @@ def _freeze(v):
 
 
 def _thaw(v):
-    if isinstance(v, str) and v[:1] in "[{":
+    if isinstance(v, str) and v[:1] in ("[", "{"):  # (not `in "[{"`: the empty string is in every string)
         return json.loads(v)
     return v
 
@@ -249,6 +249,8 @@ def bench(filters: Iterable[Any], data: Any, *, trials: list[str] | None = None,
     from ..registry import get
 
     specs = _apply_params([FilterSpec.of(f) for f in filters], params or {})
+    if not specs:
+        raise ConfigError("no filters to run: name at least one (e.g. filters=['recommended'])")
     for s in specs:
         get(s.name, "filter")  # unknown names fail now, with close matches
     trial_list = list(data) if isinstance(data, (list, tuple)) else discover(data, trials)

@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from ..config import set_dotted
+from ..config import build_config, set_dotted
 from ..errors import ConfigError
-from .report import metric_label
+from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, metric_label
 from .runner import BenchResult, FilterSpec, bench
 
 __all__ = ["sweep", "SweepResult"]
@@ -89,13 +89,18 @@ def sweep(filter_name: str, grid: dict[str, list[Any]], data, *, metric: str = "
 
     if not grid:
         raise ConfigError("the grid is empty: give at least one field with values")
-    fields = get(filter_name, "filter").Config.model_fields
+    cls = get(filter_name, "filter")
+    fields = cls.Config.model_fields
     for k in grid:
         if k.split(".")[0] not in fields:
             raise ConfigError(f"{filter_name} has no parameter {k!r}; it has {sorted(fields)}")
+    if metric not in (*METRIC_LABELS, *HIDDEN_BY_DEFAULT):
+        raise ConfigError(f"metric must be one of {sorted({*METRIC_LABELS, *HIDDEN_BY_DEFAULT})}, got {metric!r}")
     keys = list(grid)
     combos = [dict(zip(keys, vals)) for vals in itertools.product(*(grid[k] for k in keys))]
     specs = [FilterSpec.of((filter_name, {**(base or {}), **_nest(c)})) for c in combos]
+    for s in specs:  # a value the filter refuses is an error now, not a set that "ran on no trial"
+        build_config(cls.Config, None, s.kwargs, f"filter {filter_name!r} ({s.label})")
     res = bench(specs, data, **bench_kwargs)
     return SweepResult(filter_name, grid, metric, res, [dict(s.kwargs) for s in specs])
 

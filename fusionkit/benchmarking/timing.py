@@ -166,6 +166,8 @@ def sensor_lags(rec, max_lag: float = 8.0, step: float = 0.05, cutoff: float = 2
         raise InputError(f"need max_lag > 0, 0 < step <= max_lag, cutoff > 0, outlier > 1; got "
                          f"{max_lag}, {step}, {cutoff}, {outlier}")
     n = len(rec)
+    if n < 10:  # (no interval to take a median of below 2; the edges below need more anyway)
+        raise InputError(f"recording {rec.name!r} is too short to time ({n} samples)")
     t = rec.time
     dt = np.diff(t)
     rate = 1.0 / float(np.median(dt))

@@ -79,8 +79,9 @@ Around it, each a separate idea:
 - **sample and hold** (``mag_hold``): a magnetometer read at a lower rate than the gyro repeats its
   last reading until the next one; a sample equal to the previous one (every component exactly) is
   that held reading, as old as the samples since it changed, so it is paired with the orientation
-  its fresh sample was paired with (its age is part of its delay). Where values never repeat it
-  changes nothing;
+  its fresh sample was paired with (its age is part of its delay); so is one a sensor model
+  flags MAG_HELD (the reading repeated, calibrated otherwise since: ``mag-calibration`` changed
+  its calibration on it). Where values never repeat it changes nothing;
 - **the magnetometer's delay, estimated** (``mag_delay_estimate``, off by default): the
   ``time-offset`` model's estimate of the gyro's delay against the magnetometer (a late sensor
   leaves a residual proportional to the angular acceleration, ``fusionkit/models/time_offset.py``),
@@ -176,6 +177,7 @@ _RESIDUAL_GATE = 3.0
 MAG_REFERENCE = _MAG
 _REST, _ACC_REJECTED, _MAG_DISTURBED = int(Flag.REST), int(Flag.ACC_REJECTED), int(Flag.MAG_DISTURBED)
 _MAG_RECALIBRATED = int(Flag.MAG_RECALIBRATED)
+_MAG_HELD = int(Flag.MAG_HELD)
 _CH_VAR, _CH_TIME, _CH_LET = int(Channel.INCLINATION_VARIANCE), int(Channel.INCLINATION_TIME), int(Channel.LET_THROUGH)
 _kwrap = njit(wrap_angle)
 
@@ -288,7 +290,8 @@ class MagHeading(FactorCorrector):
                         c.scale_sigma ** 2)
         if sample.mag is not None:
             m = np.asarray(sample.mag, dtype=float)
-            fresh = not (c.mag_hold and x[_PMOK] and m.tolist() == x[_PM:_PM + 3].tolist())
+            # (MAG_HELD: a sensor model calibrated the held reading otherwise than the previous sample)
+            fresh = not (c.mag_hold and x[_PMOK] and (flags & _MAG_HELD or m.tolist() == x[_PM:_PM + 3].tolist()))
             if fresh:
                 qm = qc = paired(quat, c.mag_delay, rate, g, bias, dt)  # the configured pairing
                 if x[_EB + CONF]:  # the estimate's: the configured one moved by the remaining offset
@@ -752,7 +755,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             wv = w0 * s[ax + 6] + w1 * s[ax + 7] + w2 * s[ax + 8]
         _k_kf_predict(s, wv, dt, p[19], p[20], p[21])
     if mag_ok:
-        fresh = not (p[13] != 0.0 and s[_PMOK] != 0.0 and m0 == s[_PM] and m1 == s[_PM + 1] and m2 == s[_PM + 2])
+        same = m0 == s[_PM] and m1 == s[_PM + 1] and m2 == s[_PM + 2]
+        fresh = not (p[13] != 0.0 and s[_PMOK] != 0.0 and (same or (flags & _MAG_HELD) != 0))
         if fresh:
             c0, c1, c2, c3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
             p0, p1, p2, p3 = c0, c1, c2, c3
@@ -764,7 +768,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             p0, p1, p2, p3 = s[_QH], s[_QH + 1], s[_QH + 2], s[_QH + 3]
             c0, c1, c2, c3 = p0, p1, p2, p3
         s[_PM], s[_PM + 1], s[_PM + 2] = m0, m1, m2
-        if fresh:
+        if fresh or not same:  # (held, calibrated otherwise: the fresh one's pairing, this value)
             v0, v1, v2 = k_rot(p0, p1, p2, p3, m0, m1, m2)
             norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
             vu = v0 * s[ax + 6] + v1 * s[ax + 7] + v2 * s[ax + 8]

@@ -951,7 +951,7 @@ class InertialTilt(FactorCorrector):
                 rq = quat_to_matrix(x[_QA:_QA + 4])
                 u, w = rq @ y, rq @ y_old
                 u, w = u / np.linalg.norm(u), w / np.linalg.norm(w)
-                qj = np.array([1.0 + u @ w, *np.cross(u, w)])
+                qj = np.array([1.0 + u @ w, *cross(u, w)])
                 x[_QA:_QA + 4] = quat_mul(qj / np.linalg.norm(qj), x[_QA:_QA + 4])
         # the smallest rotation taking the low-passed vector (levelled frame) to the vertical
         up = x[_UP:_UP + 3]

@@ -24,7 +24,7 @@ from ..conventions import change_frame
 from ..errors import InputError
 from ..protocols import Filter
 from ..types import Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps, stream_gap
-from ..validation import as_vector, check_finite_all, check_positive, check_sample_finite, finite_sample
+from ..validation import as_vector, check_finite_all, check_dt, check_sample_finite, finite_sample
 
 __all__ = ["StepFilter"]
 
@@ -176,7 +176,7 @@ class StepFilter(Filter):
         """:meth:`update` with every check, on either path."""
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
-        dt = check_positive("dt", dt)
+        dt = check_dt(dt)
         g, a = as_vector("gyr", gyr), as_vector("acc", acc)
         m = None if mag is None or not getattr(self.config, "use_mag", True) else as_vector("mag", mag)
         check_sample_finite(self.config.nan_policy, gyr=g, acc=a, mag=m)

@@ -142,7 +142,12 @@ GATE = 4 + _GE * _GK
 _SINV = STATE_SOFT + GATE
 _SINVOK = _SINV + _NP * _NP
 _SEG_BUF = 255  # the compiled soft-iron segment's working arrays (_k_segment_soft)
+# at the end of either layout (soft iron: _H_SOFT, the offset alone: _H_HARD): the last raw magnetometer sample,
+# what it was calibrated to, and whether there was one (a held reading told from a new one although the
+# calibration changed since: flag MAG_HELD)
+_HELD, _H_SOFT, _H_HARD = 7, _SINVOK + 1, STATE + GATE
 _RECALIBRATED = int(Flag.MAG_RECALIBRATED)
+_MAG_HELD = int(Flag.MAG_HELD)
 _PROVISIONAL = 0.5  # the confidence of an offset applied before the estimate is confident (provisional_std)
 
 
@@ -204,7 +209,7 @@ class MagCalibrationModel(SensorModel):
                               "when confident")
 
     def initial_state(self, dt: float) -> np.ndarray:
-        s = np.zeros(_SINVOK + 1 if self.config.soft_iron else STATE + GATE)
+        s = np.zeros((_H_SOFT if self.config.soft_iron else _H_HARD) + _HELD)
         s[_DQ] = 1.0
         return s
 
@@ -225,7 +230,9 @@ class MagCalibrationModel(SensorModel):
         elif s[_ANCHOR]:  # the body's turn since the anchor, body a -> body k
             s[_DQ:_DQ + 4] = quat_mul(s[_DQ:_DQ + 4], quat_from_rotvec(sample.gyr * sample.dt))
             s[_T] += sample.dt
+        h = _H_SOFT if c.soft_iron else _H_HARD
         if sample.mag is None:
+            s[h + 6] = 0.0  # (an invalid sample between two equal ones: the reading was lost, not held)
             if s[_T] > 2.0 * c.segment_time:
                 s[_ANCHOR] = 0.0
             return sample, 0
@@ -250,8 +257,13 @@ class MagCalibrationModel(SensorModel):
             s[_ANCHOR] = 1.0
         if c.soft_iron:
             t = s[_SAPP:_SAPP + _NP]
-            return sample._replace(mag=(np.eye(3) + _distortion(t)) @ m - t[5:8]), flags
-        return sample._replace(mag=m - s[_B:_B + 3]), flags
+            out = (np.eye(3) + _distortion(t)) @ m - t[5:8]
+        else:
+            out = m - s[_B:_B + 3]
+        if s[h + 6] and m.tolist() == s[h:h + 3].tolist() and out.tolist() != s[h + 3:h + 6].tolist():
+            flags |= _MAG_HELD  # a held reading, calibrated otherwise than before: a reader still knows it is held
+        s[h:h + 3], s[h + 3:h + 6], s[h + 6] = m, out, 1.0
+        return sample._replace(mag=out), flags
 
     def _segment(self, s, ct, m) -> None:
         """One closed segment: ``(I - C^T) b = m_k - C^T m_a`` into the forgetting least squares."""
@@ -821,7 +833,9 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
         s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3] = qmul_entries(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3],
                                                                   e0, e1, e2, e3)
         s[_T] += dt
+    h = _H_SOFT if soft else _H_HARD
     if not mag_ok:
+        s[h + 6] = 0.0
         if s[_T] > 2.0 * seg_time:
             s[_ANCHOR] = 0.0
         return 0
@@ -846,11 +860,16 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
         s[_ANCHOR] = 1.0
     if soft:
         t0, t1, t2, t3, t4 = s[_SAPP], s[_SAPP + 1], s[_SAPP + 2], s[_SAPP + 3], s[_SAPP + 4]
-        v[6] = (1.0 + t0) * m0 + t2 * m1 + t3 * m2 - s[_SAPP + 5]
-        v[7] = t2 * m0 + (1.0 + t1) * m1 + t4 * m2 - s[_SAPP + 6]
-        v[8] = t3 * m0 + t4 * m1 + (1.0 - t0 - t1) * m2 - s[_SAPP + 7]
-        return flags
-    v[6], v[7], v[8] = m0 - s[_B], m1 - s[_B + 1], m2 - s[_B + 2]
+        o0 = (1.0 + t0) * m0 + t2 * m1 + t3 * m2 - s[_SAPP + 5]
+        o1 = t2 * m0 + (1.0 + t1) * m1 + t4 * m2 - s[_SAPP + 6]
+        o2 = t3 * m0 + t4 * m1 + (1.0 - t0 - t1) * m2 - s[_SAPP + 7]
+    else:
+        o0, o1, o2 = m0 - s[_B], m1 - s[_B + 1], m2 - s[_B + 2]
+    if (s[h + 6] != 0.0 and m0 == s[h] and m1 == s[h + 1] and m2 == s[h + 2]
+            and not (o0 == s[h + 3] and o1 == s[h + 4] and o2 == s[h + 5])):
+        flags |= _MAG_HELD
+    s[h], s[h + 1], s[h + 2], s[h + 3], s[h + 4], s[h + 5], s[h + 6] = m0, m1, m2, o0, o1, o2, 1.0
+    v[6], v[7], v[8] = o0, o1, o2
     return flags
 
 

@@ -15,7 +15,7 @@ from ..protocols import Filter
 from .._kernels import validity_all
 from ..types import (HUGE, TINY, Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps,
                      sample_validity, stream_gap)
-from ..validation import as_vector, check_finite_all, check_positive, check_sample_finite
+from ..validation import as_vector, check_finite_all, check_dt, check_sample_finite
 
 
 
@@ -187,7 +187,7 @@ class PeerFilter(Filter):
             raise PluginError(f"{self.name} is an offline (batch) filter: use run()")
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
-        dt = check_positive("dt", dt)
+        dt = check_dt(dt)
         g, a = as_vector("gyr", gyr), as_vector("acc", acc)
         use_mag = self._use_mag(mag is not None)
         m = as_vector("mag", mag) if use_mag else None
