@@ -189,10 +189,13 @@ def check_positive(name: str, value: float) -> float:
 MAX_INTERVAL = 1.0
 
 
-def check_dt(dt: float) -> float:
-    """A streamed sample's interval ``dt``: :func:`check_positive`, and at most :data:`MAX_INTERVAL`."""
+def check_dt(dt: float, first: bool) -> float:
+    """A streamed sample's interval ``dt``: :func:`check_positive`; the stream's ``first`` interval, which
+    sets its nominal rate as a Recording's typical interval does, also at most :data:`MAX_INTERVAL` (an
+    interval in ms is refused there). A later interval beyond it is a timestamp gap, handled as the
+    filter handles one in a Recording (held across, flag GAP), not an error."""
     dt = check_positive("dt", dt)
-    if dt > MAX_INTERVAL:
+    if first and dt > MAX_INTERVAL:
         raise InputError(f"dt must be at most {MAX_INTERVAL:g} s (the sample interval in s, not ms), got {dt:.4g}")
     return dt
 

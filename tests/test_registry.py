@@ -102,6 +102,18 @@ def test_a_streamed_interval_is_bounded():
             f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=True)
 
 
+def test_a_later_long_interval_is_a_gap_not_an_error():
+    """Only the stream's first interval (its nominal rate) is bounded: a pause of 5 s later in a stream
+    is a timestamp gap, held across and flagged as a Recording's is (the bound once refused it)."""
+    for name in ("recommended", "gradient-descent", "vqf"):
+        f = fk.make(name)
+        for _ in range(20):
+            f.update([0.0, 0.0, 0.0], [0.0, 0.0, 9.81], dt=0.01)
+        q = f.update([0.0, 0.0, 0.0], [0.0, 0.0, 9.81], dt=5.0)
+        assert np.isfinite(q).all(), name
+        assert f.last_flags & fk.Flag.GAP, name
+
+
 def test_describe_lists_parameters_with_units_and_defaults():
     info = fk.describe("motion")
     rows = {p["name"]: p for p in info.parameters}

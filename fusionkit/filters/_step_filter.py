@@ -176,7 +176,7 @@ class StepFilter(Filter):
         """:meth:`update` with every check, on either path."""
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
-        dt = check_dt(dt)
+        dt = check_dt(dt, first=self._stream is None)
         g, a = as_vector("gyr", gyr), as_vector("acc", acc)
         m = None if mag is None or not getattr(self.config, "use_mag", True) else as_vector("mag", mag)
         check_sample_finite(self.config.nan_policy, gyr=g, acc=a, mag=m)

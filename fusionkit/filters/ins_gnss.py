@@ -716,7 +716,7 @@ class InsGnssFilter(Filter):
         goes over them again (the outputs already returned stay as they were)."""
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
-        dt = check_dt(dt)
+        dt = check_dt(dt, first=self._stream is None)
         g, a = as_vector("gyr", gyr), as_vector("acc", acc)
         m = None if mag is None else as_vector("mag", mag)
         if self.config.nan_policy == "raise":
