@@ -114,10 +114,26 @@ def test_a_departing_field_counts_as_a_field_error():
     weighs less: its variance is that departure's, not the calibrated floor's."""
     x = np.zeros(H._SIZE)
     x[H._MAG], x[H._MAG + 1], x[H._MAG + H.MAG_COUNT] = 50.0, -1.0, 100.0
-    clean = H._kf_noise(x, 50.0, -1.0, 0.01, 0.0, 0.03 ** 2, 1.0)
-    off = H._kf_noise(x, 54.0, -1.0, 0.01, 0.0, 0.03 ** 2, 1.0)
+    num, den = H._kf_noise(x, 50.0, -1.0, 0.01, 0.0, 0.03 ** 2, 1.0)  # (the variance as a quotient)
+    clean = num / den
+    num, den = H._kf_noise(x, 54.0, -1.0, 0.01, 0.0, 0.03 ** 2, 1.0)
+    off = num / den
     assert clean == pytest.approx(2 * 0.03 ** 2 * 1.0 / 0.01 / math.cos(1.0) ** 2)
     assert off == pytest.approx(clean * (0.08 / 0.03) ** 2)
+
+
+def test_the_variance_without_a_scale_error_does_not_read_the_vertical_rate():
+    """``scale_sigma`` 0 (the default): the heading's variance grows by the noise and the bias alone, so
+    the rate about the vertical is not read (the kernel does not compute it: a NaN there changes
+    nothing), and the gain divides once: ``P rd / (P rd + rn)`` equals ``P / (P + rn / rd)``."""
+    x = np.zeros(H._SIZE)
+    x[H._PHH], x[H._PHB] = 1e-3, 1e-5
+    H._kf_predict(x, math.nan, 0.01, 1e-6, 1e-8, 0.0)
+    p = x[H._PHH]
+    assert math.isfinite(p) and x[H._PHS] == 0.0
+    assert p == 1e-3 + 2.0 * 0.01 * 1e-5 + 0.01 * 0.01 * 1e-8 + 1e-6 * 0.01
+    k = H._kf_gain(x, 3e-2, 0.5)
+    assert k == pytest.approx(p / (p + 3e-2 / 0.5), rel=1e-15)
 
 
 @pytest.mark.parametrize("split", [False, True])

@@ -371,8 +371,8 @@ class MagHeading(FactorCorrector):
             x[_RELEARN] = 1.0  # learned again; the heading keeps its filter meanwhile
         x[_PN], x[_PD] = norm, dip
         x[_PL:_PL + 3] = m
-        r = _kf_noise(x, norm, dip, dt, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time, None,
-                      incl) if kalman else 0.0
+        rn, rd = _kf_noise(x, norm, dip, dt, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time, None,
+                           incl) if kalman else (0.0, 1.0)
         me, mn = float(m @ east), float(m @ north)
         x[_SD], x[_ME], x[_MN] = max(-1.0, min(1.0, float(m @ up) / norm)), me, mn
         err = _heading_error(me, mn, x[_HC], x[_HS])  # wrap(target - delta)
@@ -386,11 +386,11 @@ class MagHeading(FactorCorrector):
             x[_DELTA] = wrap_angle(x[_DELTA] + (err if n == 1.0 else err / n))
             _set_half(x)
             if kalman:
-                _kf_mean(x, r, n)
+                _kf_mean(x, rn / rd, n)
             return 0, code
         if code == MAG_DISTURBED and c.rejection:
             return _MAG_DISTURBED, code
-        k = _kf_gain(x, r) if kalman else x[_KM]
+        k = _kf_gain(x, rn, rd) if kalman else x[_KM]
         step = k * err
         _turn(x, step)
         if c.reexpress:  # delta's sensitivity to the calibration: this sample's field, R^T g
@@ -433,11 +433,15 @@ def _kf_predict(x, wv, dt, q_gyro, p_bias, p_scale) -> None:
     random walk. Capped at a heading uniform on the circle, the covariances within
     Cauchy-Schwarz's bound (the same statements in the reference and, compiled, in the kernel)."""
     hb, hs = x[_PHB], x[_PHS]
-    p = x[_PHH] + 2.0 * dt * (hb + wv * hs) + dt * dt * (p_bias + wv * wv * p_scale) + q_gyro * dt
+    if p_scale > 0.0:
+        p = x[_PHH] + 2.0 * dt * (hb + wv * hs) + dt * dt * (p_bias + wv * wv * p_scale) + q_gyro * dt
+    else:  # without a scale error its covariance stays 0: wv is not read (nor computed by the kernel), no square root
+        p = x[_PHH] + 2.0 * dt * hb + dt * dt * p_bias + q_gyro * dt
     p = min(p, _P_MAX)
     hb = min(hb + p_bias * dt, math.sqrt(p * p_bias))
-    lim = math.sqrt(p * p_scale)
-    hs = max(-lim, min(hs + p_scale * wv * dt, lim))
+    if p_scale > 0.0:
+        lim = math.sqrt(p * p_scale)
+        hs = max(-lim, min(hs + p_scale * wv * dt, lim))
     x[_PHH], x[_PHB], x[_PHS] = p, hb, hs
 
 
@@ -459,15 +463,18 @@ def _kf_noise(x, norm, dip, dt, mag_noise2, field_error2, field_time, cos2=None,
     turns by ``tan(dip) e``.
     Correlated over its time constant as the field errors are over theirs, it counts as the white
     noise of the same low-frequency power, ``2 tan(dip)^2 incl / dt`` per sample (0: the heading
-    as if the levelled frame were exact)."""
+    as if the levelled frame were exact).
+
+    Returned as a numerator and a denominator (the variance is their quotient): the gain divides once
+    (:func:`_kf_gain`), the heading's chain from the magnetometer sample to the output has one division
+    where the quotient and the gain took two in a row."""
     e2 = field_error2
     if x[_MAG + MAG_COUNT] != 0.0:  # a reference to depart from
         dn = (norm - x[_MAG]) / x[_MAG]
         dd = dip - x[_MAG + 1]
         e2 = max(e2, dn * dn + dd * dd)
     h2 = max(math.cos(dip) ** 2 if cos2 is None else cos2, 1e-6)
-    # (one division, not two in a row: the heading's gain waits on this every magnetometer sample)
-    return (mag_noise2 * dt + 2.0 * (e2 * field_time + (1.0 - h2) * incl)) / (h2 * dt)
+    return mag_noise2 * dt + 2.0 * (e2 * field_time + (1.0 - h2) * incl), h2 * dt
 
 
 def _inclination_noise(ch, me, mn, le, ln) -> float:
@@ -596,10 +603,12 @@ def _reexpress(x, e0, n0, u0, e1, n1, u1, sd, dd, norm, dip, var, d0, d1, d2):
     return True, step
 
 
-def _kf_gain(x, r) -> float:
-    """gain kalman: the gain for a magnetometer heading of variance ``r``; the heading's variance and
-    covariances it leaves (the considered errors' own are not measured)."""
-    k = x[_PHH] / (x[_PHH] + r)
+def _kf_gain(x, rn, rd) -> float:
+    """gain kalman: the gain for a magnetometer heading of variance ``rn / rd`` (:func:`_kf_noise`),
+    ``P / (P + rn / rd)`` as ``P rd / (P rd + rn)``; the heading's variance and covariances it leaves (the
+    considered errors' own are not measured)."""
+    pd = x[_PHH] * rd
+    k = pd / (pd + rn)
     x[_PHH] *= 1.0 - k
     x[_PHB] *= 1.0 - k
     x[_PHS] *= 1.0 - k
@@ -749,8 +758,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         _k_segment_time(s, dt, math.isfinite(h0))
     kalman = p[18] != 0.0
     if kalman:
-        wv = 0.0
-        if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2):
+        wv = 0.0  # (read only with a scale error: p[21] > 0)
+        if p[21] > 0.0 and math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2):
             w0, w1, w2 = k_rot(q[0], q[1], q[2], q[3], g0 - b[0], g1 - b[1], g2 - b[2])
             wv = w0 * s[ax + 6] + w1 * s[ax + 7] + w2 * s[ax + 8]
         _k_kf_predict(s, wv, dt, p[19], p[20], p[21])
@@ -808,7 +817,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             le = ch[_CH_LET] * s[ax] + ch[_CH_LET + 1] * s[ax + 1] + ch[_CH_LET + 2] * s[ax + 2]
             ln = ch[_CH_LET] * s[ax + 3] + ch[_CH_LET + 1] * s[ax + 4] + ch[_CH_LET + 2] * s[ax + 5]
             incl = _k_inclination_noise(ch, me, mn, le, ln)
-        r = _k_kf_noise(s, norm, dip, dt, p[22], p[23], p[24], 1.0 - sd * sd, incl) if kalman else 0.0
+        rn, rd = _k_kf_noise(s, norm, dip, dt, p[22], p[23], p[24], 1.0 - sd * sd, incl) if kalman else (0.0, 1.0)
         code = magnetic_step(s, norm, dip, rate, dt, p[7], p[8], p[9], p[10], p[11], p[12])
         if code != MAG_LEARNING:
             s[_RELEARN] = 0.0
@@ -818,11 +827,11 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             s[_DELTA] = _kwrap(s[_DELTA] + (err if n == 1.0 else err / n))
             _k_set_half(s)
             if kalman:
-                _k_kf_mean(s, r, n)
+                _k_kf_mean(s, rn / rd, n)
         elif code == MAG_DISTURBED and p[1] != 0.0:
             out = _MAG_DISTURBED
         else:
-            k = _k_kf_gain(s, r) if kalman else s[_KM]
+            k = _k_kf_gain(s, rn, rd) if kalman else s[_KM]
             step = k * err
             _k_turn(s, step)
             if p[26] != 0.0:  # reexpress: delta's sensitivity to the calibration, R^T g

@@ -201,9 +201,9 @@ def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, s
     axis (state ``_IVAR``: what the corrector publishes as ``Channel.INCLINATION_VARIANCE``).
 
     Written for few divisions and square roots (the compiled loop is bound by them): the factors
-    that depend on ``dt`` once per distinct ``dt`` (state ``_ADT``), ``g d`` and ``g db`` each as one
-    square root (``g = |y|``), and the running mean's ``1 / n`` only while it is larger than ``dt /
-    window``."""
+    that depend on ``dt`` once per distinct ``dt`` (state ``_ADT``), ``tau^4`` as one quotient of
+    squares (``g^2 = |y|^2``; one division and two square roots on the way to ``tau``), and the running
+    mean's ``1 / n`` only while it is larger than ``dt / window``."""
     if x[_ADT] != dt:
         x[_ADT], x[_AF], x[_AK], x[_AV] = dt, min(dt / tau0, 1.0), dt / window, sigma_m * sigma_m * dt / forget
     x[_VR] = sigma_m * sigma_m if rest else min(x[_VR] + x[_AV], sigma_i * sigma_i)
@@ -235,13 +235,19 @@ def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, s
         x[_SW2] += (x[_WLP] * x[_WLP] + x[_WLP + 1] * x[_WLP + 1] + x[_WLP + 2] * x[_WLP + 2] - x[_SW2]) * k
     ph = x[_P] + x[_P + 4] + x[_P + 8] - (x[_P] * z0 * z0 + x[_P + 4] * z1 * z1 + x[_P + 8] * z2 * z2
                                           + 2.0 * (x[_P + 1] * z0 * z1 + x[_P + 2] * z0 * z2 + x[_P + 5] * z1 * z2))
-    vr = 2.0 * x[_VR]
-    db2 = max(ph, 0.0) * vr / (max(ph, 0.0) + vr)  # db^2 (d needs no square root of a square root)
-    d2 = db2 + kappa * kappa * x[_SW2]
-    sv = max(math.sqrt(x[_SV2]), math.sqrt(yy * db2) * tau0 * tau0)  # (g db = sqrt(yy db^2))
-    tau = min(max(math.sqrt(sv / math.sqrt(yy * d2)), tau_min), tau_max) if d2 > 0.0 else tau_max
+    ph = max(ph, 0.0)
+    vr = 2.0 * x[_VR]  # (> 0: at least sigma_m^2)
+    pv, ps = ph * vr, ph + vr  # db^2 = pv / ps
+    # tau^4 = sv^2 / (g^2 d^2) with sv^2 = max(SV2, g^2 db^2 tau0^4), d^2 = db^2 + kappa^2 SW2, all over ps: one
+    # division where sv / (g d) took two (db^2, then the quotient) and four square roots, two now
+    den = yy * (pv + kappa * kappa * x[_SW2] * ps)
+    if den > 0.0:
+        t4 = max(x[_SV2] * ps, yy * pv * (tau0 * tau0) * (tau0 * tau0)) / den
+        tau = min(max(math.sqrt(math.sqrt(t4)), tau_min), tau_max)
+    else:
+        tau = tau_max
     x[_TAU] = tau
-    x[_IVAR] = 0.5 * db2 * tau * tau  # the bias's drift over tau about one horizontal axis (the channel's)
+    x[_IVAR] = 0.5 * (pv / ps) * tau * tau  # the bias's drift over tau about one horizontal axis (the channel's)
     return tau
 
 
@@ -563,7 +569,7 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
             -r2 + hb2 - u2 * hu - (h[6] * b[0] + h[7] * b[1] + h[8] * b[2]))
 
 
-def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0, forget, emax, correct,
+def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0, rforget, emax, correct,
                      interval, acc_sigma):
     """The gyro's rate error estimated online (``rate_error_estimate``), one sample: the output
     quaternion ``e`` (body -> levelled), the body rate ``w`` (gyro minus bias), the bias filter's
@@ -579,8 +585,8 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     low-passed with the inclination's coefficients (as the bias filter's ``LP(R)``), across the
     vertical only (the accelerometer does not see a turn about it). A Kalman filter for them: the
     prior is ``kappa0^2 / 3`` per entry of E (a gyro whose mean square rate error over the axes is
-    ``kappa0``: ``gyro_rate_error``), growing back to it in ``forget`` s, the measurement noise the
-    bias filter's; entries limited to ``emax``. A turn only tells the entries it excites, the rest
+    ``kappa0``: ``gyro_rate_error``), growing back to it in ``forget`` s (``rforget``: its reciprocal), the
+    measurement noise the bias filter's; entries limited to ``emax``. A turn only tells the entries it excites, the rest
     keep their prior. The result is the ``kappa^2`` tau_adapt uses, ``(|E|^2 + its variance) / 3``:
     the rate error the strapdown still has, with what is not known of it. The bias filter learns
     first: a steady turn's ``E w`` is a constant bias that it takes, so what this sees is the part of
@@ -653,8 +659,9 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
             x[_HZ1 + m] = b1 * gm - a1 * y + x[_HZ2 + m]
             x[_HZ2 + m] = b2 * gm - a2 * y
             x[g + 2 * _NE + m] = y
-    p0, pa = kappa0 * kappa0 / 3.0, acc_sigma * acc_sigma
-    v, va = p0 * dt / forget, pa * dt / forget
+    # (no division every sample: 1 / 3 a constant, rforget = 1 / forget a parameter)
+    p0, pa = kappa0 * kappa0 * (1.0 / 3.0), acc_sigma * acc_sigma
+    v, va = p0 * dt * rforget, pa * dt * rforget
     for m in range(6):
         if x[_PE + (_NE + 1) * m] < p0:
             x[_PE + (_NE + 1) * m] += v
@@ -706,7 +713,7 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     for m in range(6):
         k2 += (1.0 if m < 3 else 2.0) * (x[_PE + (_NE + 1) * m] if correct
                                          else x[_E + m] * x[_E + m] + x[_PE + (_NE + 1) * m])
-    x[_KAP2] = k2 / 3.0
+    x[_KAP2] = k2 * (1.0 / 3.0)
     if correct:  # the rate error this sample's rate shows, for the next propagation: across the vertical only
         e00, e11, e22, e01, e02, e12 = x[_E], x[_E + 1], x[_E + 2], x[_E + 3], x[_E + 4], x[_E + 5]
         d0, d1, d2 = e00 * w0 + e01 * w1 + e02 * w2, e01 * w0 + e11 * w1 + e12 * w2, e02 * w0 + e12 * w1 + e22 * w2
@@ -967,7 +974,7 @@ class InertialTilt(FactorCorrector):
             out = quat_mul(x[_QA:_QA + 4], quat)
             res = self._kalman(x, quat_to_matrix(out), r, bias, dt, rest)
             if c.rate_error_estimate and np.all(np.isfinite(w_b)):  # (a sample without a valid gyro: nothing to learn)
-                _rate_error_step(x, *out, *w_b, *res, rest, dt, c.gyro_rate_error, c.motion_bias_tau,
+                _rate_error_step(x, *out, *w_b, *res, rest, dt, c.gyro_rate_error, 1.0 / c.motion_bias_tau,
                                  c.rate_error_max, c.rate_error_correct, c.rate_error_interval, c.rate_error_acc_bias)
         elif c.motion_bias_tau is not None and not rest and x[_READY]:
             # the correction as a rate in the levelled frame is the gyro drift; seen in the body,
@@ -1042,7 +1049,8 @@ class InertialTilt(FactorCorrector):
                       c.impulse_clip if c.impulse_clip is not None else 0.0, c.impulse_window, c.impulse_floor,
                       float(c.rate_error_estimate), c.rate_error_max, float(c.rate_error_correct),
                       c.rate_error_interval, c.bias_update_interval, float(self._publishing()),
-                      float(c.tau_adapt and c.tau_max_parallel), c.rate_error_acc_bias])
+                      float(c.tau_adapt and c.tau_max_parallel), c.rate_error_acc_bias,
+                      1.0 / c.motion_bias_tau if c.motion_bias_tau is not None else 0.0])
         return CorrectorKernel(inertial_tilt_kernel, p, mode="factor")
 
 
@@ -1054,7 +1062,7 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
     bias_sigma_rest (0: None), bias_vertical_forgetting, tau_adapt, gyro_rate_error, tau_min, tau_max,
     adapt_window, impulse_clip (0: None), impulse_window, impulse_floor, rate_error_estimate, rate_error_max,
     rate_error_correct, rate_error_interval, bias_update_interval, publish (1: a corrector reads the channel),
-    tau_max_parallel (with tau_adapt), rate_error_acc_bias)``;
+    tau_max_parallel (with tau_adapt), rate_error_acc_bias, 1 / motion_bias_tau (0: off))``;
     ``ch`` the pipeline's channel."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
@@ -1124,22 +1132,36 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
         v0, v1, v2 = k_rot(s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3], s[_Y], s[_Y + 1], s[_Y + 2])
         u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
         c0, c1, c2, c3 = ny + v0 * u0 + v1 * u1 + v2 * u2, v1 * u2 - v2 * u1, v2 * u0 - v0 * u2, v0 * u1 - v1 * u0
+        # q_tilt and the output turned by the correction before it is normalised, then scaled by 1 / |c| (the
+        # reference's (c / |c|) (x) q_tilt and (c / |c|) (x) q_tilt (x) q_gyr to rounding): both products, and
+        # q_tilt (x) q_gyr, run beside the square root and the division instead of after them
+        x0, x1, x2, x3 = s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3]
+        o0, o1, o2, o3 = k_qmul(x0, x1, x2, x3, q[0], q[1], q[2], q[3])
         n = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2 + c3 * c3)
         if n > 1e-12 * ny:
+            t0, t1, t2, t3 = k_qmul(c0, c1, c2, c3, x0, x1, x2, x3)
+            e0, e1, e2, e3 = k_qmul(c0, c1, c2, c3, o0, o1, o2, o3)
             rn = 1.0 / n
+            t0, t1, t2, t3, e0, e1, e2, e3 = t0 * rn, t1 * rn, t2 * rn, t3 * rn, e0 * rn, e1 * rn, e2 * rn, e3 * rn
             c0, c1, c2, c3 = c0 * rn, c1 * rn, c2 * rn, c3 * rn
         else:
             c0, c1, c2, c3 = 0.0, s[_EAST], s[_EAST + 1], s[_EAST + 2]
-        t0, t1, t2, t3 = k_qmul(c0, c1, c2, c3, s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3])
-        s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3] = t0, t1, t2, t3
-        e0, e1, e2, e3 = k_qmul(t0, t1, t2, t3, q[0], q[1], q[2], q[3])  # the output (and the bias step's q6)
+            t0, t1, t2, t3 = k_qmul(c0, c1, c2, c3, x0, x1, x2, x3)
+            e0, e1, e2, e3 = k_qmul(c0, c1, c2, c3, o0, o1, o2, o3)
+        s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3] = t0, t1, t2, t3  # (e: the output, and the bias step's q6)
         if p[3] > 0.0 and p[5] != 0.0 and s[_READY] != 0.0:
-            sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
-            f = 2.0 * _atan_over(sn, c0) / dt if sn > 0.0 else 0.0
+            # the correction as a rate is read only by an update (the bias filter's, or the rate error's, each once
+            # per interval of motion: the tests below are theirs, on the sums they will have); on the samples
+            # between, its square root, division and series are left out (0: a residual nothing reads)
+            f = 0.0
+            if (flags & _REST) == 0 and (p[22] <= 0.0 or s[_KTACC] + dt + 0.5 * dt >= p[22] or (
+                    p[18] != 0.0 and s[_ETACC] + dt + 0.5 * dt >= p[21])):
+                sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
+                f = 2.0 * _atan_over(sn, c0) / dt if sn > 0.0 else 0.0
             f0, f1, f2 = _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, (flags & _REST) != 0, dt, p)
             if p[18] != 0.0 and math.isfinite(wb0) and math.isfinite(wb1) and math.isfinite(wb2):
                 _k_rate_error_step(s, e0, e1, e2, e3, wb0, wb1, wb2, f0, f1, f2, (flags & _REST) != 0, dt, p[11],
-                                   p[3], p[19], p[20] != 0.0, p[21], p[25])
+                                   p[26], p[19], p[20] != 0.0, p[21], p[25])
         elif p[3] > 0.0 and (flags & _REST) == 0 and s[_READY] != 0.0:
             sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
             if sn > 0.0:
