@@ -178,3 +178,14 @@ def test_an_accelerometer_bias_is_told_apart_from_the_rate_error():
     assert still[1] < still[0] + 0.005
     with pytest.raises(fk.ConfigError, match="gyro_rate_acc_bias"):
         fk.make("recommended", gyro_rate_acc_bias=-0.1)
+
+
+def test_the_accelerometer_bias_needs_the_rate_error_estimate():
+    """``gyro_rate_acc_bias`` is estimated beside E: with the estimate off it would be silently ignored
+    (the reviewer's probe ran with it and no diagnostics); asked for there, it is an error naming it."""
+    for kw in ({"gyro_rate_estimate": "off"}, {"motion_bias_tau": None}, {"bias_filter": "lowpass"}):
+        with pytest.raises(fk.ConfigError, match="gyro_rate_acc_bias"):
+            fk.make("recommended", gyro_rate_acc_bias=0.1, **kw)
+    with pytest.raises(fk.ConfigError, match="rate_error_acc_bias"):
+        fk.make("inertial-tilt", kind="corrector", rate_error_acc_bias=0.1)
+    assert fk.make("recommended", gyro_rate_acc_bias=0.1).config.gyro_rate_acc_bias == 0.1

@@ -832,6 +832,8 @@ class InertialTiltConfig(PluginConfig):
             raise ValueError("rate_error_estimate needs bias_filter 'kalman' with a motion_bias_tau")
         if self.rate_error_correct and not self.rate_error_estimate:
             raise ValueError("rate_error_correct needs rate_error_estimate")
+        if self.rate_error_acc_bias > 0 and not self.rate_error_estimate:  # (it would be silently ignored)
+            raise ValueError("rate_error_acc_bias needs rate_error_estimate")
         return self
 
 

@@ -215,9 +215,12 @@ class RecommendedConfig(FilterConfig):
         if self.gyro_rate_estimate != "off" and (self.motion_bias_tau is None or self.bias_filter != "kalman"):
             if "gyro_rate_estimate" not in self.model_fields_set:
                 self.__dict__["gyro_rate_estimate"] = "off"
-                return self
-            raise ValueError(f"gyro_rate_estimate {self.gyro_rate_estimate!r} needs the bias in motion "
-                             "(motion_bias_tau, bias_filter 'kalman'; inertial-tilt's rate_error_estimate)")
+            else:
+                raise ValueError(f"gyro_rate_estimate {self.gyro_rate_estimate!r} needs the bias in motion "
+                                 "(motion_bias_tau, bias_filter 'kalman'; inertial-tilt's rate_error_estimate)")
+        if self.gyro_rate_acc_bias > 0 and self.gyro_rate_estimate == "off":  # (it would be silently ignored)
+            raise ValueError("gyro_rate_acc_bias is estimated beside the gyro's rate error: it needs "
+                             "gyro_rate_estimate 'tau' or 'correct' (with the bias in motion)")
         return self
 
 
