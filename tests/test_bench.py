@@ -195,3 +195,15 @@ def test_cache_key_follows_the_code(data, tmp_path, monkeypatch):
     assert bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path).records[0]["cached"]
     monkeypatch.setattr(runner, "_code_fingerprint", lambda: "changed-code")
     assert not bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path).records[0]["cached"]
+
+
+def test_sweep_takes_the_navigation_metrics():
+    """``ins-gnss`` sweeps on GNSS flights rank by ``position`` / ``velocity`` / ``position_gap_end``
+    (:func:`~fusionkit.benchmarking.metrics.navigation_errors`): the metric check once refused them.
+    A grid value the filter refuses is checked after the metric, before any run: its error shows the
+    metric passed."""
+    for metric in ("position", "velocity", "position_gap_end"):
+        with pytest.raises(fk.ConfigError, match="gnss_max_age"):
+            sweep("ins-gnss", {"gnss_max_age": [-1.0]}, "unused", metric=metric)
+    with pytest.raises(fk.ConfigError, match="metric must be one of"):
+        sweep("ins-gnss", {"gnss_max_age": [0.5]}, "unused", metric="rmse")

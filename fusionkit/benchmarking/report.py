@@ -24,6 +24,9 @@ METRIC_LABELS = {
     "tilt_gap": "tilt RMS in GNSS gaps (deg)",
     "heading_gnss": "heading RMS with GNSS (deg, about the vertical)",
     "heading_gap": "heading RMS in GNSS gaps (deg, about the vertical)",
+    "velocity": "velocity RMS error (m/s; filters that output a velocity, on GNSS flights)",
+    "position": "position RMS error (m; filters that output a position, on GNSS flights)",
+    "position_gap_end": "position error at the end of the last GNSS gap (m)",
     "score": "score (deg; 9D: total RMSE, 6D: inclination RMSE)",
 }
 
