@@ -161,7 +161,8 @@ def matrix_to_quat(m):
     e = m.reshape(-1, 9)
     ok = np.isfinite(e).all(axis=1)
     out = np.full((e.shape[0], 4), math.nan)
-    out[ok] = [_shepperd(*r) for r in e[ok].tolist()]
+    if ok.any():  # (no finite matrix, or none at all: NaN rows, or an empty (0, 4))
+        out[ok] = [_shepperd(*r) for r in e[ok].tolist()]
     return out.reshape(m.shape[:-2] + (4,))
 
 

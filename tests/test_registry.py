@@ -105,13 +105,21 @@ def test_a_streamed_interval_is_bounded():
 def test_a_later_long_interval_is_a_gap_not_an_error():
     """Only the stream's first interval (its nominal rate) is bounded: a pause of 5 s later in a stream
     is a timestamp gap, held across and flagged as a Recording's is (the bound once refused it)."""
-    for name in ("recommended", "gradient-descent", "vqf"):
+    for name in ("recommended", "gradient-descent", "vqf", "ekf"):  # a pipeline, a preset, a peer, a step filter
         f = fk.make(name)
         for _ in range(20):
             f.update([0.0, 0.0, 0.0], [0.0, 0.0, 9.81], dt=0.01)
         q = f.update([0.0, 0.0, 0.0], [0.0, 0.0, 9.81], dt=5.0)
         assert np.isfinite(q).all(), name
         assert f.last_flags & fk.Flag.GAP, name
+    # a step filter's stream after set_state has no nominal interval yet: its first dt is bounded
+    # (before: taken unchecked, dt=100 set a gap threshold no later gap reached)
+    f, g = fk.make("ekf"), fk.make("ekf")
+    for _ in range(5):
+        f.update([0.0, 0.0, 0.0], [0.0, 0.0, 9.81], dt=0.01)
+    g.set_state(f.state)
+    with pytest.raises(fk.InputError, match="dt must be at most 1 s"):
+        g.update([0.0, 0.0, 0.0], [0.0, 0.0, 9.81], dt=100.0)
 
 
 def test_describe_lists_parameters_with_units_and_defaults():

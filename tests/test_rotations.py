@@ -114,6 +114,10 @@ def test_matrix_to_quat_of_a_non_finite_matrix_is_nan():
     assert np.isnan(matrix_to_quat(bad)).all()
     out = matrix_to_quat(np.stack([good[0], bad, good[1]]))
     assert np.isnan(out[1]).all() and np.array_equal(out[[0, 2]], matrix_to_quat(good))
+    # a stack with no finite matrix, or none at all (the stacked path once crashed on an empty assignment)
+    assert matrix_to_quat(np.zeros((0, 3, 3))).shape == (0, 4)
+    assert np.isnan(matrix_to_quat(np.full((2, 3, 3), np.nan))).all()
+    assert np.isnan(matrix_to_quat(np.stack([bad, bad]))).all()
 
 
 @pytest.mark.parametrize("call, name, shape", [
