@@ -325,3 +325,19 @@ def test_mag_calibration_spd_inverse():
         assert np.abs(inv - ref).max() < 1e-12 * np.linalg.cond(a) * np.abs(ref).max()
     h = rng.normal(size=(5, 8))  # rank 5: three directions unknown
     assert not _invert_spd(h.T @ h, np.empty((8, 8)), np.empty((8, 8)), 8)
+
+
+@pytest.mark.parametrize("params", [{"soft_iron": False, "provisional_std": 0.01},
+                                    {"soft_iron": False, "provisional_std": 0.02},
+                                    {"provisional_std": 1.5}])
+def test_mag_calibration_refuses_a_provisional_std_that_does_nothing(params):
+    """``provisional_std`` up to ``max_std`` (0.02) with ``soft_iron=False`` would never come before the
+    confident offset, and one over 1 (a standard deviation over the field's norm) means nothing: a
+    FusionkitError naming it, instead of silently nothing. Over ``max_std`` it is an offset applied
+    at a looser standard deviation, accepted."""
+    spec = {"estimator": "poisson-quat", "correctors": [{"name": "gradient-descent", "params": {"use_mag": True}}],
+            "alignment": {"mode": "fixed", "duration": 1.0, "heading": "auto"}}
+    with pytest.raises(fk.FusionkitError, match="provisional_std"):
+        fk.compose({**spec, "models": [{"name": "mag-calibration", "params": params}]})
+    fk.compose({**spec, "models": [{"name": "mag-calibration", "params": {"soft_iron": False,
+                                                                          "provisional_std": 0.05}}]})

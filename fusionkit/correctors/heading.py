@@ -64,7 +64,11 @@ Around it, each a separate idea:
   orientation); where that matches the calibrated sample's norm and dip within a calibrated
   sample's precision and better than the learned field does (the iron was there when the heading
   was learned), the heading moves by the change of the learned field's heading (:func:`_reexpress`),
-  as if it had been learned through the calibration. It assumes the calibration's change the same
+  as if it had been learned through the calibration. Where it is closer than the learned field but not
+  yet within that precision (a calibration still imprecise, as ``mag-calibration``'s provisional
+  offset) the move is deferred: nothing moves, the change is kept and summed with the next
+  recalibration's, judged with as many changes' noise as it sums, and the heading moves then; a next
+  change that undoes it (the sum within the noise) drops it. It assumes the calibration's change the same
   for the learned field as for this sample (a hard iron; a soft iron's change differs by its
   distortion of the two fields' difference); where the norm and dip do not tell the two apart (an
   iron across the field at the learning's orientation) it can move the heading by the iron's
@@ -156,9 +160,9 @@ _SD, _ME, _MN = _E2 + 9, _E2 + 10, _E2 + 11
 _RL, _RM, _PL, _RW, _RS = _E2 + 12, _E2 + 15, _E2 + 24, _E2 + 27, _E2 + 28
 # and a change of the calibration not yet re-expressed (a re-expression deferred: the field it gives was closer to
 # this sample's than the learned one but not within a calibrated sample's precision): its sum (body frame) and its
-# steps' first-order part over the learned heading's weight then (:func:`_reexpress`)
-_RD, _RP = _E2 + 31, _E2 + 34
-_SIZE = _E2 + 35
+# steps' first-order part over the learned heading's weight then, and how many changes it sums (:func:`_reexpress`)
+_RD, _RP, _RN = _E2 + 31, _E2 + 34, _E2 + 35
+_SIZE = _E2 + 36
 #: where the heading's variance (gain kalman, rad^2) sits in the corrector's state
 HEADING_VARIANCE = _PHH
 #: the most the heading's variance grows to: a heading uniform on the circle (pi^2 / 3)
@@ -240,6 +244,8 @@ class MagHeadingConfig(PluginConfig):
         True, unit="-", description="follow_calibration: at each recalibration it follows, move the heading by "
         "what the new calibration changes in the field it was learned from (that field read through the new "
         "calibration), if that field then has this sample's norm and dip (the iron was there when it was learned); "
+        "where it is closer to them than the learned field but not yet within a calibrated sample's precision (a "
+        "provisional offset), the move waits for the next recalibration and is made with both changes. "
         "False: the heading keeps its filter alone")
 
 
@@ -513,7 +519,7 @@ def _learn(x, n, m0, m1, m2, w, a, b, c) -> None:
     f = 1.0 / n if n > 1.0 else 1.0
     x[_RW] = 1.0  # the heading is this learning's mean alone
     x[_RS] = x[_RS + 1] = x[_RS + 2] = 0.0
-    x[_RD] = x[_RD + 1] = x[_RD + 2] = x[_RP] = 0.0
+    x[_RD] = x[_RD + 1] = x[_RD + 2] = x[_RP] = x[_RN] = 0.0
     x[_RL] += f * (m0 - x[_RL])
     x[_RL + 1] += f * (m1 - x[_RL + 1])
     x[_RL + 2] += f * (m2 - x[_RL + 2])
@@ -571,13 +577,18 @@ def _reexpress(x, e0, n0, u0, e1, n1, u1, sd, dd, norm, dip, var, d0, d1, d2):
     moves and the change is kept (``d0, d1, d2``: this recalibration's, body frame; ``sd`` its steps'
     part): the next recalibration is judged, and moves the heading, with the sum of both (the caller
     adds ``x[_RD:_RD + 3]`` to its change, and this adds ``x[_RW] x[_RP]``, the deferred steps' part
-    scaled as the learned heading's weight has shrunk since).
+    scaled as the learned heading's weight has shrunk since). Each change summed is a difference of two
+    noisy samples, so ``var`` is taken ``1 + x[_RN]`` times (``x[_RN]``: the changes deferred) in both
+    tests and in the variance added. A sum within the noise (the deferred change undone: the calibration
+    withdrawn) drops the deferral, so a later recalibration does not count it again.
     Otherwise (the iron came after the heading was learned, a disturbed sample, a calibration the
     learned field does not fit) nothing moves, and the heading is no longer traced to the learned
     field (weight and sensitivity 0). The same statements in the reference and, compiled, in the
     kernel."""
     h0, h1 = e0 * e0 + n0 * n0, e1 * e1 + n1 * n1
-    if dd <= 4.0 * var * norm * norm:  # a change within a calibrated sample's error
+    var = var * (1.0 + x[_RN])
+    if dd <= 4.0 * var * norm * norm:  # a change within a calibrated sample's error (with a deferred one's)
+        x[_RD] = x[_RD + 1] = x[_RD + 2] = x[_RP] = x[_RN] = 0.0  # a deferral withdrawn: nothing left to make
         return False, 0.0
     if _untraced(x) or h0 == 0.0 or h1 == 0.0:
         return False, 0.0  # nothing learned, or the heading no longer traced to it
@@ -586,20 +597,21 @@ def _reexpress(x, e0, n0, u0, e1, n1, u1, sd, dd, norm, dip, var, d0, d1, d2):
     b0 = math.asin(max(-1.0, min(1.0, u0 / v0))) - dip
     a1 = (v1 - norm) / norm
     b1 = math.asin(max(-1.0, min(1.0, u1 / v1))) - dip
-    d1 = a1 * a1 + b1 * b1
-    if d1 >= a0 * a0 + b0 * b0 or (d1 > 4.0 * var and x[_RW] == 0.0):  # (a weight 0 cannot scale a deferral)
+    mis = a1 * a1 + b1 * b1  # the squared misfit of the field it gives (d1 is the change's y)
+    if mis >= a0 * a0 + b0 * b0 or (mis > 4.0 * var and x[_RW] == 0.0):  # (a weight 0 cannot scale a deferral)
         x[_RW] = x[_RS] = x[_RS + 1] = x[_RS + 2] = 0.0
-        x[_RD] = x[_RD + 1] = x[_RD + 2] = x[_RP] = 0.0
+        x[_RD] = x[_RD + 1] = x[_RD + 2] = x[_RP] = x[_RN] = 0.0
         return False, 0.0
-    if d1 > 4.0 * var:  # closer than the learned field, not yet within the precision: deferred
+    if mis > 4.0 * var:  # closer than the learned field, not yet within the precision: deferred
         x[_RD] += d0
         x[_RD + 1] += d1
         x[_RD + 2] += d2
         x[_RP] += sd / x[_RW]
+        x[_RN] += 1.0
         return False, 0.0
     x[_PHH] = min(x[_PHH] + var * v1 * v1 / h1, _P_MAX)
     step = _kwrap(x[_RW] * (_kwrap(math.atan2(e1, n1) - math.atan2(e0, n0)) + x[_RP]) + sd)
-    x[_RD] = x[_RD + 1] = x[_RD + 2] = x[_RP] = 0.0
+    x[_RD] = x[_RD + 1] = x[_RD + 2] = x[_RP] = x[_RN] = 0.0
     return True, step
 
 

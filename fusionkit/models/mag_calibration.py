@@ -23,7 +23,8 @@ a steel beam) changes ``h``, not the relation above (a constant ``h`` still turn
 so it leaves ``b`` alone; the magnetic disturbance detector deals with it. Recovery: when the
 segments stop fitting (a residual above ``outlier_sigma`` standard deviations in
 ``outlier_count`` segments in a row: the magnet moved), the estimate is forgotten and learned
-again; the last confident offset is applied meanwhile. The standard deviation a segment is judged
+again; the last confident offset is applied meanwhile (with ``provisional_std``, a provisional
+offset of the new fit may replace it before the new estimate is confident). The standard deviation a segment is judged
 by is the one its residual is expected to have (:func:`_spread`): the noise's and the estimate's
 own, ``sigma_e^2 (1 + tr(H A^-1 H^T) / 3)``. Before the body has turned about enough axes the
 estimate is poor along the directions not yet seen, so the first turn about a new axis has a
@@ -105,6 +106,7 @@ import math
 from typing import ClassVar, Literal
 
 import numpy as np
+from pydantic import model_validator
 
 from .._kernels import dcm_entries, qmul_entries, quat_to_dcm, rotvec_quat_entries
 from .._numba import njit
@@ -191,12 +193,24 @@ class MagCalibrationConfig(PluginConfig):
         0.0, unit="-", description="before the estimate is confident (max_std), apply its offset alone (no "
         "distortion) once the offset's standard deviation is below this fraction of the field's norm and the offset "
         "exceeds three of its standard deviations (applying it then removes more error than it adds), where the "
-        "consistency gate passes; the confident estimate replaces it. 0: nothing before the confidence", ge=0)
+        "consistency gate passes; the confident estimate replaces it. 0: nothing before the confidence. With "
+        "soft_iron=False the estimate is the offset alone, so only a value over max_std does anything (one up to "
+        "max_std is refused)", ge=0, le=1)
     gate_interval: float = param(
         0.5, unit="s", description="consistency: a confident estimate the gate refused is tested again only once the "
         "segments since that test span this long (the ring of 32 segment ends it judges changes by one entry per "
         "segment); the segments between stay refused. An applied estimate is tested at every segment, and a segment "
         "that is not confident ends the refusal. 0: a test at every segment", ge=0)
+
+
+    @model_validator(mode="after")
+    def _provisional_needs_room(self):
+        """With ``soft_iron=False`` the confident estimate is the offset alone and is applied at ``max_std``:
+        a provisional offset at a standard deviation up to that would never come first (silently nothing)."""
+        if not self.soft_iron and 0.0 < self.provisional_std <= self.max_std:
+            raise ValueError(f"provisional_std ({self.provisional_std:g}) does nothing with soft_iron=False unless "
+                             f"over max_std ({self.max_std:g}): the confident offset comes first")
+        return self
 
 
 class MagCalibrationModel(SensorModel):
