@@ -309,8 +309,10 @@ class Recording:
             check_frame(self.truth_frame, "truth_frame")
         if self.movement is not None:
             self.movement = np.asarray(self.movement, dtype=bool)
-            if self.movement.ndim != 1:
+            if sum(d > 1 for d in self.movement.shape) > 1 or self.movement.ndim == 0:
                 raise InputError(f"movement must have shape (N,) (one bool per sample), got {self.movement.shape}")
+            # a column (N, 1) or row (1, N), as loadmat and h5py give, is the same mask
+            self.movement = self.movement.reshape(-1)
             if self.movement.shape[0] != n:
                 raise InputError(f"movement has {self.movement.shape[0]} samples but gyr has {n}")
         if self.gnss is not None:

@@ -41,6 +41,7 @@ def test_shapes_and_lengths_are_checked():
     (dict(rate=np.array([100.0, 100.0])), "rate must be one finite number"),
     (dict(rate="100 Hz"), "rate must be a finite number > 0, got '100 Hz'"),
     (dict(movement=np.ones((10, 2), bool)), r"movement must have shape \(N,\)"),
+    (dict(movement=True), r"movement must have shape \(N,\)"),
     (dict(truth=np.zeros((10, 4))), r"truth\[0\] is \[0.0, 0.0, 0.0, 0.0\]: a zero quaternion"),
     (dict(truth=np.tile([1.0, 0, 0, 0], (10, 1)), truth_frame="XYZ"), "truth_frame must be one of"),
 ])
@@ -79,6 +80,17 @@ def test_truth_zero_quaternion_check_is_cheap_and_exact():
     q[7] = 0.0
     with pytest.raises(InputError, match=r"truth\[7\] is \[0.0, 0.0, 0.0, 0.0\]: a zero quaternion"):
         rec(truth=q)
+
+
+def test_movement_column_is_taken():
+    """A movement column (N, 1) or row (1, N), what loadmat and h5py give, is one bool a sample:
+    flattened, as before the shape check; a true 2-D mask is refused (above)."""
+    m = np.arange(10) > 4
+    for shape in [(10, 1), (1, 10), (10, 1, 1)]:
+        r = rec(movement=m.reshape(shape))
+        assert r.movement.shape == (10,) and (r.movement == m).all()
+    with pytest.raises(InputError, match="movement has 9 samples but gyr has 10"):
+        rec(movement=np.ones((9, 1), bool))
 
 
 def test_time_must_increase():
