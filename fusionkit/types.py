@@ -322,7 +322,10 @@ class Recording:
 
     def _check_interval(self) -> None:
         """Refuse a typical interval above :data:`~fusionkit.validation.MAX_INTERVAL` (1 s: a unit
-        mistake, e.g. timestamps in ms, that would otherwise run into NaN)."""
+        mistake, e.g. timestamps in ms, that would otherwise run into NaN). Not for a
+        :meth:`slice`: its parent was checked."""
+        if self.__dict__.pop("_interval_checked", False):
+            return
         n = len(self)
         if self.rate is None and (n < 2 or (self.t[-1] - self.t[0]) / (n - 1) <= 0.5 * MAX_INTERVAL):
             return  # (a median above MAX_INTERVAL needs a mean above half of it: no (N,) array made here)
@@ -422,7 +425,11 @@ class Recording:
         meta = {k: (v[s] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == n else v)
                 for k, v in self.meta.items()}
         keep_clock = self.gnss is not None
-        out = Recording(
+        # the parent's typical interval was checked: a slice's own (a few samples across a gap)
+        # is no unit mistake, so its construction skips _check_interval
+        out = Recording.__new__(Recording)
+        out.__dict__["_interval_checked"] = True
+        out.__init__(
             gyr=self.gyr[s], acc=self.acc[s], mag=None if self.mag is None else self.mag[s],
             rate=None if keep_clock else self.rate, t=self.time[s] if keep_clock else (None if self.t is None else self.t[s]),
             truth=None if self.truth is None else self.truth[s], truth_frame=self.truth_frame,

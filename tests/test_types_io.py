@@ -93,6 +93,19 @@ def test_movement_column_is_taken():
         rec(movement=np.ones((9, 1), bool))
 
 
+def test_slice_across_a_gap_is_not_refused():
+    """A slice of a checked recording is not checked for its typical interval again: a few
+    samples across a 60 s gap have a 60 s median interval, but no unit mistake (slice refused it)."""
+    t = np.arange(20) * 0.01
+    t[10:] += 60.0
+    r = rec(n=20, rate=None, t=t)
+    for a, b in [(9, 11), (8, 11)]:
+        s = r.slice(a, b)
+        assert len(s) == b - a and s.t[-1] - s.t[0] > 60.0
+    with pytest.raises(InputError, match="t's typical interval"):
+        rec(n=2, rate=None, t=t[9:11])  # (a new recording is still checked)
+
+
 def test_time_must_increase():
     with pytest.raises(InputError, match=r"strictly increasing, but t\[3\]"):
         rec(rate=None, t=[0, 1, 2, 2, 4, 5, 6, 7, 8, 9])
