@@ -117,6 +117,17 @@ def test_a_streamed_interval_is_bounded():
             f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=True)
 
 
+def test_streamed_text_is_refused():
+    """Text that parses as a number (``dt="0.01"``, a timestamp ``t="5.0"``) is refused as text is in
+    a Recording, naming the argument."""
+    with pytest.raises(fk.InputError, match=r"dt must be a finite number > 0, got '0.01' \(text"):
+        fk.make("recommended").update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt="0.01")
+    with pytest.raises(fk.InputError, match="acc must be numbers .*not text"):
+        fk.make("recommended").update([0.1, 0.0, 0.0], ["0", "0", "9.81"], dt=0.01)
+    with pytest.raises(fk.InputError, match=r"t must be one finite number \(a timestamp in s\), got '5.0'"):
+        fk.make("ins-gnss").update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=0.01, t="5.0")
+
+
 def test_a_later_long_interval_is_a_gap_not_an_error():
     """Only the stream's first interval (its nominal rate) is bounded: a pause of 5 s later in a stream
     is a timestamp gap, held across and flagged as a Recording's is (the bound once refused it)."""
