@@ -16,6 +16,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from .conventions import FRAMES, check_body
@@ -50,18 +51,52 @@ class PluginConfig(BaseModel):
     @field_validator("*", mode="before")
     @classmethod
     def _no_bool_number(cls, value: Any, info) -> Any:
-        """A boolean where a number is expected is refused (pydantic takes True as 1, so
-        ``tau_acc=True`` ran with 1 s)."""
-        if isinstance(value, bool) and _number_not_bool(cls.model_fields[info.field_name].annotation):
-            raise ValueError("expected a number, got a boolean")
+        """A boolean where a number is expected is refused, alone or inside a tuple or list
+        (pydantic takes True as 1, so ``tau_acc=True`` ran with 1 s)."""
+        if _bool_for_number(cls.model_fields[info.field_name].annotation, value):
+            raise ValueError("expected a number, got a boolean" if _is_bool(value)
+                             else f"expected numbers, got a boolean in {value!r}")
         return value
+
+
+def _is_bool(value: Any) -> bool:
+    return isinstance(value, (bool, np.bool_))
+
+
+def _alternatives(annotation: Any) -> tuple:
+    """The types a field's annotation takes: unions flattened, ``Annotated[T, ...]`` as ``T``."""
+    origin = typing.get_origin(annotation)
+    if origin is Annotated:
+        return _alternatives(typing.get_args(annotation)[0])
+    if origin in (typing.Union, types.UnionType):
+        return tuple(a for arg in typing.get_args(annotation) for a in _alternatives(arg))
+    return (annotation,)
 
 
 def _number_not_bool(annotation: Any) -> bool:
     """Whether a field's type takes a number (float or int, alone or in a union) and no boolean."""
-    args = typing.get_args(annotation) if typing.get_origin(annotation) in (typing.Union, types.UnionType) \
-        else (annotation,)
+    args = _alternatives(annotation)
     return bool not in args and any(a in (float, int) for a in args)
+
+
+def _bool_for_number(annotation: Any, value: Any) -> bool:
+    """Whether ``value`` is, or (a tuple or list) holds, a boolean where ``annotation`` takes a
+    number (``lever_arm=(True, 0, 0)`` ran with 1 m)."""
+    if _is_bool(value):
+        return _number_not_bool(annotation)
+    if not isinstance(value, (tuple, list)):
+        return False
+    for alt in _alternatives(annotation):
+        origin, args = typing.get_origin(alt), typing.get_args(alt)
+        if origin not in (tuple, list) or not args:
+            continue
+        if origin is list or (len(args) == 2 and args[1] is Ellipsis):
+            items = [args[0]] * len(value)
+        else:
+            items = args[:len(value)]
+        if any(_bool_for_number(a, v) for a, v in zip(items, value)):
+            return True
+    return False
 
 
 def _body(value: str | None) -> str | None:

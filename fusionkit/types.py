@@ -298,16 +298,21 @@ class Recording:
         self._check_units()
         if self.truth is not None:
             self.truth = as_vectors("truth", self.truth, n, width=4)
-            zero = ~(np.abs(self.truth).max(axis=1) > 0.0) & np.isfinite(self.truth).all(axis=1)
-            if zero.any():  # (a non-finite row is a sample without a reference: the metrics skip it)
+            # a zero quaternion (a NaN row is a sample without a reference: the metrics skip it, and
+            # NaN == 0 is False). One column first: the whole test only when some w is 0 (10x cheaper)
+            w0 = self.truth[:, 0] == 0.0
+            zero = w0 & (self.truth[:, 1:] == 0.0).all(axis=1) if w0.any() else w0
+            if zero.any():
                 i = int(np.argmax(zero))
                 raise InputError(f"truth[{i}] is {self.truth[i].tolist()}: a zero quaternion is no orientation (a "
                                  "sample without a reference is NaN)")
             check_frame(self.truth_frame, "truth_frame")
         if self.movement is not None:
             self.movement = np.asarray(self.movement, dtype=bool)
-            if self.movement.ndim != 1:
+            if sum(d > 1 for d in self.movement.shape) > 1 or self.movement.ndim == 0:
                 raise InputError(f"movement must have shape (N,) (one bool per sample), got {self.movement.shape}")
+            # a column (N, 1) or row (1, N), as loadmat and h5py give, is the same mask
+            self.movement = self.movement.reshape(-1)
             if self.movement.shape[0] != n:
                 raise InputError(f"movement has {self.movement.shape[0]} samples but gyr has {n}")
         if self.gnss is not None:
@@ -317,7 +322,10 @@ class Recording:
 
     def _check_interval(self) -> None:
         """Refuse a typical interval above :data:`~fusionkit.validation.MAX_INTERVAL` (1 s: a unit
-        mistake, e.g. timestamps in ms, that would otherwise run into NaN)."""
+        mistake, e.g. timestamps in ms, that would otherwise run into NaN). Not for a
+        :meth:`slice`: its parent was checked."""
+        if self.__dict__.pop("_interval_checked", False):
+            return
         n = len(self)
         if self.rate is None and (n < 2 or (self.t[-1] - self.t[0]) / (n - 1) <= 0.5 * MAX_INTERVAL):
             return  # (a median above MAX_INTERVAL needs a mean above half of it: no (N,) array made here)
@@ -417,7 +425,11 @@ class Recording:
         meta = {k: (v[s] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == n else v)
                 for k, v in self.meta.items()}
         keep_clock = self.gnss is not None
-        out = Recording(
+        # the parent's typical interval was checked: a slice's own (a few samples across a gap)
+        # is no unit mistake, so its construction skips _check_interval
+        out = Recording.__new__(Recording)
+        out.__dict__["_interval_checked"] = True
+        out.__init__(
             gyr=self.gyr[s], acc=self.acc[s], mag=None if self.mag is None else self.mag[s],
             rate=None if keep_clock else self.rate, t=self.time[s] if keep_clock else (None if self.t is None else self.t[s]),
             truth=None if self.truth is None else self.truth[s], truth_frame=self.truth_frame,

@@ -12,22 +12,33 @@ from .errors import InputError
 NAN_POLICIES = ("raise", "skip")
 
 
-def _no_bool(name: str, x) -> None:
+def _no_bool(name: str, x, what: str = "") -> None:
     """Refuse what float64 would take silently and wrongly: booleans (True/False become 1/0), complex
-    numbers (the imaginary part dropped) and dates or durations (their integer counts, in whatever unit
-    they hold). A ragged list is refused here too (numpy's own error would not name the argument)."""
+    numbers (the imaginary part dropped), dates or durations (their integer counts, in whatever unit
+    they hold) and text (``"0.01"`` parses: the documented contract is numbers, text is a file read
+    without its conversion). A ragged list is refused here too (numpy's own error would not name the
+    argument). ``what`` follows "must be numbers" in the text's message."""
+    if isinstance(x, (str, bytes)):
+        _text(name, x, what)
     if isinstance(x, (list, tuple)):
         try:
             x = np.asarray(x)
         except (TypeError, ValueError) as exc:
             raise InputError(f"{name} must be a numeric array with rows of equal length: {exc}") from None
     kind = getattr(getattr(x, "dtype", None), "kind", None)
+    if kind in ("U", "S"):
+        _text(name, x.flat[0].item() if x.size else "", what)
     if kind == "b":
         raise InputError(f"{name} is a boolean array: sensor samples must be numbers (a mask passed by mistake?)")
     if kind in ("c", "m", "M"):
         what = {"c": "complex", "m": "a duration (timedelta64)", "M": "a date (datetime64)"}[kind]
         raise InputError(f"{name} is {what}: it must be real numbers"
                          + (" in seconds, e.g. (t - t[0]) / np.timedelta64(1, 's')" if kind in "mM" else ""))
+
+
+def _text(name: str, example, what: str) -> None:
+    raise InputError(f"{name} must be numbers{what} (a numeric array), not text such as {example!r:.40}: "
+                     "convert it first, e.g. np.asarray(x, dtype=float)")
 
 
 def as_vectors(name: str, x, n: int | None = None, width: int = 3) -> np.ndarray:
@@ -149,7 +160,7 @@ def check_sample_finite(policy: str, **vectors) -> None:
 
 def check_time(t, n: int, name: str = "t", other: str = "gyr") -> np.ndarray:
     """Timestamps as float64 ``(n,)``, finite and strictly increasing."""
-    _no_bool(name, t)
+    _no_bool(name, t, " (timestamps in s)")
     try:
         t = np.asarray(t, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError) as exc:
@@ -171,7 +182,9 @@ def check_time(t, n: int, name: str = "t", other: str = "gyr") -> np.ndarray:
 
 def check_positive(name: str, value: float) -> float:
     """``value`` as a float, finite and > 0, or an :class:`InputError` naming ``name`` (a boolean, an
-    array or text that is not a number included)."""
+    array or text included: ``rate="100"`` parses, but text is refused as in the arrays)."""
+    if isinstance(value, (str, bytes)):
+        raise InputError(f"{name} must be a finite number > 0, got {value!r:.80} (text, not a number)")
     if isinstance(value, (bool, np.bool_)) or np.ndim(value) != 0:
         raise InputError(f"{name} must be one finite number > 0, got {value!r:.80}")
     try:
@@ -180,6 +193,17 @@ def check_positive(name: str, value: float) -> float:
         raise InputError(f"{name} must be a finite number > 0, got {value!r:.80}") from None
     if not np.isfinite(v) or v <= 0:
         raise InputError(f"{name} must be a finite number > 0, got {value!r}")
+    return v
+
+
+def check_timestamp(name: str, value) -> float:
+    """One streamed timestamp as a float (s), finite, or an :class:`InputError` naming ``name`` (a
+    boolean or text included)."""
+    if isinstance(value, (str, bytes, bool, np.bool_)) or np.ndim(value) != 0:
+        raise InputError(f"{name} must be one finite number (a timestamp in s), got {value!r:.80}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise InputError(f"{name} must be one finite number (a timestamp in s), got {value!r}")
     return v
 
 

@@ -91,6 +91,21 @@ def test_a_boolean_for_a_number_is_refused():
     assert fk.make("recommended", use_mag=False).config.use_mag is False
 
 
+@pytest.mark.parametrize("name, params, match", [
+    ("recommended", {"bias_sigma_rest": True}, "expected a number, got a boolean"),  # Annotated in a union
+    ("vqf-basic", {"tau_acc": np.True_}, "expected a number, got a boolean"),
+    ("ins-gnss", {"lever_arm": (True, 0, 0)}, r"expected numbers, got a boolean in \(True, 0, 0\)"),
+    ("ins-gnss", {"gnss_vel_std": [0.1, False]}, "expected numbers, got a boolean"),
+])
+def test_a_boolean_for_a_number_is_refused_where_it_hid(name, params, match):
+    """Booleans the first check let through, each run as 1 or 0: in an ``Annotated`` number within
+    a union (``bias_sigma_rest=True`` ran with 1.0), numpy's ``np.True_``, and inside a tuple of
+    numbers (``lever_arm=(True, 0, 0)`` ran with 1 m)."""
+    with pytest.raises(fk.ConfigError, match=match):
+        fk.make(name, **params)
+    assert fk.make("ins-gnss", lever_arm=(1, 0, 0)).config.lever_arm == (1.0, 0.0, 0.0)
+
+
 def test_a_streamed_interval_is_bounded():
     """``update(dt=100)`` (an interval in ms?) ended in a division by zero in recommended's kernel;
     a boolean dt was taken as 1 s."""
@@ -100,6 +115,17 @@ def test_a_streamed_interval_is_bounded():
             f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=100.0)
         with pytest.raises(fk.InputError, match="dt must be one finite number"):
             f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=True)
+
+
+def test_streamed_text_is_refused():
+    """Text that parses as a number (``dt="0.01"``, a timestamp ``t="5.0"``) is refused as text is in
+    a Recording, naming the argument."""
+    with pytest.raises(fk.InputError, match=r"dt must be a finite number > 0, got '0.01' \(text"):
+        fk.make("recommended").update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt="0.01")
+    with pytest.raises(fk.InputError, match="acc must be numbers .*not text"):
+        fk.make("recommended").update([0.1, 0.0, 0.0], ["0", "0", "9.81"], dt=0.01)
+    with pytest.raises(fk.InputError, match=r"t must be one finite number \(a timestamp in s\), got '5.0'"):
+        fk.make("ins-gnss").update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=0.01, t="5.0")
 
 
 def test_a_later_long_interval_is_a_gap_not_an_error():

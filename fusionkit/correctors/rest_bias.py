@@ -129,6 +129,19 @@ class RestBiasLowpassConfig(PluginConfig):
 _LW, _SEEN, _DT, _KB, _KL, _Q, _P = 0, 3, 4, 5, 6, 7, 8
 
 
+@njit(inline="always")
+def _process_noise(kb: float, var_rest: float, var_init: float) -> float:
+    """The Kalman gain's process noise per step, ``kb^2 var_rest / (1 - kb)`` (the fixed gain ``kb``
+    in a long rest), at most ``var_init``: an interval many times ``tau`` long (``max_gap=None``
+    across a 100 s gap) makes ``1 - kb`` zero (the compiled loop raised ZeroDivisionError, the
+    reference ran on with an infinite variance); the bias is then as unknown as at turn-on."""
+    d = 1.0 - kb
+    return kb ** 2 * var_rest / d if kb ** 2 * var_rest < var_init * d else var_init
+
+
+_process_noise_ref = getattr(_process_noise, "py_func", _process_noise)  # (the reference path: no compile)
+
+
 class RestBiasLowpass(BiasCorrector):
     """At rest (``Flag.REST``), the pipeline's gyro bias follows the low-passed gyro, before the propagation."""
 
@@ -147,7 +160,7 @@ class RestBiasLowpass(BiasCorrector):
         c, s, dt = self.config, state, sample.dt
         if s[_DT] != dt:  # the coefficients, once per distinct dt
             s[_DT], s[_KB], s[_KL] = dt, 1.0 - math.exp(-dt / c.tau), 1.0 - math.exp(-dt / c.lowpass_tau)
-            s[_Q] = s[_KB] ** 2 * c.sigma_rest ** 2 / (1.0 - s[_KB])
+            s[_Q] = _process_noise_ref(s[_KB], c.sigma_rest ** 2, c.sigma_init ** 2)
         kalman = c.gain == "kalman"
         if kalman and s[_P] < c.sigma_init ** 2:  # the bias wanders (VQF's P += V below the initial P)
             s[_P] += s[_Q]
@@ -178,7 +191,7 @@ def rest_bias_lowpass_kernel(s, b, g0, g1, g2, a0, a1, a2, m0, m1, m2, acc_ok, m
     kalman (1) or fixed (0), sigma_init^2, sigma_rest^2)``."""
     if s[_DT] != dt:
         s[_DT], s[_KB], s[_KL] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[1])
-        s[_Q] = s[_KB] ** 2 * p[5] / (1.0 - s[_KB])
+        s[_Q] = _process_noise(s[_KB], p[5], p[4])
     kalman = p[3] != 0.0
     if kalman and s[_P] < p[4]:
         s[_P] += s[_Q]

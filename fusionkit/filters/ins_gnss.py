@@ -76,7 +76,7 @@ from ..navigation.earth import EARTH_RATE, normal_gravity, radii
 from ..protocols import Filter, Sample
 from ..rotations import cross, matrix_to_quat, quat_mul, quat_to_matrix, rodrigues, skew
 from ..types import Flag, Recording, Result
-from ..validation import as_vector, check_finite_all, check_dt
+from ..validation import as_vector, check_finite_all, check_dt, check_timestamp
 
 __all__ = ["InsGnssFilter", "InsGnssConfig", "gnss_epoch_rows"]
 
@@ -717,6 +717,7 @@ class InsGnssFilter(Filter):
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
         dt = check_dt(dt, first=self._stream is None)
+        t = None if t is None else check_timestamp("t", t)
         g, a = as_vector("gyr", gyr), as_vector("acc", acc)
         m = None if mag is None else as_vector("mag", mag)
         if self.config.nan_policy == "raise":
