@@ -150,6 +150,15 @@ def test_a_later_long_interval_is_a_gap_not_an_error():
     g.set_state(f.state)
     with pytest.raises(fk.InputError, match="dt must be at most 1 s"):
         g.update([0.0, 0.0, 0.0], [0.0, 0.0, 9.81], dt=100.0)
+    # set_state on a filter that streamed before: the taken state's next dt is bounded as a first one
+    f.set_state(g.state if g.state is not None else f.state)
+    with pytest.raises(fk.InputError, match="dt must be at most 1 s"):
+        f.update([0.0, 0.0, 0.0], [0.0, 0.0, 9.81], dt=100.0)
+    # ins-gnss has no gap handling: a long interval later in its stream is refused, not integrated
+    h = fk.make("ins-gnss")
+    h.update([0.0, 0.0, 0.0], [0.0, 0.0, 9.81], dt=0.01)
+    with pytest.raises(fk.InputError, match="dt must be at most 1 s"):
+        h.update([0.0, 0.0, 0.0], [0.0, 0.0, 9.81], dt=5.0)
 
 
 def test_describe_lists_parameters_with_units_and_defaults():

@@ -145,6 +145,10 @@ class StepFilter(Filter):
 
     def set_state(self, state) -> None:
         self._stream = self._checked_state(state).copy()
+        # the state carries no interval: the next dt is bounded and sets the nominal rate (and the gap
+        # threshold), not the interval of a stream this filter ran before
+        self._nominal_dt = None
+        self._fast_dt = 0.0
 
     def reset(self) -> None:
         self._stream = None
