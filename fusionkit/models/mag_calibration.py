@@ -315,25 +315,24 @@ class MagCalibrationModel(SensorModel):
             s[_VAR] = max(s[_RR] - float(s[_Y:_Y + 3] @ best), 0.0) / (3.0 * (s[_NE] - 1.0))
         lmin = _min_eig_sym3(a)
         field = float(np.linalg.norm(m - best))
-        if s[_N] >= c.min_segments and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= c.max_std * field:
-            if c.consistency and not _gate_timed(_gate_code(c), s, STATE, np.eye(3), best, c.min_reduction,
-                                                  s[_CONF] == 1.0, c.max_std, np.empty(2 * _GK), prev, s[_T],
-                                                  c.gate_interval):
-                s[_B:_B + 3] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
-                s[_CONF] = 0.0
-                return
-            s[_B:_B + 3] = best
-            s[_CONF] = 1.0
-        elif s[_N] >= c.min_segments and lmin > 0.0 and _provisional(s[_CONF], math.sqrt(s[_VAR] / lmin),
-                                                                       best, c.provisional_std * field):
-            if c.consistency and not _gate_timed(_gate_code(c), s, STATE, np.eye(3), best, c.min_reduction,
-                                                  s[_CONF] != 0.0, c.max_std, np.empty(2 * _GK), prev, s[_T],
-                                                  c.gate_interval):
-                s[_B:_B + 3] = 0.0
-                s[_CONF] = 0.0
-                return
-            s[_B:_B + 3] = best
-            s[_CONF] = _PROVISIONAL
+        if s[_N] < c.min_segments or not lmin > 0.0:
+            return
+        std = math.sqrt(s[_VAR] / lmin)
+        if std <= c.max_std * field:
+            conf = 1.0  # confident
+        elif _provisional(s[_CONF], std, best, c.provisional_std * field):
+            conf = _PROVISIONAL
+        else:
+            return
+        # (the gate's "applied": a confident estimate, or for a provisional offset any)
+        applied = s[_CONF] == 1.0 if conf == 1.0 else s[_CONF] != 0.0
+        if c.consistency and not _gate_timed(_gate_code(c), s, STATE, np.eye(3), best, c.min_reduction, applied,
+                                              c.max_std, np.empty(2 * _GK), prev, s[_T], c.gate_interval):
+            s[_B:_B + 3] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
+            s[_CONF] = 0.0
+            return
+        s[_B:_B + 3] = best
+        s[_CONF] = conf
 
     def _segment_soft(self, s, ct, m) -> None:
         """One closed segment, soft iron: ``(I - C^T) c - E m_k + C^T E m_a = m_k - C^T m_a``."""
@@ -952,23 +951,23 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
     lmin = _k_min_eig(a)
     f0, f1, f2 = m0 - s[_BEST], m1 - s[_BEST + 1], m2 - s[_BEST + 2]
     field = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
-    if s[_N] >= min_seg and lmin > 0.0 and math.sqrt(s[_VAR] / lmin) <= max_std * field:
-        if gate != 0.0 and not _k_gate_timed(gate, s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red,
-                                             s[_CONF] == 1.0, max_std, np.empty(2 * _GK), prev, s[_T], interval):
-            s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
-            s[_CONF] = 0.0
-            return
-        s[_B], s[_B + 1], s[_B + 2] = s[_BEST], s[_BEST + 1], s[_BEST + 2]
-        s[_CONF] = 1.0
-    elif s[_N] >= min_seg and lmin > 0.0 and _k_provisional(s[_CONF], math.sqrt(s[_VAR] / lmin),
-                                                            s[_BEST:_BEST + 3], prov * field):
-        if gate != 0.0 and not _k_gate_timed(gate, s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red,
-                                             s[_CONF] != 0.0, max_std, np.empty(2 * _GK), prev, s[_T], interval):
-            s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
-            s[_CONF] = 0.0
-            return
-        s[_B], s[_B + 1], s[_B + 2] = s[_BEST], s[_BEST + 1], s[_BEST + 2]
-        s[_CONF] = _PROVISIONAL
+    if s[_N] < min_seg or not lmin > 0.0:
+        return
+    std = math.sqrt(s[_VAR] / lmin)
+    if std <= max_std * field:
+        conf = 1.0
+    elif _k_provisional(s[_CONF], std, s[_BEST:_BEST + 3], prov * field):
+        conf = _PROVISIONAL
+    else:
+        return
+    applied = s[_CONF] == 1.0 if conf == 1.0 else s[_CONF] != 0.0
+    if gate != 0.0 and not _k_gate_timed(gate, s, STATE, np.eye(3), s[_BEST:_BEST + 3], min_red, applied, max_std,
+                                         np.empty(2 * _GK), prev, s[_T], interval):
+        s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
+        s[_CONF] = 0.0
+        return
+    s[_B], s[_B + 1], s[_B + 2] = s[_BEST], s[_BEST + 1], s[_BEST + 2]
+    s[_CONF] = conf
 
 
 @njit(cold=True)
