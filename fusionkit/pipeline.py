@@ -538,7 +538,7 @@ class Pipeline(Filter):
                     self._restarts and self.spec.gyr_range is not None):  # the units are checked, no range to watch:
                 self._fast_dt = gap_threshold(self._stream["dt"], self.spec.max_gap)  # the fast path may run
             return q.copy()
-        gn = None if gnss is None else np.asarray(gnss, dtype=float)
+        gn = None if gnss is None else as_vector("gnss", gnss, width=6)
         q, f, _ = self._step(self._stream, g, a, m, dt, has_mag, gn)
         self.last_flags = gap_flags(f, gap)
         return q

@@ -26,6 +26,14 @@ def _no_bool(name: str, x, what: str = "") -> None:
         except (TypeError, ValueError) as exc:
             raise InputError(f"{name} must be a numeric array with rows of equal length: {exc}") from None
     kind = getattr(getattr(x, "dtype", None), "kind", None)
+    if kind == "O":  # an object array (a table's column, a list of mixed types): each element's own type
+        for v in x.flat:
+            if isinstance(v, (str, bytes)):
+                _text(name, v, what)
+            if isinstance(v, (bool, np.bool_)):
+                raise InputError(f"{name} holds a boolean ({v!r}): sensor samples must be numbers")
+            if isinstance(v, (complex, np.complexfloating)):
+                raise InputError(f"{name} holds a complex number ({v!r}): it must be real numbers")
     if kind in ("U", "S"):
         _text(name, x.flat[0].item() if x.size else "", what)
     if kind == "b":

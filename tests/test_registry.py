@@ -126,6 +126,14 @@ def test_streamed_text_is_refused():
         fk.make("recommended").update([0.1, 0.0, 0.0], ["0", "0", "9.81"], dt=0.01)
     with pytest.raises(fk.InputError, match=r"t must be one finite number \(a timestamp in s\), got '5.0'"):
         fk.make("ins-gnss").update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=0.01, t="5.0")
+    # a GNSS epoch holding text: the readable pipeline step and ins-gnss once parsed it silently
+    f = fk.make("gst-gnss")
+    f.update_backend = "reference"
+    with pytest.raises(fk.InputError, match="gnss must be numbers .*not text such as"):
+        f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=0.01, gnss=(0.0, "1.0", 0.0, 0.0, 0.0, 0.0))
+    with pytest.raises(fk.InputError, match="gnss must be numbers .*not text such as"):
+        fk.make("ins-gnss").update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=0.01,
+                                   gnss=(0.0, "1.0", 0.0, 0.0, 0.0, 0.0, 0.0))
 
 
 def test_a_later_long_interval_is_a_gap_not_an_error():

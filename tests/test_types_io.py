@@ -44,6 +44,10 @@ def test_shapes_and_lengths_are_checked():
     (dict(rate=None, t=[f"{0.01 * k:.2f}" for k in range(10)]), r"t must be numbers \(timestamps in s\).*not text"),
     (dict(rate=None, t=np.array([0.01 * k for k in range(10)]).astype(str)), "t must be numbers .*not text"),
     (dict(gyr=[["0.0", "0.0", "0.0"]] * 10), "gyr must be numbers .*not text such as '0.0'"),
+    (dict(gyr=np.array([[0.0, "0.5", 0.0]] + [[0.0, 0.0, 0.0]] * 9, dtype=object)),
+     "gyr must be numbers .*not text such as '0.5'"),  # an object column: numpy would parse the text
+    (dict(acc=np.array([[0.0, 0.0, True]] + [[0.0, 0.0, 9.81]] * 9, dtype=object)), "acc holds a boolean"),
+    (dict(gyr=np.array([[0.0, 1j, 0.0]] + [[0.0, 0.0, 0.0]] * 9, dtype=object)), "gyr holds a complex number"),
     (dict(movement=np.ones((10, 2), bool)), r"movement must have shape \(N,\)"),
     (dict(movement=True), r"movement must have shape \(N,\)"),
     (dict(truth=np.zeros((10, 4))), r"truth\[0\] is \[0.0, 0.0, 0.0, 0.0\]: a zero quaternion"),

@@ -739,7 +739,7 @@ class InsGnssFilter(Filter):
         gn[1:] = np.nan
         if gnss is not None:
             gn[0] = 1.0
-            gn[1:] = np.asarray(gnss, float).reshape(7)
+            gn[1:] = as_vector("gnss", gnss, width=7)
         keep = x[_PHASE] != 2.0 or (x[_LEVEL] == 0.0 and st["p"][_RELEVEL] > 0.0)
         if keep:
             st["buffer"].append((g, a, m, dt, t, gn))
