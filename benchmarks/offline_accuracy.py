@@ -25,7 +25,13 @@ mean square of the tilt error in the body frame per band, deg^2, and the part of
 that follows the linear acceleration: deg per g and R^2); ``--lever-blocks`` prints, per trial, how
 far ``gyro_delay_lever``'s model explains the accelerometer: the delay's signature against the
 residual, and the fit's bound per stretch of one period of the band's lowest frequency (samples),
-in ``--lever-band LO,HI`` (Hz; default the option's ``LEVER_BAND``).
+in ``--lever-band LO,HI`` (Hz; default the option's ``LEVER_BAND``); ``--rest-offset`` adds, per
+column, the inclination RMSE with the accelerometer's tilt against the reference at the rests taken
+out of the reference (read at the rest before and the rest after the movement, linear in time
+between them, as a body-fixed misalignment of the reference) and prints those tilts: the part of the
+error that is the rig's, which no filter can see from the IMU (the rests lie at one orientation);
+``--oracle-fusion`` prints the offline mode's two smoothed passes fused with weights the reference
+chooses (per sample, and per 2 s block): a bound on any weighting of the passes.
 """
 
 from __future__ import annotations
@@ -126,6 +132,64 @@ def _tilt_bands(res, rec) -> tuple[list[float], float, float]:
     return ms, c * 57.29577951308232, r2  # deg of error per rad of apparent tilt -> per g (1 rad of a / g)
 
 
+def _rest_tilt(rec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The accelerometer's tilt against the reference at the rest before and after the movement (rad,
+    body frame, ``z_acc x z_ref`` averaged over each rest), the reference's vertical (body) and the
+    movement's first and last sample as a weight ``s`` (0 before, 1 after, linear between)."""
+    q_ref = change_frame(rec.truth, rec.truth_frame, "ENU")
+    ok = np.isfinite(q_ref).all(axis=1)
+    z_ref = quat_to_matrix(np.where(ok[:, None], q_ref, [1.0, 0.0, 0.0, 0.0]))[:, 2, :]
+    e = np.cross(rec.acc / np.linalg.norm(rec.acc, axis=1)[:, None], z_ref)
+    move = np.flatnonzero(rec.movement)
+    k = np.arange(len(rec))
+    pre, post = ok & (k < move[0]), ok & (k > move[-1])
+    s = np.clip((k - move[0]) / max(move[-1] - move[0], 1), 0.0, 1.0)[:, None]
+    return e[pre].mean(axis=0), e[post].mean(axis=0), z_ref, s
+
+
+def _rest_offset(res, rec) -> float:
+    """``res``'s inclination RMSE over the movement (deg) with :func:`_rest_tilt`'s tilts taken out of
+    the reference as a body-fixed misalignment ``m`` (its horizontal part at the rests: a misaligned
+    reference tilts by ``-(I - z z^T) m`` at any orientation), linear in time between the two rests."""
+    e_pre, e_post, z_ref, s = _rest_tilt(rec)
+    m = -((1.0 - s) * e_pre + s * e_post)
+    m[:, 2] = 0.0  # the rests are level: only the horizontal part is seen
+    q = change_frame(res.quat, res.frame, "ENU")
+    ok = np.isfinite(q).all(axis=1) & np.isfinite(rec.truth).all(axis=1) & rec.movement
+    z = quat_to_matrix(np.where(np.isfinite(q).all(axis=1)[:, None], q, [1.0, 0.0, 0.0, 0.0]))[:, 2, :]
+    err = np.cross(z, z_ref) + m - np.sum(m * z_ref, axis=1)[:, None] * z_ref
+    return float(np.degrees(np.sqrt(np.mean(np.sum(err[ok] ** 2, axis=1)))))
+
+
+class _Passes(OfflineFilter):
+    """The offline mode that keeps its two smoothed passes (ENU, the recording's order) in ``last``."""
+
+    def _smoothed(self, *args):
+        self.last = super()._smoothed(*args)
+        return self.last
+
+
+def _oracle_fusion(filt: _Passes, rec, block: float = 2.0) -> tuple[float, float]:
+    """The tilt RMSE over the movement (deg) of ``filt``'s last two smoothed passes fused with the
+    weight the reference chooses, per sample and per ``block`` s (the tilt errors ``e_f``, ``e_b`` as
+    vectors: the point of the segment between them nearest to zero)."""
+    q_ref = change_frame(rec.truth, rec.truth_frame, "ENU")
+    ok = np.isfinite(q_ref).all(axis=1)
+    z_ref = quat_to_matrix(np.where(ok[:, None], q_ref, [1.0, 0.0, 0.0, 0.0]))[:, 2, :]
+    e_f, e_b = (np.cross(quat_to_matrix(q)[:, 2, :], z_ref) for q in filt.last)
+    d = e_b - e_f
+    w = np.clip(-np.sum(e_f * d, axis=1) / np.maximum(np.sum(d * d, axis=1), 1e-30), 0.0, 1.0)
+    m = int(round(block / rec.nominal_dt))
+    wb = np.empty_like(w)
+    for i in range(0, len(w), m):
+        dd = d[i:i + m]
+        den = float(np.sum(dd * dd))
+        wb[i:i + m] = np.clip(-np.sum(e_f[i:i + m] * dd) / den, 0.0, 1.0) if den > 0.0 else 0.5
+    move = ok & rec.movement
+    return tuple(float(np.degrees(np.sqrt(np.mean(np.sum((e_f + v[:, None] * d)[move] ** 2, axis=1)))))
+                 for v in (w, wb))
+
+
 def _lever_blocks(rec, band: tuple[float, float] = LEVER_BAND) -> str:
     """One line on how far ``gyro_delay_lever``'s model explains ``rec``'s accelerometer (in ``band``,
     Hz): its delay and jackknife standard deviation (samples), the RMS of the delay's signature for one sample of delay and of the fit's residual
@@ -169,6 +233,10 @@ def main() -> None:
     ap.add_argument("--lever-blocks", action="store_true", help="print how far the lever fit explains each trial")
     ap.add_argument("--lever-band", default=",".join(map(str, LEVER_BAND)),
                     help="LO,HI (Hz): the band of --lever-blocks (default: the option's LEVER_BAND)")
+    ap.add_argument("--rest-offset", action="store_true",
+                    help="add each column with the accelerometer's tilt against the reference at the rests taken out")
+    ap.add_argument("--oracle-fusion", action="store_true",
+                    help="print the offline mode's smoothed passes fused with weights the reference chooses")
     args = ap.parse_args()
     files = sorted(Path(args.data).glob("*.hdf5"))
     if args.trials:
@@ -192,7 +260,8 @@ def main() -> None:
         six = mode == "6D"
         kw = dict(params, use_mag=False) if six else params
         runs = {"recommended": fk.make("recommended", **kw),
-                "recommended offline": OfflineFilter(fk.make("recommended", **kw), disturbance_gap=args.gap),
+                "recommended offline": (_Passes if args.oracle_fusion else OfflineFilter)(
+                    fk.make("recommended", **kw), disturbance_gap=args.gap),
                 "vqf-offline": fk.make("vqf-offline", mode="6D" if six else "auto")}
         if args.equal_weights:
             runs["offline, equal weights"] = _EqualWeights(fk.make("recommended", **kw), disturbance_gap=args.gap)
@@ -215,6 +284,8 @@ def main() -> None:
         key = "inclination" if six else "total"
         err = {n: [] for n in runs}
         bands = {n: [] for n in runs}
+        rest_err = {n: [] for n in runs}
+        oracle = []
         secs = {n: 0.0 for n in runs}
         for f in runs.values():
             f.run(recs[0].slice(0, 500))  # compile
@@ -226,6 +297,10 @@ def main() -> None:
                 err[n].append(rms_errors(res, rec)[key])
                 if args.bands:
                     bands[n].append(_tilt_bands(res, rec))
+                if args.rest_offset:
+                    rest_err[n].append(_rest_offset(res, rec))
+                if args.oracle_fusion and n == "recommended offline":
+                    oracle.append((rms_errors(res, rec)["inclination"],) + _oracle_fusion(f, rec))
                 if n == "offline, gyro timing":
                     g = res.diagnostics["gyro_timing"]
                     print(f"{rec.name}: gyro delay {g['delay'] / rec.nominal_dt:+.2f} +- "
@@ -257,6 +332,24 @@ def main() -> None:
         print("| samples/s (end to end) | " + " | ".join(f"{total / secs[n]:,.0f}" for n in names) + " |")
         if args.groups:
             _groups(Path(args.data) / "trials.json", recs, err, key)
+        if args.rest_offset:
+            print(f"\n{mode}: inclination RMSE [deg] with the accelerometer's tilt against the reference at the rests "
+                  "taken out of the reference; those tilts (deg, body x, y) before / after the movement\n| trial | "
+                  + " | ".join(names) + " | rest before | rest after |\n|---|" + "---:|" * (len(names) + 2))
+            for i, rec in enumerate(recs):
+                a, b = (np.degrees(v) for v in _rest_tilt(rec)[:2])
+                print(f"| {rec.name} | " + " | ".join(f"{rest_err[n][i]:.3f}" for n in names)
+                      + f" | {a[0]:+.2f}, {a[1]:+.2f} | {b[0]:+.2f}, {b[1]:+.2f} |")
+            print("| **mean** | " + " | ".join(f"**{np.mean(rest_err[n]):.3f}**" for n in names) + " | | |")
+            if args.groups:
+                _groups(Path(args.data) / "trials.json", recs, rest_err, key + ", rest tilts out,")
+        if args.oracle_fusion:
+            o = np.array(oracle)
+            print(f"\n{mode}: the offline mode's smoothed passes fused by weights the reference chooses, inclination "
+                  "RMSE [deg]\n| trial | offline | per sample | per 2 s |\n|---|---:|---:|---:|")
+            for i, rec in enumerate(recs):
+                print(f"| {rec.name} | " + " | ".join(f"{v:.3f}" for v in o[i]) + " |")
+            print("| **mean** | " + " | ".join(f"**{v:.4f}**" for v in o.mean(axis=0)) + " |")
         if args.bands:
             heads = " | ".join(f"{lo:g}-{hi:g}" if hi else f">{lo:g}" for lo, hi in BANDS)
             print(f"\n{mode}: tilt error (body frame) by band [deg^2] and its 0.5-3 Hz part that follows the "
