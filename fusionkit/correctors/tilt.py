@@ -70,6 +70,13 @@ Options, each a separate idea:
   taken for E; it is not removed from the accelerometer.
   ``bias_update_interval`` likewise for the bias filter's Kalman update (its low-passes and its
   covariance's growth run every sample).
+- **the slow estimators once per block** (``slow_interval``, 0: every sample; ``recommended``: 0.02 s): the
+  bias filter's low-passes of ``R`` and ``R b``, its covariance's growth and a REST sample's downdate, the
+  rate error's regressor low-pass and covariance, and ``tau_adapt``'s statistics run once per block of that
+  many seconds, on the block's last rotation and its mean rates (the low-passes with coefficients for the
+  block's time, :func:`_slow_set`; the covariances grown by it; a block's ``n`` REST samples one measurement
+  of noise ``wr / n``). They change over seconds; the inclination low-pass, its correction and ``E w``
+  stay per sample (docs/algorithms/recommended.md).
 
 After a timestamp gap or a saturated gyro (``restarts``) the low-pass starts again: the gravity
 seen in I before is stale. A sample without a valid accelerometer reading (or one the
@@ -700,8 +707,10 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     (0: every sample). Its measurement is low-passed at the inclination's time constant (at least
     ``tau_min``), so consecutive samples carry almost the same information: the update of the
     interval's last sample, its noise divided by the samples the interval spans, keeps the
-    information per second. The regressor's low-pass, the covariance's growth and ``E w`` still
-    run every sample.
+    information per second. The regressor's low-pass and the covariance's growth run once per block
+    (``slow_interval``: the state's block, its seconds ``_SLT`` and its seconds and samples of motion
+    with a valid gyro; ``w`` is then the block's mean rate, ``dt`` the sample's), ``E w`` every sample
+    (:func:`_rate_error_correct`).
 
     ``acc_sigma`` (``rate_error_acc_bias``, m/s^2; 0: not modelled): the accelerometer's bias ``b_a``
     estimated beside E, so that its drift is not taken for E's. A bias fixed in the body tilts the
@@ -1130,6 +1139,8 @@ class InertialTilt(FactorCorrector):
         put it on the wrong body axes). ``P`` grows by ``sigma_motion^2 dt / motion_bias_tau`` per
         sample up to ``sigma_init^2``; a REST sample is the rest corrector's measurement of the whole
         bias (noise ``bias_sigma_rest``): it shrinks ``P`` (the bias itself is the rest corrector's).
+        With ``slow_interval`` this runs once per block (the state's): the low-passes on the block's
+        last rotation, ``P`` grown by the block's seconds, its REST samples one measurement.
         Returns the residual after the update, ``-r + LP(R b) - LP(R) b`` with the frame's vertical
         part of ``LP(R b)`` removed (zeros on a REST sample): what the bias does not explain."""
         c = self.config
