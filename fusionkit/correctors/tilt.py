@@ -73,7 +73,8 @@ Options, each a separate idea:
 - **the slow estimators once per block** (``slow_interval``, 0: every sample; ``recommended``: 0.02 s): the
   bias filter's low-passes of ``R`` and ``R b``, its covariance's growth and a REST sample's downdate, the
   rate error's regressor low-pass and covariance, and ``tau_adapt``'s statistics run once per block of that
-  many seconds, on the block's last rotation and its mean rates (the low-passes with coefficients for the
+  many seconds, on the block's last rotation (the rate error's regressor: its middle one, the midpoint rule
+  for the block's mean of ``R w``) and its mean rates (the low-passes with coefficients for the
   block's time, :func:`_slow_set`; the covariances grown by it; a block's ``n`` REST samples one measurement
   of noise ``wr / n``). They change over seconds; the inclination low-pass, its correction and ``E w``
   stay per sample (docs/algorithms/recommended.md).
@@ -154,7 +155,9 @@ _SB, _SBT, _SBTAU = _SCR + 86, _SCR + 91, _SCR + 92
 # slow_interval with tau_adapt: the adaptive time constant's block: its seconds and samples, the sum of the specific
 # force in I, the sum of the valid rates in I and their count, its REST samples
 _ATT, _ATN, _AA, _AWS, _AWN, _AREST = _SCR + 93, _SCR + 94, _SCR + 95, _SCR + 98, _SCR + 101, _SCR + 102
-_SIZE = _SCR + 103
+# slow_interval with the rate error: the output at the block's middle (the regressor's rotation) and whether it is set
+_SLQ, _SLQN = _SCR + 103, _SCR + 107
+_SIZE = _SCR + 108
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
 _G_INV = 1.0 / 9.81  # rate_error_acc_bias: the accelerometer's bias as a tilt, 1 / g (m/s^2 -> rad)
@@ -333,12 +336,15 @@ def _slow_set(x, t, b0, b1, b2, a1, a2):
 _k_slow_set = njit(inline="always")(_slow_set)
 
 
-def _block_add(x, dt, rest, w0, w1, w2, rate_error):
+def _block_add(x, dt, rest, w0, w1, w2, rate_error, e0, e1, e2, e3, half):
     """``slow_interval``: one sample into the block (its time; in motion, its time and count; at
     REST, its count; with the rate error and a valid gyro, the body rate ``w`` summed, and in motion
-    its time and count); returns the block's seconds (the caller compares them with
+    its time and count; the output ``e`` of the first sample at which the block reaches ``half`` s, half of
+    ``slow_interval``: its middle); returns the block's seconds (the caller compares them with
     ``slow_interval``)."""
     x[_SLT] += dt
+    if rate_error and x[_SLQN] == 0.0 and x[_SLT] + 0.5 * dt >= half:
+        x[_SLQ], x[_SLQ + 1], x[_SLQ + 2], x[_SLQ + 3], x[_SLQN] = e0, e1, e2, e3, 1.0
     if rest:
         x[_SLR] += 1.0
     else:
@@ -362,6 +368,7 @@ def _block_clear(x) -> None:
     """``slow_interval``: a new block starts (after a slow step, or a restart)."""
     for i in range(_SLT, _SLWN + 1):
         x[i] = 0.0
+    x[_SLQN] = 0.0
 
 
 _k_block_clear = njit(inline="always")(_block_clear)
@@ -1109,14 +1116,16 @@ class InertialTilt(FactorCorrector):
         if c.motion_bias_tau is not None and c.bias_filter == "kalman" and x[_READY]:
             out = quat_mul(x[_QA:_QA + 4], quat)
             # slow_interval: the bias filter and the rate error once per block of samples (0: every sample)
-            if _block_add(x, dt, rest, *w_b, c.rate_error_estimate) + 0.5 * dt >= c.slow_interval:
+            if _block_add(x, dt, rest, *w_b, c.rate_error_estimate, *out, 0.5 * c.slow_interval) + 0.5 * dt \
+                    >= c.slow_interval:
                 s = float(np.linalg.norm(qc[1:]))
                 r = qc[1:] * (2.0 * math.atan2(s, qc[0]) / (s * dt)) if s > 0.0 else np.zeros(3)
                 if x[_SBT] != x[_SLT] or x[_SBTAU] != x[_BTAU]:  # the slow low-passes' set for this block and tau
                     _slow_set(x, x[_SLT], *lowpass_coefficients(x[_BTAU], x[_SLT]))
                 res = self._kalman(x, quat_to_matrix(out), r, bias, dt, rest)
                 if c.rate_error_estimate and x[_SLWN] > 0.0:  # (a block without a valid gyro: nothing to learn)
-                    _rate_error_step(x, *out, *(x[_SLW:_SLW + 3] / x[_SLWN]), *res, rest, dt, c.gyro_rate_error,
+                    _rate_error_step(x, *x[_SLQ:_SLQ + 4], *(x[_SLW:_SLW + 3] / x[_SLWN]), *res, rest, dt,
+                                     c.gyro_rate_error,
                                      1.0 / c.motion_bias_tau, c.rate_error_max, c.rate_error_correct,
                                      c.rate_error_interval, c.rate_error_acc_bias)
                 _block_clear(x)
@@ -1320,7 +1329,7 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
             # between, its square root, division and series are left out (0: a residual nothing reads)
             # (slow_interval: the bias filter and the rate error once per block of samples; 0: every sample)
             rest = (flags & _REST) != 0
-            if _k_block_add(s, dt, rest, wb0, wb1, wb2, p[18] != 0.0) + 0.5 * dt >= p[27]:
+            if _k_block_add(s, dt, rest, wb0, wb1, wb2, p[18] != 0.0, e0, e1, e2, e3, 0.5 * p[27]) + 0.5 * dt >= p[27]:
                 f = 0.0
                 if not rest and (p[22] <= 0.0 or s[_KTACC] + s[_SLM] + 0.5 * dt >= p[22] or (
                         p[18] != 0.0 and s[_ETACC] + s[_SLE] + 0.5 * dt >= p[21])):
@@ -1332,8 +1341,9 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                 f0, f1, f2 = _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, rest, dt, p)
                 if p[18] != 0.0 and s[_SLWN] > 0.0:
                     nw = s[_SLWN]
-                    _k_rate_error_step(s, e0, e1, e2, e3, s[_SLW] / nw, s[_SLW + 1] / nw, s[_SLW + 2] / nw, f0, f1,
-                                       f2, rest, dt, p[11], p[26], p[19], p[20] != 0.0, p[21], p[25])
+                    _k_rate_error_step(s, s[_SLQ], s[_SLQ + 1], s[_SLQ + 2], s[_SLQ + 3], s[_SLW] / nw,
+                                       s[_SLW + 1] / nw, s[_SLW + 2] / nw, f0, f1, f2, rest, dt, p[11], p[26], p[19],
+                                       p[20] != 0.0, p[21], p[25])
                 _k_block_clear(s)
             if p[20] != 0.0 and math.isfinite(wb0) and math.isfinite(wb1) and math.isfinite(wb2):
                 _k_rate_error_correct(s, e0, e1, e2, e3, wb0, wb1, wb2)
