@@ -71,7 +71,7 @@ def test_reference_equals_numba_every_option(rec):
                    {"bias_sigma_rest": 0.0005, "frame": "NWU", "gyro_rate_estimate": "tau", "bias_update_interval": 0.02,
                     "gyro_rate_acc_bias": 0.1},
                    {"frame": "NED", "gyro_rate_estimate": "correct", "gyro_rate_interval": 0.0,
-                    "bias_update_interval": 0.0, "gyro_rate_acc_bias": 0.1}]:
+                    "bias_update_interval": 0.0, "gyro_rate_acc_bias": 0.1, "slow_interval": 0.0}]:
         f = fk.make("recommended", nan_policy="skip", **params)
         a, b = f.run(bad, backend="numba"), f.run(bad, backend="reference")
         np.testing.assert_allclose(a.quat, b.quat, atol=1e-9, err_msg=str(params))

@@ -70,6 +70,14 @@ Options, each a separate idea:
   taken for E; it is not removed from the accelerometer.
   ``bias_update_interval`` likewise for the bias filter's Kalman update (its low-passes and its
   covariance's growth run every sample).
+- **the slow estimators once per block** (``slow_interval``, 0: every sample; ``recommended``: 0.02 s): the
+  bias filter's low-passes of ``R`` and ``R b``, its covariance's growth and a REST sample's downdate, the
+  rate error's regressor low-pass and covariance, and ``tau_adapt``'s statistics run once per block of that
+  many seconds, on the block's last rotation (the rate error's regressor: its middle one, the midpoint rule
+  for the block's mean of ``R w``) and its mean rates (the low-passes with coefficients for the
+  block's time, :func:`_slow_set`; the covariances grown by it; a block's ``n`` REST samples one measurement
+  of noise ``wr / n``). They change over seconds; the inclination low-pass, its correction and ``E w``
+  stay per sample (docs/algorithms/recommended.md).
 
 After a timestamp gap or a saturated gyro (``restarts``) the low-pass starts again: the gravity
 seen in I before is stale. A sample without a valid accelerometer reading (or one the
@@ -136,7 +144,20 @@ _KTACC, _KNACC = _SCR + 60, _SCR + 61
 # tau_max_parallel: the second low-pass's (at tau_max) delay lines, its coefficients for the last dt, whether it
 # started, and whether the last sample's tau was tau_max
 _PZ1, _PZ2, _PB, _PREADY, _PMAX = _SCR + 62, _SCR + 65, _SCR + 68, _SCR + 73, _SCR + 74
-_SIZE = _SCR + 75
+_BTAU = _SCR + 75  # the time constant of the inclination low-pass's coefficient set (_B)
+# slow_interval: the block of samples since the last slow step (the bias filter's and the rate error's low-passes,
+# covariances and updates run once per block): its seconds, its seconds and samples in motion, its REST samples,
+# the rate error's seconds and samples in motion with a valid gyro, the sum of those samples' body rates and their
+# count; then the slow low-passes' coefficient set (b0, b1, b2, a1, a2) and the block time and time constant it is for
+_SLT, _SLM, _SLMN, _SLR, _SLE, _SLEN, _SLW, _SLWN = _SCR + 76, _SCR + 77, _SCR + 78, _SCR + 79, _SCR + 80, _SCR + 81, \
+    _SCR + 82, _SCR + 85
+_SB, _SBT, _SBTAU = _SCR + 86, _SCR + 91, _SCR + 92
+# slow_interval with tau_adapt: the adaptive time constant's block: its seconds and samples, the sum of the specific
+# force in I, the sum of the valid rates in I and their count, its REST samples
+_ATT, _ATN, _AA, _AWS, _AWN, _AREST = _SCR + 93, _SCR + 94, _SCR + 95, _SCR + 98, _SCR + 101, _SCR + 102
+# slow_interval with the rate error: the output at the block's middle (the regressor's rotation) and whether it is set
+_SLQ, _SLQN = _SCR + 103, _SCR + 107
+_SIZE = _SCR + 108
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
 _G_INV = 1.0 / 9.81  # rate_error_acc_bias: the accelerometer's bias as a tilt, 1 / g (m/s^2 -> rad)
@@ -280,7 +301,7 @@ def _set_tau(x, b0, b1, b2, a1, a2):
     transposed direct form's delay lines hold ``y (1 - b0)`` and ``y (b2 - a2)`` in the steady state:
     once the low-pass runs, they are scaled to the new coefficients' steady state, or a change of
     ``tau`` at a low cutoff (``a2`` moves by about ``sqrt(2) dt d(1/tau)``) would put a step into the
-    output. The bias filter's low-passes (rotation and bias, same coefficients) likewise."""
+    output. The bias filter's low-passes have their own set (:func:`_slow_set`)."""
     # (the old coefficients' reciprocals are ready before the new coefficients: a multiplication on the chain)
     f1 = (1.0 - b0) * (1.0 / (1.0 - x[_B])) if x[_READY] != 0.0 else 1.0
     f2 = (b2 - a2) * (1.0 / (x[_B + 2] - x[_B + 4])) if x[_READY] != 0.0 else 1.0
@@ -288,14 +309,99 @@ def _set_tau(x, b0, b1, b2, a1, a2):
     for i in range(3):
         x[_Z1 + i] *= f1
         x[_Z2 + i] *= f2
-        x[_BZ1 + i] *= f1
-        x[_BZ2 + i] *= f2
-    for i in range(9):
-        x[_RZ1 + i] *= f1
-        x[_RZ2 + i] *= f2
 
 
 _k_set_tau = njit(inline="always")(_set_tau)
+
+
+def _slow_set(x, t, b0, b1, b2, a1, a2):
+    """The slow low-passes' new coefficients (``slow_interval``: the bias filter's rotation and bias
+    low-passes, run once per block of ``t`` s, at the inclination low-pass's time constant ``_BTAU``):
+    once they run, their delay lines are scaled to the new set's steady state, as :func:`_set_tau`
+    does the inclination's. The caller computes the set when the block's length or the time
+    constant changed (with ``slow_interval`` 0, the block is the sample: the inclination's set)."""
+    if x[_KREADY] != 0.0:
+        f1 = (1.0 - b0) * (1.0 / (1.0 - x[_SB]))
+        f2 = (b2 - a2) * (1.0 / (x[_SB + 2] - x[_SB + 4]))
+        for i in range(3):
+            x[_BZ1 + i] *= f1
+            x[_BZ2 + i] *= f2
+        for i in range(9):
+            x[_RZ1 + i] *= f1
+            x[_RZ2 + i] *= f2
+    x[_SB], x[_SB + 1], x[_SB + 2], x[_SB + 3], x[_SB + 4] = b0, b1, b2, a1, a2
+    x[_SBT], x[_SBTAU] = t, x[_BTAU]
+
+
+_k_slow_set = njit(inline="always")(_slow_set)
+
+
+def _block_add(x, dt, rest, w0, w1, w2, rate_error, e0, e1, e2, e3, half):
+    """``slow_interval``: one sample into the block (its time; in motion, its time and count; at
+    REST, its count; with the rate error and a valid gyro, the body rate ``w`` summed, and in motion
+    its time and count; the output ``e`` of the first sample at which the block reaches ``half`` s, half of
+    ``slow_interval``: its middle); returns the block's seconds (the caller compares them with
+    ``slow_interval``)."""
+    x[_SLT] += dt
+    if rate_error and x[_SLQN] == 0.0 and x[_SLT] + 0.5 * dt >= half:
+        x[_SLQ], x[_SLQ + 1], x[_SLQ + 2], x[_SLQ + 3], x[_SLQN] = e0, e1, e2, e3, 1.0
+    if rest:
+        x[_SLR] += 1.0
+    else:
+        x[_SLM] += dt
+        x[_SLMN] += 1.0
+    if rate_error and math.isfinite(w0) and math.isfinite(w1) and math.isfinite(w2):
+        x[_SLW] += w0
+        x[_SLW + 1] += w1
+        x[_SLW + 2] += w2
+        x[_SLWN] += 1.0
+        if not rest:
+            x[_SLE] += dt
+            x[_SLEN] += 1.0
+    return x[_SLT]
+
+
+_k_block_add = njit(inline="always")(_block_add)
+
+
+def _block_clear(x) -> None:
+    """``slow_interval``: a new block starts (after a slow step, or a restart)."""
+    for i in range(_SLT, _SLWN + 1):
+        x[i] = 0.0
+    x[_SLQN] = 0.0
+
+
+_k_block_clear = njit(inline="always")(_block_clear)
+
+
+def _adapt_add(x, dt, rest, a0, a1, a2, w0, w1, w2):
+    """``slow_interval`` with ``tau_adapt``: one sample into the adaptive time constant's block (the
+    specific force ``a`` and, when valid, the rate ``w``, both in I, summed); returns the block's seconds."""
+    x[_ATT] += dt
+    x[_ATN] += 1.0
+    x[_AA] += a0
+    x[_AA + 1] += a1
+    x[_AA + 2] += a2
+    if math.isfinite(w0) and math.isfinite(w1) and math.isfinite(w2):
+        x[_AWS] += w0
+        x[_AWS + 1] += w1
+        x[_AWS + 2] += w2
+        x[_AWN] += 1.0
+    if rest:
+        x[_AREST] += 1.0
+    return x[_ATT]
+
+
+_k_adapt_add = njit(inline="always")(_adapt_add)
+
+
+def _adapt_clear(x) -> None:
+    """``slow_interval`` with ``tau_adapt``: the time constant's next block starts."""
+    for i in range(_ATT, _AREST + 1):
+        x[i] = 0.0
+
+
+_k_adapt_clear = njit(inline="always")(_adapt_clear)
 
 
 def _parallel_switch(x, at_max, dt, tau_max) -> bool:
@@ -488,13 +594,13 @@ def _sym_downdate(q00, q01, q02, q11, q12, q22, a00, a01, a02, a10, a11, a12, a2
 
 @njit(inline="always")
 def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
-    """:meth:`InertialTilt._kalman` (``e``: the output quaternion, ``r``: the correction rate); returns the
-    residual after the update with ``rate_error_estimate`` (zeros without it)."""
+    """:meth:`InertialTilt._kalman` (``e``: the output quaternion, ``r``: the correction rate; the block's
+    fields in ``s``); returns the residual after the update with ``rate_error_estimate`` (zeros without it)."""
     rot = dcm_entries(e0, e1, e2, e3)
     rb0 = rot[0] * b[0] + rot[1] * b[1] + rot[2] * b[2]
     rb1 = rot[3] * b[0] + rot[4] * b[1] + rot[5] * b[2]
     rb2 = rot[6] * b[0] + rot[7] * b[1] + rot[8] * b[2]
-    b0, b1, b2, c1, c2 = s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4]
+    b0, b1, b2, c1, c2 = s[_SB], s[_SB + 1], s[_SB + 2], s[_SB + 3], s[_SB + 4]
     if s[_KREADY] == 0.0:
         for i in range(9):
             s[_RZ1 + i], s[_RZ2 + i] = rot[i] * (1.0 - b0), rot[i] * (b2 - c2)
@@ -511,16 +617,21 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
     hb1 = _lp_step(s, _BZ1 + 1, 3, rb1, b0, b1, b2, c1, c2)
     hb2 = _lp_step(s, _BZ1 + 2, 3, rb2, b0, b1, b2, c1, c2)
     v, wm, wv, wr, p0 = s[_N], s[_N + 1], s[_N + 2], s[_N + 3], s[_N + 4]
+    v *= s[_SLT] / dt  # (v is a sample's growth: the block's is its seconds' share)
     # P is symmetric and stays so (every update below is P - A S^-1 A^T): its 6 distinct entries
     q00, q01, q02, q11, q12, q22 = s[_P], s[_P + 1], s[_P + 2], s[_P + 4], s[_P + 5], s[_P + 8]
     q00 = q00 + v if q00 < p0 else q00
     q11 = q11 + v if q11 < p0 else q11
     q22 = q22 + v if q22 < p0 else q22
+    if s[_SLR] > 0.0 and p[8] > 0.0:  # P -= P (P + wr / n I)^-1 P: the block's n REST samples, one measurement
+        wr = wr / s[_SLR]
+        q00, q01, q02, q11, q12, q22 = _sym_downdate(q00, q01, q02, q11, q12, q22,
+                                                     q00, q01, q02, q01, q11, q12, q02, q12, q22,
+                                                     q00 + wr, q01, q02, q11 + wr, q12, q22 + wr)
     if rest:
-        if p[8] > 0.0:  # P -= P (P + wr I)^-1 P
-            q00, q01, q02, q11, q12, q22 = _sym_downdate(q00, q01, q02, q11, q12, q22,
-                                                         q00, q01, q02, q01, q11, q12, q02, q12, q22,
-                                                         q00 + wr, q01, q02, q11 + wr, q12, q22 + wr)
+        if p[22] > 0.0:  # (the block's samples in motion count towards the next update)
+            s[_KTACC] += s[_SLM]
+            s[_KNACC] += s[_SLMN]
         _sym_store(s, _P, q00, q01, q02, q11, q12, q22)
         return 0.0, 0.0, 0.0
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
@@ -529,8 +640,8 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
     f1 = -r1 + hb1 - u1 * hu - (h[3] * b[0] + h[4] * b[1] + h[5] * b[2])
     f2 = -r2 + hb2 - u2 * hu - (h[6] * b[0] + h[7] * b[1] + h[8] * b[2])
     if p[22] > 0.0:  # bias_update_interval: the update once per interval of motion, its noise over the samples
-        s[_KTACC] += dt
-        s[_KNACC] += 1.0
+        s[_KTACC] += s[_SLM]
+        s[_KNACC] += s[_SLMN]
         if s[_KTACC] + 0.5 * dt < p[22]:  # not yet: the covariance grew; the residual with the bias as it is
             _sym_store(s, _P, q00, q01, q02, q11, q12, q22)
             if p[18] == 0.0:
@@ -538,6 +649,8 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
             return f0, f1, f2
         wm, wv = wm / s[_KNACC], wv / s[_KNACC]
         s[_KTACC] = s[_KNACC] = 0.0
+    else:  # an update per block: the noise over its samples in motion
+        wm, wv = wm / s[_SLMN], wv / s[_SLMN]
     ne2 = f0 * f0 + f1 * f1 + f2 * f2  # (the square root only to clamp)
     if ne2 > p[4] * p[4]:
         g = p[4] / math.sqrt(ne2)
@@ -601,8 +714,10 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     (0: every sample). Its measurement is low-passed at the inclination's time constant (at least
     ``tau_min``), so consecutive samples carry almost the same information: the update of the
     interval's last sample, its noise divided by the samples the interval spans, keeps the
-    information per second. The regressor's low-pass, the covariance's growth and ``E w`` still
-    run every sample.
+    information per second. The regressor's low-pass and the covariance's growth run once per block
+    (``slow_interval``: the state's block, its seconds ``_SLT`` and its seconds and samples of motion
+    with a valid gyro; ``w`` is then the block's mean rate, ``dt`` the sample's), ``E w`` every sample
+    (:func:`_rate_error_correct`).
 
     ``acc_sigma`` (``rate_error_acc_bias``, m/s^2; 0: not modelled): the accelerometer's bias ``b_a``
     estimated beside E, so that its drift is not taken for E's. A bias fixed in the body tilts the
@@ -613,7 +728,7 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     ``s . LP(R (w x e_j)) / g``). Its prior is ``acc_sigma^2`` per axis, growing back in ``forget`` s
     as E's. It is only told apart, never removed from the accelerometer; with ``acc_sigma`` 0 its
     covariance stays 0 and the update is E's alone, to the bit."""
-    c1, c2 = 1.0 - x[_B], x[_B + 2] - x[_B + 4]
+    c1, c2 = 1.0 - x[_SB], x[_SB + 2] - x[_SB + 4]
     r = dcm_entries(e0, e1, e2, e3)
     # the levelled frame's two horizontal axes (east and north = up x east): rows of R seen along them
     u0, u1, u2 = x[_UP], x[_UP + 1], x[_UP + 2]
@@ -651,7 +766,7 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
                 x[_HZ1 + m] *= q1
                 x[_HZ2 + m] *= q2
         x[_ECO], x[_ECO + 1] = c1, c2
-    b0, b1, b2, a1, a2 = x[_B], x[_B + 1], x[_B + 2], x[_B + 3], x[_B + 4]
+    b0, b1, b2, a1, a2 = x[_SB], x[_SB + 1], x[_SB + 2], x[_SB + 3], x[_SB + 4]
     for k in range(2):  # the low-passed regressor H (2 x 9) at x[_SCR + 18:_SCR + 36]
         for m in range(k * _NE, k * _NE + ne):
             gm = x[g + m]
@@ -661,19 +776,18 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
             x[g + 2 * _NE + m] = y
     # (no division every sample: 1 / 3 a constant, rforget = 1 / forget a parameter)
     p0, pa = kappa0 * kappa0 * (1.0 / 3.0), acc_sigma * acc_sigma
-    v, va = p0 * dt * rforget, pa * dt * rforget
+    v, va = p0 * x[_SLT] * rforget, pa * x[_SLT] * rforget  # (the block's seconds)
     for m in range(6):
         if x[_PE + (_NE + 1) * m] < p0:
             x[_PE + (_NE + 1) * m] += v
     for m in range(6, ne):
         if x[_PE + (_NE + 1) * m] < pa:
             x[_PE + (_NE + 1) * m] += va
-    update = False
-    if not rest:  # the interval: seconds of motion compared with half a sample of margin (a split run equals one run)
-        x[_ETACC] += dt
-        x[_ENACC] += 1.0
-        update = x[_ETACC] + 0.5 * dt >= interval
-    if update:
+    # the interval: the block's seconds of motion added, compared with half a sample of margin (a split run equals
+    # one run)
+    x[_ETACC] += x[_SLE]
+    x[_ENACC] += x[_SLEN]
+    if not rest and x[_ENACC] > 0.0 and x[_ETACC] + 0.5 * dt >= interval:
         h = x[_SCR + 2 * _NE:_SCR + 4 * _NE].reshape((2, _NE))
         # the linear acceleration the low-pass lets through turns its vector by sigma_v / (g tau), changing over tau:
         # as white noise of the same low-frequency power, 2 sigma_v^2 / (g^2 tau^3 dt) on the rate (tau_adapt's
@@ -714,18 +828,28 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
         k2 += (1.0 if m < 3 else 2.0) * (x[_PE + (_NE + 1) * m] if correct
                                          else x[_E + m] * x[_E + m] + x[_PE + (_NE + 1) * m])
     x[_KAP2] = k2 * (1.0 / 3.0)
-    if correct:  # the rate error this sample's rate shows, for the next propagation: across the vertical only
-        e00, e11, e22, e01, e02, e12 = x[_E], x[_E + 1], x[_E + 2], x[_E + 3], x[_E + 4], x[_E + 5]
-        d0, d1, d2 = e00 * w0 + e01 * w1 + e02 * w2, e01 * w0 + e11 * w1 + e12 * w2, e02 * w0 + e12 * w1 + e22 * w2
-        # (its part about the vertical drifts the heading, which the accelerometer never checks: left to the
-        # heading's own correction)
-        c = u0 * (r[0] * d0 + r[1] * d1 + r[2] * d2) + u1 * (r[3] * d0 + r[4] * d1 + r[5] * d2) \
-            + u2 * (r[6] * d0 + r[7] * d1 + r[8] * d2)
-        z0, z1, z2 = r[0] * u0 + r[3] * u1 + r[6] * u2, r[1] * u0 + r[4] * u1 + r[7] * u2, r[2] * u0 + r[5] * u1 + r[8] * u2
-        x[_EW], x[_EW + 1], x[_EW + 2] = d0 - c * z0, d1 - c * z1, d2 - c * z2
 
 
 _k_rate_error_step = njit(inline="always")(_rate_error_step)
+
+
+def _rate_error_correct(x, e0, e1, e2, e3, w0, w1, w2) -> None:
+    """``rate_error_correct``: the rate error this sample's rate ``w`` (body, gyro minus bias) shows, ``E w``
+    across the vertical of the output ``e``, for the next propagation (every sample with a valid gyro; E
+    itself changes at the rate error's updates)."""
+    r = dcm_entries(e0, e1, e2, e3)
+    u0, u1, u2 = x[_UP], x[_UP + 1], x[_UP + 2]
+    e00, e11, e22, e01, e02, e12 = x[_E], x[_E + 1], x[_E + 2], x[_E + 3], x[_E + 4], x[_E + 5]
+    d0, d1, d2 = e00 * w0 + e01 * w1 + e02 * w2, e01 * w0 + e11 * w1 + e12 * w2, e02 * w0 + e12 * w1 + e22 * w2
+    # (its part about the vertical drifts the heading, which the accelerometer never checks: left to the
+    # heading's own correction)
+    c = u0 * (r[0] * d0 + r[1] * d1 + r[2] * d2) + u1 * (r[3] * d0 + r[4] * d1 + r[5] * d2) \
+        + u2 * (r[6] * d0 + r[7] * d1 + r[8] * d2)
+    z0, z1, z2 = r[0] * u0 + r[3] * u1 + r[6] * u2, r[1] * u0 + r[4] * u1 + r[7] * u2, r[2] * u0 + r[5] * u1 + r[8] * u2
+    x[_EW], x[_EW + 1], x[_EW + 2] = d0 - c * z0, d1 - c * z1, d2 - c * z2
+
+
+_k_rate_error_correct = njit(inline="always")(_rate_error_correct)
 
 
 class InertialTiltConfig(PluginConfig):
@@ -791,6 +915,13 @@ class InertialTiltConfig(PluginConfig):
         "the measurement noise divided by the samples it spans (the same information per second: the measurement "
         "is the correction rate low-passed at tau, consecutive samples say almost the same). The low-passes and "
         "the covariance's growth run every sample. 0: an update every sample", ge=0)
+    slow_interval: float = param(
+        0.0, unit="s", description="kalman: the bias filter's low-passes (the rotation's and the bias's), its "
+        "covariance and its updates, and the rate error's (rate_error_estimate), run once per block of this many "
+        "seconds instead of every sample: on the block's last sample's rotation, the rate error on the block's mean "
+        "rate, the covariances grown by the block's time, a block's REST samples one measurement. They change over "
+        "seconds (the inclination's time constant, motion_bias_tau); the inclination low-pass, the correction and "
+        "(rate_error_correct) E w stay per sample. 0: every sample (the behaviour before)", ge=0)
     tau_min: float = param(0.5, unit="s", description="tau_adapt: the shortest time constant", gt=0)
     tau_max: float = param(4.0, unit="s", description="tau_adapt: the longest time constant (the velocity estimate, "
                            "leaking with tau, does not see accelerations slower than a few tau)", gt=0)
@@ -900,6 +1031,8 @@ class InertialTilt(FactorCorrector):
         state[_EREADY] = 0.0  # and the rate error's regressor (E and its covariance are the gyro's: kept)
         # and the samples counted towards the next decimated updates (bias filter, rate error)
         state[_KTACC] = state[_KNACC] = state[_ETACC] = state[_ENACC] = 0.0
+        _block_clear(state)  # and the blocks (slow_interval)
+        _adapt_clear(state)
 
     def compose(self, state, quat, sample, bias, rate, flags, channel=None):
         if sample.acc is not None:
@@ -923,10 +1056,17 @@ class InertialTilt(FactorCorrector):
         c = self.config
         y = x[_Y:_Y + 3]
         par = c.tau_adapt and c.tau_max_parallel
-        tau = _adapt_step(x, *a_i, *w_i, *z, rest, dt, c.tau, c.adapt_window, c.bias_sigma_motion, c.bias_sigma_init,
-                          c.motion_bias_tau or _FORGET,
-                          math.sqrt(x[_KAP2]) if c.rate_error_estimate else c.gyro_rate_error,
-                          c.tau_min, c.tau_max) if c.tau_adapt else c.tau
+        tau = c.tau
+        if c.tau_adapt:  # once per block of slow_interval (0: every sample), on the block's means; the first at once
+            tau = x[_TAU]
+            if _adapt_add(x, dt, rest, *a_i, *w_i) + 0.5 * dt >= c.slow_interval or x[_NST] == 0.0:
+                ma = x[_AA:_AA + 3] / x[_ATN]
+                mw = x[_AWS:_AWS + 3] / x[_AWN] if x[_AWN] > 0.0 else np.full(3, math.nan)
+                tau = _adapt_step(x, *ma, *mw, *z, x[_AREST] > 0.0, x[_ATT], c.tau, c.adapt_window,
+                                  c.bias_sigma_motion, c.bias_sigma_init, c.motion_bias_tau or _FORGET,
+                                  math.sqrt(x[_KAP2]) if c.rate_error_estimate else c.gyro_rate_error,
+                                  c.tau_min, c.tau_max)
+                _adapt_clear(x)
         x[_TACC] += dt
         # durations are sums of dt compared with half a sample of margin (a split run equals one run)
         if c.fast_start and not x[_READY] and x[_TACC] + 0.5 * dt < c.tau:
@@ -938,6 +1078,7 @@ class InertialTilt(FactorCorrector):
                 x[_DT] = dt
                 if not c.tau_adapt:
                     x[_B:_B + 5] = lowpass_coefficients(c.tau, dt)
+                    x[_BTAU] = c.tau
                 if c.motion_bias_tau is not None and c.bias_filter == "kalman":
                     x[_N:_N + 5] = _kf_noise(dt, c.motion_bias_tau, c.bias_sigma_init, c.bias_sigma_motion,
                                              c.bias_sigma_rest or 0.0, c.bias_vertical_forgetting)
@@ -946,9 +1087,11 @@ class InertialTilt(FactorCorrector):
             sw = par and _parallel_switch(x, tau >= c.tau_max, dt, c.tau_max)
             if sw:  # the low-pass at tau_max replaces the adaptive one (its coefficients, then its delay lines)
                 _set_tau(x, *x[_PB:_PB + 5])
+                x[_BTAU] = c.tau_max
             elif c.tau_adapt and abs(tau - x[_TAUC] * dt) > _TAU_STEP * x[_TAUC] * dt:
                 x[_TAUC] = tau / dt  # the coefficients of this sample's time constant
                 _set_tau(x, *lowpass_coefficients(tau, dt))
+                x[_BTAU] = tau
             if c.impulse_clip is not None:
                 a_i = _impulse_clip(x, a_i, dt, c.impulse_clip, c.impulse_window, c.impulse_floor)
             if sw:
@@ -971,13 +1114,23 @@ class InertialTilt(FactorCorrector):
         qc = qc / n if n > 1e-12 else np.array([0.0, *x[_EAST:_EAST + 3]])
         x[_QA:_QA + 4] = quat_mul(qc, x[_QA:_QA + 4])
         if c.motion_bias_tau is not None and c.bias_filter == "kalman" and x[_READY]:
-            s = float(np.linalg.norm(qc[1:]))
-            r = qc[1:] * (2.0 * math.atan2(s, qc[0]) / (s * dt)) if s > 0.0 else np.zeros(3)
             out = quat_mul(x[_QA:_QA + 4], quat)
-            res = self._kalman(x, quat_to_matrix(out), r, bias, dt, rest)
-            if c.rate_error_estimate and np.all(np.isfinite(w_b)):  # (a sample without a valid gyro: nothing to learn)
-                _rate_error_step(x, *out, *w_b, *res, rest, dt, c.gyro_rate_error, 1.0 / c.motion_bias_tau,
-                                 c.rate_error_max, c.rate_error_correct, c.rate_error_interval, c.rate_error_acc_bias)
+            # slow_interval: the bias filter and the rate error once per block of samples (0: every sample)
+            if _block_add(x, dt, rest, *w_b, c.rate_error_estimate, *out, 0.5 * c.slow_interval) + 0.5 * dt \
+                    >= c.slow_interval:
+                s = float(np.linalg.norm(qc[1:]))
+                r = qc[1:] * (2.0 * math.atan2(s, qc[0]) / (s * dt)) if s > 0.0 else np.zeros(3)
+                if x[_SBT] != x[_SLT] or x[_SBTAU] != x[_BTAU]:  # the slow low-passes' set for this block and tau
+                    _slow_set(x, x[_SLT], *lowpass_coefficients(x[_BTAU], x[_SLT]))
+                res = self._kalman(x, quat_to_matrix(out), r, bias, dt, rest)
+                if c.rate_error_estimate and x[_SLWN] > 0.0:  # (a block without a valid gyro: nothing to learn)
+                    _rate_error_step(x, *x[_SLQ:_SLQ + 4], *(x[_SLW:_SLW + 3] / x[_SLWN]), *res, rest, dt,
+                                     c.gyro_rate_error,
+                                     1.0 / c.motion_bias_tau, c.rate_error_max, c.rate_error_correct,
+                                     c.rate_error_interval, c.rate_error_acc_bias)
+                _block_clear(x)
+            if c.rate_error_correct and np.all(np.isfinite(w_b)):
+                _rate_error_correct(x, *out, *w_b)
         elif c.motion_bias_tau is not None and not rest and x[_READY]:
             # the correction as a rate in the levelled frame is the gyro drift; seen in the body,
             # it is the (horizontal part of the) bias error
@@ -995,10 +1148,12 @@ class InertialTilt(FactorCorrector):
         put it on the wrong body axes). ``P`` grows by ``sigma_motion^2 dt / motion_bias_tau`` per
         sample up to ``sigma_init^2``; a REST sample is the rest corrector's measurement of the whole
         bias (noise ``bias_sigma_rest``): it shrinks ``P`` (the bias itself is the rest corrector's).
+        With ``slow_interval`` this runs once per block (the state's): the low-passes on the block's
+        last rotation, ``P`` grown by the block's seconds, its REST samples one measurement.
         Returns the residual after the update, ``-r + LP(R b) - LP(R) b`` with the frame's vertical
         part of ``LP(R b)`` removed (zeros on a REST sample): what the bias does not explain."""
         c = self.config
-        b0, b1, b2, a1, a2 = x[_B:_B + 5]
+        b0, b1, b2, a1, a2 = x[_SB:_SB + 5]  # (the slow low-passes' set: one step per block of slow_interval)
         rb = rot @ bias
         z1, z2, w1, w2 = x[_RZ1:_RZ1 + 9], x[_RZ2:_RZ2 + 9], x[_BZ1:_BZ1 + 3], x[_BZ2:_BZ2 + 3]
         rv = rot.ravel()
@@ -1013,23 +1168,29 @@ class InertialTilt(FactorCorrector):
         w2[:] = b2 * rb - a2 * hb
         h = h.reshape(3, 3)
         v, wm, wv, wr, p0 = x[_N:_N + 5]
+        v *= x[_SLT] / dt  # the block's growth: v is one sample's
         p = x[_P:_P + 9].reshape(3, 3)
         for i in range(3):
             if p[i, i] < p0:
                 p[i, i] += v
+        if x[_SLR] > 0.0 and c.bias_sigma_rest is not None:  # the block's REST samples: one measurement of wr / n
+            p -= p @ np.linalg.inv(p + wr / x[_SLR] * np.eye(3)) @ p
         if rest:
-            if c.bias_sigma_rest is not None:
-                p -= p @ np.linalg.inv(p + wr * np.eye(3)) @ p
+            if c.bias_update_interval > 0.0:  # (the block's samples in motion count towards the next update)
+                x[_KTACC] += x[_SLM]
+                x[_KNACC] += x[_SLMN]
             return np.zeros(3)
         up = x[_UP:_UP + 3]
         e = -r + hb - up * (up @ hb) - h @ bias
         if c.bias_update_interval > 0.0:  # once per interval of motion, the noise over the samples it spans
-            x[_KTACC] += dt
-            x[_KNACC] += 1.0
+            x[_KTACC] += x[_SLM]
+            x[_KNACC] += x[_SLMN]
             if x[_KTACC] + 0.5 * dt < c.bias_update_interval:
                 return e  # (the residual with the bias as it is)
             wm, wv = wm / x[_KNACC], wv / x[_KNACC]
             x[_KTACC] = x[_KNACC] = 0.0
+        else:  # an update per block, the noise over its samples in motion
+            wm, wv = wm / x[_SLMN], wv / x[_SLMN]
         ne = float(np.linalg.norm(e))
         if ne > c.bias_max:
             e *= c.bias_max / ne
@@ -1052,7 +1213,7 @@ class InertialTilt(FactorCorrector):
                       float(c.rate_error_estimate), c.rate_error_max, float(c.rate_error_correct),
                       c.rate_error_interval, c.bias_update_interval, float(self._publishing()),
                       float(c.tau_adapt and c.tau_max_parallel), c.rate_error_acc_bias,
-                      1.0 / c.motion_bias_tau if c.motion_bias_tau is not None else 0.0])
+                      1.0 / c.motion_bias_tau if c.motion_bias_tau is not None else 0.0, c.slow_interval])
         return CorrectorKernel(inertial_tilt_kernel, p, mode="factor")
 
 
@@ -1064,7 +1225,7 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
     bias_sigma_rest (0: None), bias_vertical_forgetting, tau_adapt, gyro_rate_error, tau_min, tau_max,
     adapt_window, impulse_clip (0: None), impulse_window, impulse_floor, rate_error_estimate, rate_error_max,
     rate_error_correct, rate_error_interval, bias_update_interval, publish (1: a corrector reads the channel),
-    tau_max_parallel (with tau_adapt), rate_error_acc_bias, 1 / motion_bias_tau (0: off))``;
+    tau_max_parallel (with tau_adapt), rate_error_acc_bias, 1 / motion_bias_tau (0: off), slow_interval)``;
     ``ch`` the pipeline's channel."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
@@ -1075,15 +1236,23 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
             b[0], b[1], b[2] = b[0] - s[_EW], b[1] - s[_EW + 1], b[2] - s[_EW + 2]
             if s[_READY] == 0.0:  # (a restart's fast start: the E w of a sample before it is stale)
                 s[_EW], s[_EW + 1], s[_EW + 2] = 0.0, 0.0, 0.0
-        if p[10] != 0.0:
+        if p[10] != 0.0:  # (once per block of slow_interval, on the block's means; the first at once)
             w0, w1, w2 = k_rot(p0, p1, p2, p3, wb0, wb1, wb2)
-            z0 = z1 = z2 = 0.0
-            if s[_NST] > 0.0:  # the vertical in the body
-                rn = 1.0 / math.sqrt(s[_Y] * s[_Y] + s[_Y + 1] * s[_Y + 1] + s[_Y + 2] * s[_Y + 2])
-                z0, z1, z2 = k_rot(p0, -p1, -p2, -p3, s[_Y] * rn, s[_Y + 1] * rn, s[_Y + 2] * rn)
-            tau = _k_adapt_step(s, v0, v1, v2, w0, w1, w2, z0, z1, z2, (flags & _REST) != 0, dt, p[0], p[14], p[7],
-                                p[6], p[3] if p[3] > 0.0 else _FORGET,
-                                math.sqrt(s[_KAP2]) if p[18] != 0.0 else p[11], p[12], p[13])
+            tau = s[_TAU]
+            if _k_adapt_add(s, dt, (flags & _REST) != 0, v0, v1, v2, w0, w1, w2) + 0.5 * dt >= p[27] \
+                    or s[_NST] == 0.0:
+                z0 = z1 = z2 = 0.0
+                if s[_NST] > 0.0:  # the vertical in the body
+                    rn = 1.0 / math.sqrt(s[_Y] * s[_Y] + s[_Y + 1] * s[_Y + 1] + s[_Y + 2] * s[_Y + 2])
+                    z0, z1, z2 = k_rot(p0, -p1, -p2, -p3, s[_Y] * rn, s[_Y + 1] * rn, s[_Y + 2] * rn)
+                na, nw = s[_ATN], s[_AWN]
+                mw0 = mw1 = mw2 = math.nan
+                if nw > 0.0:
+                    mw0, mw1, mw2 = s[_AWS] / nw, s[_AWS + 1] / nw, s[_AWS + 2] / nw
+                tau = _k_adapt_step(s, s[_AA] / na, s[_AA + 1] / na, s[_AA + 2] / na, mw0, mw1, mw2, z0, z1, z2,
+                                    s[_AREST] > 0.0, s[_ATT], p[0], p[14], p[7], p[6], p[3] if p[3] > 0.0 else _FORGET,
+                                    math.sqrt(s[_KAP2]) if p[18] != 0.0 else p[11], p[12], p[13])
+                _k_adapt_clear(s)
         s[_TACC] += dt
         if p[1] != 0.0 and s[_READY] == 0.0 and s[_TACC] + 0.5 * dt < p[0]:
             s[_NMEAN] += 1.0
@@ -1096,6 +1265,7 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                 s[_DT] = dt
                 if p[10] == 0.0:
                     s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4] = _lp_coeffs(p[0], dt)
+                    s[_BTAU] = p[0]
                 if p[3] > 0.0 and p[5] != 0.0:
                     s[_N], s[_N + 1], s[_N + 2], s[_N + 3], s[_N + 4] = _k_kf_noise(dt, p[3], p[6], p[7], p[8], p[9])
                 if p[24] != 0.0:
@@ -1103,10 +1273,12 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
             sw = p[24] != 0.0 and _k_parallel_switch(s, tau >= p[13], dt, p[13])
             if sw:
                 _k_set_tau(s, s[_PB], s[_PB + 1], s[_PB + 2], s[_PB + 3], s[_PB + 4])
+                s[_BTAU] = p[13]
             elif p[10] != 0.0 and abs(tau - s[_TAUC] * dt) > _TAU_STEP * s[_TAUC] * dt:
                 s[_TAUC] = tau / dt
                 t0, t1, t2, t3, t4 = _lp_coeffs(tau, dt)
                 _k_set_tau(s, t0, t1, t2, t3, t4)
+                s[_BTAU] = tau
             if p[15] != 0.0:
                 v0, v1, v2 = _k_impulse_clip(s, v0, v1, v2, dt, p[15], p[16], p[17])
             o0 = o1 = o2 = 0.0
@@ -1155,15 +1327,26 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
             # the correction as a rate is read only by an update (the bias filter's, or the rate error's, each once
             # per interval of motion: the tests below are theirs, on the sums they will have); on the samples
             # between, its square root, division and series are left out (0: a residual nothing reads)
-            f = 0.0
-            if (flags & _REST) == 0 and (p[22] <= 0.0 or s[_KTACC] + dt + 0.5 * dt >= p[22] or (
-                    p[18] != 0.0 and s[_ETACC] + dt + 0.5 * dt >= p[21])):
-                sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
-                f = 2.0 * _atan_over(sn, c0) / dt if sn > 0.0 else 0.0
-            f0, f1, f2 = _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, (flags & _REST) != 0, dt, p)
-            if p[18] != 0.0 and math.isfinite(wb0) and math.isfinite(wb1) and math.isfinite(wb2):
-                _k_rate_error_step(s, e0, e1, e2, e3, wb0, wb1, wb2, f0, f1, f2, (flags & _REST) != 0, dt, p[11],
-                                   p[26], p[19], p[20] != 0.0, p[21], p[25])
+            # (slow_interval: the bias filter and the rate error once per block of samples; 0: every sample)
+            rest = (flags & _REST) != 0
+            if _k_block_add(s, dt, rest, wb0, wb1, wb2, p[18] != 0.0, e0, e1, e2, e3, 0.5 * p[27]) + 0.5 * dt >= p[27]:
+                f = 0.0
+                if not rest and (p[22] <= 0.0 or s[_KTACC] + s[_SLM] + 0.5 * dt >= p[22] or (
+                        p[18] != 0.0 and s[_ETACC] + s[_SLE] + 0.5 * dt >= p[21])):
+                    sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
+                    f = 2.0 * _atan_over(sn, c0) / dt if sn > 0.0 else 0.0
+                if s[_SBT] != s[_SLT] or s[_SBTAU] != s[_BTAU]:
+                    t0, t1, t2, t3, t4 = _lp_coeffs(s[_BTAU], s[_SLT])
+                    _k_slow_set(s, s[_SLT], t0, t1, t2, t3, t4)
+                f0, f1, f2 = _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, rest, dt, p)
+                if p[18] != 0.0 and s[_SLWN] > 0.0:
+                    nw = s[_SLWN]
+                    _k_rate_error_step(s, s[_SLQ], s[_SLQ + 1], s[_SLQ + 2], s[_SLQ + 3], s[_SLW] / nw,
+                                       s[_SLW + 1] / nw, s[_SLW + 2] / nw, f0, f1, f2, rest, dt, p[11], p[26], p[19],
+                                       p[20] != 0.0, p[21], p[25])
+                _k_block_clear(s)
+            if p[20] != 0.0 and math.isfinite(wb0) and math.isfinite(wb1) and math.isfinite(wb2):
+                _k_rate_error_correct(s, e0, e1, e2, e3, wb0, wb1, wb2)
         elif p[3] > 0.0 and (flags & _REST) == 0 and s[_READY] != 0.0:
             sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
             if sn > 0.0:

@@ -118,6 +118,11 @@ class RecommendedConfig(FilterConfig):
         "at the inclination's time constant, each update's noise divided by the samples it spans (the same "
         "information per second); the low-passes and the covariance's growth run every sample (recommended.md). "
         "0: an update every sample (the behaviour before)", ge=0)
+    slow_interval: float = param(
+        0.02, unit="s", description="bias_filter kalman: the bias filter's and the rate error's per-sample work (their "
+        "low-passes of the rotation, covariances, updates) once per block of this many seconds, on the block's last "
+        "rotation and mean rate (inertial-tilt's slow_interval; recommended.md): they change over seconds. The "
+        "inclination low-pass and correction stay per sample. 0: every sample (the behaviour before)", ge=0)
     tau_mag: float = param(15.0, unit="s", description="heading_gain fixed: time constant of the heading correction",
                            gt=0)
     heading_gain: Literal["fixed", "kalman"] = param(
@@ -267,7 +272,7 @@ class RecommendedFilter(Pipeline):
             "rate_error_estimate": c.gyro_rate_estimate != "off",
             "rate_error_correct": c.gyro_rate_estimate == "correct", "rate_error_interval": c.gyro_rate_interval,
             "rate_error_acc_bias": c.gyro_rate_acc_bias,
-            "bias_update_interval": c.bias_update_interval}))
+            "bias_update_interval": c.bias_update_interval, "slow_interval": c.slow_interval}))
         if c.use_mag:
             magnetic = c.magnetic if c.fast_start else c.magnetic.model_copy(update={"init_time": 0.0})
             correctors.append(PluginSpec(name="mag-heading", params={
