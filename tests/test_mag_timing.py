@@ -174,13 +174,16 @@ def test_configured_pairing_until_confident_and_reference_equals_numba():
     assert conf and abs(est + 2.0) < 0.3  # 6 turns: applied, near the 2 samples
 
 
-def test_a_held_sample_stays_held_across_a_recalibration():
+def test_a_recalibration_applies_on_the_held_reading_after_its_segment():
     """A magnetometer read at 10 Hz and held on a 100 Hz IMU, with a hard iron that
-    ``mag-calibration`` learns: its calibration starts on a held sample, whose calibrated value
-    then differs from the previous sample's though the reading is the same. The model flags it
-    MAG_HELD (reference and kernel alike), and ``mag-heading`` keeps pairing it with its fresh
-    sample's orientation (before: with the current one, ~1.3 uT in the re-expression's change of
-    the calibration at 1.5 rad/s): the pairing in its state does not move on that sample."""
+    ``mag-calibration`` learns: its segments close on fresh readings only (a held one is no new
+    observation), and what a segment changes applies from the next sample on, here the same reading
+    held: flagged MAG_HELD (calibrated otherwise than the sample before), ``mag-heading`` keeps it
+    paired with its fresh sample's orientation (the pairing in its state does not move) and re-expresses
+    its heading by the calibration's change of that one reading, so the heading is within 20 deg of
+    the truth 1 s later (from 111). Before (segments closed on held samples too): first applied at
+    28.7 s. Applied on the fresh sample itself, the change would be read from two readings 0.1 s apart,
+    the body turned between them (docs/algorithms/models.md). Reference and kernel alike."""
     from fusionkit.correctors.heading import _QH
     from fusionkit.sim.errors import SensorErrors
     from fusionkit.sim.scenarios import _tumbling
@@ -191,11 +194,69 @@ def test_a_held_sample_stays_held_across_a_recalibration():
     ref, fast = f.run(rec, backend="reference"), f.run(rec, backend="numba")
     assert np.array_equal(ref.flags, fast.flags) and np.abs(fast.quat - ref.quat).max() < 1e-9
     recal = np.flatnonzero(fast.flags & fk.Flag.MAG_RECALIBRATED)
+    fresh = np.r_[True, np.any(rec.mag[1:] != rec.mag[:-1], axis=1)]
     k = int(recal[0])
-    assert np.array_equal(rec.mag[k], rec.mag[k - 1]) and fast.flags[k] & fk.Flag.MAG_HELD
+    assert k < 1000 and fresh[recal - 1].all() and not fresh[recal].any()
+    assert np.all(fast.flags[recal] & fk.Flag.MAG_HELD)
+    error = np.degrees(2.0 * np.arccos(np.abs(np.sum(fast.quat * rec.truth, axis=1)).clip(0.0, 1.0)))
+    assert error[k - 1] > 90.0 and error[k + 100] < 20.0
     i = [c.name for c in f.correctors].index("mag-heading")
     for backend in ("reference", "numba"):
         before = f.run(rec.slice(0, k), backend=backend)
         at = f.run(rec.slice(k, k + 1), backend=backend, state=before.diagnostics["state"])
         qh = [r.diagnostics["state"]["cor"][i][_QH:_QH + 4] for r in (before, at)]
         assert np.abs(qh[1] - qh[0]).max() < 1e-9, backend
+
+
+def test_heading_keeps_a_flagged_held_sample_paired_with_its_fresh_one():
+    """MAG_HELD (a sensor model calibrated a held reading otherwise than the sample before; not
+    ``mag-calibration`` since its calibration changes on fresh readings only): ``mag-heading`` pairs
+    such a sample with its fresh sample's orientation though its value changed (the pairing in its
+    state does not move), unflagged it is a fresh one; reference and kernel alike."""
+    from fusionkit.correctors.heading import _QH, mag_heading_kernel
+    from fusionkit.protocols import Sample
+    from fusionkit.rotations import quat_from_rotvec
+    from fusionkit.types import CHANNEL_SIZE
+
+    rec = sim.scenario("late-mag", delay=0.0, turns=2)
+    cor = fk.make("mag-heading", kind="corrector")
+    p, ch, bias = cor.kernel(None).params, np.zeros(CHANNEL_SIZE), np.zeros(3)
+    s = cor.initial_state(rec.nominal_dt, "ENU")
+    k = 500  # turning (after a 2 s rest)
+    for i in range(k):
+        cor.compose(s, rec.truth[i], Sample(rec.gyr[i], rec.acc[i], rec.mag[i], float(rec.dt[i])), bias,
+                    rec.gyr[i], 0)
+    g, a, m, dt = rec.gyr[k], rec.acc[k], rec.mag[k - 1] + 1.0, float(rec.dt[k])  # the reading, recalibrated
+    h = quat_from_rotvec(-g * (0.5 * dt))
+    for flags in (int(fk.Flag.MAG_HELD), 0):
+        s_ref, s_fast = s.copy(), s.copy()
+        cor.compose(s_ref, rec.truth[k], Sample(g, a, m, dt), bias, g, flags)
+        mag_heading_kernel(rec.truth[k].copy(), s_fast, bias.copy(), *g, *h, *a, *m, True, True, flags, dt, p, ch)
+        assert np.abs(s_fast - s_ref).max() < 1e-9
+        moved = np.abs(s_ref[_QH:_QH + 4] - s[_QH:_QH + 4]).max()
+        assert (moved == 0.0) if flags else (moved > 1e-3)
+
+
+def test_a_reexpressed_heading_relearns_the_reference_it_was_learned_with():
+    """A 50 Hz magnetometer held on a 100 Hz IMU, a (15, -25, 10) uT hard iron, slow turns: the
+    magnetic reference and the heading are learned from the raw field at rest, and the raw field is
+    off that reference once the body turns (the iron). The calibration, first applied at 7.57 s,
+    moves the field by less than the thresholds at that orientation, so the change alone
+    (``_moved``) read the departure as an earth-fixed disturbance's and kept the reference: every
+    sample after was rejected and the heading stayed 31 deg off until the new-field test, 20 s of
+    turning later. The re-expression says otherwise (the learned field, read through the new
+    calibration, is this calibrated sample's: the iron was there when the reference was learned), so
+    the reference is learned again: within 10 deg 4 s later. Reference and kernel alike."""
+    from fusionkit.sim.errors import SensorErrors
+    from fusionkit.sim.scenarios import _tumbling
+
+    rec = sim.simulate(_tumbling(16, 200.0, 3.0, 0.5), rate=100.0, noise=sim.Noise.mems(), seed=0,
+                       errors=SensorErrors(mag_offset=(15.0, -25.0, 10.0), mag_rate=50.0)).slice(0, 1200)
+    f = fk.make("recommended")
+    ref, fast = f.run(rec, backend="reference"), f.run(rec, backend="numba")
+    assert np.array_equal(ref.flags, fast.flags) and np.abs(fast.quat - ref.quat).max() < 1e-9
+    k = int(np.flatnonzero(fast.flags & fk.Flag.MAG_RECALIBRATED)[0])
+    error = np.degrees(2.0 * np.arccos(np.abs(np.sum(fast.quat * rec.truth, axis=1)).clip(0.0, 1.0)))
+    assert 700 < k < 800 and error[k - 1] > 90.0
+    assert error[k + 400] < 10.0
+    assert not (fast.flags[k + 300:k + 400] & fk.Flag.MAG_DISTURBED).any()

@@ -52,7 +52,10 @@ Around it, each a separate idea:
   describes that first sample of it (a calibrated field has the same norm and dip at every
   orientation, so one sample tells; a small calibration changes nothing) or the calibration cannot
   be what took it off the reference (:func:`_moved`: it moved the field by less than the thresholds
-  and the field was off the reference before it too, an earth-fixed disturbance). It assumes the learning
+  and the field was off the reference before it too, an earth-fixed disturbance), except where the
+  heading was re-expressed through it (below: the field the reference and heading were learned from,
+  read through the new calibration, is this calibrated sample's, so the iron was there then and the
+  departure before was the iron's). It assumes the learning
   seconds undisturbed, and the new-field test recovers where they were not. The heading keeps its
   filter meanwhile (no fast-start mean: it has a heading to follow from). False: the reference
   learned before is kept (calibrated samples of a large offset then look disturbed);
@@ -360,6 +363,7 @@ class MagHeading(FactorCorrector):
         kalman = c.gain == "kalman"
         qm = q6 if qm is None else qm
         rm = quat_to_matrix(qm)
+        ok = False
         if recalibrated and c.reexpress:
             d = rm.T @ (m - x[_PL:_PL + 3])  # the calibration's change of the field, body frame
             dt_ = d + x[_RD:_RD + 3]  # with a deferred one's
@@ -372,7 +376,10 @@ class MagHeading(FactorCorrector):
             if ok:
                 x[_RL:_RL + 3] = v  # the learned field, through the calibration now applied
                 _turn(x, step)
-        if recalibrated and _moved(x, norm, dip, mc.norm_threshold, mc.dip_threshold) and follow_field(
+        # (re-expressed: the learned field, read through the calibration, is this calibrated sample's, so the iron
+        # was there when the reference was learned too: whatever the calibration moved here, it is what takes the
+        # field off that reference)
+        if recalibrated and (ok or _moved(x, norm, dip, mc.norm_threshold, mc.dip_threshold)) and follow_field(
                 x[_MAG:_MAG + MAG_SIZE], norm, dip, mc.norm_threshold, mc.dip_threshold):
             x[_RELEARN] = 1.0  # learned again; the heading keeps its filter meanwhile
         x[_PN], x[_PD] = norm, dip
@@ -802,6 +809,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             norm, dip, sd, me, mn = s[_PN], s[_PD], s[_SD], s[_ME], s[_MN]
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
         recal = p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0
+        rex = False
         if recal and p[26] != 0.0:  # reexpress: the calibration's change of the field, body frame, as learned
             d0, d1, d2 = k_rot(p0, -p1, -p2, -p3, v0 - s[_PL], v1 - s[_PL + 1], v2 - s[_PL + 2])
             t0, t1, t2 = d0 + s[_RD], d1 + s[_RD + 1], d2 + s[_RD + 2]  # with a deferred one's
@@ -819,7 +827,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             if ok:
                 s[_RL], s[_RL + 1], s[_RL + 2] = f0, f1, f2
                 _k_turn(s, st)
-        if recal and _k_moved(s, norm, dip, p[8], p[9]) and k_follow_field(s, norm, dip, p[8], p[9]):
+                rex = True
+        if recal and (rex or _k_moved(s, norm, dip, p[8], p[9])) and k_follow_field(s, norm, dip, p[8], p[9]):
             s[_RELEARN] = 1.0  # (the reference's state sits at the start of the corrector's)
         s[_PN], s[_PD] = norm, dip
         s[_PL], s[_PL + 1], s[_PL + 2] = v0, v1, v2

@@ -57,6 +57,18 @@ passes it, the offset alone is applied (``W = I``: the calibrated sample ``m - c
 earth-fixed disturbance (``mag-heading`` then learns its reference there, as for a confident
 calibration applied there, only more often: the provisional offset comes earlier).
 
+Held readings: a magnetometer read at a lower rate than the gyroscope (10-100 Hz against
+100-1000 Hz) repeats its last reading until the next one. A sample equal to the previous one in every
+component (after a valid one) is that held reading: no new observation, and as old as its fresh
+sample. It neither closes nor starts a segment, so every segment runs from one fresh reading to
+another, paired with the gyro's turn between them, and the segment count, the residual noise,
+the gate's ring and the confidence count independent readings only (closed on held samples, the
+segments paired a reading up to one reading interval old with the gyro's turn to the current sample,
+and the residual noise that misfit makes put the confidence off; docs/algorithms/models.md). A segment then closes at the first
+fresh reading after ``segment_angle`` (one reading interval later at most). It assumes a repeat
+is a hold; a quantised magnetometer at rest that repeats a value by chance closes its segment at
+the next different reading instead (at rest a segment carries no rotation to learn from).
+
 Limits: the gyroscope's own bias turns ``C`` by ``bias * segment_time`` (small against the
 segment angle); the magnetometer and gyroscope are taken to be sampled at the same times (a
 magnetometer late by ``d`` seconds adds an error of ``|w| d`` per segment, which averages over
@@ -145,9 +157,10 @@ _SINV = STATE_SOFT + GATE
 _SINVOK = _SINV + _NP * _NP
 _SEG_BUF = 255  # the compiled soft-iron segment's working arrays (_k_segment_soft)
 # at the end of either layout (soft iron: _H_SOFT, the offset alone: _H_HARD): the last raw magnetometer sample,
-# what it was calibrated to, and whether there was one (a held reading told from a new one although the
-# calibration changed since: flag MAG_HELD)
-_HELD, _H_SOFT, _H_HARD = 7, _SINVOK + 1, STATE + GATE
+# what it was calibrated to, and whether there was one (a held reading, told from a fresh one, neither closes nor
+# starts a segment; one calibrated otherwise than the sample before is flagged MAG_HELD, which cannot happen while
+# the calibration changes on fresh readings only, but keeps a reader told if it ever does)
+_HELD, _H_SOFT, _H_HARD = 8, _SINVOK + 1, STATE + GATE
 _RECALIBRATED = int(Flag.MAG_RECALIBRATED)
 _MAG_HELD = int(Flag.MAG_HELD)
 _PROVISIONAL = 0.5  # the confidence of an offset applied before the estimate is confident (provisional_std)
@@ -251,8 +264,22 @@ class MagCalibrationModel(SensorModel):
                 s[_ANCHOR] = 0.0
             return sample, 0
         m = np.asarray(sample.mag, dtype=float)
-        flags = 0
-        if gyr_ok and s[_ANCHOR]:
+        # a held reading (a lower-rate magnetometer's, repeated exactly) is not a new observation: it neither
+        # closes nor starts a segment (its reading belongs to the fresh sample's instant, not this one's)
+        held = bool(s[h + 6]) and m.tolist() == s[h:h + 3].tolist()
+        # the sample is calibrated as the segments before it left the calibration: a segment this sample closes
+        # changes it from the next sample on (with its flags), so a held next sample is the same reading
+        # calibrated both ways, which mag-heading's re-expression reads the calibration's change from
+        flags, s[h + 7] = int(s[h + 7]), 0.0
+        if c.soft_iron:
+            t = s[_SAPP:_SAPP + _NP]
+            out = (np.eye(3) + _distortion(t)) @ m - t[5:8]
+        else:
+            out = m - s[_B:_B + 3]
+        if held and out.tolist() != s[h + 3:h + 6].tolist():
+            flags |= _MAG_HELD  # a held reading, calibrated otherwise than before: a reader still knows it is held
+        s[h:h + 3], s[h + 3:h + 6], s[h + 6] = m, out, 1.0
+        if gyr_ok and s[_ANCHOR] and not held:
             dq = s[_DQ:_DQ + 4]
             if _turned(dq[0], dq[1], dq[2], dq[3], math.cos(0.5 * c.segment_angle)) or s[_T] >= c.segment_time:
                 acc = sample.acc if sample.acc is not None and np.isfinite(sample.acc).all() else np.zeros(3)
@@ -262,21 +289,13 @@ class MagCalibrationModel(SensorModel):
                     self._segment_soft(s, quat_to_matrix(dq).T, m)
                 else:
                     self._segment(s, quat_to_matrix(dq).T, m)
-                flags = _changed(conf, applied, s[_CONF], _applied(s, c.soft_iron))
+                s[h + 7] = _changed(conf, applied, s[_CONF], _applied(s, c.soft_iron))
                 s[_ANCHOR] = 0.0
-        if gyr_ok and not s[_ANCHOR]:  # this sample starts the next segment
+        if gyr_ok and not s[_ANCHOR] and not held:  # this sample starts the next segment
             s[_MA:_MA + 3] = m
             s[_DQ:_DQ + 4] = (1.0, 0.0, 0.0, 0.0)
             s[_T] = 0.0
             s[_ANCHOR] = 1.0
-        if c.soft_iron:
-            t = s[_SAPP:_SAPP + _NP]
-            out = (np.eye(3) + _distortion(t)) @ m - t[5:8]
-        else:
-            out = m - s[_B:_B + 3]
-        if s[h + 6] and m.tolist() == s[h:h + 3].tolist() and out.tolist() != s[h + 3:h + 6].tolist():
-            flags |= _MAG_HELD  # a held reading, calibrated otherwise than before: a reader still knows it is held
-        s[h:h + 3], s[h + 3:h + 6], s[h + 6] = m, out, 1.0
         return sample._replace(mag=out), flags
 
     def _segment(self, s, ct, m) -> None:
@@ -853,8 +872,20 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
             s[_ANCHOR] = 0.0
         return 0
     m0, m1, m2 = v[6], v[7], v[8]
-    flags = 0
-    if gyr_ok and s[_ANCHOR] != 0.0:
+    held = s[h + 6] != 0.0 and m0 == s[h] and m1 == s[h + 1] and m2 == s[h + 2]
+    flags = int(s[h + 7])  # a segment closed on the sample before: its calibration applies from here
+    s[h + 7] = 0.0
+    if soft:
+        t0, t1, t2, t3, t4 = s[_SAPP], s[_SAPP + 1], s[_SAPP + 2], s[_SAPP + 3], s[_SAPP + 4]
+        o0 = (1.0 + t0) * m0 + t2 * m1 + t3 * m2 - s[_SAPP + 5]
+        o1 = t2 * m0 + (1.0 + t1) * m1 + t4 * m2 - s[_SAPP + 6]
+        o2 = t3 * m0 + t4 * m1 + (1.0 - t0 - t1) * m2 - s[_SAPP + 7]
+    else:
+        o0, o1, o2 = m0 - s[_B], m1 - s[_B + 1], m2 - s[_B + 2]
+    if held and not (o0 == s[h + 3] and o1 == s[h + 4] and o2 == s[h + 5]):
+        flags |= _MAG_HELD
+    s[h], s[h + 1], s[h + 2], s[h + 3], s[h + 4], s[h + 5], s[h + 6] = m0, m1, m2, o0, o1, o2, 1.0
+    if gyr_ok and s[_ANCHOR] != 0.0 and not held:
         if _k_turned(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], p[10]) or s[_T] >= seg_time:
             acc = (v[3], v[4], v[5]) if acc_ok else (0.0, 0.0, 0.0)
             _k_ring_push(s, STATE_SOFT if soft else STATE, (m0, m1, m2), acc, s[_MA:_MA + 3], s[_DQ:_DQ + 4])
@@ -864,24 +895,13 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
                                 p[12])
             else:
                 _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11], p[12])
-            flags = _k_changed(conf, applied, s[_CONF], _k_applied(s, soft))
+            s[h + 7] = float(_k_changed(conf, applied, s[_CONF], _k_applied(s, soft)))
             s[_ANCHOR] = 0.0
-    if gyr_ok and s[_ANCHOR] == 0.0:
+    if gyr_ok and s[_ANCHOR] == 0.0 and not held:
         s[_MA], s[_MA + 1], s[_MA + 2] = m0, m1, m2
         s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3] = 1.0, 0.0, 0.0, 0.0
         s[_T] = 0.0
         s[_ANCHOR] = 1.0
-    if soft:
-        t0, t1, t2, t3, t4 = s[_SAPP], s[_SAPP + 1], s[_SAPP + 2], s[_SAPP + 3], s[_SAPP + 4]
-        o0 = (1.0 + t0) * m0 + t2 * m1 + t3 * m2 - s[_SAPP + 5]
-        o1 = t2 * m0 + (1.0 + t1) * m1 + t4 * m2 - s[_SAPP + 6]
-        o2 = t3 * m0 + t4 * m1 + (1.0 - t0 - t1) * m2 - s[_SAPP + 7]
-    else:
-        o0, o1, o2 = m0 - s[_B], m1 - s[_B + 1], m2 - s[_B + 2]
-    if (s[h + 6] != 0.0 and m0 == s[h] and m1 == s[h + 1] and m2 == s[h + 2]
-            and not (o0 == s[h + 3] and o1 == s[h + 4] and o2 == s[h + 5])):
-        flags |= _MAG_HELD
-    s[h], s[h + 1], s[h + 2], s[h + 3], s[h + 4], s[h + 5], s[h + 6] = m0, m1, m2, o0, o1, o2, 1.0
     v[6], v[7], v[8] = o0, o1, o2
     return flags
 
