@@ -28,9 +28,14 @@ REPO = Path(__file__).resolve().parents[1]
 # order), the second one needing none of the first one's kernels, so the two workers do not start
 # by waiting on each other's compile locks (fusionkit/_numba.py). The inlined presets' compiles
 # are two files, recommended's (the longest) and the others', so the two workers start on one each.
+# The next ones (5-15 s each cold) follow, so that what is left at the end is files of a few
+# seconds: the worker that takes the last file ends a few seconds after the other, not the ~17 s
+# that test_timing.py (the BROAD data) and test_speed.py, late in collection order, cost.
 HEAVY_FIRST = ("test_inlined_loops_recommended.py", "test_inlined_loops.py", "test_ins_gnss.py", "test_contract.py",
                "test_reliability.py", "test_recommended.py", "test_gst.py", "test_time_offset.py", "test_offline.py",
-               "test_mag_calibration_gate.py", "test_poisson_filter.py")
+               "test_mag_calibration_gate.py", "test_poisson_filter.py", "test_offline_timing.py", "test_timing.py",
+               "test_registry.py", "test_offline_smoothing.py", "test_speed.py", "test_numba_cache.py",
+               "test_models.py", "test_loopgen.py", "test_sim_scenarios.py")
 
 
 def pytest_configure(config):

@@ -2,7 +2,7 @@
 tests/conftest.py, for a tenth of the compile time per composition). Here every registered
 preset's composition is compiled both ways and gives the same numbers to the last bit, so what the
 rest of the suite checks on the called loops holds for the inlined ones: here every preset but
-``recommended``, whose two compiles (the suite's longest) are test_inlined_loops_recommended.py's,
+``recommended``, whose compile (the suite's longest, online and offline) is test_inlined_loops_recommended.py's,
 so that ``-n 2 --dist loadfile`` runs the two files on both workers at once."""
 
 import pytest
