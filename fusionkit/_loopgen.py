@@ -319,7 +319,7 @@ def source(lay: Layout, cache: bool, imports: dict[int, tuple[str, str]] | None,
             "        out_q[k, 0], out_q[k, 1], out_q[k, 2], out_q[k, 3] = q[0], q[1], q[2], q[3]",
             "        out_f[k] = flags", "        out_c[k] = crit"]
     step = _step(cache, len(lay.kernels))
-    return "\n".join(head + loop + step + _step_sample(cache))
+    return "\n".join(head + loop + step + _step_sample(cache, len(lay.kernels)))
 
 
 def _step(cache: bool, n: int) -> list[str]:
@@ -330,10 +330,15 @@ def _step(cache: bool, n: int) -> list[str]:
     typed and lowered one-sample body. The one-sample arrays are views of ``S``'s tail past the
     states (:data:`STEP_WORK` entries, which :meth:`Pipeline.update`'s stream appends): no
     allocation per call but the two flags (an ``S`` without the tail gets fresh arrays)."""
+    return ["", "", f"@njit(cache={cache})", f"def step({_SAMPLE}, h, has_mag, S, P, O, q, {_GN}):",
+            *_one_sample(n, _GN), "    return fc[0], fc[1]", ""]
+
+
+def _one_sample(n: int, gnss: str) -> list[str]:
+    """The body ``step`` and ``step_sample`` share: the sample written into ``S``'s tail, ``loop``
+    run over it, the orientation copied out (``gnss``: the row's six values, names or constants)."""
     end = 2 * n + 3  # the run state's end in O: the last state's
-    return ["", "", f"@njit(cache={cache})",
-            f"def step({_SAMPLE}, h, has_mag, S, P, O, q, {_GN}):",
-            f"    e = O[{end}]",
+    return [f"    e = O[{end}]",
             f"    W = S[e:e + {STEP_WORK}] if S.shape[0] - e >= {STEP_WORK} else np.empty({STEP_WORK})",
             "    w = W[0:9].reshape((3, 1, 3))",
             "    w[0, 0, 0], w[0, 0, 1], w[0, 0, 2] = g0, g1, g2",
@@ -341,19 +346,20 @@ def _step(cache: bool, n: int) -> list[str]:
             "    w[2, 0, 0], w[2, 0, 1], w[2, 0, 2] = m0, m1, m2",
             "    dt = W[9:10]", "    dt[0] = h",
             "    gn = W[10:16].reshape((1, 6))",
-            "    gn[0, 0], gn[0, 1], gn[0, 2], gn[0, 3], gn[0, 4], gn[0, 5] = n0, n1, n2, n3, n4, n5",
+            f"    gn[0, 0], gn[0, 1], gn[0, 2], gn[0, 3], gn[0, 4], gn[0, 5] = {gnss}",
             "    out_q = W[16:20].reshape((1, 4))", "    fc = np.zeros(2, np.uint32)",
             "    loop(w[0], w[1], w[2], dt, has_mag, S, P, O, out_q, fc[0:1], fc[1:2], np.int64(0), np.int64(1), gn)",
-            "    q[0], q[1], q[2], q[3] = out_q[0, 0], out_q[0, 1], out_q[0, 2], out_q[0, 3]",
-            "    return fc[0], fc[1]", ""]
+            "    q[0], q[1], q[2], q[3] = out_q[0, 0], out_q[0, 1], out_q[0, 2], out_q[0, 3]"]
 
 
-def _step_sample(cache: bool) -> list[str]:
+def _step_sample(cache: bool, n: int) -> list[str]:
     """``step_sample``: ``step`` without a GNSS row, returning the flags: ``update()``'s fast path
-    (each argument of a call from Python costs its type check, and most streams have no GNSS)."""
+    (each argument of a call from Python costs its type check, and most streams have no GNSS).
+    It runs ``loop`` itself rather than calling ``step``: numba optimises a callee again inside
+    each caller, so a stream without GNSS (most) would otherwise compile ``step`` too."""
     gn = ", ".join("math.nan" if v != v else "math.inf" if v == math.inf else repr(float(v)) for v in NO_GNSS)
     return ["", f"@njit(cache={cache})", f"def step_sample({_SAMPLE}, h, has_mag, S, P, O, q):",
-            f"    return step({_SAMPLE}, h, has_mag, S, P, O, q, {gn})[0]", ""]
+            *_one_sample(n, gn), "    return fc[0]", ""]
 
 
 # -- building and caching -------------------------------------------------------------------
