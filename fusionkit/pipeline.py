@@ -531,14 +531,14 @@ class Pipeline(Filter):
             if gnss is None:  # the fast path's function: one compile serves both
                 f = step_sample(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q)
             else:
-                n = as_vector("gnss", gnss, width=6).tolist()
+                n = as_vector("gnss", gnss, width=6, allow_bool=True).tolist()
                 f, _ = step(g[0], g[1], g[2], a[0], a[1], a[2], m[0], m[1], m[2], dt, has_mag, S, P, O, q, *n)
             self.last_flags = gap_flags(f, gap)
             if len(self.__dict__.get("_unit_samples", ())) >= self.UNIT_CHECK_SAMPLES and not (
                     self._restarts and self.spec.gyr_range is not None):  # the units are checked, no range to watch:
                 self._fast_dt = gap_threshold(self._stream["dt"], self.spec.max_gap)  # the fast path may run
             return q.copy()
-        gn = None if gnss is None else as_vector("gnss", gnss, width=6)
+        gn = None if gnss is None else as_vector("gnss", gnss, width=6, allow_bool=True)
         q, f, _ = self._step(self._stream, g, a, m, dt, has_mag, gn)
         self.last_flags = gap_flags(f, gap)
         return q

@@ -13,7 +13,7 @@ import numpy as np
 
 from .conventions import DEFAULT_FRAME, change_frame, check_body, check_frame, quat_to_euler, to_scipy
 from .errors import InputError
-from .validation import MAX_INTERVAL, as_vectors, check_positive, check_time, check_units
+from .validation import MAX_INTERVAL, as_mask, as_vectors, check_positive, check_time, check_units
 
 
 class Flag(enum.IntFlag):
@@ -217,7 +217,7 @@ class Gnss:
         n = self.vel.shape[0]
         self.t = check_time(self.t, n, "gnss.t", "gnss.vel")
         check_frame(self.frame, "gnss.frame")
-        valid = np.ones(n, bool) if self.valid is None else np.asarray(self.valid).astype(bool).reshape(-1)
+        valid = np.ones(n, bool) if self.valid is None else as_mask("gnss.valid", self.valid).reshape(-1)
         if valid.shape[0] != n:
             raise InputError(f"gnss.valid has {valid.shape[0]} epochs but gnss.vel has {n}")
         self.valid = valid & np.isfinite(self.vel).all(axis=1)
@@ -308,7 +308,7 @@ class Recording:
                                  "sample without a reference is NaN)")
             check_frame(self.truth_frame, "truth_frame")
         if self.movement is not None:
-            self.movement = np.asarray(self.movement, dtype=bool)
+            self.movement = as_mask("movement", self.movement)
             if sum(d > 1 for d in self.movement.shape) > 1 or self.movement.ndim == 0:
                 raise InputError(f"movement must have shape (N,) (one bool per sample), got {self.movement.shape}")
             # a column (N, 1) or row (1, N), as loadmat and h5py give, is the same mask

@@ -12,36 +12,63 @@ from .errors import InputError
 NAN_POLICIES = ("raise", "skip")
 
 
-def _no_bool(name: str, x, what: str = "") -> None:
+def _no_bool(name: str, x, what: str = "", allow_bool: bool = False) -> None:
     """Refuse what float64 would take silently and wrongly: booleans (True/False become 1/0), complex
     numbers (the imaginary part dropped), dates or durations (their integer counts, in whatever unit
     they hold) and text (``"0.01"`` parses: the documented contract is numbers, text is a file read
-    without its conversion). A ragged list is refused here too (numpy's own error would not name the
-    argument). ``what`` follows "must be numbers" in the text's message."""
+    without its conversion), also as one element of a list or an object array (numpy makes a list
+    holding one True all floats, and one text all text). A ragged list is refused here too (numpy's
+    own error would not name the argument). ``what`` follows "must be numbers" in the text's message;
+    ``allow_bool``: booleans are numbers here (a GNSS row's validity fields)."""
     if isinstance(x, (str, bytes)):
         _text(name, x, what)
     if isinstance(x, (list, tuple)):
         try:
-            x = np.asarray(x)
+            arr = np.asarray(x)
         except (TypeError, ValueError) as exc:
             raise InputError(f"{name} must be a numeric array with rows of equal length: {exc}") from None
+        if arr.dtype.kind not in "bcmM":  # numbers or text: numpy may have coerced a mixed list, so its elements
+            _elements(name, np.array(x, dtype=object), what, allow_bool)
+        x = arr
     kind = getattr(getattr(x, "dtype", None), "kind", None)
     if kind == "O":  # an object array (a table's column, a list of mixed types): each element's own type
-        for v in x.flat:
-            if isinstance(v, (str, bytes)):
-                _text(name, v, what)
-            if isinstance(v, (bool, np.bool_)):
-                raise InputError(f"{name} holds a boolean ({v!r}): sensor samples must be numbers")
-            if isinstance(v, (complex, np.complexfloating)):
-                raise InputError(f"{name} holds a complex number ({v!r}): it must be real numbers")
+        _elements(name, x, what, allow_bool)
     if kind in ("U", "S"):
         _text(name, x.flat[0].item() if x.size else "", what)
-    if kind == "b":
+    if kind == "b" and not allow_bool:
         raise InputError(f"{name} is a boolean array: sensor samples must be numbers (a mask passed by mistake?)")
     if kind in ("c", "m", "M"):
         what = {"c": "complex", "m": "a duration (timedelta64)", "M": "a date (datetime64)"}[kind]
         raise InputError(f"{name} is {what}: it must be real numbers"
                          + (" in seconds, e.g. (t - t[0]) / np.timedelta64(1, 's')" if kind in "mM" else ""))
+
+
+def _elements(name: str, x: np.ndarray, what: str, allow_bool: bool) -> None:
+    """Refuse an object array's text, boolean or complex element (or a 0-d array holding one). The
+    element types are collected first (one pass in C over a 1M-row array), the elements read only
+    when one is wrong."""
+    for tp in set(map(type, x.flat)):
+        if issubclass(tp, (str, bytes)):
+            _text(name, next(v for v in x.flat if isinstance(v, tp)), what)
+        if issubclass(tp, (bool, np.bool_)) and not allow_bool:
+            raise InputError(f"{name} holds a boolean ({next(v for v in x.flat if isinstance(v, tp))!r}): "
+                             f"{name} must be numbers")
+        if issubclass(tp, (complex, np.complexfloating)):
+            raise InputError(f"{name} holds a complex number ({next(v for v in x.flat if isinstance(v, tp))!r}): "
+                             "it must be real numbers")
+        if issubclass(tp, np.ndarray):  # arrays inside: each judged as the argument itself
+            for v in x.flat:
+                if isinstance(v, np.ndarray):
+                    _no_bool(name, v, what, allow_bool)
+
+
+def as_mask(name: str, x) -> np.ndarray:
+    """``x`` as a boolean array (a mask), refusing text: ``np.asarray(["False"], bool)`` is True."""
+    arr = np.asarray(x)
+    if arr.dtype.kind in ("U", "S") or (arr.dtype.kind == "O" and any(
+            issubclass(tp, (str, bytes)) for tp in set(map(type, arr.flat)))):
+        raise InputError(f"{name} must be booleans (a mask), not text: convert it first, e.g. x == 'True'")
+    return arr.astype(bool)
 
 
 def _text(name: str, example, what: str) -> None:
@@ -66,9 +93,10 @@ def as_vectors(name: str, x, n: int | None = None, width: int = 3) -> np.ndarray
     return np.ascontiguousarray(arr)
 
 
-def as_vector(name: str, x, width: int = 3) -> np.ndarray:
-    """One sample as a float64 ``(width,)`` array, or :class:`InputError`."""
-    _no_bool(name, x)
+def as_vector(name: str, x, width: int = 3, allow_bool: bool = False) -> np.ndarray:
+    """One sample as a float64 ``(width,)`` array, or :class:`InputError` (``allow_bool``: see
+    :func:`_no_bool`)."""
+    _no_bool(name, x, allow_bool=allow_bool)
     try:
         arr = np.asarray(x, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError) as exc:

@@ -131,6 +131,9 @@ def test_streamed_text_is_refused():
     f.update_backend = "reference"
     with pytest.raises(fk.InputError, match="gnss must be numbers .*not text such as"):
         f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=0.01, gnss=(0.0, "1.0", 0.0, 0.0, 0.0, 0.0))
+    # a GNSS row's validity fields are booleans by meaning: taken, also from an object row
+    f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=0.01,
+             gnss=np.array([1.0, 0.5, True, 0.0, np.True_, 0.0], dtype=object))
     with pytest.raises(fk.InputError, match="gnss must be numbers .*not text such as"):
         fk.make("ins-gnss").update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=0.01,
                                    gnss=(0.0, "1.0", 0.0, 0.0, 0.0, 0.0, 0.0))

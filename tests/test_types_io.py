@@ -48,6 +48,10 @@ def test_shapes_and_lengths_are_checked():
      "gyr must be numbers .*not text such as '0.5'"),  # an object column: numpy would parse the text
     (dict(acc=np.array([[0.0, 0.0, True]] + [[0.0, 0.0, 9.81]] * 9, dtype=object)), "acc holds a boolean"),
     (dict(gyr=np.array([[0.0, 1j, 0.0]] + [[0.0, 0.0, 0.0]] * 9, dtype=object)), "gyr holds a complex number"),
+    (dict(gyr=[[0.0, True, 0.0]] + [[0.0, 0.0, 0.0]] * 9), "gyr holds a boolean"),  # numpy: all floats
+    (dict(gyr=[[0.1, "0.5", 0.0]] + [[0.0, 0.0, 0.0]] * 9), "not text such as '0.5'"),  # the text, not 0.1
+    (dict(gyr=np.array([[np.array("0.5"), 0.0, 0.0]] + [[0.0, 0.0, 0.0]] * 9, dtype=object)), "not text such as"),
+    (dict(movement=["False"] * 10), "movement must be booleans .*not text"),  # "False" is True to numpy
     (dict(movement=np.ones((10, 2), bool)), r"movement must have shape \(N,\)"),
     (dict(movement=True), r"movement must have shape \(N,\)"),
     (dict(truth=np.zeros((10, 4))), r"truth\[0\] is \[0.0, 0.0, 0.0, 0.0\]: a zero quaternion"),
