@@ -267,6 +267,11 @@ def test_mag_calibration_counts_a_held_reading_once(soft_iron):
             assert closed.size > 20 and fresh[closed].all()  # every segment closed on a fresh reading
     assert noise[10.0] < 1.5 * noise[None]
     assert first[10.0] < first[None] + 350
+    # held_readings="each" (the model before, kept as an option): every sample a reading, so segments close on
+    # held samples and the misfit keeps the confidence away over these 20 s
+    st = _model_run(rec.mag, rec, soft_iron=soft_iron, held_readings="each")
+    closed = np.flatnonzero(np.diff(st[:, mc._N]) != 0) + 1
+    assert not fresh[closed].all() and not (st[:, mc._CONF] == 1.0).any()
 
 
 @pytest.mark.parametrize("soft_iron", [False, True])
@@ -279,12 +284,19 @@ def test_mag_calibration_kernel_equals_reference(soft_iron):
     S = np.array([[1.10, 0.05, -0.03], [0.05, 0.92, 0.04], [-0.03, 0.04, 1.02]]) if soft_iron else np.eye(3)
     bad = dataclasses.replace(rec, mag=rec.mag @ S.T + np.array([15.0, -8.0, 5.0]))
     held = _held_hard_iron(10.0, 12.0)  # a 10 Hz magnetometer held: segments on fresh readings only
-    for r in (bad, held):
-        ref, fast = p.run(r, backend="reference"), p.run(r, backend="numba")
+    from fusionkit.models import mag_calibration as mc
+
+    each = fk.compose({**p.config.model_dump(), "models": [{"name": "mag-calibration", "params": {
+        "soft_iron": soft_iron, "held_readings": "each"}}]})  # every sample a reading (the model before "once")
+    for r, pipe in ((bad, p), (held, p), (held, each)):
+        ref, fast = pipe.run(r, backend="reference"), pipe.run(r, backend="numba")
         assert np.abs(fast.quat - ref.quat).max() < 1e-9
         assert np.abs(fast.diagnostics["state"]["mod"][0] - ref.diagnostics["state"]["mod"][0]).max() < 1e-9
         np.testing.assert_array_equal(fast.flags, ref.flags)
-        assert ref.diagnostics["state"]["mod"][0][26] == 1.0  # it did get confident (the kernel had work to do)
+        # it did get confident, or ("each" on the held magnetometer, confident only after ~30 s) closed segments
+        # on held samples: the kernel had work to do
+        st = ref.diagnostics["state"]["mod"][0]
+        assert st[mc._CONF] == 1.0 if pipe is p else st[mc._N] > 20
 
 
 def test_a_provisional_offset_is_applied_before_the_confident_estimate():

@@ -193,6 +193,10 @@ class RecommendedConfig(FilterConfig):
         "and soft iron (a magnet or iron carried with the sensor) from how the field turns against the gyroscope, "
         "applied only while confident and consistent with body-fixed iron (docs/algorithms/models.md); False: the "
         "raw magnetometer")
+    mag_held_readings: Literal["once", "each"] = param(
+        "once", unit="-", description="mag_calibration's held_readings: a sample repeating the previous magnetometer "
+        "reading exactly (a lower-rate magnetometer's hold) counts once (one observation, a segment's change applies "
+        "from the next sample) or each (every sample a reading: the calibration before, kept as an option)")
     acc_delay: float | None = param(
         None, unit="s", description="how long before the end of the gyro's step the accelerometer sample describes: "
         "it is paired with the orientation R(q_gyr (x) exp(-(w - bias) d)). None: half the sample interval, the middle "
@@ -290,7 +294,7 @@ class RecommendedFilter(Pipeline):
             max_gap=c.max_gap, body=c.body,
             estimator=PluginSpec(name="poisson-quat", params={"step": "exact"}),
             detectors=detectors, correctors=correctors,
-            models=([PluginSpec(name="mag-calibration")] if c.mag_calibration and c.use_mag else [])
+            models=([PluginSpec(name="mag-calibration", params={"held_readings": c.mag_held_readings})] if c.mag_calibration and c.use_mag else [])
             + ([PluginSpec(name="lever-arm")] if c.lever_arm else []),
             alignment=AlignmentConfig(mode="none", initial_quat=initial_attitude(c.frame)),
         )

@@ -214,6 +214,14 @@ class MagCalibrationConfig(PluginConfig):
         "segments since that test span this long (the ring of 32 segment ends it judges changes by one entry per "
         "segment); the segments between stay refused. An applied estimate is tested at every segment, and a segment "
         "that is not confident ends the refusal. 0: a test at every segment", ge=0)
+    held_readings: Literal["once", "each"] = param(
+        "once", unit="-", description="a sample repeating the previous valid one exactly (a lower-rate "
+        "magnetometer's held reading). once: one observation; it neither closes nor starts a segment, and what a "
+        "segment changes applies from the next sample (segments pair a fresh reading with the gyro's turn to its own "
+        "instant, and count, residual noise and gate count independent readings). each: every sample is a reading "
+        "and a segment's change applies on the sample that closes it (the model before once; kept because on BROAD, "
+        "whose magnetometer repeats 29 % of its samples, once moves the consistency gate's timing: "
+        "docs/algorithms/models.md)")
 
 
     @model_validator(mode="after")
@@ -244,7 +252,8 @@ class MagCalibrationModel(SensorModel):
         c = self.config
         return np.array([c.segment_angle, c.segment_time, c.forget_time, c.max_std, float(c.min_segments),
                          c.outlier_sigma, float(c.outlier_count), float(c.soft_iron), _gate_code(c),
-                         c.min_reduction, math.cos(0.5 * c.segment_angle), c.gate_interval, c.provisional_std])
+                         c.min_reduction, math.cos(0.5 * c.segment_angle), c.gate_interval, c.provisional_std,
+                         float(c.held_readings == "each")])
 
     def kernel(self) -> SensorModelKernel:
         return SensorModelKernel(mag_calibration_apply, self.params())
@@ -265,21 +274,20 @@ class MagCalibrationModel(SensorModel):
             return sample, 0
         m = np.asarray(sample.mag, dtype=float)
         # a held reading (a lower-rate magnetometer's, repeated exactly) is not a new observation: it neither
-        # closes nor starts a segment (its reading belongs to the fresh sample's instant, not this one's)
+        # closes nor starts a segment (its reading belongs to the fresh sample's instant, not this one's);
+        # held_readings="each" takes every sample as a reading (the model before)
+        once = c.held_readings == "once"
         held = bool(s[h + 6]) and m.tolist() == s[h:h + 3].tolist()
-        # the sample is calibrated as the segments before it left the calibration: a segment this sample closes
-        # changes it from the next sample on (with its flags), so a held next sample is the same reading
-        # calibrated both ways, which mag-heading's re-expression reads the calibration's change from
+        fresh = not held or not once
+        # "once": the sample is calibrated as the segments before it left the calibration: a segment this sample
+        # closes changes it from the next sample on (with its flags), so a held next sample is the same reading
+        # calibrated both ways, which mag-heading's re-expression reads the calibration's change from; "each": a
+        # segment's change applies on the sample that closes it (s[h + 7] is then always 0 here)
         flags, s[h + 7] = int(s[h + 7]), 0.0
-        if c.soft_iron:
-            t = s[_SAPP:_SAPP + _NP]
-            out = (np.eye(3) + _distortion(t)) @ m - t[5:8]
-        else:
-            out = m - s[_B:_B + 3]
-        if held and out.tolist() != s[h + 3:h + 6].tolist():
-            flags |= _MAG_HELD  # a held reading, calibrated otherwise than before: a reader still knows it is held
-        s[h:h + 3], s[h + 3:h + 6], s[h + 6] = m, out, 1.0
-        if gyr_ok and s[_ANCHOR] and not held:
+        if once:
+            out, f = self._calibrate(s, h, m, held)
+            flags |= f
+        if gyr_ok and s[_ANCHOR] and fresh:
             dq = s[_DQ:_DQ + 4]
             if _turned(dq[0], dq[1], dq[2], dq[3], math.cos(0.5 * c.segment_angle)) or s[_T] >= c.segment_time:
                 acc = sample.acc if sample.acc is not None and np.isfinite(sample.acc).all() else np.zeros(3)
@@ -291,12 +299,28 @@ class MagCalibrationModel(SensorModel):
                     self._segment(s, quat_to_matrix(dq).T, m)
                 s[h + 7] = _changed(conf, applied, s[_CONF], _applied(s, c.soft_iron))
                 s[_ANCHOR] = 0.0
-        if gyr_ok and not s[_ANCHOR] and not held:  # this sample starts the next segment
+        if gyr_ok and not s[_ANCHOR] and fresh:  # this sample starts the next segment
             s[_MA:_MA + 3] = m
             s[_DQ:_DQ + 4] = (1.0, 0.0, 0.0, 0.0)
             s[_T] = 0.0
             s[_ANCHOR] = 1.0
+        if not once:
+            flags, s[h + 7] = int(s[h + 7]), 0.0
+            out, f = self._calibrate(s, h, m, held)
+            flags |= f
         return sample._replace(mag=out), flags
+
+    def _calibrate(self, s, h, m, held):
+        """``m`` through the calibration applied now, remembered as the last reading (raw and calibrated);
+        flag MAG_HELD if a held reading comes out otherwise than before (a reader still knows it is held)."""
+        if self.config.soft_iron:
+            t = s[_SAPP:_SAPP + _NP]
+            out = (np.eye(3) + _distortion(t)) @ m - t[5:8]
+        else:
+            out = m - s[_B:_B + 3]
+        flags = _MAG_HELD if held and out.tolist() != s[h + 3:h + 6].tolist() else 0
+        s[h:h + 3], s[h + 3:h + 6], s[h + 6] = m, out, 1.0
+        return out, flags
 
     def _segment(self, s, ct, m) -> None:
         """One closed segment: ``(I - C^T) b = m_k - C^T m_a`` into the forgetting least squares."""
@@ -872,20 +896,14 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
             s[_ANCHOR] = 0.0
         return 0
     m0, m1, m2 = v[6], v[7], v[8]
+    once = p[13] == 0.0
     held = s[h + 6] != 0.0 and m0 == s[h] and m1 == s[h + 1] and m2 == s[h + 2]
-    flags = int(s[h + 7])  # a segment closed on the sample before: its calibration applies from here
+    fresh = not held or not once
+    flags = int(s[h + 7])  # "once": a segment closed on the sample before: its calibration applies from here
     s[h + 7] = 0.0
-    if soft:
-        t0, t1, t2, t3, t4 = s[_SAPP], s[_SAPP + 1], s[_SAPP + 2], s[_SAPP + 3], s[_SAPP + 4]
-        o0 = (1.0 + t0) * m0 + t2 * m1 + t3 * m2 - s[_SAPP + 5]
-        o1 = t2 * m0 + (1.0 + t1) * m1 + t4 * m2 - s[_SAPP + 6]
-        o2 = t3 * m0 + t4 * m1 + (1.0 - t0 - t1) * m2 - s[_SAPP + 7]
-    else:
-        o0, o1, o2 = m0 - s[_B], m1 - s[_B + 1], m2 - s[_B + 2]
-    if held and not (o0 == s[h + 3] and o1 == s[h + 4] and o2 == s[h + 5]):
-        flags |= _MAG_HELD
-    s[h], s[h + 1], s[h + 2], s[h + 3], s[h + 4], s[h + 5], s[h + 6] = m0, m1, m2, o0, o1, o2, 1.0
-    if gyr_ok and s[_ANCHOR] != 0.0 and not held:
+    if once:
+        flags |= _k_calibrate(s, h, soft, v, held)
+    if gyr_ok and s[_ANCHOR] != 0.0 and fresh:
         if _k_turned(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], p[10]) or s[_T] >= seg_time:
             acc = (v[3], v[4], v[5]) if acc_ok else (0.0, 0.0, 0.0)
             _k_ring_push(s, STATE_SOFT if soft else STATE, (m0, m1, m2), acc, s[_MA:_MA + 3], s[_DQ:_DQ + 4])
@@ -897,11 +915,33 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
                 _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11], p[12])
             s[h + 7] = float(_k_changed(conf, applied, s[_CONF], _k_applied(s, soft)))
             s[_ANCHOR] = 0.0
-    if gyr_ok and s[_ANCHOR] == 0.0 and not held:
+    if gyr_ok and s[_ANCHOR] == 0.0 and fresh:
         s[_MA], s[_MA + 1], s[_MA + 2] = m0, m1, m2
         s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3] = 1.0, 0.0, 0.0, 0.0
         s[_T] = 0.0
         s[_ANCHOR] = 1.0
+    if not once:  # held_readings="each": the change of a segment closed here applies here
+        flags = int(s[h + 7])
+        s[h + 7] = 0.0
+        flags |= _k_calibrate(s, h, soft, v, held)
+    return flags
+
+
+@njit
+def _k_calibrate(s, h, soft, v, held):
+    """:meth:`MagCalibrationModel._calibrate` on ``v[6:9]`` in place (raw reading remembered first)."""
+    m0, m1, m2 = v[6], v[7], v[8]
+    if soft:
+        t0, t1, t2, t3, t4 = s[_SAPP], s[_SAPP + 1], s[_SAPP + 2], s[_SAPP + 3], s[_SAPP + 4]
+        o0 = (1.0 + t0) * m0 + t2 * m1 + t3 * m2 - s[_SAPP + 5]
+        o1 = t2 * m0 + (1.0 + t1) * m1 + t4 * m2 - s[_SAPP + 6]
+        o2 = t3 * m0 + t4 * m1 + (1.0 - t0 - t1) * m2 - s[_SAPP + 7]
+    else:
+        o0, o1, o2 = m0 - s[_B], m1 - s[_B + 1], m2 - s[_B + 2]
+    flags = 0
+    if held and not (o0 == s[h + 3] and o1 == s[h + 4] and o2 == s[h + 5]):
+        flags = _MAG_HELD
+    s[h], s[h + 1], s[h + 2], s[h + 3], s[h + 4], s[h + 5], s[h + 6] = m0, m1, m2, o0, o1, o2, 1.0
     v[6], v[7], v[8] = o0, o1, o2
     return flags
 
