@@ -190,7 +190,7 @@ def test_a_recalibration_applies_on_the_held_reading_after_its_segment():
 
     rec = sim.simulate(_tumbling(8, 200.0, 3.0, 0.5), rate=100.0, noise=sim.Noise.mems(), seed=0,
                        errors=SensorErrors(mag_offset=(15.0, -25.0, 10.0), mag_rate=10.0))
-    f = fk.make("recommended")
+    f = fk.make("recommended", mag_held_readings="once")  # (the option; the default counts each sample)
     ref, fast = f.run(rec, backend="reference"), f.run(rec, backend="numba")
     assert np.array_equal(ref.flags, fast.flags) and np.abs(fast.quat - ref.quat).max() < 1e-9
     recal = np.flatnonzero(fast.flags & fk.Flag.MAG_RECALIBRATED)
@@ -252,7 +252,7 @@ def test_a_reexpressed_heading_relearns_the_reference_it_was_learned_with():
 
     rec = sim.simulate(_tumbling(16, 200.0, 3.0, 0.5), rate=100.0, noise=sim.Noise.mems(), seed=0,
                        errors=SensorErrors(mag_offset=(15.0, -25.0, 10.0), mag_rate=50.0)).slice(0, 1200)
-    f = fk.make("recommended")
+    f = fk.make("recommended", mag_held_readings="once")  # (the held readings' option, as the change was found)
     ref, fast = f.run(rec, backend="reference"), f.run(rec, backend="numba")
     assert np.array_equal(ref.flags, fast.flags) and np.abs(fast.quat - ref.quat).max() < 1e-9
     k = int(np.flatnonzero(fast.flags & fk.Flag.MAG_RECALIBRATED)[0])

@@ -194,9 +194,10 @@ class RecommendedConfig(FilterConfig):
         "applied only while confident and consistent with body-fixed iron (docs/algorithms/models.md); False: the "
         "raw magnetometer")
     mag_held_readings: Literal["once", "each"] = param(
-        "once", unit="-", description="mag_calibration's held_readings: a sample repeating the previous magnetometer "
-        "reading exactly (a lower-rate magnetometer's hold) counts once (one observation, a segment's change applies "
-        "from the next sample) or each (every sample a reading: the calibration before, kept as an option)")
+        "each", unit="-", description="mag_calibration's held_readings: a sample repeating the previous magnetometer "
+        "reading exactly (a lower-rate magnetometer's hold) counts as a reading each time (the default) or once (one "
+        "observation, a segment's change applies from the next sample: for a 10-20 Hz magnetometer; not the default, "
+        "its BROAD gain does not hold without trial 04: docs/algorithms/models.md)")
     acc_delay: float | None = param(
         None, unit="s", description="how long before the end of the gyro's step the accelerometer sample describes: "
         "it is paired with the orientation R(q_gyr (x) exp(-(w - bias) d)). None: half the sample interval, the middle "
