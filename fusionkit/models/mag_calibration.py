@@ -157,10 +157,16 @@ _SINV = STATE_SOFT + GATE
 _SINVOK = _SINV + _NP * _NP
 _SEG_BUF = 255  # the compiled soft-iron segment's working arrays (_k_segment_soft)
 # at the end of either layout (soft iron: _H_SOFT, the offset alone: _H_HARD): the last raw magnetometer sample,
-# what it was calibrated to, and whether there was one (a held reading, told from a fresh one, neither closes nor
-# starts a segment; one calibrated otherwise than the sample before is flagged MAG_HELD, which cannot happen while
-# the calibration changes on fresh readings only, but keeps a reader told if it ever does)
-_HELD, _H_SOFT, _H_HARD = 8, _SINVOK + 1, STATE + GATE
+# what it was calibrated to, and whether the sample before was a valid one (h + 6: a held reading calibrated
+# otherwise than that sample is flagged MAG_HELD, routine with held_readings="once": a segment closed on the fresh
+# reading changes the calibration from the next sample, the held one); a change pending for the next valid sample
+# (h + 7); whether there was a valid reading at all (h + 8: an invalid sample inside a held run does not make the
+# rest of the run fresh); the seconds since the reading last changed (h + 9); the calibration applied before the
+# pending change (h + 10 to h + 17: "once" keeps it on samples without a valid gyro, see apply)
+_HELD, _H_SOFT, _H_HARD = 18, _SINVOK + 1, STATE + GATE
+# "once": a repeat counts as held only while younger than this (s): no magnetometer reads slower than 2 Hz, so a
+# reading repeated longer is a constant field (a quantised magnetometer at rest), each sample an observation
+_HELD_AGE = 0.5
 _RECALIBRATED = int(Flag.MAG_RECALIBRATED)
 _MAG_HELD = int(Flag.MAG_HELD)
 _PROVISIONAL = 0.5  # the confidence of an offset applied before the estimate is confident (provisional_std)
@@ -268,25 +274,35 @@ class MagCalibrationModel(SensorModel):
             s[_DQ:_DQ + 4] = quat_mul(s[_DQ:_DQ + 4], quat_from_rotvec(sample.gyr * sample.dt))
             s[_T] += sample.dt
         h = _H_SOFT if c.soft_iron else _H_HARD
+        s[h + 9] += sample.dt
         if sample.mag is None:
-            s[h + 6] = 0.0  # (an invalid sample between two equal ones: the reading was lost, not held)
+            s[h + 6] = 0.0  # (an invalid sample between two equal ones: not held as MAG_HELD tells it)
             if s[_T] > 2.0 * c.segment_time:
                 s[_ANCHOR] = 0.0
             return sample, 0
         m = np.asarray(sample.mag, dtype=float)
         # a held reading (a lower-rate magnetometer's, repeated exactly) is not a new observation: it neither
         # closes nor starts a segment (its reading belongs to the fresh sample's instant, not this one's);
-        # held_readings="each" takes every sample as a reading (the model before)
+        # held_readings="each" takes every sample as a reading (the model before). A repeat of the last valid
+        # reading, invalid samples between or not, while it is young (_HELD_AGE)
         once = c.held_readings == "once"
-        held = bool(s[h + 6]) and m.tolist() == s[h:h + 3].tolist()
-        fresh = not held or not once
+        same = bool(s[h + 8]) and m.tolist() == s[h:h + 3].tolist()
+        held = same and bool(s[h + 6])
+        if not same:
+            s[h + 9] = 0.0
+        fresh = not once or not same or s[h + 9] >= _HELD_AGE
         # "once": the sample is calibrated as the segments before it left the calibration: a segment this sample
         # closes changes it from the next sample on (with its flags), so a held next sample is the same reading
         # calibrated both ways, which mag-heading's re-expression reads the calibration's change from; "each": a
-        # segment's change applies on the sample that closes it (s[h + 7] is then always 0 here)
-        flags, s[h + 7] = int(s[h + 7]), 0.0
+        # segment's change applies on the sample that closes it (s[h + 7] is then always 0 here). The change waits
+        # for a sample with a valid gyro: across a gap the orientation is held, and the calibrated field's change
+        # from the sample before is then the body's turn as much as the calibration's
         if once:
-            out, f = self._calibrate(s, h, m, held)
+            wait = bool(s[h + 7]) and not gyr_ok
+            flags = 0 if wait else int(s[h + 7])
+            if not wait:
+                s[h + 7] = 0.0
+            out, f = self._calibrate(s, h, m, held, wait)
             flags |= f
         if gyr_ok and s[_ANCHOR] and fresh:
             dq = s[_DQ:_DQ + 4]
@@ -294,6 +310,10 @@ class MagCalibrationModel(SensorModel):
                 acc = sample.acc if sample.acc is not None and np.isfinite(sample.acc).all() else np.zeros(3)
                 _ring_push(s, STATE_SOFT if c.soft_iron else STATE, m, acc, s[_MA:_MA + 3], dq)
                 conf, applied = s[_CONF], _applied(s, c.soft_iron)
+                if once and c.soft_iron:  # the calibration applied until the change is delivered
+                    s[h + 10:h + 10 + _NP] = s[_SAPP:_SAPP + _NP]
+                elif once:
+                    s[h + 10:h + 13] = s[_B:_B + 3]
                 if c.soft_iron:
                     self._segment_soft(s, quat_to_matrix(dq).T, m)
                 else:
@@ -307,20 +327,21 @@ class MagCalibrationModel(SensorModel):
             s[_ANCHOR] = 1.0
         if not once:
             flags, s[h + 7] = int(s[h + 7]), 0.0
-            out, f = self._calibrate(s, h, m, held)
+            out, f = self._calibrate(s, h, m, held, False)
             flags |= f
         return sample._replace(mag=out), flags
 
-    def _calibrate(self, s, h, m, held):
-        """``m`` through the calibration applied now, remembered as the last reading (raw and calibrated);
-        flag MAG_HELD if a held reading comes out otherwise than before (a reader still knows it is held)."""
+    def _calibrate(self, s, h, m, held, before):
+        """``m`` through the calibration applied now (``before``: the one before the pending change),
+        remembered as the last reading (raw and calibrated); flag MAG_HELD if a held reading comes out
+        otherwise than before (a reader still knows it is held)."""
         if self.config.soft_iron:
-            t = s[_SAPP:_SAPP + _NP]
+            t = s[h + 10:h + 10 + _NP] if before else s[_SAPP:_SAPP + _NP]
             out = (np.eye(3) + _distortion(t)) @ m - t[5:8]
         else:
-            out = m - s[_B:_B + 3]
+            out = m - (s[h + 10:h + 13] if before else s[_B:_B + 3])
         flags = _MAG_HELD if held and out.tolist() != s[h + 3:h + 6].tolist() else 0
-        s[h:h + 3], s[h + 3:h + 6], s[h + 6] = m, out, 1.0
+        s[h:h + 3], s[h + 3:h + 6], s[h + 6], s[h + 8] = m, out, 1.0, 1.0
         return out, flags
 
     def _segment(self, s, ct, m) -> None:
@@ -891,6 +912,7 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
                                                                   e0, e1, e2, e3)
         s[_T] += dt
     h = _H_SOFT if soft else _H_HARD
+    s[h + 9] += dt
     if not mag_ok:
         s[h + 6] = 0.0
         if s[_T] > 2.0 * seg_time:
@@ -898,17 +920,26 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
         return 0
     m0, m1, m2 = v[6], v[7], v[8]
     once = p[13] == 0.0
-    held = s[h + 6] != 0.0 and m0 == s[h] and m1 == s[h + 1] and m2 == s[h + 2]
-    fresh = not held or not once
-    flags = int(s[h + 7])  # "once": a segment closed on the sample before: its calibration applies from here
-    s[h + 7] = 0.0
-    if once:
-        flags |= _k_calibrate(s, h, soft, v, held)
+    same = s[h + 8] != 0.0 and m0 == s[h] and m1 == s[h + 1] and m2 == s[h + 2]
+    held = same and s[h + 6] != 0.0
+    if not same:
+        s[h + 9] = 0.0
+    fresh = not once or not same or s[h + 9] >= _HELD_AGE
+    flags = 0
+    if once:  # a segment closed before: its calibration applies from the next sample with a valid gyro
+        wait = s[h + 7] != 0.0 and not gyr_ok
+        if not wait:
+            flags = int(s[h + 7])
+            s[h + 7] = 0.0
+        flags |= _k_calibrate(s, h, soft, v, held, wait)
     if gyr_ok and s[_ANCHOR] != 0.0 and fresh:
         if _k_turned(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], p[10]) or s[_T] >= seg_time:
             acc = (v[3], v[4], v[5]) if acc_ok else (0.0, 0.0, 0.0)
             _k_ring_push(s, STATE_SOFT if soft else STATE, (m0, m1, m2), acc, s[_MA:_MA + 3], s[_DQ:_DQ + 4])
             conf, applied = s[_CONF], _k_applied(s, soft)
+            if once:  # the calibration applied until the change is delivered
+                for i in range(_NP if soft else 3):
+                    s[h + 10 + i] = s[(_SAPP if soft else _B) + i]
             if soft:
                 _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11],
                                 p[12])
@@ -924,25 +955,27 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
     if not once:  # held_readings="each": the change of a segment closed here applies here
         flags = int(s[h + 7])
         s[h + 7] = 0.0
-        flags |= _k_calibrate(s, h, soft, v, held)
+        flags |= _k_calibrate(s, h, soft, v, held, False)
     return flags
 
 
 @njit
-def _k_calibrate(s, h, soft, v, held):
+def _k_calibrate(s, h, soft, v, held, before):
     """:meth:`MagCalibrationModel._calibrate` on ``v[6:9]`` in place (raw reading remembered first)."""
     m0, m1, m2 = v[6], v[7], v[8]
     if soft:
-        t0, t1, t2, t3, t4 = s[_SAPP], s[_SAPP + 1], s[_SAPP + 2], s[_SAPP + 3], s[_SAPP + 4]
-        o0 = (1.0 + t0) * m0 + t2 * m1 + t3 * m2 - s[_SAPP + 5]
-        o1 = t2 * m0 + (1.0 + t1) * m1 + t4 * m2 - s[_SAPP + 6]
-        o2 = t3 * m0 + t4 * m1 + (1.0 - t0 - t1) * m2 - s[_SAPP + 7]
+        a = h + 10 if before else _SAPP
+        t0, t1, t2, t3, t4 = s[a], s[a + 1], s[a + 2], s[a + 3], s[a + 4]
+        o0 = (1.0 + t0) * m0 + t2 * m1 + t3 * m2 - s[a + 5]
+        o1 = t2 * m0 + (1.0 + t1) * m1 + t4 * m2 - s[a + 6]
+        o2 = t3 * m0 + t4 * m1 + (1.0 - t0 - t1) * m2 - s[a + 7]
     else:
-        o0, o1, o2 = m0 - s[_B], m1 - s[_B + 1], m2 - s[_B + 2]
+        a = h + 10 if before else _B
+        o0, o1, o2 = m0 - s[a], m1 - s[a + 1], m2 - s[a + 2]
     flags = 0
     if held and not (o0 == s[h + 3] and o1 == s[h + 4] and o2 == s[h + 5]):
         flags = _MAG_HELD
-    s[h], s[h + 1], s[h + 2], s[h + 3], s[h + 4], s[h + 5], s[h + 6] = m0, m1, m2, o0, o1, o2, 1.0
+    s[h], s[h + 1], s[h + 2], s[h + 3], s[h + 4], s[h + 5], s[h + 6], s[h + 8] = m0, m1, m2, o0, o1, o2, 1.0, 1.0
     v[6], v[7], v[8] = o0, o1, o2
     return flags
 
