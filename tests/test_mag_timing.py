@@ -209,8 +209,9 @@ def test_a_recalibration_applies_on_the_held_reading_after_its_segment():
 
 
 def test_heading_keeps_a_flagged_held_sample_paired_with_its_fresh_one():
-    """MAG_HELD (a sensor model calibrated a held reading otherwise than the sample before; not
-    ``mag-calibration`` since its calibration changes on fresh readings only): ``mag-heading`` pairs
+    """MAG_HELD (a sensor model calibrated a held reading otherwise than the sample before: routine with
+    ``mag-calibration``'s held_readings="once", whose change applies on the sample after its segment's
+    fresh reading, often that reading held): ``mag-heading`` pairs
     such a sample with its fresh sample's orientation though its value changed (the pairing in its
     state does not move), unflagged it is a fresh one; reference and kernel alike."""
     from fusionkit.correctors.heading import _QH, mag_heading_kernel

@@ -58,16 +58,19 @@ earth-fixed disturbance (``mag-heading`` then learns its reference there, as for
 calibration applied there, only more often: the provisional offset comes earlier).
 
 Held readings: a magnetometer read at a lower rate than the gyroscope (10-100 Hz against
-100-1000 Hz) repeats its last reading until the next one. A sample equal to the previous one in every
-component (after a valid one) is that held reading: no new observation, and as old as its fresh
-sample. It neither closes nor starts a segment, so every segment runs from one fresh reading to
+100-1000 Hz) repeats its last reading until the next one. With ``held_readings="once"`` a sample equal
+in every component to the last valid one (invalid samples between or not) is that held reading: no new
+observation, and as old as its fresh sample. It neither closes nor starts a segment, so every segment runs from one fresh reading to
 another, paired with the gyro's turn between them, and the segment count, the residual noise,
 the gate's ring and the confidence count independent readings only (closed on held samples, the
 segments paired a reading up to one reading interval old with the gyro's turn to the current sample,
 and the residual noise that misfit makes put the confidence off; docs/algorithms/models.md). A segment then closes at the first
-fresh reading after ``segment_angle`` (one reading interval later at most). It assumes a repeat
-is a hold; a quantised magnetometer at rest that repeats a value by chance closes its segment at
-the next different reading instead (at rest a segment carries no rotation to learn from).
+fresh reading after ``segment_angle`` (one reading interval later at most), and what it changes
+applies from the next sample with a valid gyro (across a gap the orientation is held: the change
+would be read with the body's turn). A repeat is a hold only while younger than 0.5 s (no
+magnetometer reads slower than 2 Hz): a reading repeated longer is a constant field (a quantised
+magnetometer at rest), each sample a reading; one repeated by chance within 0.5 s closes its
+segment at the next different reading (at rest a segment carries little rotation to learn from).
 
 Limits: the gyroscope's own bias turns ``C`` by ``bias * segment_time`` (small against the
 segment angle); the magnetometer and gyroscope are taken to be sampled at the same times (a
