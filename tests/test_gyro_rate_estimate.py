@@ -133,6 +133,25 @@ def test_the_slow_block_learns_as_every_sample(scaled):
         fk.make("recommended", slow_interval=-0.1)
 
 
+def test_no_slow_block_is_the_code_before_it_with_uneven_timestamps():
+    """``slow_interval=0`` on timestamps with a 2 % jitter (every sample a new ``dt``): the bias filter's
+    low-passes run on the inclination low-pass's set, its delay lines rescaled only when ``tau_adapt`` moves
+    the set (and never without it), as before ``slow_interval``. Pinned to the numbers of the code before it
+    (commit 1f8afbe); a set recomputed and rescaled at each new ``dt`` moved them by 4e-7 (3e-6 without
+    ``tau_adapt``)."""
+    import dataclasses
+
+    rec = turns(SCALE, n=6)
+    t = (np.arange(len(rec.gyr)) + np.random.default_rng(3).uniform(-0.02, 0.02, len(rec.gyr))) / 200.0
+    t[0] = 0.0
+    rec = dataclasses.replace(rec, rate=None, t=t)
+    before = {True: [0.10596595999580223, -0.0023319749855135775, 0.033118303776913, -0.9938153526534883],
+              False: [0.10585275400512797, -0.0038141083620612535, 0.037649165593961524, -0.9936615054318148]}
+    for tau_adapt, q in before.items():
+        res = fk.make("recommended", use_mag=False, slow_interval=0.0, tau_adapt=tau_adapt).run(rec)
+        np.testing.assert_allclose(res.quat[-1], q, atol=1e-12, err_msg=f"tau_adapt={tau_adapt}")
+
+
 def test_a_restart_starts_the_decimated_updates_counting_again():
     """After a gap (``restart``) the bias filter's and the rate error's low-passes start again, and so
     do the samples counted towards their next once-per-interval update: an update right after the

@@ -296,12 +296,26 @@ def _publish(x, ch) -> None:
 _k_publish = njit(inline="always")(_publish)
 
 
-def _set_tau(x, b0, b1, b2, a1, a2):
+@njit(inline="always")
+def _scale_slow_lines(x, f1, f2) -> None:
+    """The bias filter's low-passes' (rotation and bias) delay lines scaled to a new coefficient set's
+    steady state (``f1`` the first line's factor, ``f2`` the second's): :func:`_set_tau`, :func:`_slow_set`."""
+    for i in range(3):
+        x[_BZ1 + i] *= f1
+        x[_BZ2 + i] *= f2
+    for i in range(9):
+        x[_RZ1 + i] *= f1
+        x[_RZ2 + i] *= f2
+
+
+def _set_tau(x, b0, b1, b2, a1, a2, every):
     """The low-passes' new coefficients (``tau_adapt``: this sample's ``tau`` and ``dt``). The
     transposed direct form's delay lines hold ``y (1 - b0)`` and ``y (b2 - a2)`` in the steady state:
     once the low-pass runs, they are scaled to the new coefficients' steady state, or a change of
     ``tau`` at a low cutoff (``a2`` moves by about ``sqrt(2) dt d(1/tau)``) would put a step into the
-    output. The bias filter's low-passes have their own set (:func:`_slow_set`)."""
+    output. ``every`` (``slow_interval`` 0): the bias filter's low-passes (rotation and bias) run every
+    sample on this same set, and their delay lines are scaled with it (as before ``slow_interval``);
+    with blocks they have their own set (:func:`_slow_set`)."""
     # (the old coefficients' reciprocals are ready before the new coefficients: a multiplication on the chain)
     f1 = (1.0 - b0) * (1.0 / (1.0 - x[_B])) if x[_READY] != 0.0 else 1.0
     f2 = (b2 - a2) * (1.0 / (x[_B + 2] - x[_B + 4])) if x[_READY] != 0.0 else 1.0
@@ -309,6 +323,8 @@ def _set_tau(x, b0, b1, b2, a1, a2):
     for i in range(3):
         x[_Z1 + i] *= f1
         x[_Z2 + i] *= f2
+    if every:
+        _scale_slow_lines(x, f1, f2)
 
 
 _k_set_tau = njit(inline="always")(_set_tau)
@@ -323,12 +339,7 @@ def _slow_set(x, t, b0, b1, b2, a1, a2):
     if x[_KREADY] != 0.0:
         f1 = (1.0 - b0) * (1.0 / (1.0 - x[_SB]))
         f2 = (b2 - a2) * (1.0 / (x[_SB + 2] - x[_SB + 4]))
-        for i in range(3):
-            x[_BZ1 + i] *= f1
-            x[_BZ2 + i] *= f2
-        for i in range(9):
-            x[_RZ1 + i] *= f1
-            x[_RZ2 + i] *= f2
+        _scale_slow_lines(x, f1, f2)
     x[_SB], x[_SB + 1], x[_SB + 2], x[_SB + 3], x[_SB + 4] = b0, b1, b2, a1, a2
     x[_SBT], x[_SBTAU] = t, x[_BTAU]
 
@@ -1086,11 +1097,11 @@ class InertialTilt(FactorCorrector):
                     x[_PB:_PB + 5] = lowpass_coefficients(c.tau_max, dt)
             sw = par and _parallel_switch(x, tau >= c.tau_max, dt, c.tau_max)
             if sw:  # the low-pass at tau_max replaces the adaptive one (its coefficients, then its delay lines)
-                _set_tau(x, *x[_PB:_PB + 5])
+                _set_tau(x, *x[_PB:_PB + 5], c.slow_interval == 0.0)
                 x[_BTAU] = c.tau_max
             elif c.tau_adapt and abs(tau - x[_TAUC] * dt) > _TAU_STEP * x[_TAUC] * dt:
                 x[_TAUC] = tau / dt  # the coefficients of this sample's time constant
-                _set_tau(x, *lowpass_coefficients(tau, dt))
+                _set_tau(x, *lowpass_coefficients(tau, dt), c.slow_interval == 0.0)
                 x[_BTAU] = tau
             if c.impulse_clip is not None:
                 a_i = _impulse_clip(x, a_i, dt, c.impulse_clip, c.impulse_window, c.impulse_floor)
@@ -1120,7 +1131,9 @@ class InertialTilt(FactorCorrector):
                     >= c.slow_interval:
                 s = float(np.linalg.norm(qc[1:]))
                 r = qc[1:] * (2.0 * math.atan2(s, qc[0]) / (s * dt)) if s > 0.0 else np.zeros(3)
-                if x[_SBT] != x[_SLT] or x[_SBTAU] != x[_BTAU]:  # the slow low-passes' set for this block and tau
+                if c.slow_interval == 0.0:  # every sample: the inclination's set, rescaled by _set_tau
+                    x[_SB:_SB + 5] = x[_B:_B + 5]
+                elif x[_SBT] != x[_SLT] or x[_SBTAU] != x[_BTAU]:  # the slow low-passes' set for this block and tau
                     _slow_set(x, x[_SLT], *lowpass_coefficients(x[_BTAU], x[_SLT]))
                 res = self._kalman(x, quat_to_matrix(out), r, bias, dt, rest)
                 if c.rate_error_estimate and x[_SLWN] > 0.0:  # (a block without a valid gyro: nothing to learn)
@@ -1272,12 +1285,12 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                     s[_PB], s[_PB + 1], s[_PB + 2], s[_PB + 3], s[_PB + 4] = _lp_coeffs(p[13], dt)
             sw = p[24] != 0.0 and _k_parallel_switch(s, tau >= p[13], dt, p[13])
             if sw:
-                _k_set_tau(s, s[_PB], s[_PB + 1], s[_PB + 2], s[_PB + 3], s[_PB + 4])
+                _k_set_tau(s, s[_PB], s[_PB + 1], s[_PB + 2], s[_PB + 3], s[_PB + 4], p[27] == 0.0)
                 s[_BTAU] = p[13]
             elif p[10] != 0.0 and abs(tau - s[_TAUC] * dt) > _TAU_STEP * s[_TAUC] * dt:
                 s[_TAUC] = tau / dt
                 t0, t1, t2, t3, t4 = _lp_coeffs(tau, dt)
-                _k_set_tau(s, t0, t1, t2, t3, t4)
+                _k_set_tau(s, t0, t1, t2, t3, t4, p[27] == 0.0)
                 s[_BTAU] = tau
             if p[15] != 0.0:
                 v0, v1, v2 = _k_impulse_clip(s, v0, v1, v2, dt, p[15], p[16], p[17])
@@ -1335,7 +1348,10 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                         p[18] != 0.0 and s[_ETACC] + s[_SLE] + 0.5 * dt >= p[21])):
                     sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
                     f = 2.0 * _atan_over(sn, c0) / dt if sn > 0.0 else 0.0
-                if s[_SBT] != s[_SLT] or s[_SBTAU] != s[_BTAU]:
+                if p[27] == 0.0:  # every sample: the inclination's set, rescaled by _k_set_tau
+                    for i in range(5):
+                        s[_SB + i] = s[_B + i]
+                elif s[_SBT] != s[_SLT] or s[_SBTAU] != s[_BTAU]:
                     t0, t1, t2, t3, t4 = _lp_coeffs(s[_BTAU], s[_SLT])
                     _k_slow_set(s, s[_SLT], t0, t1, t2, t3, t4)
                 f0, f1, f2 = _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, rest, dt, p)
