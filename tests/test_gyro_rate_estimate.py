@@ -133,6 +133,18 @@ def test_the_slow_block_learns_as_every_sample(scaled):
         fk.make("recommended", slow_interval=-0.1)
 
 
+def test_a_slow_block_longer_than_the_low_passes_allow_is_refused():
+    """``slow_interval`` above a tenth of the shortest time constant (``tau_min`` with ``tau_adapt``, 0.5 s
+    in ``recommended``; ``tau`` without): the block's bilinear low-pass wraps at ``pi tau`` and the rotation,
+    seen once per block, aliases turns faster than ``pi / slow_interval`` (at 5 s the rate error came out with
+    the wrong signs): refused, not run."""
+    fk.make("recommended", slow_interval=0.05)  # (the bound itself)
+    fk.make("recommended", slow_interval=0.2, tau_adapt=False)  # (tau_acc 2 s)
+    for params in [{"slow_interval": 0.06}, {"slow_interval": 5.0}, {"slow_interval": 0.21, "tau_adapt": False}]:
+        with pytest.raises(fk.ConfigError, match="slow_interval"):
+            fk.make("recommended", **params)
+
+
 def test_no_slow_block_is_the_code_before_it_with_uneven_timestamps():
     """``slow_interval=0`` on timestamps with a 2 % jitter (every sample a new ``dt``): the bias filter's
     low-passes run on the inclination low-pass's set, its delay lines rescaled only when ``tau_adapt`` moves

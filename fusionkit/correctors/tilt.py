@@ -932,7 +932,9 @@ class InertialTiltConfig(PluginConfig):
         "seconds instead of every sample: on the block's last sample's rotation, the rate error on the block's mean "
         "rate, the covariances grown by the block's time, a block's REST samples one measurement. They change over "
         "seconds (the inclination's time constant, motion_bias_tau); the inclination low-pass, the correction and "
-        "(rate_error_correct) E w stay per sample. 0: every sample (the behaviour before)", ge=0)
+        "(rate_error_correct) E w stay per sample. At most a tenth of the shortest time constant (tau_min with "
+        "tau_adapt, else tau): the block's low-passes would wrap at pi tau, and turns faster than pi / slow_interval "
+        "alias. 0: every sample (the behaviour before)", ge=0)
     tau_min: float = param(0.5, unit="s", description="tau_adapt: the shortest time constant", gt=0)
     tau_max: float = param(4.0, unit="s", description="tau_adapt: the longest time constant (the velocity estimate, "
                            "leaking with tau, does not see accelerations slower than a few tau)", gt=0)
@@ -976,6 +978,16 @@ class InertialTiltConfig(PluginConfig):
             raise ValueError("rate_error_correct needs rate_error_estimate")
         if self.rate_error_acc_bias > 0 and not self.rate_error_estimate:  # (it would be silently ignored)
             raise ValueError("rate_error_acc_bias needs rate_error_estimate")
+        # slow_interval: the block's low-passes are a bilinear transform at the block's rate, tan(T / (2 tau)),
+        # which wraps at T = pi tau; and they see the rotation once per block, so turns faster than pi / T rad/s
+        # alias (at 5 s the rate error came out with the wrong signs). A tenth of the shortest time constant keeps
+        # the cutoff within 0.1 % of the per-sample one and puts the aliasing above pi / 0.05 = 63 rad/s at the
+        # defaults (tau_min 0.5 s)
+        low = min(self.tau_min, self.tau) if self.tau_adapt else self.tau
+        if self.slow_interval > 0.1 * low:
+            name = "tau_min" if self.tau_adapt else "tau"
+            raise ValueError(f"slow_interval must be at most a tenth of the shortest time constant ({name}): "
+                             f"{0.1 * low:g} s, got {self.slow_interval:g} s")
         return self
 
 

@@ -122,7 +122,8 @@ class RecommendedConfig(FilterConfig):
         0.02, unit="s", description="bias_filter kalman: the bias filter's and the rate error's per-sample work (their "
         "low-passes of the rotation, covariances, updates) once per block of this many seconds, on the block's last "
         "rotation and mean rate (inertial-tilt's slow_interval; recommended.md): they change over seconds. The "
-        "inclination low-pass and correction stay per sample. 0: every sample (the behaviour before)", ge=0)
+        "inclination low-pass and correction stay per sample. At most 0.05 s, a tenth of the shortest time constant "
+        "(0.5 s; tau_acc without tau_adapt). 0: every sample (the behaviour before)", ge=0)
     tau_mag: float = param(15.0, unit="s", description="heading_gain fixed: time constant of the heading correction",
                            gt=0)
     heading_gain: Literal["fixed", "kalman"] = param(
