@@ -4,6 +4,8 @@ converges to them and the inclination improves; on a gyro without any it stays n
 reference = numba (with the other options, in test_recommended); a configuration that cannot learn it is refused.
 """
 
+import math
+
 import numpy as np
 import pytest
 
@@ -162,6 +164,24 @@ def test_no_slow_block_is_the_code_before_it_with_uneven_timestamps():
     for tau_adapt, q in before.items():
         res = fk.make("recommended", use_mag=False, slow_interval=0.0, tau_adapt=tau_adapt).run(rec)
         np.testing.assert_allclose(res.quat[-1], q, atol=1e-12, err_msg=f"tau_adapt={tau_adapt}")
+
+
+def test_the_slow_block_means_are_weighted_by_time():
+    """``slow_interval``: the block's mean rates and specific force (the rate error's regressor, the adaptive
+    time constant's inputs) are integrals over the block divided by its seconds, so a long step after a
+    dropped sample, or timestamps' jitter, counts for its time; a sample without a valid gyro adds no time
+    to the rates' mean. Here 10 ms of 1 and 30 ms of 2: 1.75, not the samples' 1.5 (the caller divides as
+    below)."""
+    from fusionkit.correctors import tilt
+
+    (c,) = [c for c in fk.make("recommended").correctors if c.name == "inertial-tilt"]
+    x = c.initial_state(0.01, "ENU")
+    for dt, a, w in [(0.01, 1.0, 1.0), (0.03, 2.0, 2.0), (0.01, 4.0, math.nan)]:  # (the last: a gyro dropout)
+        tilt._block_add(x, dt, False, w, w, w, True, 1.0, 0.0, 0.0, 0.0, 0.01)
+        tilt._adapt_add(x, dt, False, a, a, a, w, w, w)
+    np.testing.assert_allclose(x[tilt._SLW:tilt._SLW + 3] / x[tilt._SLWN], 1.75, rtol=1e-12)  # (the rate error's)
+    np.testing.assert_allclose(x[tilt._AWS:tilt._AWS + 3] / x[tilt._AWN], 1.75, rtol=1e-12)  # (tau_adapt's)
+    np.testing.assert_allclose(x[tilt._AA:tilt._AA + 3] / x[tilt._ATT], 2.2, rtol=1e-12)  # (the samples': 2.33)
 
 
 def test_a_restart_starts_the_decimated_updates_counting_again():

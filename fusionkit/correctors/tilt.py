@@ -147,13 +147,14 @@ _PZ1, _PZ2, _PB, _PREADY, _PMAX = _SCR + 62, _SCR + 65, _SCR + 68, _SCR + 73, _S
 _BTAU = _SCR + 75  # the time constant of the inclination low-pass's coefficient set (_B)
 # slow_interval: the block of samples since the last slow step (the bias filter's and the rate error's low-passes,
 # covariances and updates run once per block): its seconds, its seconds and samples in motion, its REST samples,
-# the rate error's seconds and samples in motion with a valid gyro, the sum of those samples' body rates and their
-# count; then the slow low-passes' coefficient set (b0, b1, b2, a1, a2) and the block time and time constant it is for
+# the rate error's seconds and samples in motion with a valid gyro, the body rate integrated over the samples with a
+# valid gyro and their seconds (a mean weighted by time: dropped samples and jitter do not tilt it); then the slow
+# low-passes' coefficient set (b0, b1, b2, a1, a2) and the block time and time constant it is for
 _SLT, _SLM, _SLMN, _SLR, _SLE, _SLEN, _SLW, _SLWN = _SCR + 76, _SCR + 77, _SCR + 78, _SCR + 79, _SCR + 80, _SCR + 81, \
     _SCR + 82, _SCR + 85
 _SB, _SBT, _SBTAU = _SCR + 86, _SCR + 91, _SCR + 92
-# slow_interval with tau_adapt: the adaptive time constant's block: its seconds and samples, the sum of the specific
-# force in I, the sum of the valid rates in I and their count, its REST samples
+# slow_interval with tau_adapt: the adaptive time constant's block: its seconds and samples, the specific force in I
+# integrated over it, the valid rates in I integrated and their seconds, its REST samples (means weighted by time)
 _ATT, _ATN, _AA, _AWS, _AWN, _AREST = _SCR + 93, _SCR + 94, _SCR + 95, _SCR + 98, _SCR + 101, _SCR + 102
 # slow_interval with the rate error: the output at the block's middle (the regressor's rotation) and whether it is set
 _SLQ, _SLQN = _SCR + 103, _SCR + 107
@@ -349,10 +350,10 @@ _k_slow_set = njit(inline="always")(_slow_set)
 
 def _block_add(x, dt, rest, w0, w1, w2, rate_error, e0, e1, e2, e3, half):
     """``slow_interval``: one sample into the block (its time; in motion, its time and count; at
-    REST, its count; with the rate error and a valid gyro, the body rate ``w`` summed, and in motion
-    its time and count; the output ``e`` of the first sample at which the block reaches ``half`` s, half of
-    ``slow_interval``: its middle); returns the block's seconds (the caller compares them with
-    ``slow_interval``)."""
+    REST, its count; with the rate error and a valid gyro, the body rate ``w`` times ``dt`` summed and
+    ``dt`` (the mean rate weighted by time), and in motion its time and count; the output ``e`` of the
+    first sample at which the block reaches ``half`` s, half of ``slow_interval``: its middle); returns
+    the block's seconds (the caller compares them with ``slow_interval``)."""
     x[_SLT] += dt
     if rate_error and x[_SLQN] == 0.0 and x[_SLT] + 0.5 * dt >= half:
         x[_SLQ], x[_SLQ + 1], x[_SLQ + 2], x[_SLQ + 3], x[_SLQN] = e0, e1, e2, e3, 1.0
@@ -362,10 +363,10 @@ def _block_add(x, dt, rest, w0, w1, w2, rate_error, e0, e1, e2, e3, half):
         x[_SLM] += dt
         x[_SLMN] += 1.0
     if rate_error and math.isfinite(w0) and math.isfinite(w1) and math.isfinite(w2):
-        x[_SLW] += w0
-        x[_SLW + 1] += w1
-        x[_SLW + 2] += w2
-        x[_SLWN] += 1.0
+        x[_SLW] += w0 * dt
+        x[_SLW + 1] += w1 * dt
+        x[_SLW + 2] += w2 * dt
+        x[_SLWN] += dt
         if not rest:
             x[_SLE] += dt
             x[_SLEN] += 1.0
@@ -387,17 +388,18 @@ _k_block_clear = njit(inline="always")(_block_clear)
 
 def _adapt_add(x, dt, rest, a0, a1, a2, w0, w1, w2):
     """``slow_interval`` with ``tau_adapt``: one sample into the adaptive time constant's block (the
-    specific force ``a`` and, when valid, the rate ``w``, both in I, summed); returns the block's seconds."""
+    specific force ``a`` and, when valid, the rate ``w``, both in I, times ``dt`` summed, and the valid
+    rates' seconds: means weighted by time); returns the block's seconds."""
     x[_ATT] += dt
     x[_ATN] += 1.0
-    x[_AA] += a0
-    x[_AA + 1] += a1
-    x[_AA + 2] += a2
+    x[_AA] += a0 * dt
+    x[_AA + 1] += a1 * dt
+    x[_AA + 2] += a2 * dt
     if math.isfinite(w0) and math.isfinite(w1) and math.isfinite(w2):
-        x[_AWS] += w0
-        x[_AWS + 1] += w1
-        x[_AWS + 2] += w2
-        x[_AWN] += 1.0
+        x[_AWS] += w0 * dt
+        x[_AWS + 1] += w1 * dt
+        x[_AWS + 2] += w2 * dt
+        x[_AWN] += dt
     if rest:
         x[_AREST] += 1.0
     return x[_ATT]
@@ -1083,8 +1085,10 @@ class InertialTilt(FactorCorrector):
         if c.tau_adapt:  # once per block of slow_interval (0: every sample), on the block's means; the first at once
             tau = x[_TAU]
             if _adapt_add(x, dt, rest, *a_i, *w_i) + 0.5 * dt >= c.slow_interval or x[_NST] == 0.0:
-                ma = x[_AA:_AA + 3] / x[_ATN]
-                mw = x[_AWS:_AWS + 3] / x[_AWN] if x[_AWN] > 0.0 else np.full(3, math.nan)
+                ma, mw = a_i, w_i  # (slow_interval 0: the block is this sample, its values as they are)
+                if c.slow_interval > 0.0:  # the block's means, weighted by time
+                    ma = x[_AA:_AA + 3] / x[_ATT]
+                    mw = x[_AWS:_AWS + 3] / x[_AWN] if x[_AWN] > 0.0 else np.full(3, math.nan)
                 tau = _adapt_step(x, *ma, *mw, *z, x[_AREST] > 0.0, x[_ATT], c.tau, c.adapt_window,
                                   c.bias_sigma_motion, c.bias_sigma_init, c.motion_bias_tau or _FORGET,
                                   math.sqrt(x[_KAP2]) if c.rate_error_estimate else c.gyro_rate_error,
@@ -1149,7 +1153,8 @@ class InertialTilt(FactorCorrector):
                     _slow_set(x, x[_SLT], *lowpass_coefficients(x[_BTAU], x[_SLT]))
                 res = self._kalman(x, quat_to_matrix(out), r, bias, dt, rest)
                 if c.rate_error_estimate and x[_SLWN] > 0.0:  # (a block without a valid gyro: nothing to learn)
-                    _rate_error_step(x, *x[_SLQ:_SLQ + 4], *(x[_SLW:_SLW + 3] / x[_SLWN]), *res, rest, dt,
+                    mw = x[_SLW:_SLW + 3] / x[_SLWN] if c.slow_interval > 0.0 else w_b  # (0: this sample's)
+                    _rate_error_step(x, *x[_SLQ:_SLQ + 4], *mw, *res, rest, dt,
                                      c.gyro_rate_error,
                                      1.0 / c.motion_bias_tau, c.rate_error_max, c.rate_error_correct,
                                      c.rate_error_interval, c.rate_error_acc_bias)
@@ -1270,11 +1275,14 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                 if s[_NST] > 0.0:  # the vertical in the body
                     rn = 1.0 / math.sqrt(s[_Y] * s[_Y] + s[_Y + 1] * s[_Y + 1] + s[_Y + 2] * s[_Y + 2])
                     z0, z1, z2 = k_rot(p0, -p1, -p2, -p3, s[_Y] * rn, s[_Y + 1] * rn, s[_Y + 2] * rn)
-                na, nw = s[_ATN], s[_AWN]
-                mw0 = mw1 = mw2 = math.nan
-                if nw > 0.0:
-                    mw0, mw1, mw2 = s[_AWS] / nw, s[_AWS + 1] / nw, s[_AWS + 2] / nw
-                tau = _k_adapt_step(s, s[_AA] / na, s[_AA + 1] / na, s[_AA + 2] / na, mw0, mw1, mw2, z0, z1, z2,
+                ma0, ma1, ma2, mw0, mw1, mw2 = v0, v1, v2, w0, w1, w2  # (slow_interval 0: this sample's)
+                if p[27] > 0.0:  # the block's means, weighted by time
+                    na, nw = s[_ATT], s[_AWN]
+                    ma0, ma1, ma2 = s[_AA] / na, s[_AA + 1] / na, s[_AA + 2] / na
+                    mw0 = mw1 = mw2 = math.nan
+                    if nw > 0.0:
+                        mw0, mw1, mw2 = s[_AWS] / nw, s[_AWS + 1] / nw, s[_AWS + 2] / nw
+                tau = _k_adapt_step(s, ma0, ma1, ma2, mw0, mw1, mw2, z0, z1, z2,
                                     s[_AREST] > 0.0, s[_ATT], p[0], p[14], p[7], p[6], p[3] if p[3] > 0.0 else _FORGET,
                                     math.sqrt(s[_KAP2]) if p[18] != 0.0 else p[11], p[12], p[13])
                 _k_adapt_clear(s)
@@ -1368,9 +1376,12 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                     _k_slow_set(s, s[_SLT], t0, t1, t2, t3, t4)
                 f0, f1, f2 = _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, rest, dt, p)
                 if p[18] != 0.0 and s[_SLWN] > 0.0:
-                    nw = s[_SLWN]
-                    _k_rate_error_step(s, s[_SLQ], s[_SLQ + 1], s[_SLQ + 2], s[_SLQ + 3], s[_SLW] / nw,
-                                       s[_SLW + 1] / nw, s[_SLW + 2] / nw, f0, f1, f2, rest, dt, p[11], p[26], p[19],
+                    mw0, mw1, mw2 = wb0, wb1, wb2  # (slow_interval 0: this sample's)
+                    if p[27] > 0.0:  # the block's mean, weighted by time
+                        nw = s[_SLWN]
+                        mw0, mw1, mw2 = s[_SLW] / nw, s[_SLW + 1] / nw, s[_SLW + 2] / nw
+                    _k_rate_error_step(s, s[_SLQ], s[_SLQ + 1], s[_SLQ + 2], s[_SLQ + 3], mw0,
+                                       mw1, mw2, f0, f1, f2, rest, dt, p[11], p[26], p[19],
                                        p[20] != 0.0, p[21], p[25])
                 _k_block_clear(s)
             if p[20] != 0.0 and math.isfinite(wb0) and math.isfinite(wb1) and math.isfinite(wb2):
