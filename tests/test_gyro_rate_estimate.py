@@ -184,6 +184,38 @@ def test_the_slow_block_means_are_weighted_by_time():
     np.testing.assert_allclose(x[tilt._AA:tilt._AA + 3] / x[tilt._ATT], 2.2, rtol=1e-12)  # (the samples': 2.33)
 
 
+def test_a_block_ending_at_rest_passes_its_motion_to_the_next_update():
+    """``slow_interval`` with ``bias_update_interval=0``: a block ends on its last sample's status, so the
+    samples in motion of a block whose last sample is REST reach no update of their own; they count towards
+    the next block's update (its noise divided over them too), as with an interval. Reference and kernel."""
+    from fusionkit.correctors import tilt
+
+    (c,) = [c for c in fk.make("recommended", bias_update_interval=0.0).correctors if c.name == "inertial-tilt"]
+    cfg, p = c.config, c.kernel(None)[1]
+    x = c.initial_state(0.005, "ENU")
+    x[tilt._N:tilt._N + 5] = tilt._kf_noise(0.005, cfg.motion_bias_tau, cfg.bias_sigma_init, cfg.bias_sigma_motion,
+                                            cfg.bias_sigma_rest or 0.0, cfg.bias_vertical_forgetting)
+    x[tilt._SB:tilt._SB + 5] = tilt.lowpass_coefficients(2.0, 0.02)
+    r = np.array([0.001, -0.002, 0.0005])
+    out = []
+    for carried in (True, False):
+        xr, xk, br, bk = x.copy(), x.copy(), np.zeros(3), np.zeros(3)
+        for rest, n in ((True, 3), (False, 4)):  # 3 samples in motion, then REST; then 4 in motion
+            for s in (xr, xk):
+                tilt._block_clear(s)
+                s[tilt._SLT], s[tilt._SLM], s[tilt._SLMN], s[tilt._SLR] = 0.02, 0.005 * n, n, 4 - n
+            c._kalman(xr, np.eye(3), r, br, 0.005, rest)
+            tilt._k_kalman(xk, bk, 1.0, 0.0, 0.0, 0.0, *r, rest, 0.005, p)
+            if rest:
+                assert xr[tilt._KNACC] == xk[tilt._KNACC] == 3
+                if not carried:  # (the block's motion dropped, as before: the comparison below)
+                    xr[tilt._KTACC] = xr[tilt._KNACC] = xk[tilt._KTACC] = xk[tilt._KNACC] = 0.0
+        assert xr[tilt._KNACC] == xk[tilt._KNACC] == 0.0  # (consumed by the update)
+        np.testing.assert_allclose(br, bk, rtol=1e-12, atol=1e-18)
+        out.append(br)
+    assert np.all(np.abs(out[0]) > np.abs(out[1]))  # (the noise divided over 7 samples, not 4: a larger step)
+
+
 def test_a_restart_starts_the_decimated_updates_counting_again():
     """After a gap (``restart``) the bias filter's and the rate error's low-passes start again, and so
     do the samples counted towards their next once-per-interval update: an update right after the

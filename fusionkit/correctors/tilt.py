@@ -139,7 +139,8 @@ RATE_ERROR, RATE_KAPPA2 = _E, _KAP2  # where a run's state holds E and kappa^2 (
 _ADT, _AF, _AK, _AV = _SCR + 54, _SCR + 55, _SCR + 56, _SCR + 57
 # rate_error_interval: the seconds and the samples in motion since the rate error's last Kalman update
 _ETACC, _ENACC = _SCR + 58, _SCR + 59
-# bias_update_interval: the seconds and the samples in motion since the bias filter's last Kalman update
+# bias_update_interval: the seconds and the samples in motion since the bias filter's last Kalman update (0, with
+# slow_interval: those of blocks that ended at REST, for the next block's update)
 _KTACC, _KNACC = _SCR + 60, _SCR + 61
 # tau_max_parallel: the second low-pass's (at tau_max) delay lines, its coefficients for the last dt, whether it
 # started, and whether the last sample's tau was tau_max
@@ -641,10 +642,9 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
         q00, q01, q02, q11, q12, q22 = _sym_downdate(q00, q01, q02, q11, q12, q22,
                                                      q00, q01, q02, q01, q11, q12, q02, q12, q22,
                                                      q00 + wr, q01, q02, q11 + wr, q12, q22 + wr)
-    if rest:
-        if p[22] > 0.0:  # (the block's samples in motion count towards the next update)
-            s[_KTACC] += s[_SLM]
-            s[_KNACC] += s[_SLMN]
+    if rest:  # (a block ends on its last sample's status: its samples in motion count towards the next update)
+        s[_KTACC] += s[_SLM]
+        s[_KNACC] += s[_SLMN]
         _sym_store(s, _P, q00, q01, q02, q11, q12, q22)
         return 0.0, 0.0, 0.0
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
@@ -662,8 +662,10 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
             return f0, f1, f2
         wm, wv = wm / s[_KNACC], wv / s[_KNACC]
         s[_KTACC] = s[_KNACC] = 0.0
-    else:  # an update per block: the noise over its samples in motion
-        wm, wv = wm / s[_SLMN], wv / s[_SLMN]
+    else:  # an update per block: the noise over its samples in motion (and those of blocks that ended at REST)
+        n = s[_SLMN] + s[_KNACC]
+        wm, wv = wm / n, wv / n
+        s[_KTACC] = s[_KNACC] = 0.0
     ne2 = f0 * f0 + f1 * f1 + f2 * f2  # (the square root only to clamp)
     if ne2 > p[4] * p[4]:
         g = p[4] / math.sqrt(ne2)
@@ -1205,10 +1207,9 @@ class InertialTilt(FactorCorrector):
                 p[i, i] += v
         if x[_SLR] > 0.0 and c.bias_sigma_rest is not None:  # the block's REST samples: one measurement of wr / n
             p -= p @ np.linalg.inv(p + wr / x[_SLR] * np.eye(3)) @ p
-        if rest:
-            if c.bias_update_interval > 0.0:  # (the block's samples in motion count towards the next update)
-                x[_KTACC] += x[_SLM]
-                x[_KNACC] += x[_SLMN]
+        if rest:  # (a block ends on its last sample's status: its samples in motion count towards the next update)
+            x[_KTACC] += x[_SLM]
+            x[_KNACC] += x[_SLMN]
             return np.zeros(3)
         up = x[_UP:_UP + 3]
         e = -r + hb - up * (up @ hb) - h @ bias
@@ -1219,8 +1220,10 @@ class InertialTilt(FactorCorrector):
                 return e  # (the residual with the bias as it is)
             wm, wv = wm / x[_KNACC], wv / x[_KNACC]
             x[_KTACC] = x[_KNACC] = 0.0
-        else:  # an update per block, the noise over its samples in motion
-            wm, wv = wm / x[_SLMN], wv / x[_SLMN]
+        else:  # an update per block, the noise over its samples in motion (and those of blocks that ended at REST)
+            n = x[_SLMN] + x[_KNACC]
+            wm, wv = wm / n, wv / n
+            x[_KTACC] = x[_KNACC] = 0.0
         ne = float(np.linalg.norm(e))
         if ne > c.bias_max:
             e *= c.bias_max / ne
