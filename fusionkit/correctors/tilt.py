@@ -69,8 +69,11 @@ Options, each a separate idea:
   body-fixed bias's tilt moves as the body turns, as a rate error's drift does), so that it is not
   taken for E; it is not removed from the accelerometer.
   ``bias_update_interval`` likewise for the bias filter's Kalman update (its low-passes and its
-  covariance's growth run every sample).
-- **the slow estimators once per block** (``slow_interval``, 0: every sample; ``recommended``: 0.02 s): the
+  covariance's growth run once per block of ``slow_interval``, every sample with 0). With blocks, both
+  intervals are counted in whole blocks: an update comes at the first block end after the interval
+  (0.05 s becomes 0.063 s, three blocks of 6 samples, at 286 Hz).
+- **the slow estimators once per block** (``slow_interval``, 0: every sample; ``recommended``: 0.02 s; at most a
+  tenth of the shortest time constant): the
   bias filter's low-passes of ``R`` and ``R b``, its covariance's growth and a REST sample's downdate, the
   rate error's regressor low-pass and covariance, and ``tau_adapt``'s statistics run once per block of that
   many seconds, on the block's last rotation (the rate error's regressor: its middle one, the midpoint rule
@@ -203,8 +206,10 @@ _k_kf_noise = njit(inline="always")(_kf_noise)
 
 def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, sigma_m, sigma_i, forget, kappa,
                 tau_min, tau_max):
-    """The time constant for this sample (``tau_adapt``): state ``x``, the sample ``a`` and the rate
-    ``w`` in I (NaN without a valid gyro sample), the vertical ``z`` in the body, a REST sample.
+    """The time constant for this sample, or with ``slow_interval`` for this block (``tau_adapt``): state
+    ``x``, the specific force ``a`` and the rate ``w`` in I (the block's means weighted by time; NaN
+    without a valid gyro sample), the vertical ``z`` in the body, a REST sample (in the block), ``dt`` the
+    sample's (the block's) seconds.
 
     The inclination error has two parts that a time constant trades: the linear acceleration the
     low-pass lets through, ``sigma_v / (g tau)`` (the low-passed derivative of a velocity that
@@ -699,7 +704,8 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
 
 def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0, rforget, emax, correct,
                      interval, acc_sigma):
-    """The gyro's rate error estimated online (``rate_error_estimate``), one sample: the output
+    """The gyro's rate error estimated online (``rate_error_estimate``), one sample (with
+    ``slow_interval``, one block: its middle sample's output, its mean rate; ``dt`` the last sample's): the output
     quaternion ``e`` (body -> levelled), the body rate ``w`` (gyro minus bias), the bias filter's
     residual ``f`` after its update (:meth:`InertialTilt._kalman`), a REST sample.
 
@@ -726,7 +732,8 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     ``kappa^2`` is the variance alone.
 
     ``interval`` (``rate_error_interval``): the Kalman update runs once per ``interval`` s of motion
-    (0: every sample). Its measurement is low-passed at the inclination's time constant (at least
+    (0: every call; with ``slow_interval`` it is called once per block, so the interval is counted in whole
+    blocks). Its measurement is low-passed at the inclination's time constant (at least
     ``tau_min``), so consecutive samples carry almost the same information: the update of the
     interval's last sample, its noise divided by the samples the interval spans, keeps the
     information per second. The regressor's low-pass and the covariance's growth run once per block
@@ -924,17 +931,24 @@ class InertialTiltConfig(PluginConfig):
         0.0, unit="s", description="rate_error_estimate: the time of motion between the estimate's Kalman updates, "
         "each with the measurement noise divided by the samples it spans (the same information per second; the "
         "measurement is low-passed at tau, consecutive samples say almost the same). The regressor's low-pass "
-        "and the correction E w run every sample. 0: an update every sample", ge=0)
+        "runs once per block of slow_interval (every sample with 0), the correction E w every sample; with blocks "
+        "the interval is counted in whole blocks (0.05 s is 0.063 s at 286 Hz with 0.02 s blocks). 0: an update "
+        "every block (every sample with slow_interval 0)", ge=0)
     bias_update_interval: float = param(
         0.0, unit="s", description="kalman: the time of motion between the bias filter's Kalman updates, each with "
         "the measurement noise divided by the samples it spans (the same information per second: the measurement "
         "is the correction rate low-passed at tau, consecutive samples say almost the same). The low-passes and "
-        "the covariance's growth run every sample. 0: an update every sample", ge=0)
+        "the covariance's growth run once per block of slow_interval (every sample with 0); with blocks the "
+        "interval is counted in whole blocks. 0: an update every block in motion (every sample with "
+        "slow_interval 0)", ge=0)
     slow_interval: float = param(
-        0.0, unit="s", description="kalman: the bias filter's low-passes (the rotation's and the bias's), its "
-        "covariance and its updates, and the rate error's (rate_error_estimate), run once per block of this many "
-        "seconds instead of every sample: on the block's last sample's rotation, the rate error on the block's mean "
-        "rate, the covariances grown by the block's time, a block's REST samples one measurement. They change over "
+        0.0, unit="s", description="the slow estimators once per block of this many seconds instead of every "
+        "sample: with bias_filter kalman, the bias filter's low-passes (the rotation's and the bias's), its "
+        "covariance and its updates, and the rate error's (rate_error_estimate); with tau_adapt, its statistics "
+        "and time constant. On the block's last sample's rotation (the rate error's regressor: its middle one), "
+        "its mean rates and specific force weighted by time, the covariances grown by the block's time, a "
+        "block's REST samples one measurement (a block ending at REST passes its samples in motion to the next "
+        "update); update intervals are counted in whole blocks. They change over "
         "seconds (the inclination's time constant, motion_bias_tau); the inclination low-pass, the correction and "
         "(rate_error_correct) E w stay per sample. At most a tenth of the shortest time constant (tau_min with "
         "tau_adapt, else tau): the block's low-passes would wrap at pi tau, and turns faster than pi / slow_interval "
@@ -1178,10 +1192,13 @@ class InertialTilt(FactorCorrector):
         no drift, a weak pseudo-measurement). A fast rotation averages ``LP(R)`` out: the measurement
         then says little, and the gain shrinks with it (mapping ``r`` with the sample's own R would
         put it on the wrong body axes). ``P`` grows by ``sigma_motion^2 dt / motion_bias_tau`` per
-        sample up to ``sigma_init^2``; a REST sample is the rest corrector's measurement of the whole
-        bias (noise ``bias_sigma_rest``): it shrinks ``P`` (the bias itself is the rest corrector's).
+        ``dt`` s (per block of ``slow_interval``, by the block's seconds) up to ``sigma_init^2``; a REST
+        sample is the rest corrector's measurement of the whole bias (noise ``bias_sigma_rest``): it
+        shrinks ``P`` (the bias itself is the rest corrector's).
         With ``slow_interval`` this runs once per block (the state's): the low-passes on the block's
-        last rotation, ``P`` grown by the block's seconds, its REST samples one measurement.
+        last rotation, ``P`` grown by the block's seconds, its REST samples one measurement, the update
+        (``bias_update_interval``) at the first block end after its interval of motion; a block ending on
+        a REST sample passes its samples in motion to the next update.
         Returns the residual after the update, ``-r + LP(R b) - LP(R) b`` with the frame's vertical
         part of ``LP(R b)`` removed (zeros on a REST sample): what the bias does not explain."""
         c = self.config
