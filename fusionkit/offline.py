@@ -516,7 +516,7 @@ def smooth_reference(q_est: np.ndarray, gyr: np.ndarray, acc: np.ndarray, dt: np
                                    p[3], p[4], p[5], p[6], p[7])
         elif p[8] != 0.0 and x[tilt._TAU] > 0.0:
             tau = x[tilt._TAU]
-        tilt._set_tau(x, *tilt.lowpass_coefficients(tau, dt[k]))
+        tilt._set_tau(x, *tilt.lowpass_coefficients(tau, dt[k]), False)
         y = tilt._lowpass_vertical(x, v)  # (no fast start: its first step starts in v's steady state)
         u = quat_to_matrix(q_est[k]) @ (r.T @ y)  # the low-passed vertical in the estimate's earth frame
         u = u / np.linalg.norm(u)
@@ -564,7 +564,7 @@ def _smooth_kernel(q_est, gyr, acc, dt, bias, err, rest, gap, reverse, p, x0, ou
         elif p[8] != 0.0 and x[_T_TAU] > 0.0:
             tau = x[_T_TAU]
         b0, b1, b2, c1, c2 = _lp_coeffs(tau, dt[k])
-        _k_set_tau(x, b0, b1, b2, c1, c2)
+        _k_set_tau(x, b0, b1, b2, c1, c2, False)
         y0, y1, y2 = _k_lowpass_vertical(x, v0, v1, v2)
         m0, m1, m2 = k_rot(i0, -i1, -i2, -i3, y0, y1, y2)
         v0, v1, v2 = k_rot(e0, e1, e2, e3, m0, m1, m2)

@@ -4,6 +4,8 @@ converges to them and the inclination improves; on a gyro without any it stays n
 reference = numba (with the other options, in test_recommended); a configuration that cannot learn it is refused.
 """
 
+import math
+
 import numpy as np
 import pytest
 
@@ -131,6 +133,87 @@ def test_the_slow_block_learns_as_every_sample(scaled):
     assert not np.array_equal(block.quat, every.quat)  # (the block is applied)
     with pytest.raises(fk.ConfigError, match="slow_interval"):
         fk.make("recommended", slow_interval=-0.1)
+
+
+def test_a_slow_block_longer_than_the_low_passes_allow_is_refused():
+    """``slow_interval`` above a tenth of the shortest time constant (``tau_min`` with ``tau_adapt``, 0.5 s
+    in ``recommended``; ``tau`` without): the block's bilinear low-pass wraps at ``pi tau`` and the rotation,
+    seen once per block, aliases turns faster than ``pi / slow_interval`` (at 5 s the rate error came out with
+    the wrong signs): refused, not run."""
+    fk.make("recommended", slow_interval=0.05)  # (the bound itself)
+    fk.make("recommended", slow_interval=0.2, tau_adapt=False)  # (tau_acc 2 s)
+    for params in [{"slow_interval": 0.06}, {"slow_interval": 5.0}, {"slow_interval": 0.21, "tau_adapt": False}]:
+        with pytest.raises(fk.ConfigError, match="slow_interval"):
+            fk.make("recommended", **params)
+
+
+def test_no_slow_block_is_the_code_before_it_with_uneven_timestamps():
+    """``slow_interval=0`` on timestamps with a 2 % jitter (every sample a new ``dt``): the bias filter's
+    low-passes run on the inclination low-pass's set, its delay lines rescaled only when ``tau_adapt`` moves
+    the set (and never without it), as before ``slow_interval``. Pinned to the numbers of the code before it
+    (commit 1f8afbe); a set recomputed and rescaled at each new ``dt`` moved them by 4e-7 (3e-6 without
+    ``tau_adapt``)."""
+    import dataclasses
+
+    rec = turns(SCALE, n=6)
+    t = (np.arange(len(rec.gyr)) + np.random.default_rng(3).uniform(-0.02, 0.02, len(rec.gyr))) / 200.0
+    t[0] = 0.0
+    rec = dataclasses.replace(rec, rate=None, t=t)
+    before = {True: [0.10596595999580223, -0.0023319749855135775, 0.033118303776913, -0.9938153526534883],
+              False: [0.10585275400512797, -0.0038141083620612535, 0.037649165593961524, -0.9936615054318148]}
+    for tau_adapt, q in before.items():
+        res = fk.make("recommended", use_mag=False, slow_interval=0.0, tau_adapt=tau_adapt).run(rec)
+        np.testing.assert_allclose(res.quat[-1], q, atol=1e-12, err_msg=f"tau_adapt={tau_adapt}")
+
+
+def test_the_slow_block_means_are_weighted_by_time():
+    """``slow_interval``: the block's mean rates and specific force (the rate error's regressor, the adaptive
+    time constant's inputs) are integrals over the block divided by its seconds, so a long step after a
+    dropped sample, or timestamps' jitter, counts for its time; a sample without a valid gyro adds no time
+    to the rates' mean. Here 10 ms of 1 and 30 ms of 2: 1.75, not the samples' 1.5 (the caller divides as
+    below)."""
+    from fusionkit.correctors import tilt
+
+    (c,) = [c for c in fk.make("recommended").correctors if c.name == "inertial-tilt"]
+    x = c.initial_state(0.01, "ENU")
+    for dt, a, w in [(0.01, 1.0, 1.0), (0.03, 2.0, 2.0), (0.01, 4.0, math.nan)]:  # (the last: a gyro dropout)
+        tilt._block_add(x, dt, False, w, w, w, True, 1.0, 0.0, 0.0, 0.0, 0.01)
+        tilt._adapt_add(x, dt, False, a, a, a, w, w, w)
+    np.testing.assert_allclose(x[tilt._SLW:tilt._SLW + 3] / x[tilt._SLWN], 1.75, rtol=1e-12)  # (the rate error's)
+    np.testing.assert_allclose(x[tilt._AWS:tilt._AWS + 3] / x[tilt._AWN], 1.75, rtol=1e-12)  # (tau_adapt's)
+    np.testing.assert_allclose(x[tilt._AA:tilt._AA + 3] / x[tilt._ATT], 2.2, rtol=1e-12)  # (the samples': 2.33)
+
+
+def test_a_block_ending_at_rest_passes_its_motion_to_the_next_update():
+    """``slow_interval`` with ``bias_update_interval=0``: a block ends on its last sample's status, so the
+    samples in motion of a block whose last sample is REST reach no update of their own; they count towards
+    the next block's update (its noise divided over them too), as with an interval. Reference and kernel."""
+    from fusionkit.correctors import tilt
+
+    (c,) = [c for c in fk.make("recommended", bias_update_interval=0.0).correctors if c.name == "inertial-tilt"]
+    cfg, p = c.config, c.kernel(None)[1]
+    x = c.initial_state(0.005, "ENU")
+    x[tilt._N:tilt._N + 5] = tilt._kf_noise(0.005, cfg.motion_bias_tau, cfg.bias_sigma_init, cfg.bias_sigma_motion,
+                                            cfg.bias_sigma_rest or 0.0, cfg.bias_vertical_forgetting)
+    x[tilt._SB:tilt._SB + 5] = tilt.lowpass_coefficients(2.0, 0.02)
+    r = np.array([0.001, -0.002, 0.0005])
+    out = []
+    for carried in (True, False):
+        xr, xk, br, bk = x.copy(), x.copy(), np.zeros(3), np.zeros(3)
+        for rest, n in ((True, 3), (False, 4)):  # 3 samples in motion, then REST; then 4 in motion
+            for s in (xr, xk):
+                tilt._block_clear(s)
+                s[tilt._SLT], s[tilt._SLM], s[tilt._SLMN], s[tilt._SLR] = 0.02, 0.005 * n, n, 4 - n
+            c._kalman(xr, np.eye(3), r, br, 0.005, rest)
+            tilt._k_kalman(xk, bk, 1.0, 0.0, 0.0, 0.0, *r, rest, 0.005, p)
+            if rest:
+                assert xr[tilt._KNACC] == xk[tilt._KNACC] == 3
+                if not carried:  # (the block's motion dropped, as before: the comparison below)
+                    xr[tilt._KTACC] = xr[tilt._KNACC] = xk[tilt._KTACC] = xk[tilt._KNACC] = 0.0
+        assert xr[tilt._KNACC] == xk[tilt._KNACC] == 0.0  # (consumed by the update)
+        np.testing.assert_allclose(br, bk, rtol=1e-12, atol=1e-18)
+        out.append(br)
+    assert np.all(np.abs(out[0]) > np.abs(out[1]))  # (the noise divided over 7 samples, not 4: a larger step)
 
 
 def test_a_restart_starts_the_decimated_updates_counting_again():

@@ -69,8 +69,11 @@ Options, each a separate idea:
   body-fixed bias's tilt moves as the body turns, as a rate error's drift does), so that it is not
   taken for E; it is not removed from the accelerometer.
   ``bias_update_interval`` likewise for the bias filter's Kalman update (its low-passes and its
-  covariance's growth run every sample).
-- **the slow estimators once per block** (``slow_interval``, 0: every sample; ``recommended``: 0.02 s): the
+  covariance's growth run once per block of ``slow_interval``, every sample with 0). With blocks, both
+  intervals are counted in whole blocks: an update comes at the first block end after the interval
+  (0.05 s becomes 0.063 s, three blocks of 6 samples, at 286 Hz).
+- **the slow estimators once per block** (``slow_interval``, 0: every sample; ``recommended``: 0.02 s; at most a
+  tenth of the shortest time constant): the
   bias filter's low-passes of ``R`` and ``R b``, its covariance's growth and a REST sample's downdate, the
   rate error's regressor low-pass and covariance, and ``tau_adapt``'s statistics run once per block of that
   many seconds, on the block's last rotation (the rate error's regressor: its middle one, the midpoint rule
@@ -139,7 +142,8 @@ RATE_ERROR, RATE_KAPPA2 = _E, _KAP2  # where a run's state holds E and kappa^2 (
 _ADT, _AF, _AK, _AV = _SCR + 54, _SCR + 55, _SCR + 56, _SCR + 57
 # rate_error_interval: the seconds and the samples in motion since the rate error's last Kalman update
 _ETACC, _ENACC = _SCR + 58, _SCR + 59
-# bias_update_interval: the seconds and the samples in motion since the bias filter's last Kalman update
+# bias_update_interval: the seconds and the samples in motion since the bias filter's last Kalman update (0, with
+# slow_interval: those of blocks that ended at REST, for the next block's update)
 _KTACC, _KNACC = _SCR + 60, _SCR + 61
 # tau_max_parallel: the second low-pass's (at tau_max) delay lines, its coefficients for the last dt, whether it
 # started, and whether the last sample's tau was tau_max
@@ -147,13 +151,14 @@ _PZ1, _PZ2, _PB, _PREADY, _PMAX = _SCR + 62, _SCR + 65, _SCR + 68, _SCR + 73, _S
 _BTAU = _SCR + 75  # the time constant of the inclination low-pass's coefficient set (_B)
 # slow_interval: the block of samples since the last slow step (the bias filter's and the rate error's low-passes,
 # covariances and updates run once per block): its seconds, its seconds and samples in motion, its REST samples,
-# the rate error's seconds and samples in motion with a valid gyro, the sum of those samples' body rates and their
-# count; then the slow low-passes' coefficient set (b0, b1, b2, a1, a2) and the block time and time constant it is for
+# the rate error's seconds and samples in motion with a valid gyro, the body rate integrated over the samples with a
+# valid gyro and their seconds (a mean weighted by time: dropped samples and jitter do not tilt it); then the slow
+# low-passes' coefficient set (b0, b1, b2, a1, a2) and the block time and time constant it is for
 _SLT, _SLM, _SLMN, _SLR, _SLE, _SLEN, _SLW, _SLWN = _SCR + 76, _SCR + 77, _SCR + 78, _SCR + 79, _SCR + 80, _SCR + 81, \
     _SCR + 82, _SCR + 85
 _SB, _SBT, _SBTAU = _SCR + 86, _SCR + 91, _SCR + 92
-# slow_interval with tau_adapt: the adaptive time constant's block: its seconds and samples, the sum of the specific
-# force in I, the sum of the valid rates in I and their count, its REST samples
+# slow_interval with tau_adapt: the adaptive time constant's block: its seconds and samples, the specific force in I
+# integrated over it, the valid rates in I integrated and their seconds, its REST samples (means weighted by time)
 _ATT, _ATN, _AA, _AWS, _AWN, _AREST = _SCR + 93, _SCR + 94, _SCR + 95, _SCR + 98, _SCR + 101, _SCR + 102
 # slow_interval with the rate error: the output at the block's middle (the regressor's rotation) and whether it is set
 _SLQ, _SLQN = _SCR + 103, _SCR + 107
@@ -201,8 +206,10 @@ _k_kf_noise = njit(inline="always")(_kf_noise)
 
 def _adapt_step(x, a0, a1, a2, w0, w1, w2, z0, z1, z2, rest, dt, tau0, window, sigma_m, sigma_i, forget, kappa,
                 tau_min, tau_max):
-    """The time constant for this sample (``tau_adapt``): state ``x``, the sample ``a`` and the rate
-    ``w`` in I (NaN without a valid gyro sample), the vertical ``z`` in the body, a REST sample.
+    """The time constant for this sample, or with ``slow_interval`` for this block (``tau_adapt``): state
+    ``x``, the specific force ``a`` and the rate ``w`` in I (the block's means weighted by time; NaN
+    without a valid gyro sample), the vertical ``z`` in the body, a REST sample (in the block), ``dt`` the
+    sample's (the block's) seconds.
 
     The inclination error has two parts that a time constant trades: the linear acceleration the
     low-pass lets through, ``sigma_v / (g tau)`` (the low-passed derivative of a velocity that
@@ -296,12 +303,26 @@ def _publish(x, ch) -> None:
 _k_publish = njit(inline="always")(_publish)
 
 
-def _set_tau(x, b0, b1, b2, a1, a2):
+@njit(inline="always")
+def _scale_slow_lines(x, f1, f2) -> None:
+    """The bias filter's low-passes' (rotation and bias) delay lines scaled to a new coefficient set's
+    steady state (``f1`` the first line's factor, ``f2`` the second's): :func:`_set_tau`, :func:`_slow_set`."""
+    for i in range(3):
+        x[_BZ1 + i] *= f1
+        x[_BZ2 + i] *= f2
+    for i in range(9):
+        x[_RZ1 + i] *= f1
+        x[_RZ2 + i] *= f2
+
+
+def _set_tau(x, b0, b1, b2, a1, a2, every):
     """The low-passes' new coefficients (``tau_adapt``: this sample's ``tau`` and ``dt``). The
     transposed direct form's delay lines hold ``y (1 - b0)`` and ``y (b2 - a2)`` in the steady state:
     once the low-pass runs, they are scaled to the new coefficients' steady state, or a change of
     ``tau`` at a low cutoff (``a2`` moves by about ``sqrt(2) dt d(1/tau)``) would put a step into the
-    output. The bias filter's low-passes have their own set (:func:`_slow_set`)."""
+    output. ``every`` (``slow_interval`` 0): the bias filter's low-passes (rotation and bias) run every
+    sample on this same set, and their delay lines are scaled with it (as before ``slow_interval``);
+    with blocks they have their own set (:func:`_slow_set`)."""
     # (the old coefficients' reciprocals are ready before the new coefficients: a multiplication on the chain)
     f1 = (1.0 - b0) * (1.0 / (1.0 - x[_B])) if x[_READY] != 0.0 else 1.0
     f2 = (b2 - a2) * (1.0 / (x[_B + 2] - x[_B + 4])) if x[_READY] != 0.0 else 1.0
@@ -309,6 +330,8 @@ def _set_tau(x, b0, b1, b2, a1, a2):
     for i in range(3):
         x[_Z1 + i] *= f1
         x[_Z2 + i] *= f2
+    if every:
+        _scale_slow_lines(x, f1, f2)
 
 
 _k_set_tau = njit(inline="always")(_set_tau)
@@ -323,12 +346,7 @@ def _slow_set(x, t, b0, b1, b2, a1, a2):
     if x[_KREADY] != 0.0:
         f1 = (1.0 - b0) * (1.0 / (1.0 - x[_SB]))
         f2 = (b2 - a2) * (1.0 / (x[_SB + 2] - x[_SB + 4]))
-        for i in range(3):
-            x[_BZ1 + i] *= f1
-            x[_BZ2 + i] *= f2
-        for i in range(9):
-            x[_RZ1 + i] *= f1
-            x[_RZ2 + i] *= f2
+        _scale_slow_lines(x, f1, f2)
     x[_SB], x[_SB + 1], x[_SB + 2], x[_SB + 3], x[_SB + 4] = b0, b1, b2, a1, a2
     x[_SBT], x[_SBTAU] = t, x[_BTAU]
 
@@ -338,10 +356,10 @@ _k_slow_set = njit(inline="always")(_slow_set)
 
 def _block_add(x, dt, rest, w0, w1, w2, rate_error, e0, e1, e2, e3, half):
     """``slow_interval``: one sample into the block (its time; in motion, its time and count; at
-    REST, its count; with the rate error and a valid gyro, the body rate ``w`` summed, and in motion
-    its time and count; the output ``e`` of the first sample at which the block reaches ``half`` s, half of
-    ``slow_interval``: its middle); returns the block's seconds (the caller compares them with
-    ``slow_interval``)."""
+    REST, its count; with the rate error and a valid gyro, the body rate ``w`` times ``dt`` summed and
+    ``dt`` (the mean rate weighted by time), and in motion its time and count; the output ``e`` of the
+    first sample at which the block reaches ``half`` s, half of ``slow_interval``: its middle); returns
+    the block's seconds (the caller compares them with ``slow_interval``)."""
     x[_SLT] += dt
     if rate_error and x[_SLQN] == 0.0 and x[_SLT] + 0.5 * dt >= half:
         x[_SLQ], x[_SLQ + 1], x[_SLQ + 2], x[_SLQ + 3], x[_SLQN] = e0, e1, e2, e3, 1.0
@@ -351,10 +369,10 @@ def _block_add(x, dt, rest, w0, w1, w2, rate_error, e0, e1, e2, e3, half):
         x[_SLM] += dt
         x[_SLMN] += 1.0
     if rate_error and math.isfinite(w0) and math.isfinite(w1) and math.isfinite(w2):
-        x[_SLW] += w0
-        x[_SLW + 1] += w1
-        x[_SLW + 2] += w2
-        x[_SLWN] += 1.0
+        x[_SLW] += w0 * dt
+        x[_SLW + 1] += w1 * dt
+        x[_SLW + 2] += w2 * dt
+        x[_SLWN] += dt
         if not rest:
             x[_SLE] += dt
             x[_SLEN] += 1.0
@@ -376,17 +394,18 @@ _k_block_clear = njit(inline="always")(_block_clear)
 
 def _adapt_add(x, dt, rest, a0, a1, a2, w0, w1, w2):
     """``slow_interval`` with ``tau_adapt``: one sample into the adaptive time constant's block (the
-    specific force ``a`` and, when valid, the rate ``w``, both in I, summed); returns the block's seconds."""
+    specific force ``a`` and, when valid, the rate ``w``, both in I, times ``dt`` summed, and the valid
+    rates' seconds: means weighted by time); returns the block's seconds."""
     x[_ATT] += dt
     x[_ATN] += 1.0
-    x[_AA] += a0
-    x[_AA + 1] += a1
-    x[_AA + 2] += a2
+    x[_AA] += a0 * dt
+    x[_AA + 1] += a1 * dt
+    x[_AA + 2] += a2 * dt
     if math.isfinite(w0) and math.isfinite(w1) and math.isfinite(w2):
-        x[_AWS] += w0
-        x[_AWS + 1] += w1
-        x[_AWS + 2] += w2
-        x[_AWN] += 1.0
+        x[_AWS] += w0 * dt
+        x[_AWS + 1] += w1 * dt
+        x[_AWS + 2] += w2 * dt
+        x[_AWN] += dt
     if rest:
         x[_AREST] += 1.0
     return x[_ATT]
@@ -628,10 +647,9 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
         q00, q01, q02, q11, q12, q22 = _sym_downdate(q00, q01, q02, q11, q12, q22,
                                                      q00, q01, q02, q01, q11, q12, q02, q12, q22,
                                                      q00 + wr, q01, q02, q11 + wr, q12, q22 + wr)
-    if rest:
-        if p[22] > 0.0:  # (the block's samples in motion count towards the next update)
-            s[_KTACC] += s[_SLM]
-            s[_KNACC] += s[_SLMN]
+    if rest:  # (a block ends on its last sample's status: its samples in motion count towards the next update)
+        s[_KTACC] += s[_SLM]
+        s[_KNACC] += s[_SLMN]
         _sym_store(s, _P, q00, q01, q02, q11, q12, q22)
         return 0.0, 0.0, 0.0
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
@@ -649,8 +667,10 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
             return f0, f1, f2
         wm, wv = wm / s[_KNACC], wv / s[_KNACC]
         s[_KTACC] = s[_KNACC] = 0.0
-    else:  # an update per block: the noise over its samples in motion
-        wm, wv = wm / s[_SLMN], wv / s[_SLMN]
+    else:  # an update per block: the noise over its samples in motion (and those of blocks that ended at REST)
+        n = s[_SLMN] + s[_KNACC]
+        wm, wv = wm / n, wv / n
+        s[_KTACC] = s[_KNACC] = 0.0
     ne2 = f0 * f0 + f1 * f1 + f2 * f2  # (the square root only to clamp)
     if ne2 > p[4] * p[4]:
         g = p[4] / math.sqrt(ne2)
@@ -684,7 +704,8 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
 
 def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0, rforget, emax, correct,
                      interval, acc_sigma):
-    """The gyro's rate error estimated online (``rate_error_estimate``), one sample: the output
+    """The gyro's rate error estimated online (``rate_error_estimate``), one sample (with
+    ``slow_interval``, one block: its middle sample's output, its mean rate; ``dt`` the last sample's): the output
     quaternion ``e`` (body -> levelled), the body rate ``w`` (gyro minus bias), the bias filter's
     residual ``f`` after its update (:meth:`InertialTilt._kalman`), a REST sample.
 
@@ -711,7 +732,8 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     ``kappa^2`` is the variance alone.
 
     ``interval`` (``rate_error_interval``): the Kalman update runs once per ``interval`` s of motion
-    (0: every sample). Its measurement is low-passed at the inclination's time constant (at least
+    (0: every call; with ``slow_interval`` it is called once per block, so the interval is counted in whole
+    blocks). Its measurement is low-passed at the inclination's time constant (at least
     ``tau_min``), so consecutive samples carry almost the same information: the update of the
     interval's last sample, its noise divided by the samples the interval spans, keeps the
     information per second. The regressor's low-pass and the covariance's growth run once per block
@@ -909,19 +931,28 @@ class InertialTiltConfig(PluginConfig):
         0.0, unit="s", description="rate_error_estimate: the time of motion between the estimate's Kalman updates, "
         "each with the measurement noise divided by the samples it spans (the same information per second; the "
         "measurement is low-passed at tau, consecutive samples say almost the same). The regressor's low-pass "
-        "and the correction E w run every sample. 0: an update every sample", ge=0)
+        "runs once per block of slow_interval (every sample with 0), the correction E w every sample; with blocks "
+        "the interval is counted in whole blocks (0.05 s is 0.063 s at 286 Hz with 0.02 s blocks). 0: an update "
+        "every block (every sample with slow_interval 0)", ge=0)
     bias_update_interval: float = param(
         0.0, unit="s", description="kalman: the time of motion between the bias filter's Kalman updates, each with "
         "the measurement noise divided by the samples it spans (the same information per second: the measurement "
         "is the correction rate low-passed at tau, consecutive samples say almost the same). The low-passes and "
-        "the covariance's growth run every sample. 0: an update every sample", ge=0)
+        "the covariance's growth run once per block of slow_interval (every sample with 0); with blocks the "
+        "interval is counted in whole blocks. 0: an update every block in motion (every sample with "
+        "slow_interval 0)", ge=0)
     slow_interval: float = param(
-        0.0, unit="s", description="kalman: the bias filter's low-passes (the rotation's and the bias's), its "
-        "covariance and its updates, and the rate error's (rate_error_estimate), run once per block of this many "
-        "seconds instead of every sample: on the block's last sample's rotation, the rate error on the block's mean "
-        "rate, the covariances grown by the block's time, a block's REST samples one measurement. They change over "
+        0.0, unit="s", description="the slow estimators once per block of this many seconds instead of every "
+        "sample: with bias_filter kalman, the bias filter's low-passes (the rotation's and the bias's), its "
+        "covariance and its updates, and the rate error's (rate_error_estimate); with tau_adapt, its statistics "
+        "and time constant. On the block's last sample's rotation (the rate error's regressor: its middle one), "
+        "its mean rates and specific force weighted by time, the covariances grown by the block's time, a "
+        "block's REST samples one measurement (a block ending at REST passes its samples in motion to the next "
+        "update); update intervals are counted in whole blocks. They change over "
         "seconds (the inclination's time constant, motion_bias_tau); the inclination low-pass, the correction and "
-        "(rate_error_correct) E w stay per sample. 0: every sample (the behaviour before)", ge=0)
+        "(rate_error_correct) E w stay per sample. At most a tenth of the shortest time constant (tau_min with "
+        "tau_adapt, else tau): the block's low-passes would wrap at pi tau, and turns faster than pi / slow_interval "
+        "alias. 0: every sample (the behaviour before)", ge=0)
     tau_min: float = param(0.5, unit="s", description="tau_adapt: the shortest time constant", gt=0)
     tau_max: float = param(4.0, unit="s", description="tau_adapt: the longest time constant (the velocity estimate, "
                            "leaking with tau, does not see accelerations slower than a few tau)", gt=0)
@@ -965,6 +996,16 @@ class InertialTiltConfig(PluginConfig):
             raise ValueError("rate_error_correct needs rate_error_estimate")
         if self.rate_error_acc_bias > 0 and not self.rate_error_estimate:  # (it would be silently ignored)
             raise ValueError("rate_error_acc_bias needs rate_error_estimate")
+        # slow_interval: the block's low-passes are a bilinear transform at the block's rate, tan(T / (2 tau)),
+        # which wraps at T = pi tau; and they see the rotation once per block, so turns faster than pi / T rad/s
+        # alias (at 5 s the rate error came out with the wrong signs). A tenth of the shortest time constant keeps
+        # the cutoff within 0.1 % of the per-sample one and puts the aliasing above pi / 0.05 = 63 rad/s at the
+        # defaults (tau_min 0.5 s)
+        low = min(self.tau_min, self.tau) if self.tau_adapt else self.tau
+        if self.slow_interval > 0.1 * low:
+            name = "tau_min" if self.tau_adapt else "tau"
+            raise ValueError(f"slow_interval must be at most a tenth of the shortest time constant ({name}): "
+                             f"{0.1 * low:g} s, got {self.slow_interval:g} s")
         return self
 
 
@@ -1060,8 +1101,10 @@ class InertialTilt(FactorCorrector):
         if c.tau_adapt:  # once per block of slow_interval (0: every sample), on the block's means; the first at once
             tau = x[_TAU]
             if _adapt_add(x, dt, rest, *a_i, *w_i) + 0.5 * dt >= c.slow_interval or x[_NST] == 0.0:
-                ma = x[_AA:_AA + 3] / x[_ATN]
-                mw = x[_AWS:_AWS + 3] / x[_AWN] if x[_AWN] > 0.0 else np.full(3, math.nan)
+                ma, mw = a_i, w_i  # (slow_interval 0: the block is this sample, its values as they are)
+                if c.slow_interval > 0.0:  # the block's means, weighted by time
+                    ma = x[_AA:_AA + 3] / x[_ATT]
+                    mw = x[_AWS:_AWS + 3] / x[_AWN] if x[_AWN] > 0.0 else np.full(3, math.nan)
                 tau = _adapt_step(x, *ma, *mw, *z, x[_AREST] > 0.0, x[_ATT], c.tau, c.adapt_window,
                                   c.bias_sigma_motion, c.bias_sigma_init, c.motion_bias_tau or _FORGET,
                                   math.sqrt(x[_KAP2]) if c.rate_error_estimate else c.gyro_rate_error,
@@ -1086,11 +1129,11 @@ class InertialTilt(FactorCorrector):
                     x[_PB:_PB + 5] = lowpass_coefficients(c.tau_max, dt)
             sw = par and _parallel_switch(x, tau >= c.tau_max, dt, c.tau_max)
             if sw:  # the low-pass at tau_max replaces the adaptive one (its coefficients, then its delay lines)
-                _set_tau(x, *x[_PB:_PB + 5])
+                _set_tau(x, *x[_PB:_PB + 5], c.slow_interval == 0.0)
                 x[_BTAU] = c.tau_max
             elif c.tau_adapt and abs(tau - x[_TAUC] * dt) > _TAU_STEP * x[_TAUC] * dt:
                 x[_TAUC] = tau / dt  # the coefficients of this sample's time constant
-                _set_tau(x, *lowpass_coefficients(tau, dt))
+                _set_tau(x, *lowpass_coefficients(tau, dt), c.slow_interval == 0.0)
                 x[_BTAU] = tau
             if c.impulse_clip is not None:
                 a_i = _impulse_clip(x, a_i, dt, c.impulse_clip, c.impulse_window, c.impulse_floor)
@@ -1120,11 +1163,14 @@ class InertialTilt(FactorCorrector):
                     >= c.slow_interval:
                 s = float(np.linalg.norm(qc[1:]))
                 r = qc[1:] * (2.0 * math.atan2(s, qc[0]) / (s * dt)) if s > 0.0 else np.zeros(3)
-                if x[_SBT] != x[_SLT] or x[_SBTAU] != x[_BTAU]:  # the slow low-passes' set for this block and tau
+                if c.slow_interval == 0.0:  # every sample: the inclination's set, rescaled by _set_tau
+                    x[_SB:_SB + 5] = x[_B:_B + 5]
+                elif x[_SBT] != x[_SLT] or x[_SBTAU] != x[_BTAU]:  # the slow low-passes' set for this block and tau
                     _slow_set(x, x[_SLT], *lowpass_coefficients(x[_BTAU], x[_SLT]))
                 res = self._kalman(x, quat_to_matrix(out), r, bias, dt, rest)
                 if c.rate_error_estimate and x[_SLWN] > 0.0:  # (a block without a valid gyro: nothing to learn)
-                    _rate_error_step(x, *x[_SLQ:_SLQ + 4], *(x[_SLW:_SLW + 3] / x[_SLWN]), *res, rest, dt,
+                    mw = x[_SLW:_SLW + 3] / x[_SLWN] if c.slow_interval > 0.0 else w_b  # (0: this sample's)
+                    _rate_error_step(x, *x[_SLQ:_SLQ + 4], *mw, *res, rest, dt,
                                      c.gyro_rate_error,
                                      1.0 / c.motion_bias_tau, c.rate_error_max, c.rate_error_correct,
                                      c.rate_error_interval, c.rate_error_acc_bias)
@@ -1146,10 +1192,13 @@ class InertialTilt(FactorCorrector):
         no drift, a weak pseudo-measurement). A fast rotation averages ``LP(R)`` out: the measurement
         then says little, and the gain shrinks with it (mapping ``r`` with the sample's own R would
         put it on the wrong body axes). ``P`` grows by ``sigma_motion^2 dt / motion_bias_tau`` per
-        sample up to ``sigma_init^2``; a REST sample is the rest corrector's measurement of the whole
-        bias (noise ``bias_sigma_rest``): it shrinks ``P`` (the bias itself is the rest corrector's).
+        ``dt`` s (per block of ``slow_interval``, by the block's seconds) up to ``sigma_init^2``; a REST
+        sample is the rest corrector's measurement of the whole bias (noise ``bias_sigma_rest``): it
+        shrinks ``P`` (the bias itself is the rest corrector's).
         With ``slow_interval`` this runs once per block (the state's): the low-passes on the block's
-        last rotation, ``P`` grown by the block's seconds, its REST samples one measurement.
+        last rotation, ``P`` grown by the block's seconds, its REST samples one measurement, the update
+        (``bias_update_interval``) at the first block end after its interval of motion; a block ending on
+        a REST sample passes its samples in motion to the next update.
         Returns the residual after the update, ``-r + LP(R b) - LP(R) b`` with the frame's vertical
         part of ``LP(R b)`` removed (zeros on a REST sample): what the bias does not explain."""
         c = self.config
@@ -1175,10 +1224,9 @@ class InertialTilt(FactorCorrector):
                 p[i, i] += v
         if x[_SLR] > 0.0 and c.bias_sigma_rest is not None:  # the block's REST samples: one measurement of wr / n
             p -= p @ np.linalg.inv(p + wr / x[_SLR] * np.eye(3)) @ p
-        if rest:
-            if c.bias_update_interval > 0.0:  # (the block's samples in motion count towards the next update)
-                x[_KTACC] += x[_SLM]
-                x[_KNACC] += x[_SLMN]
+        if rest:  # (a block ends on its last sample's status: its samples in motion count towards the next update)
+            x[_KTACC] += x[_SLM]
+            x[_KNACC] += x[_SLMN]
             return np.zeros(3)
         up = x[_UP:_UP + 3]
         e = -r + hb - up * (up @ hb) - h @ bias
@@ -1189,8 +1237,10 @@ class InertialTilt(FactorCorrector):
                 return e  # (the residual with the bias as it is)
             wm, wv = wm / x[_KNACC], wv / x[_KNACC]
             x[_KTACC] = x[_KNACC] = 0.0
-        else:  # an update per block, the noise over its samples in motion
-            wm, wv = wm / x[_SLMN], wv / x[_SLMN]
+        else:  # an update per block, the noise over its samples in motion (and those of blocks that ended at REST)
+            n = x[_SLMN] + x[_KNACC]
+            wm, wv = wm / n, wv / n
+            x[_KTACC] = x[_KNACC] = 0.0
         ne = float(np.linalg.norm(e))
         if ne > c.bias_max:
             e *= c.bias_max / ne
@@ -1245,11 +1295,14 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                 if s[_NST] > 0.0:  # the vertical in the body
                     rn = 1.0 / math.sqrt(s[_Y] * s[_Y] + s[_Y + 1] * s[_Y + 1] + s[_Y + 2] * s[_Y + 2])
                     z0, z1, z2 = k_rot(p0, -p1, -p2, -p3, s[_Y] * rn, s[_Y + 1] * rn, s[_Y + 2] * rn)
-                na, nw = s[_ATN], s[_AWN]
-                mw0 = mw1 = mw2 = math.nan
-                if nw > 0.0:
-                    mw0, mw1, mw2 = s[_AWS] / nw, s[_AWS + 1] / nw, s[_AWS + 2] / nw
-                tau = _k_adapt_step(s, s[_AA] / na, s[_AA + 1] / na, s[_AA + 2] / na, mw0, mw1, mw2, z0, z1, z2,
+                ma0, ma1, ma2, mw0, mw1, mw2 = v0, v1, v2, w0, w1, w2  # (slow_interval 0: this sample's)
+                if p[27] > 0.0:  # the block's means, weighted by time
+                    na, nw = s[_ATT], s[_AWN]
+                    ma0, ma1, ma2 = s[_AA] / na, s[_AA + 1] / na, s[_AA + 2] / na
+                    mw0 = mw1 = mw2 = math.nan
+                    if nw > 0.0:
+                        mw0, mw1, mw2 = s[_AWS] / nw, s[_AWS + 1] / nw, s[_AWS + 2] / nw
+                tau = _k_adapt_step(s, ma0, ma1, ma2, mw0, mw1, mw2, z0, z1, z2,
                                     s[_AREST] > 0.0, s[_ATT], p[0], p[14], p[7], p[6], p[3] if p[3] > 0.0 else _FORGET,
                                     math.sqrt(s[_KAP2]) if p[18] != 0.0 else p[11], p[12], p[13])
                 _k_adapt_clear(s)
@@ -1272,12 +1325,12 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                     s[_PB], s[_PB + 1], s[_PB + 2], s[_PB + 3], s[_PB + 4] = _lp_coeffs(p[13], dt)
             sw = p[24] != 0.0 and _k_parallel_switch(s, tau >= p[13], dt, p[13])
             if sw:
-                _k_set_tau(s, s[_PB], s[_PB + 1], s[_PB + 2], s[_PB + 3], s[_PB + 4])
+                _k_set_tau(s, s[_PB], s[_PB + 1], s[_PB + 2], s[_PB + 3], s[_PB + 4], p[27] == 0.0)
                 s[_BTAU] = p[13]
             elif p[10] != 0.0 and abs(tau - s[_TAUC] * dt) > _TAU_STEP * s[_TAUC] * dt:
                 s[_TAUC] = tau / dt
                 t0, t1, t2, t3, t4 = _lp_coeffs(tau, dt)
-                _k_set_tau(s, t0, t1, t2, t3, t4)
+                _k_set_tau(s, t0, t1, t2, t3, t4, p[27] == 0.0)
                 s[_BTAU] = tau
             if p[15] != 0.0:
                 v0, v1, v2 = _k_impulse_clip(s, v0, v1, v2, dt, p[15], p[16], p[17])
@@ -1335,14 +1388,20 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                         p[18] != 0.0 and s[_ETACC] + s[_SLE] + 0.5 * dt >= p[21])):
                     sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
                     f = 2.0 * _atan_over(sn, c0) / dt if sn > 0.0 else 0.0
-                if s[_SBT] != s[_SLT] or s[_SBTAU] != s[_BTAU]:
+                if p[27] == 0.0:  # every sample: the inclination's set, rescaled by _k_set_tau
+                    for i in range(5):
+                        s[_SB + i] = s[_B + i]
+                elif s[_SBT] != s[_SLT] or s[_SBTAU] != s[_BTAU]:
                     t0, t1, t2, t3, t4 = _lp_coeffs(s[_BTAU], s[_SLT])
                     _k_slow_set(s, s[_SLT], t0, t1, t2, t3, t4)
                 f0, f1, f2 = _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, rest, dt, p)
                 if p[18] != 0.0 and s[_SLWN] > 0.0:
-                    nw = s[_SLWN]
-                    _k_rate_error_step(s, s[_SLQ], s[_SLQ + 1], s[_SLQ + 2], s[_SLQ + 3], s[_SLW] / nw,
-                                       s[_SLW + 1] / nw, s[_SLW + 2] / nw, f0, f1, f2, rest, dt, p[11], p[26], p[19],
+                    mw0, mw1, mw2 = wb0, wb1, wb2  # (slow_interval 0: this sample's)
+                    if p[27] > 0.0:  # the block's mean, weighted by time
+                        nw = s[_SLWN]
+                        mw0, mw1, mw2 = s[_SLW] / nw, s[_SLW + 1] / nw, s[_SLW + 2] / nw
+                    _k_rate_error_step(s, s[_SLQ], s[_SLQ + 1], s[_SLQ + 2], s[_SLQ + 3], mw0,
+                                       mw1, mw2, f0, f1, f2, rest, dt, p[11], p[26], p[19],
                                        p[20] != 0.0, p[21], p[25])
                 _k_block_clear(s)
             if p[20] != 0.0 and math.isfinite(wb0) and math.isfinite(wb1) and math.isfinite(wb2):

@@ -106,7 +106,8 @@ class RecommendedConfig(FilterConfig):
         "(inertial-tilt's rate_error_interval): its measurement is low-passed at the inclination's time constant "
         "(0.5-4 s), so consecutive samples say almost the same; each update's noise is divided by the samples it "
         "spans (the same information per second). 0.05 s: a tenth of the shortest time constant, 0.5 s "
-        "(recommended.md). 0: an update every sample (the behaviour before)", ge=0)
+        "(recommended.md). Counted in whole blocks of slow_interval (0.063 s at 286 Hz). 0: an update every block "
+        "(every sample with slow_interval 0, the behaviour before)", ge=0)
     gyro_rate_acc_bias: float = param(
         0.0, unit="m/s^2", description="gyro_rate_estimate: the accelerometer's bias (standard deviation per axis) "
         "estimated beside the rate error, so that the drift of the tilt a body-fixed accelerometer bias makes as "
@@ -116,13 +117,17 @@ class RecommendedConfig(FilterConfig):
         0.05, unit="s", description="bias_filter kalman: the time of motion between the bias filter's Kalman updates "
         "(inertial-tilt's bias_update_interval): like gyro_rate_interval, its measurement is the correction low-passed "
         "at the inclination's time constant, each update's noise divided by the samples it spans (the same "
-        "information per second); the low-passes and the covariance's growth run every sample (recommended.md). "
-        "0: an update every sample (the behaviour before)", ge=0)
+        "information per second); the low-passes and the covariance's growth run once per block of slow_interval "
+        "(recommended.md), and the interval is counted in whole blocks (0.063 s at 286 Hz). 0: an update every "
+        "block in motion (every sample with slow_interval 0, the behaviour before)", ge=0)
     slow_interval: float = param(
-        0.02, unit="s", description="bias_filter kalman: the bias filter's and the rate error's per-sample work (their "
-        "low-passes of the rotation, covariances, updates) once per block of this many seconds, on the block's last "
-        "rotation and mean rate (inertial-tilt's slow_interval; recommended.md): they change over seconds. The "
-        "inclination low-pass and correction stay per sample. 0: every sample (the behaviour before)", ge=0)
+        0.02, unit="s", description="the slow estimators once per block of this many seconds: the bias filter's and "
+        "the rate error's per-sample work (their low-passes of the rotation, covariances, updates; bias_filter "
+        "kalman) and tau_adapt's statistics and time constant, on the block's last rotation and its mean rates and "
+        "specific force weighted by time (inertial-tilt's slow_interval; recommended.md): they change over "
+        "seconds. The inclination low-pass and correction stay per sample; the update intervals are counted in "
+        "whole blocks. At most 0.05 s, a tenth of the shortest time constant "
+        "(0.5 s; tau_acc without tau_adapt). 0: every sample (the behaviour before)", ge=0)
     tau_mag: float = param(15.0, unit="s", description="heading_gain fixed: time constant of the heading correction",
                            gt=0)
     heading_gain: Literal["fixed", "kalman"] = param(

@@ -173,6 +173,12 @@ _HELD_AGE = 0.5
 _RECALIBRATED = int(Flag.MAG_RECALIBRATED)
 _MAG_HELD = int(Flag.MAG_HELD)
 _PROVISIONAL = 0.5  # the confidence of an offset applied before the estimate is confident (provisional_std)
+# the fit's residual sum of squares, sum |r|^2 - y . x, is known to the cancellation's rounding (about eps times the
+# condition of the information matrix, times sum |r|^2): below this fraction of sum |r|^2 it is that rounding, not a
+# noise (a real magnetometer's noise leaves 1e-6 or more), and is taken as this floor. Without it a noise-free fit
+# (a simulation) had a residual of 0 or 1e-13 by the order of the sums, its std 0 or not, and the compiled path applied
+# a calibration the reference refused (one that mapped the field to 1e-11 uT)
+_RES_FLOOR = 1e-9
 
 
 class MagCalibrationConfig(PluginConfig):
@@ -380,7 +386,7 @@ class MagCalibrationModel(SensorModel):
         s[_BEST:_BEST + 3] = best
         # the fit's residual noise per axis: sum |r - H b|^2 = sum |r|^2 - y . b at the optimum
         if s[_NE] > 1.0:
-            s[_VAR] = max(s[_RR] - float(s[_Y:_Y + 3] @ best), 0.0) / (3.0 * (s[_NE] - 1.0))
+            s[_VAR] = max(s[_RR] - float(s[_Y:_Y + 3] @ best), _RES_FLOOR * s[_RR]) / (3.0 * (s[_NE] - 1.0))
         lmin = _min_eig_sym3(a)
         field = float(np.linalg.norm(m - best))
         if s[_N] < c.min_segments or not lmin > 0.0:
@@ -435,7 +441,7 @@ class MagCalibrationModel(SensorModel):
         best = inv @ s[_SY:_SY + _NP]
         s[_SBEST:_SBEST + _NP] = best
         if 3.0 * s[_NE] > _NP:  # the residual noise: sum |r - H x|^2 = sum |r|^2 - y . x at the optimum
-            s[_VAR] = max(s[_RR] - float(s[_SY:_SY + _NP] @ best), 0.0) / (3.0 * s[_NE] - _NP)
+            s[_VAR] = max(s[_RR] - float(s[_SY:_SY + _NP] @ best), _RES_FLOOR * s[_RR]) / (3.0 * s[_NE] - _NP)
         w = np.eye(3) + _distortion(best)
         field = float(np.linalg.norm(w @ m - best[5:8]))
         std = np.sqrt(s[_VAR] * np.diag(inv))
@@ -1044,7 +1050,7 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
         s[_BEST + i] = inv[i, 0] * s[_Y] + inv[i, 1] * s[_Y + 1] + inv[i, 2] * s[_Y + 2]
     if s[_NE] > 1.0:
         rss = s[_RR] - (s[_Y] * s[_BEST] + s[_Y + 1] * s[_BEST + 1] + s[_Y + 2] * s[_BEST + 2])
-        s[_VAR] = max(rss, 0.0) / (3.0 * (s[_NE] - 1.0))
+        s[_VAR] = max(rss, _RES_FLOOR * s[_RR]) / (3.0 * (s[_NE] - 1.0))
     lmin = _k_min_eig(a)
     f0, f1, f2 = m0 - s[_BEST], m1 - s[_BEST + 1], m2 - s[_BEST + 2]
     field = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
@@ -1135,7 +1141,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
         s[_SBEST + i] = x
         yb += s[_SY + i] * x
     if 3.0 * s[_NE] > _NP:
-        s[_VAR] = max(s[_RR] - yb, 0.0) / (3.0 * s[_NE] - _NP)
+        s[_VAR] = max(s[_RR] - yb, _RES_FLOOR * s[_RR]) / (3.0 * s[_NE] - _NP)
     t = s[_SBEST:_SBEST + _NP]
     w = buf[173:182].reshape((3, 3))
     w[0, 0], w[0, 1], w[0, 2] = 1.0 + t[0], t[2], t[3]
