@@ -706,6 +706,8 @@ class OfflineFilter(Filter):
             gyro_timing = {"delay": self.gyro_timing, "std": 0.0, "applied": True}
             rec = _with_gyro_retimed(rec, self.gyro_timing)
         choice = None
+        if state is not None:  # judged whole, before the calibration's part is taken out of it
+            inner._check_state(state)
         if self.calibration == "recording" and len(rec) >= 2 and self.dimension(rec) == "9D":
             split = _split_calibration(inner)
             if split is not None:  # the calibration decided with the whole recording, the passes without the model
@@ -966,8 +968,12 @@ def calibration_passes(model, rec: Recording, max_gap: float | None = None, gyr_
     or ``"reference"`` (:meth:`~fusionkit.models.mag_calibration.MagCalibrationModel.apply`)."""
     out = []
     end = None
+    fresh = model.initial_state(rec.nominal_dt)
+    if state is not None and np.shape(state) != fresh.shape:  # (the kernel writes without bounds checks)
+        raise InputError(f"state has shape {np.shape(state)}, but this model's state is {fresh.shape} (a state "
+                         "saved by another configuration or an older fusionkit?)")
     for k, r in enumerate((rec, reverse_recording(rec))):
-        s = model.initial_state(rec.nominal_dt) if k or state is None else np.array(state, dtype=float)
+        s = fresh.copy() if k or state is None else np.array(state, dtype=float)
         gyr, dt, _ = hold_gaps(r.gyr, r.dt, r.nominal_dt, max_gap)
         m = np.empty_like(r.mag)
         if resolve_backend(backend, True) == "numba":

@@ -210,7 +210,8 @@ class Pipeline(Filter):
                 raise InputError(f"state[{k!r}] has shape {np.shape(st[k])}, expected {ref[k].shape}")
         for k in ("mod", "det", "cor"):
             if len(st[k]) != len(ref[k]) or any(np.shape(a) != b.shape for a, b in zip(st[k], ref[k])):
-                raise InputError(f"state[{k!r}] does not belong to this pipeline (its plugins' states differ)")
+                raise InputError(f"state[{k!r}] does not belong to this pipeline (its plugins' states differ: "
+                                 "saved by another configuration, or by an older fusionkit?)")
         return st
 
     def reset(self) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -28,7 +29,7 @@ def _no_bool(name: str, x, what: str = "", allow_bool: bool = False) -> None:
         except (TypeError, ValueError) as exc:
             raise InputError(f"{name} must be a numeric array with rows of equal length: {exc}") from None
         if arr.dtype.kind not in "bcmM":  # numbers or text: numpy may have coerced a mixed list, so its elements
-            _elements(name, np.array(x, dtype=object), what, allow_bool)
+            _list_elements(name, x, what, allow_bool)
         x = arr
     kind = getattr(getattr(x, "dtype", None), "kind", None)
     if kind == "O":  # an object array (a table's column, a list of mixed types): each element's own type
@@ -60,6 +61,24 @@ def _elements(name: str, x: np.ndarray, what: str, allow_bool: bool) -> None:
             for v in x.flat:
                 if isinstance(v, np.ndarray):
                     _no_bool(name, v, what, allow_bool)
+
+
+_PLAIN = (float, int, np.float64, np.float32, np.int64, np.int32)  # (int: bool is a subclass, told by type, not isinstance)
+
+
+def _list_elements(name: str, x, what: str, allow_bool: bool) -> None:
+    """:func:`_elements` for a list or tuple, read from its own Python objects (an object array of
+    a 1M-row list would cost more than the conversion it guards): a flat list, a list of rows, or a
+    list of arrays (each judged by its dtype)."""
+    if all(type(v) is np.ndarray for v in x):
+        for v in x:
+            _no_bool(name, v, what, allow_bool)
+        return
+    rows = all(type(v) in (list, tuple) for v in x)
+    types = set(map(type, itertools.chain.from_iterable(x) if rows else x))
+    if types.issubset(_PLAIN):
+        return
+    _elements(name, np.array(x, dtype=object), what, allow_bool)  # something else inside: each element judged
 
 
 def as_mask(name: str, x) -> np.ndarray:

@@ -1,6 +1,7 @@
 """The offline (acausal) mode, fusionkit.offline: time reversal exact, offline better than online
 on simulated scenarios, kernel == reference, API errors, state handling."""
 
+import copy
 import math
 
 import numpy as np
@@ -405,6 +406,14 @@ def test_calibration_state_and_options():
     res = OfflineFilter(fk.make("recommended")).run(rec.slice(half, None), state=state)
     assert len(res.diagnostics["state"]["mod"]) == len(state["mod"]) == 1
     on.run(rec.slice(0, 100), state=res.diagnostics["state"])  # an online run continues from it
+    # a state of another size (an older fusionkit's model): refused by name before any pass runs (the
+    # calibration's kernel wrote past it and crashed the process)
+    old = copy.deepcopy(state)
+    old["mod"][0] = old["mod"][0][:-11]
+    with pytest.raises(fk.InputError, match=r"state\['mod'\] does not belong to this pipeline"):
+        OfflineFilter(fk.make("recommended")).run(rec.slice(half, None), state=old)
+    with pytest.raises(fk.InputError, match="state has shape"):
+        offline.calibration_passes(fk.make("recommended").models[0], rec, state=old["mod"][0])
     assert OfflineFilter(fk.make("recommended", use_mag=False)).run(rec).diagnostics["mag_calibration"] is None
     with pytest.raises(ConfigError, match="calibration"):
         OfflineFilter(fk.make("recommended"), calibration="both")

@@ -66,7 +66,7 @@ the gate's ring and the confidence count independent readings only (closed on he
 segments paired a reading up to one reading interval old with the gyro's turn to the current sample,
 and the residual noise that misfit makes put the confidence off; docs/algorithms/models.md). A segment then closes at the first
 fresh reading after ``segment_angle`` (one reading interval later at most), and what it changes
-applies from the next sample with a valid gyro (across a gap the orientation is held: the change
+applies from the next sample with a valid gyro when it recalibrates (MAG_RECALIBRATED; across a gap the orientation is held: the change
 would be read with the body's turn). A repeat is a hold only while younger than 0.5 s (no
 magnetometer reads slower than 2 Hz): a reading repeated longer is a constant field (a quantised
 magnetometer at rest), each sample a reading; one repeated by chance within 0.5 s closes its
