@@ -87,7 +87,7 @@ def as_mask(name: str, x) -> np.ndarray:
     if arr.dtype.kind in ("U", "S") or (arr.dtype.kind == "O" and any(
             issubclass(tp, (str, bytes)) for tp in set(map(type, arr.flat)))):
         raise InputError(f"{name} must be booleans (a mask), not text: convert it first, e.g. x == 'True'")
-    return arr.astype(bool)
+    return np.asarray(arr, dtype=bool)  # (a boolean array is kept, not copied)
 
 
 def _text(name: str, example, what: str) -> None:
