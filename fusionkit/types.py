@@ -249,7 +249,8 @@ class Recording:
     obvious from the data (an accelerometer reading in g, a gyroscope in deg/s) raises
     :class:`InputError` naming the argument to pass. Non-finite samples are kept: each filter
     handles them by its ``nan_policy``. C-contiguous float64 arrays already in rad/s and m/s^2
-    are kept as given, not copied (the recording shares their memory: change them and it changes).
+    are kept as given, not copied (the recording shares their memory: change them and it changes), as is
+    a boolean ``movement`` mask.
     """
 
     gyr: np.ndarray

@@ -145,6 +145,13 @@ def test_a_slow_block_longer_than_the_low_passes_allow_is_refused():
     for params in [{"slow_interval": 0.06}, {"slow_interval": 5.0}, {"slow_interval": 0.21, "tau_adapt": False}]:
         with pytest.raises(fk.ConfigError, match="slow_interval"):
             fk.make("recommended", **params)
+    # the default shrinks with a short tau_acc (it refused tau_acc=0.15, a parameter the user never set)
+    for params in [{"tau_acc": 0.15}, {"tau_acc": 0.15, "tau_adapt": False}, {"tau_acc": 0.15, "bias_filter": "lowpass"}]:
+        assert fk.make("recommended", **params).config.slow_interval == pytest.approx(0.015)
+    with pytest.raises(fk.ConfigError, match=r"slow_interval must be at most .*\(tau_acc\)"):
+        fk.make("recommended", tau_acc=0.15, slow_interval=0.02)  # asked for: refused, naming tau_acc
+    with pytest.raises(fk.ConfigError, match=r"\(tau\)"):  # tau_adapt's bound above tau: tau is named
+        fk.make("inertial-tilt", tau=0.1, slow_interval=0.02)
 
 
 def test_no_slow_block_is_the_code_before_it_with_uneven_timestamps():

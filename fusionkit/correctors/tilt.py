@@ -1003,7 +1003,7 @@ class InertialTiltConfig(PluginConfig):
         # defaults (tau_min 0.5 s)
         low = min(self.tau_min, self.tau) if self.tau_adapt else self.tau
         if self.slow_interval > 0.1 * low:
-            name = "tau_min" if self.tau_adapt else "tau"
+            name = "tau_min" if self.tau_adapt and self.tau_min < self.tau else "tau"
             raise ValueError(f"slow_interval must be at most a tenth of the shortest time constant ({name}): "
                              f"{0.1 * low:g} s, got {self.slow_interval:g} s")
         return self

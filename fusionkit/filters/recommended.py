@@ -126,8 +126,9 @@ class RecommendedConfig(FilterConfig):
         "kalman) and tau_adapt's statistics and time constant, on the block's last rotation and its mean rates and "
         "specific force weighted by time (inertial-tilt's slow_interval; recommended.md): they change over "
         "seconds. The inclination low-pass and correction stay per sample; the update intervals are counted in "
-        "whole blocks. At most 0.05 s, a tenth of the shortest time constant "
-        "(0.5 s; tau_acc without tau_adapt). 0: every sample (the behaviour before)", ge=0)
+        "whole blocks. At most a tenth of the shortest time constant (0.05 s: tau_adapt's 0.5 s; or tau_acc): "
+        "as the default it shrinks to that, asked for above it is an error. 0: every sample (the behaviour "
+        "before)", ge=0)
     tau_mag: float = param(15.0, unit="s", description="heading_gain fixed: time constant of the heading correction",
                            gt=0)
     heading_gain: Literal["fixed", "kalman"] = param(
@@ -236,6 +237,23 @@ class RecommendedConfig(FilterConfig):
         if self.gyro_rate_acc_bias > 0 and self.gyro_rate_estimate == "off":  # (it would be silently ignored)
             raise ValueError("gyro_rate_acc_bias is estimated beside the gyro's rate error: it needs "
                              "gyro_rate_estimate 'tau' or 'correct' (with the bias in motion)")
+        return self
+
+    @model_validator(mode="after")
+    def _slow_interval_within_the_time_constants(self):
+        """inertial-tilt refuses a block longer than a tenth of its shortest time constant (tau_acc, or the
+        adaptive one's lower bound, 0.5 s): as the default the block shrinks to that (a tau_acc of 0.15 s
+        gets 0.015 s blocks), asked for it is an error naming tau_acc."""
+        from ..correctors.tilt import InertialTiltConfig
+
+        low = min(self.tau_acc, InertialTiltConfig.model_fields["tau_min"].default) if self.tau_adapt else self.tau_acc
+        if self.slow_interval > 0.1 * low:
+            if "slow_interval" not in self.model_fields_set:
+                self.__dict__["slow_interval"] = 0.1 * low
+            else:
+                raise ValueError(f"slow_interval must be at most a tenth of the shortest time constant "
+                                 f"({'tau_acc' if low == self.tau_acc else 'the adaptive one, 0.5 s'}): "
+                                 f"{0.1 * low:g} s, got {self.slow_interval:g} s (or 0: every sample)")
         return self
 
 
