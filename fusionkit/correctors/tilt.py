@@ -1001,12 +1001,19 @@ class InertialTiltConfig(PluginConfig):
         # alias (at 5 s the rate error came out with the wrong signs). A tenth of the shortest time constant keeps
         # the cutoff within 0.1 % of the per-sample one and puts the aliasing above pi / 0.05 = 63 rad/s at the
         # defaults (tau_min 0.5 s)
-        low = min(self.tau_min, self.tau) if self.tau_adapt else self.tau
-        if self.slow_interval > 0.1 * low:
-            name = "tau_min" if self.tau_adapt and self.tau_min < self.tau else "tau"
-            raise ValueError(f"slow_interval must be at most a tenth of the shortest time constant ({name}): "
-                             f"{0.1 * low:g} s, got {self.slow_interval:g} s")
+        bound, adaptive = slow_interval_bound(self.tau, self.tau_adapt, self.tau_min)
+        if self.slow_interval > bound:
+            raise ValueError(f"slow_interval must be at most a tenth of the shortest time constant "
+                             f"({'tau_min' if adaptive else 'tau'}): {bound:g} s, got {self.slow_interval:g} s")
         return self
+
+
+def slow_interval_bound(tau: float, tau_adapt: bool, tau_min: float) -> tuple[float, bool]:
+    """The longest ``slow_interval`` a low-pass at ``tau`` (``tau_adapt``: down to ``tau_min``) allows: a
+    tenth of the shortest time constant (:class:`InertialTiltConfig`'s check, and ``recommended``'s
+    default); and whether that shortest one is ``tau_min``."""
+    adaptive = tau_adapt and tau_min < tau
+    return 0.1 * (tau_min if adaptive else tau), adaptive
 
 
 class InertialTilt(FactorCorrector):

@@ -59,7 +59,7 @@ from ..correctors._factor import initial_attitude
 from ..correctors.heading import HEADING_VARIANCE, MAG_REFERENCE
 from ..correctors.tilt import RATE_ERROR as TILT_RATE_ERROR
 from ..correctors.tilt import RATE_KAPPA2 as TILT_KAPPA2
-from ..correctors.tilt import lowpass_coefficients
+from ..correctors.tilt import InertialTiltConfig, lowpass_coefficients, slow_interval_bound
 from ..detectors.magnetic import MagneticConfig
 from ..detectors.rest import RestConfig
 from ..pipeline import Pipeline
@@ -244,16 +244,15 @@ class RecommendedConfig(FilterConfig):
         """inertial-tilt refuses a block longer than a tenth of its shortest time constant (tau_acc, or the
         adaptive one's lower bound, 0.5 s): as the default the block shrinks to that (a tau_acc of 0.15 s
         gets 0.015 s blocks), asked for it is an error naming tau_acc."""
-        from ..correctors.tilt import InertialTiltConfig
-
-        low = min(self.tau_acc, InertialTiltConfig.model_fields["tau_min"].default) if self.tau_adapt else self.tau_acc
-        if self.slow_interval > 0.1 * low:
+        bound, adaptive = slow_interval_bound(self.tau_acc, self.tau_adapt,
+                                              InertialTiltConfig.model_fields["tau_min"].default)
+        if self.slow_interval > bound:
             if "slow_interval" not in self.model_fields_set:
-                self.__dict__["slow_interval"] = 0.1 * low
+                self.__dict__["slow_interval"] = bound
             else:
                 raise ValueError(f"slow_interval must be at most a tenth of the shortest time constant "
-                                 f"({'tau_acc' if low == self.tau_acc else 'the adaptive one, 0.5 s'}): "
-                                 f"{0.1 * low:g} s, got {self.slow_interval:g} s (or 0: every sample)")
+                                 f"({'the adaptive one, 0.5 s' if adaptive else 'tau_acc'}): "
+                                 f"{bound:g} s, got {self.slow_interval:g} s (or 0: every sample)")
         return self
 
 
