@@ -354,6 +354,20 @@ def _slow_set(x, t, b0, b1, b2, a1, a2):
 _k_slow_set = njit(inline="always")(_slow_set)
 
 
+@njit(inline="always")
+def _time_sum(x, i, w0, w1, w2, dt) -> bool:
+    """A rate ``w`` into a block's time-weighted sum, if valid (every axis finite): ``w dt`` added to
+    ``x[i:i + 3]`` and ``dt`` to ``x[i + 3]`` (their quotient the block's mean, dropped samples and jitter
+    not tilting it): :func:`_block_add`'s and :func:`_adapt_add`'s. Returns whether it was valid."""
+    if not (math.isfinite(w0) and math.isfinite(w1) and math.isfinite(w2)):
+        return False
+    x[i] += w0 * dt
+    x[i + 1] += w1 * dt
+    x[i + 2] += w2 * dt
+    x[i + 3] += dt
+    return True
+
+
 def _block_add(x, dt, rest, w0, w1, w2, rate_error, e0, e1, e2, e3, half):
     """``slow_interval``: one sample into the block (its time; in motion, its time and count; at
     REST, its count; with the rate error and a valid gyro, the body rate ``w`` times ``dt`` summed and
@@ -368,11 +382,7 @@ def _block_add(x, dt, rest, w0, w1, w2, rate_error, e0, e1, e2, e3, half):
     else:
         x[_SLM] += dt
         x[_SLMN] += 1.0
-    if rate_error and math.isfinite(w0) and math.isfinite(w1) and math.isfinite(w2):
-        x[_SLW] += w0 * dt
-        x[_SLW + 1] += w1 * dt
-        x[_SLW + 2] += w2 * dt
-        x[_SLWN] += dt
+    if rate_error and _time_sum(x, _SLW, w0, w1, w2, dt):  # (_SLWN follows _SLW's three)
         if not rest:
             x[_SLE] += dt
             x[_SLEN] += 1.0
@@ -401,11 +411,7 @@ def _adapt_add(x, dt, rest, a0, a1, a2, w0, w1, w2):
     x[_AA] += a0 * dt
     x[_AA + 1] += a1 * dt
     x[_AA + 2] += a2 * dt
-    if math.isfinite(w0) and math.isfinite(w1) and math.isfinite(w2):
-        x[_AWS] += w0 * dt
-        x[_AWS + 1] += w1 * dt
-        x[_AWS + 2] += w2 * dt
-        x[_AWN] += dt
+    _time_sum(x, _AWS, w0, w1, w2, dt)  # (_AWN follows _AWS's three)
     if rest:
         x[_AREST] += 1.0
     return x[_ATT]
