@@ -445,29 +445,30 @@ class MagCalibrationModel(SensorModel):
         w = np.eye(3) + _distortion(best)
         field = float(np.linalg.norm(w @ m - best[5:8]))
         std = np.sqrt(s[_VAR] * np.diag(inv))
-        if s[_N] >= c.min_segments and std[5:8].max() <= c.max_std * field and std[:5].max() <= c.max_std:
-            if c.consistency and not _gate_timed(_gate_code(c), s, STATE_SOFT, w, best[5:8], c.min_reduction,
-                                                  s[_CONF] == 1.0, c.max_std, np.empty(2 * _GK), prev, s[_T],
-                                                  c.gate_interval):
-                s[_SAPP:_SAPP + _NP] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
-                s[_B:_B + 3] = 0.0
-                s[_CONF] = 0.0
-                return
+        if s[_N] < c.min_segments:
+            return
+        if std[5:8].max() <= c.max_std * field and std[:5].max() <= c.max_std:
+            conf, wg = 1.0, w  # confident: the whole calibration
+        elif _provisional(s[_CONF], std[5:8].max(), best[5:8], c.provisional_std * field):
+            conf, wg = _PROVISIONAL, np.eye(3)  # the offset alone: W = I
+        else:
+            return
+        # (the gate's "applied": a confident estimate, or for a provisional offset any)
+        applied = s[_CONF] == 1.0 if conf == 1.0 else s[_CONF] != 0.0
+        if c.consistency and not _gate_timed(_gate_code(c), s, STATE_SOFT, wg, best[5:8], c.min_reduction, applied,
+                                              c.max_std, np.empty(2 * _GK), prev, s[_T], c.gate_interval):
+            s[_SAPP:_SAPP + _NP] = 0.0  # confident, but not body-fixed iron: pass the samples unchanged
+            s[_B:_B + 3] = 0.0
+            s[_CONF] = 0.0
+            return
+        if conf == 1.0:
             s[_SAPP:_SAPP + _NP] = best
             s[_B:_B + 3] = np.linalg.solve(w, best[5:8])  # the offset in the raw field's units, b = W^-1 c
-            s[_CONF] = 1.0
-        elif s[_N] >= c.min_segments and _provisional(s[_CONF], std[5:8].max(), best[5:8], c.provisional_std * field):
-            if c.consistency and not _gate_timed(_gate_code(c), s, STATE_SOFT, np.eye(3), best[5:8], c.min_reduction,
-                                                  s[_CONF] != 0.0, c.max_std, np.empty(2 * _GK), prev, s[_T],
-                                                  c.gate_interval):
-                s[_SAPP:_SAPP + _NP] = 0.0
-                s[_B:_B + 3] = 0.0
-                s[_CONF] = 0.0
-                return
+        else:
             s[_SAPP:_SAPP + 5] = 0.0  # the offset alone: W = I, so b = c
             s[_SAPP + 5:_SAPP + _NP] = best[5:8]
             s[_B:_B + 3] = best[5:8]
-            s[_CONF] = _PROVISIONAL
+        s[_CONF] = conf
 
 
 def _applied(s, soft) -> bool:
@@ -1158,36 +1159,36 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
             std_e = max(std_e, sd)
         else:
             std_c = max(std_c, sd)
-    if s[_N] >= min_seg and std_c <= max_std * field and std_e <= max_std:
-        if gate != 0.0 and not _k_gate_timed(gate, s, STATE_SOFT, w, t[5:8], min_red, s[_CONF] == 1.0,
-                                             max_std, buf[0:2 * _GK], prev, s[_T], interval):  # (the arrays in buf[0:64] are done with)
-            for i in range(_NP):
-                s[_SAPP + i] = 0.0
-            s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
-            s[_CONF] = 0.0
-            return
+    if s[_N] < min_seg:
+        return
+    if std_c <= max_std * field and std_e <= max_std:
+        conf, wg = 1.0, w  # confident: the whole calibration
+    elif _k_provisional(s[_CONF], std_c, t[5:8], prov * field):
+        conf, wg = _PROVISIONAL, buf[182:191].reshape((3, 3))  # the offset alone: W = I
+        for i in range(3):
+            for j in range(3):
+                wg[i, j] = 1.0 if i == j else 0.0
+    else:
+        return
+    applied = s[_CONF] == 1.0 if conf == 1.0 else s[_CONF] != 0.0
+    if gate != 0.0 and not _k_gate_timed(gate, s, STATE_SOFT, wg, t[5:8], min_red, applied,
+                                         max_std, buf[0:2 * _GK], prev, s[_T], interval):  # (the arrays in buf[0:64] are done with)
+        for i in range(_NP):
+            s[_SAPP + i] = 0.0
+        s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
+        s[_CONF] = 0.0
+        return
+    if conf == 1.0:
         for i in range(_NP):
             s[_SAPP + i] = t[i]
         winv = buf[182:191].reshape((3, 3))
         if _k_inverse3(w, winv):
             for i in range(3):
                 s[_B + i] = winv[i, 0] * t[5] + winv[i, 1] * t[6] + winv[i, 2] * t[7]
-        s[_CONF] = 1.0
-    elif s[_N] >= min_seg and _k_provisional(s[_CONF], std_c, t[5:8], prov * field):
-        eye = buf[182:191].reshape((3, 3))
-        for i in range(3):
-            for j in range(3):
-                eye[i, j] = 1.0 if i == j else 0.0
-        if gate != 0.0 and not _k_gate_timed(gate, s, STATE_SOFT, eye, t[5:8], min_red, s[_CONF] != 0.0,
-                                             max_std, buf[0:2 * _GK], prev, s[_T], interval):
-            for i in range(_NP):
-                s[_SAPP + i] = 0.0
-            s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
-            s[_CONF] = 0.0
-            return
+    else:
         for i in range(5):
             s[_SAPP + i] = 0.0
         for i in range(3):
             s[_SAPP + 5 + i] = t[5 + i]
             s[_B + i] = t[5 + i]
-        s[_CONF] = _PROVISIONAL
+    s[_CONF] = conf
