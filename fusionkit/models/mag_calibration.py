@@ -307,12 +307,7 @@ class MagCalibrationModel(SensorModel):
         # for a sample with a valid gyro: across a gap the orientation is held, and the calibrated field's change
         # from the sample before is then the body's turn as much as the calibration's
         if once:
-            wait = bool(s[h + 7]) and not gyr_ok
-            flags = 0 if wait else int(s[h + 7])
-            if not wait:
-                s[h + 7] = 0.0
-            out, f = self._calibrate(s, h, m, held, wait)
-            flags |= f
+            out, flags = self._deliver(s, h, m, held, bool(s[h + 7]) and not gyr_ok)
         if gyr_ok and s[_ANCHOR] and fresh:
             dq = s[_DQ:_DQ + 4]
             if _turned(dq[0], dq[1], dq[2], dq[3], math.cos(0.5 * c.segment_angle)) or s[_T] >= c.segment_time:
@@ -335,10 +330,17 @@ class MagCalibrationModel(SensorModel):
             s[_T] = 0.0
             s[_ANCHOR] = 1.0
         if not once:
-            flags, s[h + 7] = int(s[h + 7]), 0.0
-            out, f = self._calibrate(s, h, m, held, False)
-            flags |= f
+            out, flags = self._deliver(s, h, m, held, False)
         return sample._replace(mag=out), flags
+
+    def _deliver(self, s, h, m, held, wait):
+        """``m`` calibrated, with the flags of the change pending since a segment closed (h + 7), which
+        is delivered now unless the change ``wait``s (then ``m`` gets the calibration before it)."""
+        flags = 0 if wait else int(s[h + 7])
+        if not wait:
+            s[h + 7] = 0.0
+        out, f = self._calibrate(s, h, m, held, wait)
+        return out, flags | f
 
     def _calibrate(self, s, h, m, held, before):
         """``m`` through the calibration applied now (``before``: the one before the pending change),
@@ -937,11 +939,7 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
     fresh = not once or not same or s[h + 9] >= _HELD_AGE
     flags = 0
     if once:  # a segment closed before: its calibration applies from the next sample with a valid gyro
-        wait = s[h + 7] != 0.0 and not gyr_ok
-        if not wait:
-            flags = int(s[h + 7])
-            s[h + 7] = 0.0
-        flags |= _k_calibrate(s, h, soft, v, held, wait)
+        flags = _k_deliver(s, h, soft, v, held, s[h + 7] != 0.0 and not gyr_ok)
     if gyr_ok and s[_ANCHOR] != 0.0 and fresh:
         if _k_turned(s[_DQ], s[_DQ + 1], s[_DQ + 2], s[_DQ + 3], p[10]) or s[_T] >= seg_time:
             acc = (v[3], v[4], v[5]) if acc_ok else (0.0, 0.0, 0.0)
@@ -963,10 +961,18 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
         s[_T] = 0.0
         s[_ANCHOR] = 1.0
     if not once:  # held_readings="each": the change of a segment closed here applies here
+        flags = _k_deliver(s, h, soft, v, held, False)
+    return flags
+
+
+@njit
+def _k_deliver(s, h, soft, v, held, wait):
+    """:meth:`MagCalibrationModel._deliver` on ``v[6:9]`` in place; returns the flags."""
+    flags = 0
+    if not wait:
         flags = int(s[h + 7])
         s[h + 7] = 0.0
-        flags |= _k_calibrate(s, h, soft, v, held, False)
-    return flags
+    return flags | _k_calibrate(s, h, soft, v, held, wait)
 
 
 @njit
