@@ -507,7 +507,7 @@ class Pipeline(Filter):
         """:meth:`update` with every check, on either path."""
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
-        dt = check_dt(dt, first=self._stream is None)
+        dt = check_dt(dt, bounded=self._stream is None)
         g = as_vector("gyr", gyr)
         a = as_vector("acc", acc)
         has_mag = mag is not None

@@ -268,13 +268,14 @@ def check_timestamp(name: str, value) -> float:
 MAX_INTERVAL = 1.0
 
 
-def check_dt(dt: float, first: bool) -> float:
-    """A streamed sample's interval ``dt``: :func:`check_positive`; the stream's ``first`` interval, which
-    sets its nominal rate as a Recording's typical interval does, also at most :data:`MAX_INTERVAL` (an
-    interval in ms is refused there). A later interval beyond it is a timestamp gap, handled as the
-    filter handles one in a Recording (held across, flag GAP), not an error."""
+def check_dt(dt: float, bounded: bool) -> float:
+    """A streamed sample's interval ``dt``: :func:`check_positive`, and with ``bounded`` also at most
+    :data:`MAX_INTERVAL` (an interval in ms is refused there). A stream bounds its first interval, which
+    sets its nominal rate as a Recording's typical interval does; a later interval beyond the bound is a
+    timestamp gap, handled as the filter handles one in a Recording (held across, flag GAP), not an
+    error. A filter with no gap handling bounds every interval."""
     dt = check_positive("dt", dt)
-    if first and dt > MAX_INTERVAL:
+    if bounded and dt > MAX_INTERVAL:
         raise InputError(f"dt must be at most {MAX_INTERVAL:g} s (the sample interval in s, not ms), got {dt:.4g}")
     return dt
 

@@ -115,6 +115,11 @@ def test_a_streamed_interval_is_bounded():
             f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=100.0)
         with pytest.raises(fk.InputError, match="dt must be one finite number"):
             f.update([0.1, 0.0, 0.0], [0.0, 0.0, 9.81], dt=True)
+    # the check's own switch says what it does (it was ``first``, which ins-gnss passed for every interval)
+    from fusionkit.validation import check_dt
+    assert check_dt(5.0, bounded=False) == 5.0
+    with pytest.raises(fk.InputError, match="dt must be at most 1 s"):
+        check_dt(5.0, bounded=True)
 
 
 def test_streamed_text_is_refused():

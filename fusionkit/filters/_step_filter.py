@@ -180,7 +180,7 @@ class StepFilter(Filter):
         """:meth:`update` with every check, on either path."""
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
-        dt = check_dt(dt, first=self.__dict__.get("_nominal_dt") is None)  # (set_state leaves no nominal interval)
+        dt = check_dt(dt, bounded=self.__dict__.get("_nominal_dt") is None)  # (set_state leaves no nominal interval)
         g, a = as_vector("gyr", gyr), as_vector("acc", acc)
         m = None if mag is None or not getattr(self.config, "use_mag", True) else as_vector("mag", mag)
         check_sample_finite(self.config.nan_policy, gyr=g, acc=a, mag=m)

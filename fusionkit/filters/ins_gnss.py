@@ -716,7 +716,7 @@ class InsGnssFilter(Filter):
         goes over them again (the outputs already returned stay as they were)."""
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
-        dt = check_dt(dt, first=True)  # (every interval bounded: no gap handling here, a long one is integrated as one step)
+        dt = check_dt(dt, bounded=True)  # (every interval: no gap handling here, a long one would be integrated as one step)
         t = None if t is None else check_timestamp("t", t)
         g, a = as_vector("gyr", gyr), as_vector("acc", acc)
         m = None if mag is None else as_vector("mag", mag)

@@ -187,7 +187,7 @@ class PeerFilter(Filter):
             raise PluginError(f"{self.name} is an offline (batch) filter: use run()")
         if dt is None:
             raise InputError("update() needs dt, the sample interval in s")
-        dt = check_dt(dt, first=self._stream is None)
+        dt = check_dt(dt, bounded=self._stream is None)
         g, a = as_vector("gyr", gyr), as_vector("acc", acc)
         use_mag = self._use_mag(mag is not None)
         m = as_vector("mag", mag) if use_mag else None
