@@ -191,10 +191,11 @@ def test_the_slow_block_means_are_weighted_by_time():
     np.testing.assert_allclose(x[tilt._AA:tilt._AA + 3] / x[tilt._ATT], 2.2, rtol=1e-12)  # (the samples': 2.33)
 
 
-def test_a_block_ending_at_rest_passes_its_motion_to_the_next_update():
-    """``slow_interval`` with ``bias_update_interval=0``: a block ends on its last sample's status, so the
-    samples in motion of a block whose last sample is REST reach no update of their own; they count towards
-    the next block's update (its noise divided over them too), as with an interval. Reference and kernel."""
+def _bias_filter_blocks(blocks, drop=False):
+    """The bias filter of ``recommended`` with ``bias_update_interval=0`` (inertial-tilt's ``_kalman``, reference and
+    kernel, checked the same to 1e-12) over ``blocks`` of 4 samples at 200 Hz: (ends at REST, samples in motion),
+    the inclination's time constant 2 s, a constant correction rate. ``drop``: the first block's motion dropped by
+    hand (the comparison). Returns the bias and the samples carried before the last block and after it."""
     from fusionkit.correctors import tilt
 
     (c,) = [c for c in fk.make("recommended", bias_update_interval=0.0).correctors if c.name == "inertial-tilt"]
@@ -203,24 +204,51 @@ def test_a_block_ending_at_rest_passes_its_motion_to_the_next_update():
     x[tilt._N:tilt._N + 5] = tilt._kf_noise(0.005, cfg.motion_bias_tau, cfg.bias_sigma_init, cfg.bias_sigma_motion,
                                             cfg.bias_sigma_rest or 0.0, cfg.bias_vertical_forgetting)
     x[tilt._SB:tilt._SB + 5] = tilt.lowpass_coefficients(2.0, 0.02)
+    x[tilt._BTAU] = 2.0  # (the inclination's time constant: the carried motion's life)
     r = np.array([0.001, -0.002, 0.0005])
-    out = []
-    for carried in (True, False):
-        xr, xk, br, bk = x.copy(), x.copy(), np.zeros(3), np.zeros(3)
-        for rest, n in ((True, 3), (False, 4)):  # 3 samples in motion, then REST; then 4 in motion
+    xr, xk, br, bk = x.copy(), x.copy(), np.zeros(3), np.zeros(3)
+    for i, (rest, n) in enumerate(blocks):
+        carried = xr[tilt._KNACC]
+        assert xk[tilt._KNACC] == carried
+        for s in (xr, xk):
+            tilt._block_clear(s)
+            s[tilt._SLT], s[tilt._SLM], s[tilt._SLMN], s[tilt._SLR] = 0.02, 0.005 * n, n, 4 - n
+        c._kalman(xr, np.eye(3), r, br, 0.005, rest)
+        tilt._k_kalman(xk, bk, 1.0, 0.0, 0.0, 0.0, *r, rest, 0.005, p)
+        if drop and i == 0:
             for s in (xr, xk):
-                tilt._block_clear(s)
-                s[tilt._SLT], s[tilt._SLM], s[tilt._SLMN], s[tilt._SLR] = 0.02, 0.005 * n, n, 4 - n
-            c._kalman(xr, np.eye(3), r, br, 0.005, rest)
-            tilt._k_kalman(xk, bk, 1.0, 0.0, 0.0, 0.0, *r, rest, 0.005, p)
-            if rest:
-                assert xr[tilt._KNACC] == xk[tilt._KNACC] == 3
-                if not carried:  # (the block's motion dropped, as before: the comparison below)
-                    xr[tilt._KTACC] = xr[tilt._KNACC] = xk[tilt._KTACC] = xk[tilt._KNACC] = 0.0
-        assert xr[tilt._KNACC] == xk[tilt._KNACC] == 0.0  # (consumed by the update)
-        np.testing.assert_allclose(br, bk, rtol=1e-12, atol=1e-18)
-        out.append(br)
-    assert np.all(np.abs(out[0]) > np.abs(out[1]))  # (the noise divided over 7 samples, not 4: a larger step)
+                s[tilt._KTACC] = s[tilt._KNACC] = 0.0
+    np.testing.assert_allclose(br, bk, rtol=1e-12, atol=1e-18)
+    assert xr[tilt._KNACC] == xk[tilt._KNACC]
+    return br, carried, xr[tilt._KNACC]
+
+
+def test_a_block_ending_at_rest_passes_its_motion_to_the_next_update():
+    """``slow_interval`` with ``bias_update_interval=0``: a block ends on its last sample's status, so the
+    samples in motion of a block whose last sample is REST reach no update of their own; they count towards
+    the next block's update (its noise divided over them too), as with an interval. Reference and kernel."""
+    blocks = [(True, 3), (False, 4)]  # 3 samples in motion, then REST; then 4 in motion
+    (carried, n, left), (dropped, _, _) = _bias_filter_blocks(blocks), _bias_filter_blocks(blocks, drop=True)
+    assert n == 3 and left == 0  # (carried, then consumed by the update)
+    assert np.all(np.abs(carried) > np.abs(dropped))  # (the noise divided over 7 samples, not 4: a larger step)
+
+
+def test_motion_carried_across_a_long_rest_expires():
+    """``slow_interval`` with ``bias_update_interval=0``: the samples in motion a block ending at REST carries to
+    the next update are dropped once the blocks at REST since then last longer than the inclination's time
+    constant (the update's measurement, low-passed at it, no longer holds what they saw); before, they never
+    expired, and a rest with the detector flickering piled them up for one update (here 3 + 200 samples).
+    A short rest keeps them. Reference and kernel."""
+    for m, kept in ((50, True), (150, False)):  # 1 s at rest: kept; 3 s: dropped
+        blocks = [(True, 3)] + [(True, 0)] * m + [(False, 4)]
+        (b, n, _), (b_dropped, _, _) = _bias_filter_blocks(blocks), _bias_filter_blocks(blocks, drop=True)
+        assert n == (3 if kept else 0)
+        if kept:
+            assert np.all(np.abs(b) > np.abs(b_dropped))  # (the noise over 7 samples, not 4: a larger step)
+        else:  # the update after the long rest as if nothing had been carried
+            np.testing.assert_array_equal(b, b_dropped)
+    _, n, _ = _bias_filter_blocks([(True, 3)] + [(True, 1)] * 200 + [(False, 4)])  # 4 s, the detector flickering
+    assert n <= 2.0 / 0.02 + 3  # (at most the last 2 s of them; before: 203)
 
 
 def test_a_restart_starts_the_decimated_updates_counting_again():
@@ -232,10 +260,11 @@ def test_a_restart_starts_the_decimated_updates_counting_again():
     (c,) = [c for c in fk.make("recommended").correctors if c.name == "inertial-tilt"]
     x = c.initial_state(0.01, "ENU")
     blocks = list(range(tilt._SLT, tilt._SLWN + 1)) + list(range(tilt._ATT, tilt._AREST + 1))  # (slow_interval)
-    for i in [tilt._KTACC, tilt._KNACC, tilt._ETACC, tilt._ENACC] + blocks:
+    counts = [tilt._KTACC, tilt._KNACC, tilt._KAGE, tilt._ETACC, tilt._ENACC]
+    for i in counts + blocks:
         x[i] = 0.04
     c.restart(x)
-    assert x[[tilt._KTACC, tilt._KNACC, tilt._ETACC, tilt._ENACC] + blocks].tolist() == [0.0] * (4 + len(blocks))
+    assert x[counts + blocks].tolist() == [0.0] * (len(counts) + len(blocks))
 
 
 @pytest.mark.parametrize("mode", ["tau", "correct"])

@@ -71,7 +71,9 @@ Options, each a separate idea:
   ``bias_update_interval`` likewise for the bias filter's Kalman update (its low-passes and its
   covariance's growth run once per block of ``slow_interval``, every sample with 0). With blocks, both
   intervals are counted in whole blocks: an update comes at the first block end after the interval
-  (0.05 s becomes 0.063 s, three blocks of 6 samples, at 286 Hz).
+  (0.05 s becomes 0.063 s, three blocks of 6 samples, at 286 Hz). The seconds of motion counted towards
+  the bias filter's next update expire after a rest longer than the inclination's time constant
+  (:func:`_carry`).
 - **the slow estimators once per block** (``slow_interval``, 0: every sample; ``recommended``: 0.02 s; at most a
   tenth of the shortest time constant): the
   bias filter's low-passes of ``R`` and ``R b``, its covariance's growth and a REST sample's downdate, the
@@ -162,7 +164,9 @@ _SB, _SBT, _SBTAU = _SCR + 86, _SCR + 91, _SCR + 92
 _ATT, _ATN, _AA, _AWS, _AWN, _AREST = _SCR + 93, _SCR + 94, _SCR + 95, _SCR + 98, _SCR + 101, _SCR + 102
 # slow_interval with the rate error: the output at the block's middle (the regressor's rotation) and whether it is set
 _SLQ, _SLQN = _SCR + 103, _SCR + 107
-_SIZE = _SCR + 108
+# bias_update_interval's carried motion (_KTACC, _KNACC): the seconds of the blocks ending at REST since it was carried
+_KAGE = _SCR + 108
+_SIZE = _SCR + 109
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
 _G_INV = 1.0 / 9.81  # rate_error_acc_bias: the accelerometer's bias as a tilt, 1 / g (m/s^2 -> rad)
@@ -400,6 +404,24 @@ def _block_clear(x) -> None:
 
 
 _k_block_clear = njit(inline="always")(_block_clear)
+
+
+def _carry(x) -> None:
+    """The bias filter at a block that ends at REST (no update): its samples in motion are carried to the
+    next update (its noise divided over them too), as an update per sample would have counted them. That
+    update's measurement is the correction low-passed at the inclination's time constant (``_BTAU``), so
+    it holds what those samples saw for about that long: carried motion older than it (the seconds of the
+    blocks ending at REST since it was carried) is dropped, not applied after a long rest as if it were
+    fresh (it never expired: a rest with the detector flickering piled up samples for one update)."""
+    if x[_KNACC] > 0.0:
+        x[_KAGE] += x[_SLT]
+        if x[_KAGE] > x[_BTAU]:
+            x[_KTACC] = x[_KNACC] = x[_KAGE] = 0.0
+    x[_KTACC] += x[_SLM]
+    x[_KNACC] += x[_SLMN]
+
+
+_k_carry = njit(inline="always")(_carry)
 
 
 def _adapt_add(x, dt, rest, a0, a1, a2, w0, w1, w2):
@@ -654,8 +676,7 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
                                                      q00, q01, q02, q01, q11, q12, q02, q12, q22,
                                                      q00 + wr, q01, q02, q11 + wr, q12, q22 + wr)
     if rest:  # (a block ends on its last sample's status: its samples in motion count towards the next update)
-        s[_KTACC] += s[_SLM]
-        s[_KNACC] += s[_SLMN]
+        _k_carry(s)
         _sym_store(s, _P, q00, q01, q02, q11, q12, q22)
         return 0.0, 0.0, 0.0
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
@@ -672,11 +693,11 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
                 return 0.0, 0.0, 0.0
             return f0, f1, f2
         wm, wv = wm / s[_KNACC], wv / s[_KNACC]
-        s[_KTACC] = s[_KNACC] = 0.0
+        s[_KTACC] = s[_KNACC] = s[_KAGE] = 0.0
     else:  # an update per block: the noise over its samples in motion (and those of blocks that ended at REST)
         n = s[_SLMN] + s[_KNACC]
         wm, wv = wm / n, wv / n
-        s[_KTACC] = s[_KNACC] = 0.0
+        s[_KTACC] = s[_KNACC] = s[_KAGE] = 0.0
     ne2 = f0 * f0 + f1 * f1 + f2 * f2  # (the square root only to clamp)
     if ne2 > p[4] * p[4]:
         g = p[4] / math.sqrt(ne2)
@@ -1084,7 +1105,7 @@ class InertialTilt(FactorCorrector):
         state[_PREADY] = state[_PMAX] = 0.0  # and the low-pass at tau_max (tau_max_parallel)
         state[_EREADY] = 0.0  # and the rate error's regressor (E and its covariance are the gyro's: kept)
         # and the samples counted towards the next decimated updates (bias filter, rate error)
-        state[_KTACC] = state[_KNACC] = state[_ETACC] = state[_ENACC] = 0.0
+        state[_KTACC] = state[_KNACC] = state[_KAGE] = state[_ETACC] = state[_ENACC] = 0.0
         _block_clear(state)  # and the blocks (slow_interval)
         _adapt_clear(state)
 
@@ -1211,7 +1232,8 @@ class InertialTilt(FactorCorrector):
         With ``slow_interval`` this runs once per block (the state's): the low-passes on the block's
         last rotation, ``P`` grown by the block's seconds, its REST samples one measurement, the update
         (``bias_update_interval``) at the first block end after its interval of motion; a block ending on
-        a REST sample passes its samples in motion to the next update.
+        a REST sample passes its samples in motion to the next update (:func:`_carry`: dropped once the
+        blocks at REST since outlast the inclination's time constant).
         Returns the residual after the update, ``-r + LP(R b) - LP(R) b`` with the frame's vertical
         part of ``LP(R b)`` removed (zeros on a REST sample): what the bias does not explain."""
         c = self.config
@@ -1238,8 +1260,7 @@ class InertialTilt(FactorCorrector):
         if x[_SLR] > 0.0 and c.bias_sigma_rest is not None:  # the block's REST samples: one measurement of wr / n
             p -= p @ np.linalg.inv(p + wr / x[_SLR] * np.eye(3)) @ p
         if rest:  # (a block ends on its last sample's status: its samples in motion count towards the next update)
-            x[_KTACC] += x[_SLM]
-            x[_KNACC] += x[_SLMN]
+            _carry(x)
             return np.zeros(3)
         up = x[_UP:_UP + 3]
         e = -r + hb - up * (up @ hb) - h @ bias
@@ -1249,11 +1270,11 @@ class InertialTilt(FactorCorrector):
             if x[_KTACC] + 0.5 * dt < c.bias_update_interval:
                 return e  # (the residual with the bias as it is)
             wm, wv = wm / x[_KNACC], wv / x[_KNACC]
-            x[_KTACC] = x[_KNACC] = 0.0
+            x[_KTACC] = x[_KNACC] = x[_KAGE] = 0.0
         else:  # an update per block, the noise over its samples in motion (and those of blocks that ended at REST)
             n = x[_SLMN] + x[_KNACC]
             wm, wv = wm / n, wv / n
-            x[_KTACC] = x[_KNACC] = 0.0
+            x[_KTACC] = x[_KNACC] = x[_KAGE] = 0.0
         ne = float(np.linalg.norm(e))
         if ne > c.bias_max:
             e *= c.bias_max / ne
