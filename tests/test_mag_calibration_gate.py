@@ -469,22 +469,67 @@ def test_kept_reference_kernel_equals_reference():
         assert np.abs(np.asarray(a) - np.asarray(b)).max(initial=0.0) < 1e-9
 
 
-def test_a_noise_free_fit_is_not_calibrated_by_rounding_at_a_low_rate():
-    """A noise-free magnetometer (a simulation) fits the soft-iron model exactly: its residual, ``sum |r|^2 - y .
-    x``, is rounding (0 or 1e-13 of ``sum |r|^2`` by the order of the sums), so the confidence test decided on
-    rounding: at 30 Hz the compiled path applied a calibration that maps the field to 1e-11 uT (MAG_RECALIBRATED
-    from sample 123, quaternions 0.34 apart) and the reference did not. The residual floored at 1e-9 of ``sum
-    |r|^2`` (far below any sensor's noise): reference == numba, and no calibration on an undisturbed field."""
+def _noise_free_turns():
+    """Six half turns about random axes after a 3 s rest, 30 Hz, a noise-free magnetometer and a gyro with scale
+    errors and a bias (the gyro's errors the only misfit of the segments)."""
     rng = np.random.default_rng(100)
     segs = [sim.Rest(3.0)]
     for _ in range(6):
         ax = rng.normal(size=3)
         segs += [sim.Rotate(tuple(ax / np.linalg.norm(ax)), rng.choice([-1, 1]) * np.pi, 1.5), sim.Rest(0.5)]
     noise = sim.Noise(gyr_noise=0.003, gyr_bias=(0.004, -0.003, 0.002), acc_noise=0.03)
-    rec = sim.simulate(segs, rate=30.0, noise=noise, seed=0, gnss_rate=None,
-                       errors=sim.SensorErrors(gyr_scale=(0.01, -0.015, 0.02)))
+    return sim.simulate(segs, rate=30.0, noise=noise, seed=0, gnss_rate=None,
+                        errors=sim.SensorErrors(gyr_scale=(0.01, -0.015, 0.02)))
+
+
+def test_a_noise_free_fit_is_not_calibrated_by_rounding_at_a_low_rate():
+    """A noise-free magnetometer (a simulation) fits the soft-iron model exactly: its residual, ``sum |r|^2 - y .
+    x``, is rounding (0 or 1e-13 of ``sum |r|^2`` by the order of the sums), so the confidence test decided on
+    rounding: at 30 Hz the compiled path applied a calibration that maps the field to 1e-11 uT (MAG_RECALIBRATED
+    from sample 123, quaternions 0.34 apart) and the reference did not. The residual floored at 1e-9 of ``sum
+    |r|^2`` (far below any sensor's noise): reference == numba, and no calibration on an undisturbed field."""
+    rec = _noise_free_turns()
     f = fk.make("recommended")
     a, b = f.run(rec), f.run(rec, backend="reference")
     np.testing.assert_allclose(a.quat, b.quat, atol=1e-9)
     np.testing.assert_array_equal(a.flags, b.flags)
     assert not (a.flags & _RECAL).any()
+
+
+def test_a_degenerate_fit_is_refused_by_the_offsets_confidence():
+    """Whether a fit that maps the field far from its strength can be applied (no separate check of the
+    calibrated norm): it arises, and the existing confidence refuses it. While the body has turned about one axis
+    ``n`` only, ``W = a I + (1 - a) 3 n n^T`` (and ``c`` along ``n``) all fit (the field's component along the
+    axis is constant), and where the segments' misfit is the gyro's errors, proportional to the field, the least
+    squares takes the end that shrinks it: ``W = 3 n n^T``, rank 1, with ``c`` mapping the sample to 0. On the
+    noise-free turns above (reference model, sample by sample) that estimate comes at the first turn (sample 123,
+    the one the compiled path applied before the residual floor): the calibrated field 3e-13 of its norm, the
+    distortion's standard deviation (2e-5) far inside max_std (0.02); what refuses it is the offset's standard
+    deviation (2e-3 uT), judged against 0.02 of the calibrated field's own norm (1e-11 uT), at every such segment.
+    That refusal needs a standard deviation above 0, which the residual floor keeps (a residual of exactly 0 made
+    them all 0, and 0 <= 0.02 * 1e-11 passed). So a collapsed field cannot be confident, and an estimate whose
+    distortion is unobservable has a standard deviation above max_std wherever the magnetometer has noise. Applied
+    calibrations keep the field's norm (none is applied here: the test above)."""
+    from fusionkit.models import mag_calibration as mc
+    from fusionkit.protocols import Sample
+
+    rec = _noise_free_turns()
+    model = mc.MagCalibrationModel(mc.MagCalibrationConfig())
+    s, dt, q = model.initial_state(rec.nominal_dt), rec.nominal_dt, np.array([1.0, 0.0, 0.0, 0.0])
+    collapsed = 0
+    for k in range(len(rec.gyr)):
+        n = s[mc._N]
+        out, _ = model.apply(s, Sample(rec.gyr[k], rec.acc[k], rec.mag[k], dt), q)
+        if s[mc._N] != n and s[mc._N] >= model.config.min_segments:  # a segment into the fit, the noise trusted
+            t = s[mc._SBEST:mc._SBEST + 8]
+            w = np.eye(3) + mc._distortion(t)
+            ratio = np.linalg.norm(w @ rec.mag[k] - t[5:8]) / np.linalg.norm(rec.mag[k])
+            if ratio < 1e-6:  # the collapsed estimate
+                collapsed += 1
+                std = np.sqrt(s[mc._VAR] * np.diag(s[mc._SINV:mc._SINV + 64].reshape(8, 8)))
+                assert np.linalg.eigvalsh(w)[1] < 1e-3 and std[:5].max() < model.config.max_std  # (rank 1, "known")
+                assert s[mc._CONF] == 0.0
+                np.testing.assert_array_equal(out.mag, rec.mag[k])
+        if s[mc._CONF] != 0.0:
+            assert 0.9 < np.linalg.norm(out.mag) / np.linalg.norm(rec.mag[k]) < 1.1
+    assert collapsed >= 1
