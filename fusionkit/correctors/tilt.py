@@ -966,8 +966,9 @@ class InertialTiltConfig(PluginConfig):
         "the measurement noise divided by the samples it spans (the same information per second: the measurement "
         "is the correction rate low-passed at tau, consecutive samples say almost the same). The low-passes and "
         "the covariance's growth run once per block of slow_interval (every sample with 0); with blocks the "
-        "interval is counted in whole blocks. 0: an update every block in motion (every sample with "
-        "slow_interval 0)", ge=0)
+        "interval is counted in whole blocks; the motion counted towards the next update (with 0, that of blocks "
+        "ending at REST) expires after a rest longer than the inclination's time constant. 0: an update every block "
+        "in motion (every sample with slow_interval 0)", ge=0)
     slow_interval: float = param(
         0.0, unit="s", description="the slow estimators once per block of this many seconds instead of every "
         "sample: with bias_filter kalman, the bias filter's low-passes (the rotation's and the bias's), its "
