@@ -769,10 +769,10 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     interval's last sample, its noise divided by the samples the interval spans, keeps the
     information per second. The samples of a block ending at REST count towards the next update, and
     expire once the blocks at REST since outlast the inclination's time constant (:func:`_carry`, as the
-    bias filter's): the measurement, and the regressor, no longer hold what they saw. The regressor's low-pass and the covariance's growth run once per block
-    (``slow_interval``: the state's block, its seconds ``_SLT`` and its seconds and samples of motion
-    with a valid gyro; ``w`` is then the block's mean rate, ``dt`` the sample's), ``E w`` every sample
-    (:func:`_rate_error_correct`).
+    bias filter's): the measurement, and the regressor, no longer hold what they saw. The regressor's
+    low-pass and the covariance's growth run once per block (``slow_interval``: the state's block, its
+    seconds ``_SLT`` and its seconds and samples of motion with a valid gyro; ``w`` is then the block's
+    mean rate, ``dt`` the sample's), ``E w`` every sample (:func:`_rate_error_correct`).
 
     ``acc_sigma`` (``rate_error_acc_bias``, m/s^2; 0: not modelled): the accelerometer's bias ``b_a``
     estimated beside E, so that its drift is not taken for E's. A bias fixed in the body tilts the
