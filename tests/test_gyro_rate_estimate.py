@@ -251,6 +251,53 @@ def test_motion_carried_across_a_long_rest_expires():
     assert n <= 2.0 / 0.02 + 3  # (at most the last 2 s of them; before: 203)
 
 
+def _rate_error_blocks(blocks, drop=False):
+    """The rate error's update (inertial-tilt's ``_rate_error_step``, the reference; ``rate_error_interval=0``: an
+    update every block in motion) on the residual of :func:`_bias_filter_blocks`' bias filter, over the same blocks,
+    a constant rate. ``drop``: the first block's motion dropped by hand from both counts (the comparison). Returns E
+    and the samples carried before the last block and after it."""
+    from fusionkit.correctors import tilt
+
+    (c,) = [c for c in fk.make("recommended", bias_update_interval=0.0).correctors if c.name == "inertial-tilt"]
+    cfg = c.config
+    x = c.initial_state(0.005, "ENU")
+    x[tilt._N:tilt._N + 5] = tilt._kf_noise(0.005, cfg.motion_bias_tau, cfg.bias_sigma_init, cfg.bias_sigma_motion,
+                                            cfg.bias_sigma_rest or 0.0, cfg.bias_vertical_forgetting)
+    x[tilt._SB:tilt._SB + 5] = tilt.lowpass_coefficients(2.0, 0.02)
+    x[tilt._BTAU] = 2.0  # (the inclination's time constant: the carried motion's life)
+    r, b, w = np.array([0.001, -0.002, 0.0005]), np.zeros(3), (0.5, -0.3, 0.8)
+    for i, (rest, n) in enumerate(blocks):
+        carried = x[tilt._ENACC]
+        tilt._block_clear(x)
+        x[tilt._SLT], x[tilt._SLM], x[tilt._SLMN], x[tilt._SLR] = 0.02, 0.005 * n, n, 4 - n
+        x[tilt._SLE], x[tilt._SLEN] = 0.005 * n, n
+        f = c._kalman(x, np.eye(3), r, b, 0.005, rest)
+        tilt._rate_error_step(x, 1.0, 0.0, 0.0, 0.0, *w, *f, rest, 0.005, cfg.gyro_rate_error,
+                              1.0 / cfg.motion_bias_tau, cfg.rate_error_max, True, 0.0, 0.0)
+        if drop and i == 0:
+            x[tilt._KTACC] = x[tilt._KNACC] = x[tilt._ETACC] = x[tilt._ENACC] = 0.0
+    return x[tilt._E:tilt._E + 6].copy(), carried, x[tilt._ENACC]
+
+
+def test_the_rate_errors_carried_motion_expires_too():
+    """The rate error's update counts the samples in motion of blocks ending at REST as the bias filter's does,
+    and its measurement (the bias filter's residual) and regressor are low-passed at the same time constant:
+    they expire after the same rest (before, never: 3 samples carried over a 3 s rest, 203 over a 4 s rest with
+    the detector flickering). A short rest keeps them. The reference (the kernel is its source; the same to 1e-9
+    in test_recommended)."""
+    for m, kept in ((50, True), (150, False)):  # 1 s at rest: kept; 3 s: dropped
+        blocks = [(True, 3)] + [(True, 0)] * m + [(False, 4)]
+        (e, n, left), (e_dropped, _, _) = _rate_error_blocks(blocks), _rate_error_blocks(blocks, drop=True)
+        assert n == (3 if kept else 0) and left == 0
+        assert np.abs(e).max() > 0.0
+        if kept:
+            assert np.abs(e - e_dropped).max() > 1e-3 * np.abs(e).max()  # (the noise over 7 samples, not 4)
+        else:  # the update after the long rest as if nothing had been carried
+            np.testing.assert_array_equal(e, e_dropped)
+    _, n, _ = _rate_error_blocks([(True, 3)] + [(True, 1)] * 200 + [(False, 4)])  # 4 s, the detector flickering
+    assert n <= 2.0 / 0.02 + 3  # (at most the last 2 s of them; before: 203)
+
+
 def test_a_restart_starts_the_decimated_updates_counting_again():
     """After a gap (``restart``) the bias filter's and the rate error's low-passes start again, and so
     do the samples counted towards their next once-per-interval update: an update right after the
@@ -260,7 +307,7 @@ def test_a_restart_starts_the_decimated_updates_counting_again():
     (c,) = [c for c in fk.make("recommended").correctors if c.name == "inertial-tilt"]
     x = c.initial_state(0.01, "ENU")
     blocks = list(range(tilt._SLT, tilt._SLWN + 1)) + list(range(tilt._ATT, tilt._AREST + 1))  # (slow_interval)
-    counts = [tilt._KTACC, tilt._KNACC, tilt._KAGE, tilt._ETACC, tilt._ENACC]
+    counts = [tilt._KTACC, tilt._KNACC, tilt._KAGE, tilt._ETACC, tilt._ENACC, tilt._EAGE]
     for i in counts + blocks:
         x[i] = 0.04
     c.restart(x)

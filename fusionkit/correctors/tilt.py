@@ -72,8 +72,7 @@ Options, each a separate idea:
   covariance's growth run once per block of ``slow_interval``, every sample with 0). With blocks, both
   intervals are counted in whole blocks: an update comes at the first block end after the interval
   (0.05 s becomes 0.063 s, three blocks of 6 samples, at 286 Hz). The seconds of motion counted towards
-  the bias filter's next update expire after a rest longer than the inclination's time constant
-  (:func:`_carry`).
+  either's next update expire after a rest longer than the inclination's time constant (:func:`_carry`).
 - **the slow estimators once per block** (``slow_interval``, 0: every sample; ``recommended``: 0.02 s; at most a
   tenth of the shortest time constant): the
   bias filter's low-passes of ``R`` and ``R b``, its covariance's growth and a REST sample's downdate, the
@@ -164,9 +163,10 @@ _SB, _SBT, _SBTAU = _SCR + 86, _SCR + 91, _SCR + 92
 _ATT, _ATN, _AA, _AWS, _AWN, _AREST = _SCR + 93, _SCR + 94, _SCR + 95, _SCR + 98, _SCR + 101, _SCR + 102
 # slow_interval with the rate error: the output at the block's middle (the regressor's rotation) and whether it is set
 _SLQ, _SLQN = _SCR + 103, _SCR + 107
-# bias_update_interval's carried motion (_KTACC, _KNACC): the seconds of the blocks ending at REST since it was carried
-_KAGE = _SCR + 108
-_SIZE = _SCR + 109
+# bias_update_interval's carried motion (_KTACC, _KNACC): the seconds of the blocks ending at REST since it was carried;
+# rate_error_interval's (_ETACC, _ENACC) likewise (:func:`_carry`)
+_KAGE, _EAGE = _SCR + 108, _SCR + 109
+_SIZE = _SCR + 110
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
 _G_INV = 1.0 / 9.81  # rate_error_acc_bias: the accelerometer's bias as a tilt, 1 / g (m/s^2 -> rad)
@@ -406,19 +406,23 @@ def _block_clear(x) -> None:
 _k_block_clear = njit(inline="always")(_block_clear)
 
 
-def _carry(x) -> None:
-    """The bias filter at a block that ends at REST (no update): its samples in motion are carried to the
-    next update (its noise divided over them too), as an update per sample would have counted them. That
-    update's measurement is the correction low-passed at the inclination's time constant (``_BTAU``), so
-    it holds what those samples saw for about that long: carried motion older than it (the seconds of the
-    blocks ending at REST since it was carried) is dropped, not applied after a long rest as if it were
-    fresh (it never expired: a rest with the detector flickering piled up samples for one update)."""
-    if x[_KNACC] > 0.0:
-        x[_KAGE] += x[_SLT]
-        if x[_KAGE] > x[_BTAU]:
-            x[_KTACC] = x[_KNACC] = x[_KAGE] = 0.0
-    x[_KTACC] += x[_SLM]
-    x[_KNACC] += x[_SLMN]
+def _carry(x, acc, blk, age) -> None:
+    """A Kalman update decimated over its samples in motion (the bias filter's, ``bias_update_interval``:
+    ``acc, blk, age`` = ``_KTACC, _SLM, _KAGE``; the rate error's, ``rate_error_interval``: ``_ETACC, _SLE,
+    _EAGE``) at a block that ends at REST (no update): the block's seconds and samples in motion
+    (``x[blk]``, ``x[blk + 1]``) are carried to the next update (``x[acc]``, ``x[acc + 1]``; its noise
+    divided over them too), as an update per sample would have counted them. That update's measurement
+    (the correction, or the bias filter's residual, and the rate error's regressor) is low-passed at the
+    inclination's time constant (``_BTAU``), so it holds what those samples saw for about that long:
+    carried motion older than it (``x[age]``, the seconds of the blocks ending at REST since it was
+    carried) is dropped, not applied after a long rest as if it were fresh (it never expired: a rest with
+    the detector flickering piled up samples for one update)."""
+    if x[acc + 1] > 0.0:
+        x[age] += x[_SLT]
+        if x[age] > x[_BTAU]:
+            x[acc] = x[acc + 1] = x[age] = 0.0
+    x[acc] += x[blk]
+    x[acc + 1] += x[blk + 1]
 
 
 _k_carry = njit(inline="always")(_carry)
@@ -676,7 +680,7 @@ def _k_kalman(s, b, e0, e1, e2, e3, r0, r1, r2, rest, dt, p):
                                                      q00, q01, q02, q01, q11, q12, q02, q12, q22,
                                                      q00 + wr, q01, q02, q11 + wr, q12, q22 + wr)
     if rest:  # (a block ends on its last sample's status: its samples in motion count towards the next update)
-        _k_carry(s)
+        _k_carry(s, _KTACC, _SLM, _KAGE)
         _sym_store(s, _P, q00, q01, q02, q11, q12, q22)
         return 0.0, 0.0, 0.0
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
@@ -763,10 +767,12 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     blocks). Its measurement is low-passed at the inclination's time constant (at least
     ``tau_min``), so consecutive samples carry almost the same information: the update of the
     interval's last sample, its noise divided by the samples the interval spans, keeps the
-    information per second. The regressor's low-pass and the covariance's growth run once per block
-    (``slow_interval``: the state's block, its seconds ``_SLT`` and its seconds and samples of motion
-    with a valid gyro; ``w`` is then the block's mean rate, ``dt`` the sample's), ``E w`` every sample
-    (:func:`_rate_error_correct`).
+    information per second. The samples of a block ending at REST count towards the next update, and
+    expire once the blocks at REST since outlast the inclination's time constant (:func:`_carry`, as the
+    bias filter's): the measurement, and the regressor, no longer hold what they saw. The regressor's
+    low-pass and the covariance's growth run once per block (``slow_interval``: the state's block, its
+    seconds ``_SLT`` and its seconds and samples of motion with a valid gyro; ``w`` is then the block's
+    mean rate, ``dt`` the sample's), ``E w`` every sample (:func:`_rate_error_correct`).
 
     ``acc_sigma`` (``rate_error_acc_bias``, m/s^2; 0: not modelled): the accelerometer's bias ``b_a``
     estimated beside E, so that its drift is not taken for E's. A bias fixed in the body tilts the
@@ -833,9 +839,12 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
         if x[_PE + (_NE + 1) * m] < pa:
             x[_PE + (_NE + 1) * m] += va
     # the interval: the block's seconds of motion added, compared with half a sample of margin (a split run equals
-    # one run)
-    x[_ETACC] += x[_SLE]
-    x[_ENACC] += x[_SLEN]
+    # one run); a block ending at REST carries them, expiring after a rest longer than the time constant (_carry)
+    if rest:
+        _k_carry(x, _ETACC, _SLE, _EAGE)
+    else:
+        x[_ETACC] += x[_SLE]
+        x[_ENACC] += x[_SLEN]
     if not rest and x[_ENACC] > 0.0 and x[_ETACC] + 0.5 * dt >= interval:
         h = x[_SCR + 2 * _NE:_SCR + 4 * _NE].reshape((2, _NE))
         # the linear acceleration the low-pass lets through turns its vector by sigma_v / (g tau), changing over tau:
@@ -857,7 +866,7 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
                 t1 += x[_PE + _NE * m + n] * h[1, n]
             a[m, 0], a[m, 1] = t0, t1
         wn = (x[_N + 1] + wa) / x[_ENACC]  # the interval's samples, one update: each sample's noise / their count
-        x[_ETACC] = x[_ENACC] = 0.0
+        x[_ETACC] = x[_ENACC] = x[_EAGE] = 0.0
         m00, m01, m11 = wn, 0.0, wn  # S = H P H^T + (wm + wa) / n I
         for n in range(ne):
             m00 += h[0, n] * a[n, 0]
@@ -959,8 +968,9 @@ class InertialTiltConfig(PluginConfig):
         "each with the measurement noise divided by the samples it spans (the same information per second; the "
         "measurement is low-passed at tau, consecutive samples say almost the same). The regressor's low-pass "
         "runs once per block of slow_interval (every sample with 0), the correction E w every sample; with blocks "
-        "the interval is counted in whole blocks (0.05 s is 0.063 s at 286 Hz with 0.02 s blocks). 0: an update "
-        "every block (every sample with slow_interval 0)", ge=0)
+        "the interval is counted in whole blocks (0.05 s is 0.063 s at 286 Hz with 0.02 s blocks); the motion "
+        "counted towards the next update expires after a rest longer than the inclination's time constant. 0: an "
+        "update every block (every sample with slow_interval 0)", ge=0)
     bias_update_interval: float = param(
         0.0, unit="s", description="kalman: the time of motion between the bias filter's Kalman updates, each with "
         "the measurement noise divided by the samples it spans (the same information per second: the measurement "
@@ -1106,7 +1116,8 @@ class InertialTilt(FactorCorrector):
         state[_PREADY] = state[_PMAX] = 0.0  # and the low-pass at tau_max (tau_max_parallel)
         state[_EREADY] = 0.0  # and the rate error's regressor (E and its covariance are the gyro's: kept)
         # and the samples counted towards the next decimated updates (bias filter, rate error)
-        state[_KTACC] = state[_KNACC] = state[_KAGE] = state[_ETACC] = state[_ENACC] = 0.0
+        state[_KTACC] = state[_KNACC] = state[_KAGE] = 0.0
+        state[_ETACC] = state[_ENACC] = state[_EAGE] = 0.0
         _block_clear(state)  # and the blocks (slow_interval)
         _adapt_clear(state)
 
@@ -1261,7 +1272,7 @@ class InertialTilt(FactorCorrector):
         if x[_SLR] > 0.0 and c.bias_sigma_rest is not None:  # the block's REST samples: one measurement of wr / n
             p -= p @ np.linalg.inv(p + wr / x[_SLR] * np.eye(3)) @ p
         if rest:  # (a block ends on its last sample's status: its samples in motion count towards the next update)
-            _carry(x)
+            _carry(x, _KTACC, _SLM, _KAGE)
             return np.zeros(3)
         up = x[_UP:_UP + 3]
         e = -r + hb - up * (up @ hb) - h @ bias
