@@ -533,3 +533,42 @@ def test_a_degenerate_fit_is_refused_by_the_offsets_confidence():
         if s[mc._CONF] != 0.0:
             assert 0.9 < np.linalg.norm(out.mag) / np.linalg.norm(rec.mag[k]) < 1.1
     assert collapsed >= 1
+
+
+def _heading_state(res):
+    return np.asarray(res.diagnostics["state"]["cor"][[c.name for c in fk.make("recommended").correctors].index(
+        "mag-heading")])
+
+
+def test_a_measurement_every_interval_judges_a_recalibration_against_the_sample_before(provisional):
+    """``mag_measure_interval`` (mag-heading's ``measure_interval``): at a recalibration the sample
+    before's norm, dip and levelled field are taken from its reading and pairing (``_k_previous``), the
+    numbers a measurement on every sample leaves (to the bit: ``_moved`` and ``_reexpress`` decide on
+    them as they would)."""
+    from fusionkit.correctors.heading import _AX, _PD, _PL, _PM, _PN, _QH, _k_previous
+
+    for n in (537, 1100):  # the state after n samples measured one by one (held readings among them)
+        x = _heading_state(fk.make("recommended").run(provisional.slice(0, n), backend="numba"))
+        y = x.copy()
+        y[_PN] = y[_PD] = y[_PL] = y[_PL + 1] = y[_PL + 2] = 0.0
+        _k_previous(y, *x[_QH:_QH + 4])
+        assert y[_AX + 6:_AX + 9].tolist() == x[_AX + 6:_AX + 9].tolist() and np.any(x[_PM:_PM + 3] != 0.0)
+        assert y[[_PN, _PD, _PL, _PL + 1, _PL + 2]].tolist() == x[[_PN, _PD, _PL, _PL + 1, _PL + 2]].tolist()
+
+
+def test_measure_interval_kernel_equals_reference(provisional):
+    """A heading measurement every 0.02 s (a recalibration among the first 11 s): reference == numba
+    to 1e-9 on every sample's output, the same flags, the same states at the end; fewer measurements
+    than samples change the output, and 0 (the default) measures every sample."""
+    rec = provisional.slice(0, 1100)
+    p = fk.make("recommended", mag_measure_interval=0.02)
+    ref, fast = p.run(rec, backend="reference"), p.run(rec, backend="numba")
+    assert np.count_nonzero(ref.flags & _RECAL) >= 1
+    np.testing.assert_array_equal(ref.flags, fast.flags)
+    assert np.abs(fast.quat - ref.quat).max() < 1e-9
+    for k in ("mod", "cor"):
+        for a, b in zip(ref.diagnostics["state"][k], fast.diagnostics["state"][k]):
+            assert np.abs(np.asarray(a) - np.asarray(b)).max(initial=0.0) < 1e-9
+    every = fk.make("recommended").run(rec, backend="numba")
+    assert np.abs(every.quat - fast.quat).max() > 1e-6
+    assert fk.make("recommended").config.mag_measure_interval == 0.0

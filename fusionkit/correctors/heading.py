@@ -117,7 +117,7 @@ import numpy as np
 
 from .._numba import njit
 from ..config import PluginConfig, param
-from ..detectors.magnetic import (MAG_COUNT, MAG_DISTURBED, MAG_LEARNING, MAG_SIZE, MAG_USE, MagneticConfig,
+from ..detectors.magnetic import (MAG_COUNT, MAG_DISTURBED, MAG_LEARNING, MAG_SIZE, MAG_TIME, MAG_USE, MagneticConfig,
                                   MagneticDetector, field_norm_dip, follow_field, k_follow_field,
                                   magnetic_step)
 from ..models.time_offset import _ANC, _DQ, _GA, _LINK, _NORM, _T, _U, CONF, EST, OFFSET, _enter, _k_enter
@@ -165,7 +165,9 @@ _RL, _RM, _PL, _RW, _RS = _E2 + 12, _E2 + 15, _E2 + 24, _E2 + 27, _E2 + 28
 # this sample's than the learned one but not within a calibrated sample's precision): its sum (body frame) and its
 # steps' first-order part over the learned heading's weight then, and how many changes it sums (:func:`_reexpress`)
 _RD, _RP, _RN = _E2 + 31, _E2 + 34, _E2 + 35
-_SIZE = _E2 + 36
+# measure_interval: the seconds since the last heading measurement, and whether it found the field disturbed
+_MT, _MDIS = _E2 + 36, _E2 + 37
+_SIZE = _E2 + 38
 #: where the heading's variance (gain kalman, rad^2) sits in the corrector's state
 HEADING_VARIANCE = _PHH
 #: the most the heading's variance grows to: a heading uniform on the circle (pi^2 / 3)
@@ -243,6 +245,13 @@ class MagHeadingConfig(PluginConfig):
         "MAG_RECALIBRATED), learn the magnetic reference again from the calibrated field over magnetic.init_time s "
         "(the heading keeps its filter meanwhile); False: keep the reference learned from the field before (the "
         "method before issue 14)")
+    measure_interval: float = param(
+        0.0, unit="s", description="take a heading measurement (the field's norm, dip and heading, the magnetic "
+        "reference's step, the heading's correction) once per this long instead of on every sample, and on a "
+        "recalibration (follow_calibration: judged against the sample before, as every sample would be); the "
+        "heading's variance still grows on every sample, a measurement stands for the time since the last one. "
+        "Samples between repeat the last measurement's verdict (MAG_DISTURBED); while the reference is learned "
+        "every sample is measured; the delay estimate sees the measured samples only. 0: every sample", ge=0)
     reexpress: bool = param(
         True, unit="-", description="follow_calibration: at each recalibration it follows, move the heading by "
         "what the new calibration changes in the field it was learned from (that field read through the new "
@@ -301,6 +310,7 @@ class MagHeading(FactorCorrector):
             m = np.asarray(sample.mag, dtype=float)
             # (MAG_HELD: a sensor model calibrated the held reading otherwise than the previous sample)
             fresh = not (c.mag_hold and x[_PMOK] and (flags & _MAG_HELD or m.tolist() == x[_PM:_PM + 3].tolist()))
+            pq = x[_QH:_QH + 4].copy()  # the sample before's pairing
             if fresh:
                 qm = qc = paired(quat, c.mag_delay, rate, g, bias, dt)  # the configured pairing
                 if x[_EB + CONF]:  # the estimate's: the configured one moved by the remaining offset
@@ -309,6 +319,22 @@ class MagHeading(FactorCorrector):
                 x[_QH:_QH + 4] = qm
             else:
                 qm = x[_QH:_QH + 4].copy()  # the held reading: as old as its fresh sample
+            recalibrated = c.follow_calibration and bool(flags & _MAG_RECALIBRATED)
+            dm = dt  # the time the measurement stands for
+            if c.measure_interval > 0.0:  # a heading measurement once per interval (and at a recalibration)
+                x[_MT] += dt
+                learning = x[_MAG + MAG_COUNT] == 0.0 or x[_MAG + MAG_TIME] + 0.5 * dt < c.magnetic.init_time
+                if not recalibrated and not learning and x[_MT] < c.measure_interval - 0.5 * dt:
+                    x[_PM:_PM + 3] = m
+                    x[_PMOK] = 1.0
+                    if x[_MDIS] and c.rejection:  # the last measurement's verdict
+                        out = _MAG_DISTURBED
+                    return quat_mul(np.array([x[_HC], *(x[_HS] * x[_AX + 6:_AX + 9])]), quat), out
+                dm, x[_MT] = x[_MT], 0.0
+                if recalibrated and x[_PMOK]:  # the sample before as a measurement leaves it (_moved, _reexpress)
+                    ml0 = quat_to_matrix(pq) @ x[_PM:_PM + 3]
+                    x[_PN], x[_PD] = field_norm_dip(ml0, x[_AX + 6:_AX + 9])
+                    x[_PL:_PL + 3] = ml0
             x[_PM:_PM + 3] = m
             ml = quat_to_matrix(qm) @ m  # the field in the levelled frame
             incl = 0.0
@@ -316,8 +342,8 @@ class MagHeading(FactorCorrector):
                 ax = x[_AX:_AX + 6]
                 incl = _inclination_noise(channel, float(ml @ ax[0:3]), float(ml @ ax[3:6]), float(channel[
                     _CH_LET:_CH_LET + 3] @ ax[0:3]), float(channel[_CH_LET:_CH_LET + 3] @ ax[3:6]))
-            out, code = self._heading(x, ml, quat, bias, dt, bool(flags & _REST),
-                                      c.follow_calibration and bool(flags & _MAG_RECALIBRATED), incl, qm)
+            out, code = self._heading(x, ml, quat, bias, dm, bool(flags & _REST), recalibrated, incl, qm)
+            x[_MDIS] = float(code == MAG_DISTURBED)
             if c.mag_delay_estimate and fresh:
                 self._estimate(x, qc, m, g - bias, dt, code == MAG_USE and rate_ok)
         x[_PMOK] = float(sample.mag is not None)
@@ -420,7 +446,8 @@ class MagHeading(FactorCorrector):
                       float(c.mag_hold), float(c.mag_delay_estimate), c.delay_max_std, c.delay_forget_time,
                       float(c.follow_calibration), float(c.gain == "kalman"), c.gyro_noise ** 2, c.bias_sigma ** 2,
                       c.scale_sigma ** 2, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time,
-                      float(c.inclination_noise), float(c.reexpress), 2.0 * c.mag_noise ** 2 + c.field_error ** 2])
+                      float(c.inclination_noise), float(c.reexpress), 2.0 * c.mag_noise ** 2 + c.field_error ** 2,
+                      c.measure_interval])
         return CorrectorKernel(mag_heading_kernel, p, mode="factor")
 
 
@@ -729,6 +756,20 @@ def _k_fit(x, b, xx, xr, rr, lam, max_std):
     return True
 
 
+@njit(cold=True)  # at a recalibration
+def _k_previous(s, w, a, b, c):
+    """``measure_interval``, at a recalibration: the norm, dip and levelled field of the sample before
+    (its reading ``s[_PM:_PM + 3]`` levelled with its pairing ``w, a, b, c``) where a measurement on
+    every sample leaves them (:func:`_moved` and :func:`_reexpress` compare this sample with the one
+    before: the calibration's change, one sample apart): the kernel's statements for a measurement, so
+    the same numbers. (The reference levels it as it does every sample, in :meth:`MagHeading.compose`.)"""
+    v0, v1, v2 = k_rot(w, a, b, c, s[_PM], s[_PM + 1], s[_PM + 2])
+    norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+    vu = v0 * s[_AX + 6] + v1 * s[_AX + 7] + v2 * s[_AX + 8]
+    s[_PN], s[_PD] = norm, math.asin(max(-1.0, min(1.0, vu / norm)))
+    s[_PL], s[_PL + 1], s[_PL + 2] = v0, v1, v2
+
+
 @njit
 def _k_estimate(s, c0, c1, c2, c3, m0, m1, m2, w0, w1, w2, dt, use, max_std, forget):
     """:meth:`MagHeading._estimate` with scalars (``c``: the configured pairing's orientation)."""
@@ -785,6 +826,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
     if mag_ok:
         same = m0 == s[_PM] and m1 == s[_PM + 1] and m2 == s[_PM + 2]
         fresh = not (p[13] != 0.0 and s[_PMOK] != 0.0 and (same or (flags & _MAG_HELD) != 0))
+        pq0, pq1, pq2, pq3 = s[_QH], s[_QH + 1], s[_QH + 2], s[_QH + 3]  # the sample before's pairing
         if fresh:
             c0, c1, c2, c3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
             p0, p1, p2, p3 = c0, c1, c2, c3
@@ -795,8 +837,27 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         else:
             p0, p1, p2, p3 = s[_QH], s[_QH + 1], s[_QH + 2], s[_QH + 3]
             c0, c1, c2, c3 = p0, p1, p2, p3
+        recal = p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0
+        dm = dt  # the time the measurement stands for
+        if p[28] > 0.0:  # measure_interval: a heading measurement once per interval (and at a recalibration)
+            s[_MT] += dt
+            learning = s[_MAG + MAG_COUNT] == 0.0 or s[_MAG + MAG_TIME] + 0.5 * dt < p[7]  # (every sample)
+            if not recal and not learning and s[_MT] < p[28] - 0.5 * dt:
+                s[_PM], s[_PM + 1], s[_PM + 2] = m0, m1, m2
+                s[_PMOK] = 1.0
+                if s[_MDIS] != 0.0 and p[1] != 0.0:
+                    out = _MAG_DISTURBED
+                if s[_DELTA] != 0.0:
+                    c, sn = s[_HC], s[_HS]
+                    q[0], q[1], q[2], q[3] = k_qmul(c, sn * s[ax + 6], sn * s[ax + 7], sn * s[ax + 8], q[0], q[1],
+                                                    q[2], q[3])
+                return out
+            dm, s[_MT] = s[_MT], 0.0
+            if recal and s[_PMOK] != 0.0:  # the sample before's norm, dip and levelled field, as measuring
+                _k_previous(s, pq0, pq1, pq2, pq3)  # every sample leaves them (_moved, _reexpress)
         s[_PM], s[_PM + 1], s[_PM + 2] = m0, m1, m2
-        if fresh or not same:  # (held, calibrated otherwise: the fresh one's pairing, this value)
+        if fresh or not same or p[28] > 0.0:  # (held, calibrated otherwise: the fresh one's pairing, this value;
+            # measure_interval: its fresh one may not have been measured)
             v0, v1, v2 = k_rot(p0, p1, p2, p3, m0, m1, m2)
             norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
             vu = v0 * s[ax + 6] + v1 * s[ax + 7] + v2 * s[ax + 8]
@@ -808,7 +869,6 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             v0, v1, v2 = s[_PL], s[_PL + 1], s[_PL + 2]
             norm, dip, sd, me, mn = s[_PN], s[_PD], s[_SD], s[_ME], s[_MN]
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
-        recal = p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0
         rex = False
         if recal and p[26] != 0.0:  # reexpress: the calibration's change of the field, body frame, as learned
             d0, d1, d2 = k_rot(p0, -p1, -p2, -p3, v0 - s[_PL], v1 - s[_PL + 1], v2 - s[_PL + 2])
@@ -838,8 +898,9 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             le = ch[_CH_LET] * s[ax] + ch[_CH_LET + 1] * s[ax + 1] + ch[_CH_LET + 2] * s[ax + 2]
             ln = ch[_CH_LET] * s[ax + 3] + ch[_CH_LET + 1] * s[ax + 4] + ch[_CH_LET + 2] * s[ax + 5]
             incl = _k_inclination_noise(ch, me, mn, le, ln)
-        rn, rd = _k_kf_noise(s, norm, dip, dt, p[22], p[23], p[24], 1.0 - sd * sd, incl) if kalman else (0.0, 1.0)
-        code = magnetic_step(s, norm, dip, rate, dt, p[7], p[8], p[9], p[10], p[11], p[12])
+        rn, rd = _k_kf_noise(s, norm, dip, dm, p[22], p[23], p[24], 1.0 - sd * sd, incl) if kalman else (0.0, 1.0)
+        code = magnetic_step(s, norm, dip, rate, dm, p[7], p[8], p[9], p[10], p[11], p[12])
+        s[_MDIS] = 1.0 if code == MAG_DISTURBED else 0.0
         if code != MAG_LEARNING:
             s[_RELEARN] = 0.0
         if code == MAG_LEARNING and s[_RELEARN] == 0.0:
@@ -861,8 +922,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
                                    (mn * s[ax + 1] - me * s[ax + 4]) / hh, (mn * s[ax + 2] - me * s[ax + 5]) / hh)
                 _k_trace(s, k, u0, u1, u2)
             if p[4] != 0.0 and (flags & _REST) == 0:
-                r = step / dt
-                k_bias_step(b, q[0], q[1], q[2], q[3], s[ax + 6] * r, s[ax + 7] * r, s[ax + 8] * r, dt / p[5], p[6])
+                r = step / dm
+                k_bias_step(b, q[0], q[1], q[2], q[3], s[ax + 6] * r, s[ax + 7] * r, s[ax + 8] * r, dm / p[5], p[6])
         if estimate and fresh:
             _k_estimate(s, c0, c1, c2, c3, m0, m1, m2, g0 - b[0], g1 - b[1], g2 - b[2], dt,
                         code == MAG_USE and math.isfinite(h0), p[15], p[16])

@@ -219,6 +219,10 @@ class RecommendedConfig(FilterConfig):
         True, unit="-", description="a magnetometer sample equal to the previous one is a lower-rate magnetometer's "
         "held reading: it is paired with the orientation of its fresh sample (its age is part of its delay); "
         "changes nothing where values never repeat")
+    mag_measure_interval: float = param(
+        0.0, unit="s", description="mag-heading's measure_interval: one heading measurement (the magnetic reference's "
+        "step and the heading's correction) per this long instead of per sample, and at each recalibration; "
+        "0: every sample", ge=0)
     mag_delay_estimate: bool = param(
         False, unit="-", description="estimate the magnetometer's delay against the gyroscope online (mag-heading's "
         "estimate; mag_delay until its standard deviation is below mag_delay_max_std)")
@@ -311,7 +315,7 @@ class RecommendedFilter(Pipeline):
                 "motion_bias_tau": c.motion_bias_tau if c.motion_bias_tau is not None else 100.0,
                 "bias_max": c.bias_max, "mag_delay": c.mag_delay, "mag_hold": c.mag_hold,
                 "mag_delay_estimate": c.mag_delay_estimate, "delay_max_std": c.mag_delay_max_std,
-                "inclination_noise": c.heading_inclination_noise}))
+                "inclination_noise": c.heading_inclination_noise, "measure_interval": c.mag_measure_interval}))
         if c.output_lead > 0.0:
             correctors.append(PluginSpec(name="output-lead", params={"lead": c.output_lead}))
         return PipelineConfig(
