@@ -235,11 +235,12 @@ def test_a_block_ending_at_rest_passes_its_motion_to_the_next_update():
 
 def test_motion_carried_across_a_long_rest_expires():
     """``slow_interval`` with ``bias_update_interval=0``: the samples in motion a block ending at REST carries to
-    the next update are dropped once the blocks at REST since then last longer than the inclination's time
-    constant (the update's measurement, low-passed at it, no longer holds what they saw); before, they never
-    expired, and a rest with the detector flickering piled them up for one update (here 3 + 200 samples).
-    A short rest keeps them. Reference and kernel."""
-    for m, kept in ((50, True), (150, False)):  # 1 s at rest: kept; 3 s: dropped
+    the next update are dropped once the blocks at REST since then last longer than four of the inclination's
+    time constants (the update's measurement, low-passed at it, then holds under 5 % of what they saw); before,
+    they never expired, and a rest with the detector flickering piled them up for one update (here 3 + 500
+    samples). A rest of 2.5 time constants keeps them (the low-pass still holds a quarter of them). Reference
+    and kernel."""
+    for m, kept in ((250, True), (450, False)):  # 5 s at rest (tau 2 s): kept; 9 s: dropped
         blocks = [(True, 3)] + [(True, 0)] * m + [(False, 4)]
         (b, n, _), (b_dropped, _, _) = _bias_filter_blocks(blocks), _bias_filter_blocks(blocks, drop=True)
         assert n == (3 if kept else 0)
@@ -247,8 +248,8 @@ def test_motion_carried_across_a_long_rest_expires():
             assert np.all(np.abs(b) > np.abs(b_dropped))  # (the noise over 7 samples, not 4: a larger step)
         else:  # the update after the long rest as if nothing had been carried
             np.testing.assert_array_equal(b, b_dropped)
-    _, n, _ = _bias_filter_blocks([(True, 3)] + [(True, 1)] * 200 + [(False, 4)])  # 4 s, the detector flickering
-    assert n <= 2.0 / 0.02 + 3  # (at most the last 2 s of them; before: 203)
+    _, n, _ = _bias_filter_blocks([(True, 3)] + [(True, 1)] * 500 + [(False, 4)])  # 10 s, the detector flickering
+    assert n <= 4 * 2.0 / 0.02 + 3  # (at most the last 8 s of them; before: 503)
 
 
 def _rate_error_blocks(blocks, drop=False):
@@ -282,10 +283,10 @@ def _rate_error_blocks(blocks, drop=False):
 def test_the_rate_errors_carried_motion_expires_too():
     """The rate error's update counts the samples in motion of blocks ending at REST as the bias filter's does,
     and its measurement (the bias filter's residual) and regressor are low-passed at the same time constant:
-    they expire after the same rest (before, never: 3 samples carried over a 3 s rest, 203 over a 4 s rest with
-    the detector flickering). A short rest keeps them. The reference (the kernel is its source; the same to 1e-9
+    they expire after the same rest (before, never: 3 samples carried over a 9 s rest, 503 over a 10 s rest with
+    the detector flickering). A shorter rest keeps them. The reference (the kernel is its source; the same to 1e-9
     in test_recommended)."""
-    for m, kept in ((50, True), (150, False)):  # 1 s at rest: kept; 3 s: dropped
+    for m, kept in ((250, True), (450, False)):  # 5 s at rest (tau 2 s): kept; 9 s: dropped
         blocks = [(True, 3)] + [(True, 0)] * m + [(False, 4)]
         (e, n, left), (e_dropped, _, _) = _rate_error_blocks(blocks), _rate_error_blocks(blocks, drop=True)
         assert n == (3 if kept else 0) and left == 0
@@ -294,8 +295,8 @@ def test_the_rate_errors_carried_motion_expires_too():
             assert np.abs(e - e_dropped).max() > 1e-3 * np.abs(e).max()  # (the noise over 7 samples, not 4)
         else:  # the update after the long rest as if nothing had been carried
             np.testing.assert_array_equal(e, e_dropped)
-    _, n, _ = _rate_error_blocks([(True, 3)] + [(True, 1)] * 200 + [(False, 4)])  # 4 s, the detector flickering
-    assert n <= 2.0 / 0.02 + 3  # (at most the last 2 s of them; before: 203)
+    _, n, _ = _rate_error_blocks([(True, 3)] + [(True, 1)] * 500 + [(False, 4)])  # 10 s, the detector flickering
+    assert n <= 4 * 2.0 / 0.02 + 3  # (at most the last 8 s of them; before: 503)
 
 
 def test_a_restart_starts_the_decimated_updates_counting_again():

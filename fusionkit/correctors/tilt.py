@@ -72,7 +72,7 @@ Options, each a separate idea:
   covariance's growth run once per block of ``slow_interval``, every sample with 0). With blocks, both
   intervals are counted in whole blocks: an update comes at the first block end after the interval
   (0.05 s becomes 0.063 s, three blocks of 6 samples, at 286 Hz). The seconds of motion counted towards
-  either's next update expire after a rest longer than the inclination's time constant (:func:`_carry`).
+  either's next update expire after a rest longer than four of the inclination's time constants (:func:`_carry`).
 - **the slow estimators once per block** (``slow_interval``, 0: every sample; ``recommended``: 0.02 s; at most a
   tenth of the shortest time constant): the
   bias filter's low-passes of ``R`` and ``R b``, its covariance's growth and a REST sample's downdate, the
@@ -169,6 +169,9 @@ _KAGE, _EAGE = _SCR + 108, _SCR + 109
 _SIZE = _SCR + 110
 # tau_adapt: a coefficient set is kept until tau / dt moves by this fraction of it (dt's rounding jitter does not)
 _TAU_STEP = 1e-3
+# the life of the motion carried to a decimated update across REST blocks, in inclination time constants: the
+# measurement's second-order low-pass puts under 5 % of its weight on what is older than 4 of them (_carry)
+_CARRY_LIFE = 4.0
 _G_INV = 1.0 / 9.81  # rate_error_acc_bias: the accelerometer's bias as a tilt, 1 / g (m/s^2 -> rad)
 _REST = int(Flag.REST)
 _CH_VAR, _CH_TIME, _CH_LET = int(Channel.INCLINATION_VARIANCE), int(Channel.INCLINATION_TIME), int(Channel.LET_THROUGH)
@@ -413,13 +416,16 @@ def _carry(x, acc, blk, age) -> None:
     (``x[blk]``, ``x[blk + 1]``) are carried to the next update (``x[acc]``, ``x[acc + 1]``; its noise
     divided over them too), as an update per sample would have counted them. That update's measurement
     (the correction, or the bias filter's residual, and the rate error's regressor) is low-passed at the
-    inclination's time constant (``_BTAU``), so it holds what those samples saw for about that long:
-    carried motion older than it (``x[age]``, the seconds of the blocks ending at REST since it was
-    carried) is dropped, not applied after a long rest as if it were fresh (it never expired: a rest with
-    the detector flickering piled up samples for one update)."""
+    inclination's time constant ``tau`` (``_BTAU``; a second-order low-pass, whose weight on what is older
+    than ``4 tau`` is under 5 %, while it still gives samples ``tau`` old its largest weight): carried motion
+    is dropped once the blocks ending at REST since it was first carried (``x[age]``, their seconds) last
+    longer than :data:`_CARRY_LIFE` time constants, not applied after a long rest as if it were fresh
+    (before, it never expired: a rest with the detector flickering piled up samples for one update). The
+    whole count goes at once, the motion carried later with it (one age for the count: the next update
+    comes without them, conservative)."""
     if x[acc + 1] > 0.0:
         x[age] += x[_SLT]
-        if x[age] > x[_BTAU]:
+        if x[age] > _CARRY_LIFE * x[_BTAU]:
             x[acc] = x[acc + 1] = x[age] = 0.0
     x[acc] += x[blk]
     x[acc + 1] += x[blk + 1]
@@ -768,8 +774,9 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
     ``tau_min``), so consecutive samples carry almost the same information: the update of the
     interval's last sample, its noise divided by the samples the interval spans, keeps the
     information per second. The samples of a block ending at REST count towards the next update, and
-    expire once the blocks at REST since outlast the inclination's time constant (:func:`_carry`, as the
-    bias filter's): the measurement, and the regressor, no longer hold what they saw. The regressor's
+    expire once the blocks at REST since outlast four of the inclination's time constants (:func:`_carry`, as
+    the bias filter's; aged only in blocks with a valid gyro, where the regressor's low-pass runs): the
+    measurement, and the regressor, then hold almost nothing of what they saw. The regressor's
     low-pass and the covariance's growth run once per block (``slow_interval``: the state's block, its
     seconds ``_SLT`` and its seconds and samples of motion with a valid gyro; ``w`` is then the block's
     mean rate, ``dt`` the sample's), ``E w`` every sample (:func:`_rate_error_correct`).
@@ -839,7 +846,7 @@ def _rate_error_step(x, e0, e1, e2, e3, w0, w1, w2, f0, f1, f2, rest, dt, kappa0
         if x[_PE + (_NE + 1) * m] < pa:
             x[_PE + (_NE + 1) * m] += va
     # the interval: the block's seconds of motion added, compared with half a sample of margin (a split run equals
-    # one run); a block ending at REST carries them, expiring after a rest longer than the time constant (_carry)
+    # one run); a block ending at REST carries them, expiring after a rest longer than 4 time constants (_carry)
     if rest:
         _k_carry(x, _ETACC, _SLE, _EAGE)
     else:
@@ -969,7 +976,7 @@ class InertialTiltConfig(PluginConfig):
         "measurement is low-passed at tau, consecutive samples say almost the same). The regressor's low-pass "
         "runs once per block of slow_interval (every sample with 0), the correction E w every sample; with blocks "
         "the interval is counted in whole blocks (0.05 s is 0.063 s at 286 Hz with 0.02 s blocks); the motion "
-        "counted towards the next update expires after a rest longer than the inclination's time constant. 0: an "
+        "counted towards the next update expires after a rest longer than four inclination time constants. 0: an "
         "update every block (every sample with slow_interval 0)", ge=0)
     bias_update_interval: float = param(
         0.0, unit="s", description="kalman: the time of motion between the bias filter's Kalman updates, each with "
@@ -977,7 +984,7 @@ class InertialTiltConfig(PluginConfig):
         "is the correction rate low-passed at tau, consecutive samples say almost the same). The low-passes and "
         "the covariance's growth run once per block of slow_interval (every sample with 0); with blocks the "
         "interval is counted in whole blocks; the motion counted towards the next update (with 0, that of blocks "
-        "ending at REST) expires after a rest longer than the inclination's time constant. 0: an update every block "
+        "ending at REST) expires after a rest longer than four inclination time constants. 0: an update every block "
         "in motion (every sample with slow_interval 0)", ge=0)
     slow_interval: float = param(
         0.0, unit="s", description="the slow estimators once per block of this many seconds instead of every "
@@ -1245,7 +1252,7 @@ class InertialTilt(FactorCorrector):
         last rotation, ``P`` grown by the block's seconds, its REST samples one measurement, the update
         (``bias_update_interval``) at the first block end after its interval of motion; a block ending on
         a REST sample passes its samples in motion to the next update (:func:`_carry`: dropped once the
-        blocks at REST since outlast the inclination's time constant).
+        blocks at REST since outlast four of the inclination's time constants).
         Returns the residual after the update, ``-r + LP(R b) - LP(R) b`` with the frame's vertical
         part of ``LP(R b)`` removed (zeros on a REST sample): what the bias does not explain."""
         c = self.config

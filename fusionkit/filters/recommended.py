@@ -107,7 +107,7 @@ class RecommendedConfig(FilterConfig):
         "(0.5-4 s), so consecutive samples say almost the same; each update's noise is divided by the samples it "
         "spans (the same information per second). 0.05 s: a tenth of the shortest time constant, 0.5 s "
         "(recommended.md). Counted in whole blocks of slow_interval (0.063 s at 286 Hz); the motion counted towards "
-        "the next update expires after a rest longer than the inclination's time constant. 0: an update every block "
+        "the next update expires after a rest longer than four inclination time constants. 0: an update every block "
         "(every sample with slow_interval 0, the behaviour before)", ge=0)
     gyro_rate_acc_bias: float = param(
         0.0, unit="m/s^2", description="gyro_rate_estimate: the accelerometer's bias (standard deviation per axis) "
@@ -120,7 +120,7 @@ class RecommendedConfig(FilterConfig):
         "at the inclination's time constant, each update's noise divided by the samples it spans (the same "
         "information per second); the low-passes and the covariance's growth run once per block of slow_interval "
         "(recommended.md), and the interval is counted in whole blocks (0.063 s at 286 Hz); the motion counted towards "
-        "the next update expires after a rest longer than the inclination's time constant. 0: an update every "
+        "the next update expires after a rest longer than four inclination time constants. 0: an update every "
         "block in motion (every sample with slow_interval 0, the behaviour before)", ge=0)
     slow_interval: float = param(
         0.02, unit="s", description="the slow estimators once per block of this many seconds: the bias filter's and "
