@@ -180,9 +180,9 @@ def test_a_module_edited_after_its_package_was_hashed_turns_the_cache_off(tmp_pa
     # directory numba read last: read it again as soon as the variable is back, or a module imported
     # after this test (before its next compile) would cache beside its source instead of where the
     # suite's processes look (test_loopgen's new process then compiled instead of loading)
-    with monkeypatch.context() as mp:
-        mp.delenv("NUMBA_CACHE_DIR", raising=False)
-        try:
+    try:
+        with monkeypatch.context() as mp:
+            mp.delenv("NUMBA_CACHE_DIR", raising=False)
             a = importlib.import_module(f"{name}.a")  # the package is hashed here
             assert a.through._cache._cache_file._source_stamp[1].endswith(_numba._snapshot(name)[0])
             (pkg / "c.py").write_text(CALLEE.format(v="7.0"))
@@ -191,10 +191,10 @@ def test_a_module_edited_after_its_package_was_hashed_turns_the_cache_off(tmp_pa
             assert not a.through._cache._enabled and not c.value._cache._enabled
             assert sum(a.through.stats.cache_misses.values()) == 1
             assert not list(pkg.rglob("*.nbi"))  # nothing saved
-        finally:
-            for m in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
-                del sys.modules[m]
-    config.reload_config()
+    finally:  # (also when an assert above fails: the tests after this one keep the suite's cache directory)
+        for m in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
+            del sys.modules[m]
+        config.reload_config()
     assert config.CACHE_DIR == os.environ.get("NUMBA_CACHE_DIR", "")
 
 
