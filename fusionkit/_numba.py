@@ -10,6 +10,8 @@ from __future__ import annotations
 import functools
 import os
 import sys
+import threading
+import time
 
 from .errors import ConfigError
 
@@ -304,12 +306,76 @@ def _lock_compiles(dispatcher, cache) -> None:
             return inner(sig)
         held = _acquire(path)
         try:
-            return inner(sig)
+            with _CompileNotice(dispatcher.py_func):
+                return inner(sig)
         finally:
             if held:
                 _release(path)
 
     dispatcher.compile = compile
+
+
+# -- a line on the terminal while numba compiles ---------------------------------------------------
+#
+# A filter's first run on a machine (or after an upgrade) waits for numba to compile its loop: a few
+# seconds for a small preset, up to a minute for ``recommended`` inlined, with nothing to show for it.
+# Every later process loads the machine code from the disk cache in well under a second. A load or
+# compile that takes longer than :data:`NOTICE_AFTER` seconds says so on stderr, once when it starts to
+# be long and once when it is done (the outermost function only: the kernels a loop compiles inside it
+# are part of its line). Where: on an interactive terminal, as the progress bar (``progress=None``);
+# ``FUSIONKIT_COMPILE_NOTICE=1`` always (a notebook, a log), ``0`` never.
+
+NOTICE_AFTER = 2.0
+_NOTICE = threading.local()
+
+
+def _notice_wanted() -> bool:
+    flag = os.environ.get("FUSIONKIT_COMPILE_NOTICE", "")
+    if flag in ("0", "1"):
+        return flag == "1"
+    try:
+        return sys.stderr is not None and sys.stderr.isatty()
+    except (AttributeError, ValueError):  # a replaced or closed stderr
+        return False
+
+
+class _CompileNotice:
+    """The notice above around one load-or-compile of ``func`` (a timer thread that prints after
+    :data:`NOTICE_AFTER` seconds; cancelled when the compile ends sooner)."""
+
+    def __init__(self, func):
+        self.func, self.timer, self.said = func, None, False
+
+    def __enter__(self):
+        depth = getattr(_NOTICE, "depth", 0)
+        _NOTICE.depth = depth + 1
+        if depth == 0 and _notice_wanted():
+            self.t0 = time.monotonic()
+            self.timer = threading.Timer(NOTICE_AFTER, self._say)
+            self.timer.daemon = True
+            self.timer.start()
+        return self
+
+    def _name(self) -> str:
+        mod = getattr(self.func, "__module__", "") or ""
+        if mod.startswith("_fusionkit_loop_"):
+            return "the pipeline's loop"
+        return f"{mod}.{getattr(self.func, '__qualname__', '?')}"
+
+    def _say(self) -> None:
+        self.said = True
+        print(f"fusionkit: compiling {self._name()} for this machine (once: later runs load it from the disk "
+              f"cache) ...", file=sys.stderr, flush=True)
+
+    def __exit__(self, *exc):
+        _NOTICE.depth -= 1
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer.join()  # (a line being printed is finished first)
+            if self.said:
+                print(f"fusionkit: compiled {self._name()} in {time.monotonic() - self.t0:.0f} s",
+                      file=sys.stderr, flush=True)
+        return False
 
 
 def _acquire(path: str) -> bool:

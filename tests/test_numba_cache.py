@@ -13,11 +13,13 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import fusionkit
@@ -246,3 +248,37 @@ def test_only_a_changed_or_new_source_file_of_the_package_counts_as_a_change(mon
     monkeypatch.setitem(_numba._SNAPSHOTS, "fusionkit", (digest, {**stats, os.path.abspath(here): (0, 0)}))
     _numba._check_file("fusionkit", here)
     assert _numba._DIRTY == {"fusionkit"}
+
+
+def test_a_long_compile_says_so_on_stderr_once_for_the_outermost_function(tmp_path, monkeypatch, capsys):
+    """The compile notice: with ``FUSIONKIT_COMPILE_NOTICE=1`` a load-or-compile longer than
+    ``NOTICE_AFTER`` (here 0 s) prints a line when it becomes long and one when it is done, for the
+    function called (``through``), not for what it compiles inside (``value``); with ``0``, and for a
+    signature the process has already, nothing. (Not on a terminal and without the variable: nothing,
+    so the suite's captured stderr stays as it was.)"""
+    import importlib
+
+    name = "probe_" + tmp_path.name.replace("-", "_")
+    pkg = tmp_path / name
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "b.py").write_text(CALLEE.format(v="1.0"))
+    (pkg / "a.py").write_text(CALLER.format(callee="b"))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(_numba, "NOTICE_AFTER", 0.0)
+    try:
+        a = importlib.import_module(f"{name}.a")
+        monkeypatch.setenv("FUSIONKIT_COMPILE_NOTICE", "1")
+        assert a.through(1.0) == 2.0
+        lines = capsys.readouterr().err.splitlines()
+        assert len(lines) == 2, lines
+        assert lines[0].startswith(f"fusionkit: compiling {name}.a.through for this machine (once")
+        assert re.fullmatch(rf"fusionkit: compiled {name}\.a\.through in \d+ s", lines[1])
+        assert a.through(2.0) == 3.0 and capsys.readouterr().err == ""  # (compiled already)
+        monkeypatch.setenv("FUSIONKIT_COMPILE_NOTICE", "0")
+        assert a.through(np.float32(1.0)) == 2.0 and capsys.readouterr().err == ""  # (a new signature, silent)
+        monkeypatch.delenv("FUSIONKIT_COMPILE_NOTICE")
+        assert not _numba._notice_wanted()  # (pytest's captured stderr is not a terminal)
+    finally:
+        for m in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
+            del sys.modules[m]
