@@ -199,6 +199,13 @@ def test_a_module_edited_after_its_package_was_hashed_turns_the_cache_off(tmp_pa
     finally:
         for m in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
             del sys.modules[m]
+        # numba's compiler re-read its configuration without NUMBA_CACHE_DIR: the next dispatcher
+        # made before another compile would cache beside its source file instead (a generated
+        # loop compiled next in this process was then not where a new process looks for it)
+        monkeypatch.undo()
+        from numba.core import config
+
+        config.reload_config()
 
 
 def test_a_pipeline_loop_adopts_its_plugins_numba_functions(tmp_path, monkeypatch):
