@@ -63,10 +63,11 @@ def test_a_new_process_loads_the_loop_from_disk(cached_loop):
         assert njit(lambda x: np.sum(x) * 2.0)(np.ones(3)) == 6.0
         print(mod.__name__, sum(mod.loop.stats.cache_hits.values()), sum(mod.loop.stats.cache_misses.values()))
     """)
-    env = {**os.environ, "FUSIONKIT_CACHE_DIR": str(where)}
+    # numba's cache log on stdout: what was loaded, and what (if anything) was compiled instead
+    env = {**os.environ, "FUSIONKIT_CACHE_DIR": str(where), "NUMBA_DEBUG_CACHE": "1"}
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr
-    loaded, hits, misses = out.stdout.split()
+    assert out.returncode == 0, out.stderr + "\nnumba's cache log:\n" + out.stdout
+    loaded, hits, misses = out.stdout.splitlines()[-1].split()
     assert loaded == name
     assert (hits, misses) == ("1", "0")
 

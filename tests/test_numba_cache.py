@@ -76,11 +76,10 @@ print(json.dumps(out))
 """
 
 
-@pytest.fixture
-def tree(tmp_path):
+def make_tree(base: Path) -> Path:
     """A copy of fusionkit with a caller and a callee module, and a plugin package that is the
     same pair outside fusionkit; every callee returns ``x + 1.0``."""
-    src = tmp_path / "src"
+    src = base / "src"
     pkg = src / "fusionkit"
     shutil.copytree(Path(fusionkit.__file__).parent, pkg, ignore=shutil.ignore_patterns("__pycache__"))
     (pkg / "_cache_probe_a.py").write_text(CALLER.format(callee="_cache_probe_b"))
@@ -107,31 +106,44 @@ def run(src: Path) -> dict:
     return out
 
 
-def test_an_edited_callee_in_another_module_is_compiled_again(tree):
-    """A same-size edit of the callees (1.0 -> 2.0), the callers' files untouched: the next
-    process computes with the new callee, in fusionkit and in a plugin package."""
-    first = run(tree)
-    assert first["fusionkit"] == [2.0, 0, 1] and first["plugin"] == [2.0, 0, 1]
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """One tree through four new processes, which the two tests below read (each process costs
+    over a second, most of it importing numba and fusionkit): a first run (compiles), the same
+    sources again (loads), after a same-size edit of the callees (1.0 -> 2.0, the callers' files
+    untouched), and after an edit of a fusionkit module none of the functions calls."""
+    tree = make_tree(tmp_path_factory.mktemp("numba-cache"))
+    out = {"first": run(tree), "warm": run(tree)}
     for callee in (tree / "fusionkit" / "_cache_probe_b.py", tree / "probe_plugin" / "b.py"):
         callee.write_text(CALLEE.format(v="2.0"))
-    edited = run(tree)
+    out["callees"] = run(tree)
+    other = tree / "fusionkit" / "errors.py"
+    other.write_text(other.read_text() + "\n# edited\n")
+    out["other"] = run(tree)
+    return out
+
+
+def test_an_edited_callee_in_another_module_is_compiled_again(runs):
+    """A same-size edit of the callees (1.0 -> 2.0), the callers' files untouched and their
+    compiled code on disk: the next process computes with the new callee, in fusionkit and in a
+    plugin package."""
+    assert runs["warm"]["fusionkit"] == runs["warm"]["plugin"] == [2.0, 1, 0]  # on disk before the edit
+    edited = runs["callees"]
     assert edited["fusionkit"][0] == 3.0, "fusionkit: stale machine code from numba's disk cache"
     assert edited["plugin"][0] == 3.0, "plugin: stale machine code from numba's disk cache"
     assert edited["plain"][0] == 3.0, "a plugin's numba.njit: stale machine code from numba's disk cache"
     assert edited["fusionkit"][2] == edited["plugin"][2] == edited["plain"][2] == 1  # compiled, not loaded
 
 
-def test_an_edit_anywhere_in_fusionkit_recompiles_and_unchanged_sources_load(tree):
+def test_an_edit_anywhere_in_fusionkit_recompiles_and_unchanged_sources_load(runs):
     """Unchanged sources: the next process loads from disk (a cache hit, no compile). An edit of
     any fusionkit module (one the functions do not call) invalidates fusionkit's entries and a
     plugin's (a plugin's kernels call fusionkit's)."""
-    assert run(tree)["fusionkit"] == [2.0, 0, 1]
-    warm = run(tree)
+    assert runs["first"]["fusionkit"] == runs["first"]["plugin"] == [2.0, 0, 1]
+    warm = runs["warm"]
     assert warm["fusionkit"] == warm["plugin"] == warm["plain"] == [2.0, 1, 0]
-    other = tree / "fusionkit" / "errors.py"
-    other.write_text(other.read_text() + "\n# edited\n")
-    edited = run(tree)
-    assert edited["fusionkit"] == edited["plugin"] == edited["plain"] == [2.0, 0, 1]
+    edited = runs["other"]  # after the callees' edit, whose compiled code the process before saved
+    assert edited["fusionkit"] == edited["plugin"] == edited["plain"] == [3.0, 0, 1]
 
 
 def test_every_cached_njit_function_is_stamped_with_its_sources():
