@@ -556,12 +556,14 @@ def test_a_measurement_every_interval_judges_a_recalibration_against_the_sample_
         assert y[[_PN, _PD, _PL, _PL + 1, _PL + 2]].tolist() == x[[_PN, _PD, _PL, _PL + 1, _PL + 2]].tolist()
 
 
-def test_measure_interval_kernel_equals_reference(provisional):
+@pytest.mark.parametrize("gain", ["kalman", "fixed"])
+def test_measure_interval_kernel_equals_reference(provisional, gain):
     """A heading measurement every 0.02 s (a recalibration among the first 11 s): reference == numba
     to 1e-9 on every sample's output, the same flags, the same states at the end; fewer measurements
-    than samples change the output, and 0 (the default) measures every sample."""
+    than samples change the output, and 0 (the default) measures every sample. (The fixed gain: the
+    same compiled loop, its gain for the interval.)"""
     rec = provisional.slice(0, 1100)
-    p = fk.make("recommended", mag_measure_interval=0.02)
+    p = fk.make("recommended", mag_measure_interval=0.02, heading_gain=gain)
     ref, fast = p.run(rec, backend="reference"), p.run(rec, backend="numba")
     assert np.count_nonzero(ref.flags & _RECAL) >= 1
     np.testing.assert_array_equal(ref.flags, fast.flags)
@@ -569,6 +571,34 @@ def test_measure_interval_kernel_equals_reference(provisional):
     for k in ("mod", "cor"):
         for a, b in zip(ref.diagnostics["state"][k], fast.diagnostics["state"][k]):
             assert np.abs(np.asarray(a) - np.asarray(b)).max(initial=0.0) < 1e-9
+    if gain == "fixed":
+        return
     every = fk.make("recommended").run(rec, backend="numba")
     assert np.abs(every.quat - fast.quat).max() > 1e-6
     assert fk.make("recommended").config.mag_measure_interval == 0.0
+
+
+def _turned_field(n=600, rate=100.0):
+    """At rest, the field turns 30 deg about the vertical at 3 s (its norm and dip kept)."""
+    psi = np.where(np.arange(n) / rate < 3.0, 0.0, np.radians(30.0))
+    return fk.Recording(gyr=np.zeros((n, 3)), acc=np.tile([0.0, 0.0, 9.81], (n, 1)), rate=rate,
+                        mag=np.c_[20.0 * np.cos(psi), -20.0 * np.sin(psi), np.full(n, -40.0)])
+
+
+def _yaw_deg(q):
+    w, x, y, z = q.T
+    return np.degrees(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+
+
+def test_a_fixed_gain_keeps_its_time_constant_with_a_measure_interval():
+    """``heading_gain="fixed"``: a measurement every 0.05 s at 100 Hz takes the gain of 0.05 s
+    (``1 - exp(-0.05 / tau)``), not one sample's: one time constant after the field turned by 30 deg
+    the heading followed it by 1 - 1/e either way (reference path; before: 5.4 deg instead of 19)."""
+    rec = _turned_field()
+    moved = []
+    for iv in (0.0, 0.05):
+        q = fk.make("recommended", heading_gain="fixed", tau_mag=1.0, mag_calibration=False,
+                    mag_measure_interval=iv).run(rec, backend="reference").quat
+        moved.append(abs(_yaw_deg(q)[400] - _yaw_deg(q)[290]))
+    assert abs(moved[0] - 30.0 * (1.0 - np.exp(-1.0))) < 0.5
+    assert abs(moved[1] - moved[0]) < 0.5

@@ -429,7 +429,8 @@ class MagHeading(FactorCorrector):
             return 0, code
         if code == MAG_DISTURBED and c.rejection:
             return _MAG_DISTURBED, code
-        k = _kf_gain(x, rn, rd) if kalman else x[_KM]
+        # (fixed: the gain for the time the measurement stands for, measure_interval's dt > the sample's)
+        k = _kf_gain(x, rn, rd) if kalman else x[_KM] if dt == x[_DT] else 1.0 - math.exp(-dt / c.tau)
         step = k * err
         _turn(x, step)
         if c.reexpress:  # delta's sensitivity to the calibration: this sample's field, R^T g
@@ -913,7 +914,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         elif code == MAG_DISTURBED and p[1] != 0.0:
             out = _MAG_DISTURBED
         else:
-            k = _k_kf_gain(s, rn, rd) if kalman else s[_KM]
+            k = _k_kf_gain(s, rn, rd) if kalman else s[_KM] if dm == dt else 1.0 - math.exp(-dm / p[0])
             step = k * err
             _k_turn(s, step)
             if p[26] != 0.0:  # reexpress: delta's sensitivity to the calibration, R^T g
