@@ -331,7 +331,8 @@ class MagHeading(FactorCorrector):
                         out = _MAG_DISTURBED
                     return quat_mul(np.array([x[_HC], *(x[_HS] * x[_AX + 6:_AX + 9])]), quat), out
                 dm, x[_MT] = x[_MT], 0.0
-                if recalibrated and x[_PMOK]:  # the sample before as a measurement leaves it (_moved, _reexpress)
+                if recalibrated and pq @ pq > 0.0:  # the last valid sample (an invalid one since keeps _PM, _QH) as
+                    # a measurement leaves it (_moved, _reexpress)
                     ml0 = quat_to_matrix(pq) @ x[_PM:_PM + 3]
                     x[_PN], x[_PD] = field_norm_dip(ml0, x[_AX + 6:_AX + 9])
                     x[_PL:_PL + 3] = ml0
@@ -759,9 +760,9 @@ def _k_fit(x, b, xx, xr, rr, lam, max_std):
 
 @njit(cold=True)  # at a recalibration
 def _k_previous(s, w, a, b, c):
-    """``measure_interval``, at a recalibration: the norm, dip and levelled field of the sample before
-    (its reading ``s[_PM:_PM + 3]`` levelled with its pairing ``w, a, b, c``) where a measurement on
-    every sample leaves them (:func:`_moved` and :func:`_reexpress` compare this sample with the one
+    """``measure_interval``, at a recalibration: the norm, dip and levelled field of the last valid
+    sample (its reading ``s[_PM:_PM + 3]`` levelled with its pairing ``w, a, b, c``; an invalid sample
+    since changes neither) where a measurement on every sample leaves them (:func:`_moved` and :func:`_reexpress` compare this sample with the one
     before: the calibration's change, one sample apart): the kernel's statements for a measurement, so
     the same numbers. (The reference levels it as it does every sample, in :meth:`MagHeading.compose`.)"""
     v0, v1, v2 = k_rot(w, a, b, c, s[_PM], s[_PM + 1], s[_PM + 2])
@@ -854,8 +855,9 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
                                                     q[2], q[3])
                 return out
             dm, s[_MT] = s[_MT], 0.0
-            if recal and s[_PMOK] != 0.0:  # the sample before's norm, dip and levelled field, as measuring
-                _k_previous(s, pq0, pq1, pq2, pq3)  # every sample leaves them (_moved, _reexpress)
+            if recal and pq0 * pq0 + pq1 * pq1 + pq2 * pq2 + pq3 * pq3 > 0.0:  # the last valid sample's (an
+                # invalid one since keeps _PM, _QH) norm, dip and levelled field, as measuring every sample leaves
+                _k_previous(s, pq0, pq1, pq2, pq3)  # them (_moved, _reexpress)
         s[_PM], s[_PM + 1], s[_PM + 2] = m0, m1, m2
         if fresh or not same or p[28] > 0.0:  # (held, calibrated otherwise: the fresh one's pairing, this value;
             # measure_interval: its fresh one may not have been measured)
