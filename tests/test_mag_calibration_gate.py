@@ -562,10 +562,10 @@ def test_measure_interval_kernel_equals_reference(provisional, gain):
     to 1e-9 on every sample's output, the same flags, the same states at the end; fewer measurements
     than samples change the output, and 0 (the default) measures every sample. (The fixed gain: the
     same compiled loop, its gain for the interval.) The sample before the recalibration (1014) has no
-    magnetometer reading."""
+    magnetometer reading, nor two of three after it."""
     rec = provisional.slice(0, 1100)
     mag = rec.mag.copy()
-    mag[1013] = np.nan
+    mag[1013] = mag[1030::3] = mag[1031::3] = np.nan
     rec = dataclasses.replace(rec, mag=mag)
     p = fk.make("recommended", mag_measure_interval=0.02, heading_gain=gain, nan_policy="skip")
     ref, fast = p.run(rec, backend="reference"), p.run(rec, backend="numba")
@@ -631,3 +631,27 @@ def test_a_recalibration_after_an_invalid_sample_is_judged_against_the_last_vali
 
     assert count(0.0) == 100.0  # the reference kept (learned over 1 s at 100 Hz)
     assert count(0.1) == count(0.0)
+
+
+def test_the_interval_counts_the_time_without_a_magnetometer_reading(provisional, monkeypatch):
+    """``measure_interval`` is time, not time with a reading: a 25 Hz magnetometer in a 100 Hz
+    recording (no reading on three samples of four) with an interval of 0.02 s is measured on every
+    reading, each measurement standing for its sample's 0.01 s, as with no interval (before: the
+    interval counted 0.01 s per reading, so one reading in four went unmeasured). Reference path."""
+    from fusionkit.correctors.heading import MagHeading
+
+    mag = np.full_like(provisional.mag[:800], np.nan)
+    mag[::4] = provisional.mag[:800:4]
+    rec = fk.Recording(gyr=provisional.gyr[:800], acc=provisional.acc[:800], mag=mag, rate=100.0)
+    heading, dms = MagHeading._heading, {}
+
+    def spy(self, x, m, q6, bias, dt, *a, **k):
+        dms[iv].append(dt)
+        return heading(self, x, m, q6, bias, dt, *a, **k)
+
+    monkeypatch.setattr(MagHeading, "_heading", spy)
+    for iv in (0.0, 0.02):
+        dms[iv] = []
+        fk.make("recommended", mag_measure_interval=iv, mag_calibration=False, nan_policy="skip").run(
+            rec, backend="reference")
+    assert dms[0.02] == dms[0.0] and len(dms[0.0]) == 200

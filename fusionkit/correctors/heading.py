@@ -165,9 +165,10 @@ _RL, _RM, _PL, _RW, _RS = _E2 + 12, _E2 + 15, _E2 + 24, _E2 + 27, _E2 + 28
 # this sample's than the learned one but not within a calibrated sample's precision): its sum (body frame) and its
 # steps' first-order part over the learned heading's weight then, and how many changes it sums (:func:`_reexpress`)
 _RD, _RP, _RN = _E2 + 31, _E2 + 34, _E2 + 35
-# measure_interval: the seconds since the last heading measurement, and whether it found the field disturbed
-_MT, _MDIS = _E2 + 36, _E2 + 37
-_SIZE = _E2 + 38
+# measure_interval: the seconds of magnetometer samples since the last heading measurement (the time it stands
+# for), whether it found the field disturbed, and the seconds since it (every sample: when the next one is due)
+_MT, _MDIS, _MC = _E2 + 36, _E2 + 37, _E2 + 38
+_SIZE = _E2 + 39
 #: where the heading's variance (gain kalman, rad^2) sits in the corrector's state
 HEADING_VARIANCE = _PHH
 #: the most the heading's variance grows to: a heading uniform on the circle (pi^2 / 3)
@@ -302,6 +303,8 @@ class MagHeading(FactorCorrector):
             gyro_lowpass(x, _LW, _SEEN, g, x[_KW])  # the turning rate, on the samples the rest detector sees
         if c.mag_delay_estimate:
             _segment_time(x, dt, rate_ok)
+        if c.measure_interval > 0.0:  # the time since the last measurement, with a magnetometer reading or not
+            x[_MC] += dt
         if c.gain == "kalman":  # the heading's variance grows with the vertical rate's errors
             w = quat_to_matrix(quat) @ (g - bias) if g_ok else np.zeros(3)
             _kf_predict(x, float(w @ x[_AX + 6:_AX + 9]), dt, c.gyro_noise ** 2, c.bias_sigma ** 2,
@@ -324,13 +327,13 @@ class MagHeading(FactorCorrector):
             if c.measure_interval > 0.0:  # a heading measurement once per interval (and at a recalibration)
                 x[_MT] += dt
                 learning = x[_MAG + MAG_COUNT] == 0.0 or x[_MAG + MAG_TIME] + 0.5 * dt < c.magnetic.init_time
-                if not recalibrated and not learning and x[_MT] < c.measure_interval - 0.5 * dt:
+                if not recalibrated and not learning and x[_MC] < c.measure_interval - 0.5 * dt:
                     x[_PM:_PM + 3] = m
                     x[_PMOK] = 1.0
                     if x[_MDIS] and c.rejection:  # the last measurement's verdict
                         out = _MAG_DISTURBED
                     return quat_mul(np.array([x[_HC], *(x[_HS] * x[_AX + 6:_AX + 9])]), quat), out
-                dm, x[_MT] = x[_MT], 0.0
+                dm, x[_MT], x[_MC] = x[_MT], 0.0, 0.0
                 if recalibrated and pq @ pq > 0.0:  # the last valid sample (an invalid one since keeps _PM, _QH) as
                     # a measurement leaves it (_moved, _reexpress)
                     ml0 = quat_to_matrix(pq) @ x[_PM:_PM + 3]
@@ -818,6 +821,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
     estimate = p[14] != 0.0
     if estimate:
         _k_segment_time(s, dt, math.isfinite(h0))
+    if p[28] > 0.0:  # measure_interval: the time since the last measurement, with a magnetometer reading or not
+        s[_MC] += dt
     kalman = p[18] != 0.0
     if kalman:
         wv = 0.0  # (read only with a scale error: p[21] > 0)
@@ -844,7 +849,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         if p[28] > 0.0:  # measure_interval: a heading measurement once per interval (and at a recalibration)
             s[_MT] += dt
             learning = s[_MAG + MAG_COUNT] == 0.0 or s[_MAG + MAG_TIME] + 0.5 * dt < p[7]  # (every sample)
-            if not recal and not learning and s[_MT] < p[28] - 0.5 * dt:
+            if not recal and not learning and s[_MC] < p[28] - 0.5 * dt:
                 s[_PM], s[_PM + 1], s[_PM + 2] = m0, m1, m2
                 s[_PMOK] = 1.0
                 if s[_MDIS] != 0.0 and p[1] != 0.0:
@@ -854,7 +859,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
                     q[0], q[1], q[2], q[3] = k_qmul(c, sn * s[ax + 6], sn * s[ax + 7], sn * s[ax + 8], q[0], q[1],
                                                     q[2], q[3])
                 return out
-            dm, s[_MT] = s[_MT], 0.0
+            dm, s[_MT], s[_MC] = s[_MT], 0.0, 0.0
             if recal and pq0 * pq0 + pq1 * pq1 + pq2 * pq2 + pq3 * pq3 > 0.0:  # the last valid sample's (an
                 # invalid one since keeps _PM, _QH) norm, dip and levelled field, as measuring every sample leaves
                 _k_previous(s, pq0, pq1, pq2, pq3)  # them (_moved, _reexpress)
