@@ -655,3 +655,18 @@ def test_the_interval_counts_the_time_without_a_magnetometer_reading(provisional
         fk.make("recommended", mag_measure_interval=iv, mag_calibration=False, nan_policy="skip").run(
             rec, backend="reference")
     assert dms[0.02] == dms[0.0] and len(dms[0.0]) == 200
+
+
+def test_a_measure_interval_that_no_delay_segment_survives_is_refused():
+    """``mag_delay_estimate`` with a ``measure_interval`` over 0.04 s: its segments end after 0.08 s
+    without a measurement, so at 0.1 s none would ever close (before: accepted, the estimate never
+    started); the error names both parameters as the configuration calls them."""
+    from fusionkit.correctors.heading import MagHeading
+    from fusionkit.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="mag_measure_interval must be at most 0.04 s with mag_delay_estimate"):
+        fk.make("recommended", mag_measure_interval=0.1, mag_delay_estimate=True)
+    with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most 0.04 s with mag_delay_estimate"):
+        MagHeading(measure_interval=0.1, mag_delay_estimate=True)
+    assert MagHeading(measure_interval=0.04, mag_delay_estimate=True).config.measure_interval == 0.04
+    assert fk.make("recommended", mag_measure_interval=0.1).config.mag_measure_interval == 0.1

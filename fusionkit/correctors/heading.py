@@ -114,6 +114,7 @@ import math
 from typing import ClassVar, Literal
 
 import numpy as np
+from pydantic import model_validator
 
 from .._numba import njit
 from ..config import PluginConfig, param
@@ -252,7 +253,7 @@ class MagHeadingConfig(PluginConfig):
         "recalibration (follow_calibration: judged against the sample before, as every sample would be); the "
         "heading's variance still grows on every sample, a measurement stands for the time since the last one. "
         "Samples between repeat the last measurement's verdict (MAG_DISTURBED); while the reference is learned "
-        "every sample is measured; the delay estimate sees the measured samples only. 0: every sample", ge=0)
+        "every sample is measured; the delay estimate sees the measured samples only (mag_delay_estimate: at most 0.04 s). 0: every sample", ge=0)
     reexpress: bool = param(
         True, unit="-", description="follow_calibration: at each recalibration it follows, move the heading by "
         "what the new calibration changes in the field it was learned from (that field read through the new "
@@ -260,6 +261,31 @@ class MagHeadingConfig(PluginConfig):
         "where it is closer to them than the learned field but not yet within a calibrated sample's precision (a "
         "provisional offset), the move waits for the next recalibration and is made with both changes. "
         "False: the heading keeps its filter alone")
+
+
+    @model_validator(mode="after")
+    def _measure_interval_bounds(self):
+        """``measure_interval``'s bounds (:func:`measure_interval_error`), named as here."""
+        error = measure_interval_error(self.measure_interval, self.mag_delay_estimate)
+        if error:
+            raise ValueError(error)
+        return self
+
+
+#: the longest ``measure_interval`` with ``mag_delay_estimate``: a segment spans the time between two
+#: measurements (under this plus half a sample) and one that waited over ``4 * _SEGMENT_TIME`` is dropped
+#: (:func:`_segment_time`): two segment times keep it within that at up to 25 Hz, and measure every sample slower
+MEASURE_INTERVAL_DELAY_MAX = 2.0 * _SEGMENT_TIME
+
+
+def measure_interval_error(interval, delay_estimate, names=("measure_interval", "mag_delay_estimate")) -> str:
+    """What is wrong with a ``measure_interval`` of ``interval`` s (``""``: nothing), its
+    parameters called ``names`` (mag-heading's, or a filter's that passes them on)."""
+    if delay_estimate and interval > MEASURE_INTERVAL_DELAY_MAX:
+        return (f"{names[0]} must be at most {MEASURE_INTERVAL_DELAY_MAX:g} s with {names[1]} (the delay estimate's "
+                f"segments span the time between two measurements and end after {4.0 * _SEGMENT_TIME:g} s: a longer "
+                f"interval never closes one), got {interval:g} s")
+    return ""
 
 
 class MagHeading(FactorCorrector):
