@@ -253,7 +253,8 @@ class MagHeadingConfig(PluginConfig):
         "recalibration (follow_calibration: judged against the sample before, as every sample would be); the "
         "heading's variance still grows on every sample, a measurement stands for the time since the last one. "
         "Samples between repeat the last measurement's verdict (MAG_DISTURBED); while the reference is learned "
-        "every sample is measured; the delay estimate sees the measured samples only (mag_delay_estimate: at most 0.04 s). 0: every sample", ge=0)
+        "every sample is measured; the delay estimate sees the measured samples only. At most field_error_time and, "
+        "gain fixed, tau (mag_delay_estimate: 0.04 s). 0: every sample", ge=0)
     reexpress: bool = param(
         True, unit="-", description="follow_calibration: at each recalibration it follows, move the heading by "
         "what the new calibration changes in the field it was learned from (that field read through the new "
@@ -266,7 +267,8 @@ class MagHeadingConfig(PluginConfig):
     @model_validator(mode="after")
     def _measure_interval_bounds(self):
         """``measure_interval``'s bounds (:func:`measure_interval_error`), named as here."""
-        error = measure_interval_error(self.measure_interval, self.mag_delay_estimate)
+        error = measure_interval_error(self.measure_interval, self.mag_delay_estimate, self.field_error_time,
+                                       self.tau if self.gain == "fixed" else None)
         if error:
             raise ValueError(error)
         return self
@@ -278,9 +280,20 @@ class MagHeadingConfig(PluginConfig):
 MEASURE_INTERVAL_DELAY_MAX = 2.0 * _SEGMENT_TIME
 
 
-def measure_interval_error(interval, delay_estimate, names=("measure_interval", "mag_delay_estimate")) -> str:
+def measure_interval_error(interval, delay_estimate, field_error_time, tau,
+                           names=("measure_interval", "mag_delay_estimate", "tau")) -> str:
     """What is wrong with a ``measure_interval`` of ``interval`` s (``""``: nothing), its
-    parameters called ``names`` (mag-heading's, or a filter's that passes them on)."""
+    parameters called ``names`` (mag-heading's, or a filter's that passes them on; ``tau``: the fixed
+    gain's time constant, None with the Kalman gain). A measurement stands for the interval, so it may
+    not be longer than the field errors' correlation time (``field_error_time``: one measurement would
+    count them as less than one sample's, :func:`_kf_noise`) nor than the fixed gain's time constant
+    (the heading would follow in steps larger than its filter)."""
+    if interval > field_error_time:
+        return (f"{names[0]} must be at most field_error_time ({field_error_time:g} s: a measurement stands for "
+                f"the interval, the field errors are correlated over that), got {interval:g} s")
+    if tau is not None and interval > tau:
+        return (f"{names[0]} must be at most the fixed gain's time constant {names[2]} ({tau:g} s), "
+                f"got {interval:g} s")
     if delay_estimate and interval > MEASURE_INTERVAL_DELAY_MAX:
         return (f"{names[0]} must be at most {MEASURE_INTERVAL_DELAY_MAX:g} s with {names[1]} (the delay estimate's "
                 f"segments span the time between two measurements and end after {4.0 * _SEGMENT_TIME:g} s: a longer "
@@ -791,9 +804,9 @@ def _k_fit(x, b, xx, xr, rr, lam, max_std):
 def _k_previous(s, w, a, b, c):
     """``measure_interval``, at a recalibration: the norm, dip and levelled field of the last valid
     sample (its reading ``s[_PM:_PM + 3]`` levelled with its pairing ``w, a, b, c``; an invalid sample
-    since changes neither) where a measurement on every sample leaves them (:func:`_moved` and :func:`_reexpress` compare this sample with the one
-    before: the calibration's change, one sample apart): the kernel's statements for a measurement, so
-    the same numbers. (The reference levels it as it does every sample, in :meth:`MagHeading.compose`.)"""
+    since changes neither) where a measurement on every sample leaves them (:func:`_moved` and
+    :func:`_reexpress` compare this sample with that one: the calibration's change, one valid sample
+    apart): the kernel's statements for a measurement, so the same numbers. (The reference levels it as it does every sample, in :meth:`MagHeading.compose`.)"""
     v0, v1, v2 = k_rot(w, a, b, c, s[_PM], s[_PM + 1], s[_PM + 2])
     norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
     vu = v0 * s[_AX + 6] + v1 * s[_AX + 7] + v2 * s[_AX + 8]
