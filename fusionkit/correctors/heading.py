@@ -850,7 +850,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
     mag_bias, motion_bias_tau, bias_max, *magnetic params (6), mag_hold, mag_delay_estimate, delay_max_std,
     delay_forget_time, follow_calibration, kalman (1) or fixed (0), gyro_noise^2, bias_sigma^2, scale_sigma^2,
     mag_noise^2, field_error^2, field_error_time, inclination_noise, reexpress, a calibrated sample's variance
-    (2 mag_noise^2 + field_error^2))``; ``ch`` the pipeline's channel."""
+    (2 mag_noise^2 + field_error^2), measure_interval (0: every sample))``; ``ch`` the pipeline's channel."""
     if s[_DT] != dt:
         s[_DT], s[_KM], s[_KW] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[3])
     if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and (acc_ok or (flags & _ACC_REJECTED) != 0):
