@@ -556,19 +556,137 @@ def test_a_measurement_every_interval_judges_a_recalibration_against_the_sample_
         assert y[[_PN, _PD, _PL, _PL + 1, _PL + 2]].tolist() == x[[_PN, _PD, _PL, _PL + 1, _PL + 2]].tolist()
 
 
-def test_measure_interval_kernel_equals_reference(provisional):
+@pytest.mark.parametrize("gain", ["kalman", "fixed"])
+def test_measure_interval_kernel_equals_reference(provisional, gain):
     """A heading measurement every 0.02 s (a recalibration among the first 11 s): reference == numba
     to 1e-9 on every sample's output, the same flags, the same states at the end; fewer measurements
-    than samples change the output, and 0 (the default) measures every sample."""
+    than samples change the output, and 0 (the default) measures every sample. (The fixed gain: the
+    same compiled loop, its gain for the interval.) The sample before the recalibration (1014) has no
+    magnetometer reading, nor two of three after it."""
     rec = provisional.slice(0, 1100)
-    p = fk.make("recommended", mag_measure_interval=0.02)
+    mag = rec.mag.copy()
+    mag[1013] = mag[1030::3] = mag[1031::3] = np.nan
+    rec = dataclasses.replace(rec, mag=mag)
+    p = fk.make("recommended", mag_measure_interval=0.02, heading_gain=gain, nan_policy="skip")
     ref, fast = p.run(rec, backend="reference"), p.run(rec, backend="numba")
-    assert np.count_nonzero(ref.flags & _RECAL) >= 1
+    assert np.flatnonzero(ref.flags & _RECAL).tolist() == [1014]
     np.testing.assert_array_equal(ref.flags, fast.flags)
     assert np.abs(fast.quat - ref.quat).max() < 1e-9
     for k in ("mod", "cor"):
         for a, b in zip(ref.diagnostics["state"][k], fast.diagnostics["state"][k]):
             assert np.abs(np.asarray(a) - np.asarray(b)).max(initial=0.0) < 1e-9
-    every = fk.make("recommended").run(rec, backend="numba")
+    if gain == "fixed":
+        return
+    every = fk.make("recommended", nan_policy="skip").run(rec, backend="numba")
     assert np.abs(every.quat - fast.quat).max() > 1e-6
     assert fk.make("recommended").config.mag_measure_interval == 0.0
+
+
+def _turned_field(n=600, rate=100.0):
+    """At rest, the field turns 30 deg about the vertical at 3 s (its norm and dip kept)."""
+    psi = np.where(np.arange(n) / rate < 3.0, 0.0, np.radians(30.0))
+    return fk.Recording(gyr=np.zeros((n, 3)), acc=np.tile([0.0, 0.0, 9.81], (n, 1)), rate=rate,
+                        mag=np.c_[20.0 * np.cos(psi), -20.0 * np.sin(psi), np.full(n, -40.0)])
+
+
+def _yaw_deg(q):
+    w, x, y, z = q.T
+    return np.degrees(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+
+
+def test_a_fixed_gain_keeps_its_time_constant_with_a_measure_interval():
+    """``heading_gain="fixed"``: a measurement every 0.05 s at 100 Hz takes the gain of 0.05 s
+    (``1 - exp(-0.05 / tau)``), not one sample's: one time constant after the field turned by 30 deg
+    the heading followed it by 1 - 1/e either way (reference path; before: 5.4 deg instead of 19)."""
+    rec = _turned_field()
+    moved = []
+    for iv in (0.0, 0.05):
+        q = fk.make("recommended", heading_gain="fixed", tau_mag=1.0, mag_calibration=False,
+                    mag_measure_interval=iv).run(rec, backend="reference").quat
+        moved.append(abs(_yaw_deg(q)[400] - _yaw_deg(q)[290]))
+    assert abs(moved[0] - 30.0 * (1.0 - np.exp(-1.0))) < 0.5
+    assert abs(moved[1] - moved[0]) < 0.5
+
+
+@pytest.mark.parametrize("reexpress", [False, True])
+def test_a_recalibration_after_an_invalid_sample_is_judged_against_the_last_valid_one(reexpress):
+    """``measure_interval``: a recalibration right after a sample without a magnetometer reading
+    compares the calibrated field with the last valid sample's (as a measurement on every sample
+    does), not with the last measurement's: a calibration that changes nothing after the field
+    grew 20 % (a disturbance) keeps the reference (before: learned again on the disturbance;
+    with reexpress, the change read from an unset field). Reference path."""
+    from fusionkit.correctors.heading import _MAG, MAG_COUNT, MagHeading
+    from fusionkit.protocols import Sample
+
+    def count(interval):
+        c = MagHeading(gain="kalman", follow_calibration=True, measure_interval=interval, reexpress=reexpress)
+        x = c.initial_state(0.01, "ENU")
+        q, b, w, g, acc = np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), np.zeros(3), np.zeros(3), np.array(
+            [0.0, 0.0, 9.81])
+        mags = [1.0] * 300 + [1.0 + 0.001 * k for k in range(1, 16)] + [1.2] * 4 + [None, 1.2]
+        for i, s in enumerate(mags):
+            m = None if s is None else np.array([0.0, 20.0, -45.0]) * s
+            c.compose(x, q, Sample(g, acc, m, 0.01), b, w, _RECAL if i == len(mags) - 1 else 0)
+        return x[_MAG + MAG_COUNT]
+
+    assert count(0.0) == 100.0  # the reference kept (learned over 1 s at 100 Hz)
+    assert count(0.1) == count(0.0)
+
+
+def test_the_interval_counts_the_time_without_a_magnetometer_reading(provisional, monkeypatch):
+    """``measure_interval`` is time, not time with a reading: a 25 Hz magnetometer in a 100 Hz
+    recording (no reading on three samples of four) with an interval of 0.02 s is measured on every
+    reading, each measurement standing for its sample's 0.01 s, as with no interval (before: the
+    interval counted 0.01 s per reading, so one reading in four went unmeasured). Reference path."""
+    from fusionkit.correctors.heading import MagHeading
+
+    mag = np.full_like(provisional.mag[:800], np.nan)
+    mag[::4] = provisional.mag[:800:4]
+    rec = fk.Recording(gyr=provisional.gyr[:800], acc=provisional.acc[:800], mag=mag, rate=100.0)
+    heading, dms = MagHeading._heading, {}
+
+    def spy(self, x, m, q6, bias, dt, *a, **k):
+        dms[iv].append(dt)
+        return heading(self, x, m, q6, bias, dt, *a, **k)
+
+    monkeypatch.setattr(MagHeading, "_heading", spy)
+    for iv in (0.0, 0.02):
+        dms[iv] = []
+        fk.make("recommended", mag_measure_interval=iv, mag_calibration=False, nan_policy="skip").run(
+            rec, backend="reference")
+    assert dms[0.02] == dms[0.0] and len(dms[0.0]) == 200
+
+
+def test_a_measure_interval_that_no_delay_segment_survives_is_refused():
+    """``mag_delay_estimate`` with a ``measure_interval`` over 0.04 s: its segments end after 0.08 s
+    without a measurement, so at 0.1 s none would ever close (before: accepted, the estimate never
+    started); the error names both parameters as the configuration calls them."""
+    from fusionkit.correctors.heading import MagHeading
+    from fusionkit.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="mag_measure_interval must be at most 0.04 s with mag_delay_estimate"):
+        fk.make("recommended", mag_measure_interval=0.1, mag_delay_estimate=True)
+    with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most 0.04 s with mag_delay_estimate"):
+        MagHeading(measure_interval=0.1, mag_delay_estimate=True)
+    assert MagHeading(measure_interval=0.04, mag_delay_estimate=True).config.measure_interval == 0.04
+    assert fk.make("recommended", mag_measure_interval=0.1).config.mag_measure_interval == 0.1
+
+
+def test_a_measure_interval_longer_than_its_time_constants_is_refused():
+    """A measurement stands for the interval: one longer than the field errors' correlation time
+    (``field_error_time``, 1 s) would count them as less than one sample's, one longer than the
+    fixed gain's time constant would move the heading in steps larger than its filter (before: any
+    value accepted, 1e12 s too); recommended's error names ``mag_measure_interval``."""
+    from fusionkit.correctors.heading import MagHeading
+    from fusionkit.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="mag_measure_interval must be at most field_error_time"):
+        fk.make("recommended", mag_measure_interval=2.0)
+    with pytest.raises(ConfigError, match="mag_measure_interval must be at most the fixed gain's time constant tau_mag"):
+        fk.make("recommended", mag_measure_interval=0.5, heading_gain="fixed", tau_mag=0.2)
+    with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most field_error_time"):
+        MagHeading(measure_interval=1e12)
+    with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most the fixed gain's time constant tau "):
+        MagHeading(measure_interval=0.5, gain="fixed", tau=0.2)
+    assert MagHeading(measure_interval=0.5, gain="kalman", tau=0.2).config.measure_interval == 0.5
+    assert fk.make("recommended", mag_measure_interval=1.0).config.mag_measure_interval == 1.0

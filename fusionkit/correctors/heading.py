@@ -114,6 +114,7 @@ import math
 from typing import ClassVar, Literal
 
 import numpy as np
+from pydantic import model_validator
 
 from .._numba import njit
 from ..config import PluginConfig, param
@@ -165,9 +166,10 @@ _RL, _RM, _PL, _RW, _RS = _E2 + 12, _E2 + 15, _E2 + 24, _E2 + 27, _E2 + 28
 # this sample's than the learned one but not within a calibrated sample's precision): its sum (body frame) and its
 # steps' first-order part over the learned heading's weight then, and how many changes it sums (:func:`_reexpress`)
 _RD, _RP, _RN = _E2 + 31, _E2 + 34, _E2 + 35
-# measure_interval: the seconds since the last heading measurement, and whether it found the field disturbed
-_MT, _MDIS = _E2 + 36, _E2 + 37
-_SIZE = _E2 + 38
+# measure_interval: the seconds of magnetometer samples since the last heading measurement (the time it stands
+# for), whether it found the field disturbed, and the seconds since it (every sample: when the next one is due)
+_MT, _MDIS, _MC = _E2 + 36, _E2 + 37, _E2 + 38
+_SIZE = _E2 + 39
 #: where the heading's variance (gain kalman, rad^2) sits in the corrector's state
 HEADING_VARIANCE = _PHH
 #: the most the heading's variance grows to: a heading uniform on the circle (pi^2 / 3)
@@ -251,7 +253,8 @@ class MagHeadingConfig(PluginConfig):
         "recalibration (follow_calibration: judged against the sample before, as every sample would be); the "
         "heading's variance still grows on every sample, a measurement stands for the time since the last one. "
         "Samples between repeat the last measurement's verdict (MAG_DISTURBED); while the reference is learned "
-        "every sample is measured; the delay estimate sees the measured samples only. 0: every sample", ge=0)
+        "every sample is measured; the delay estimate sees the measured samples only. At most field_error_time and, "
+        "gain fixed, tau (mag_delay_estimate: 0.04 s). 0: every sample", ge=0)
     reexpress: bool = param(
         True, unit="-", description="follow_calibration: at each recalibration it follows, move the heading by "
         "what the new calibration changes in the field it was learned from (that field read through the new "
@@ -259,6 +262,43 @@ class MagHeadingConfig(PluginConfig):
         "where it is closer to them than the learned field but not yet within a calibrated sample's precision (a "
         "provisional offset), the move waits for the next recalibration and is made with both changes. "
         "False: the heading keeps its filter alone")
+
+
+    @model_validator(mode="after")
+    def _measure_interval_bounds(self):
+        """``measure_interval``'s bounds (:func:`measure_interval_error`), named as here."""
+        error = measure_interval_error(self.measure_interval, self.mag_delay_estimate, self.field_error_time,
+                                       self.tau if self.gain == "fixed" else None)
+        if error:
+            raise ValueError(error)
+        return self
+
+
+#: the longest ``measure_interval`` with ``mag_delay_estimate``: a segment spans the time between two
+#: measurements (under this plus half a sample) and one that waited over ``4 * _SEGMENT_TIME`` is dropped
+#: (:func:`_segment_time`): two segment times keep it within that at up to 25 Hz, and measure every sample slower
+MEASURE_INTERVAL_DELAY_MAX = 2.0 * _SEGMENT_TIME
+
+
+def measure_interval_error(interval, delay_estimate, field_error_time, tau,
+                           names=("measure_interval", "mag_delay_estimate", "tau")) -> str:
+    """What is wrong with a ``measure_interval`` of ``interval`` s (``""``: nothing), its
+    parameters called ``names`` (mag-heading's, or a filter's that passes them on; ``tau``: the fixed
+    gain's time constant, None with the Kalman gain). A measurement stands for the interval, so it may
+    not be longer than the field errors' correlation time (``field_error_time``: one measurement would
+    count them as less than one sample's, :func:`_kf_noise`) nor than the fixed gain's time constant
+    (the heading would follow in steps larger than its filter)."""
+    if interval > field_error_time:
+        return (f"{names[0]} must be at most field_error_time ({field_error_time:g} s: a measurement stands for "
+                f"the interval, the field errors are correlated over that), got {interval:g} s")
+    if tau is not None and interval > tau:
+        return (f"{names[0]} must be at most the fixed gain's time constant {names[2]} ({tau:g} s), "
+                f"got {interval:g} s")
+    if delay_estimate and interval > MEASURE_INTERVAL_DELAY_MAX:
+        return (f"{names[0]} must be at most {MEASURE_INTERVAL_DELAY_MAX:g} s with {names[1]} (the delay estimate's "
+                f"segments span the time between two measurements and end after {4.0 * _SEGMENT_TIME:g} s: a longer "
+                f"interval never closes one), got {interval:g} s")
+    return ""
 
 
 class MagHeading(FactorCorrector):
@@ -302,6 +342,8 @@ class MagHeading(FactorCorrector):
             gyro_lowpass(x, _LW, _SEEN, g, x[_KW])  # the turning rate, on the samples the rest detector sees
         if c.mag_delay_estimate:
             _segment_time(x, dt, rate_ok)
+        if c.measure_interval > 0.0:  # the time since the last measurement, with a magnetometer reading or not
+            x[_MC] += dt
         if c.gain == "kalman":  # the heading's variance grows with the vertical rate's errors
             w = quat_to_matrix(quat) @ (g - bias) if g_ok else np.zeros(3)
             _kf_predict(x, float(w @ x[_AX + 6:_AX + 9]), dt, c.gyro_noise ** 2, c.bias_sigma ** 2,
@@ -324,14 +366,15 @@ class MagHeading(FactorCorrector):
             if c.measure_interval > 0.0:  # a heading measurement once per interval (and at a recalibration)
                 x[_MT] += dt
                 learning = x[_MAG + MAG_COUNT] == 0.0 or x[_MAG + MAG_TIME] + 0.5 * dt < c.magnetic.init_time
-                if not recalibrated and not learning and x[_MT] < c.measure_interval - 0.5 * dt:
+                if not recalibrated and not learning and x[_MC] < c.measure_interval - 0.5 * dt:
                     x[_PM:_PM + 3] = m
                     x[_PMOK] = 1.0
                     if x[_MDIS] and c.rejection:  # the last measurement's verdict
                         out = _MAG_DISTURBED
                     return quat_mul(np.array([x[_HC], *(x[_HS] * x[_AX + 6:_AX + 9])]), quat), out
-                dm, x[_MT] = x[_MT], 0.0
-                if recalibrated and x[_PMOK]:  # the sample before as a measurement leaves it (_moved, _reexpress)
+                dm, x[_MT], x[_MC] = x[_MT], 0.0, 0.0
+                if recalibrated and pq @ pq > 0.0:  # the last valid sample (an invalid one since keeps _PM, _QH) as
+                    # a measurement leaves it (_moved, _reexpress)
                     ml0 = quat_to_matrix(pq) @ x[_PM:_PM + 3]
                     x[_PN], x[_PD] = field_norm_dip(ml0, x[_AX + 6:_AX + 9])
                     x[_PL:_PL + 3] = ml0
@@ -429,7 +472,8 @@ class MagHeading(FactorCorrector):
             return 0, code
         if code == MAG_DISTURBED and c.rejection:
             return _MAG_DISTURBED, code
-        k = _kf_gain(x, rn, rd) if kalman else x[_KM]
+        # (fixed: the gain for the time the measurement stands for, measure_interval's dt > the sample's)
+        k = _kf_gain(x, rn, rd) if kalman else x[_KM] if dt == x[_DT] else 1.0 - math.exp(-dt / c.tau)
         step = k * err
         _turn(x, step)
         if c.reexpress:  # delta's sensitivity to the calibration: this sample's field, R^T g
@@ -758,11 +802,11 @@ def _k_fit(x, b, xx, xr, rr, lam, max_std):
 
 @njit(cold=True)  # at a recalibration
 def _k_previous(s, w, a, b, c):
-    """``measure_interval``, at a recalibration: the norm, dip and levelled field of the sample before
-    (its reading ``s[_PM:_PM + 3]`` levelled with its pairing ``w, a, b, c``) where a measurement on
-    every sample leaves them (:func:`_moved` and :func:`_reexpress` compare this sample with the one
-    before: the calibration's change, one sample apart): the kernel's statements for a measurement, so
-    the same numbers. (The reference levels it as it does every sample, in :meth:`MagHeading.compose`.)"""
+    """``measure_interval``, at a recalibration: the norm, dip and levelled field of the last valid
+    sample (its reading ``s[_PM:_PM + 3]`` levelled with its pairing ``w, a, b, c``; an invalid sample
+    since changes neither) where a measurement on every sample leaves them (:func:`_moved` and
+    :func:`_reexpress` compare this sample with that one: the calibration's change, one valid sample
+    apart): the kernel's statements for a measurement, so the same numbers. (The reference levels it as it does every sample, in :meth:`MagHeading.compose`.)"""
     v0, v1, v2 = k_rot(w, a, b, c, s[_PM], s[_PM + 1], s[_PM + 2])
     norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
     vu = v0 * s[_AX + 6] + v1 * s[_AX + 7] + v2 * s[_AX + 8]
@@ -806,7 +850,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
     mag_bias, motion_bias_tau, bias_max, *magnetic params (6), mag_hold, mag_delay_estimate, delay_max_std,
     delay_forget_time, follow_calibration, kalman (1) or fixed (0), gyro_noise^2, bias_sigma^2, scale_sigma^2,
     mag_noise^2, field_error^2, field_error_time, inclination_noise, reexpress, a calibrated sample's variance
-    (2 mag_noise^2 + field_error^2))``; ``ch`` the pipeline's channel."""
+    (2 mag_noise^2 + field_error^2), measure_interval (0: every sample))``; ``ch`` the pipeline's channel."""
     if s[_DT] != dt:
         s[_DT], s[_KM], s[_KW] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[3])
     if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and (acc_ok or (flags & _ACC_REJECTED) != 0):
@@ -816,6 +860,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
     estimate = p[14] != 0.0
     if estimate:
         _k_segment_time(s, dt, math.isfinite(h0))
+    if p[28] > 0.0:  # measure_interval: the time since the last measurement, with a magnetometer reading or not
+        s[_MC] += dt
     kalman = p[18] != 0.0
     if kalman:
         wv = 0.0  # (read only with a scale error: p[21] > 0)
@@ -842,7 +888,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         if p[28] > 0.0:  # measure_interval: a heading measurement once per interval (and at a recalibration)
             s[_MT] += dt
             learning = s[_MAG + MAG_COUNT] == 0.0 or s[_MAG + MAG_TIME] + 0.5 * dt < p[7]  # (every sample)
-            if not recal and not learning and s[_MT] < p[28] - 0.5 * dt:
+            if not recal and not learning and s[_MC] < p[28] - 0.5 * dt:
                 s[_PM], s[_PM + 1], s[_PM + 2] = m0, m1, m2
                 s[_PMOK] = 1.0
                 if s[_MDIS] != 0.0 and p[1] != 0.0:
@@ -852,9 +898,10 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
                     q[0], q[1], q[2], q[3] = k_qmul(c, sn * s[ax + 6], sn * s[ax + 7], sn * s[ax + 8], q[0], q[1],
                                                     q[2], q[3])
                 return out
-            dm, s[_MT] = s[_MT], 0.0
-            if recal and s[_PMOK] != 0.0:  # the sample before's norm, dip and levelled field, as measuring
-                _k_previous(s, pq0, pq1, pq2, pq3)  # every sample leaves them (_moved, _reexpress)
+            dm, s[_MT], s[_MC] = s[_MT], 0.0, 0.0
+            if recal and pq0 * pq0 + pq1 * pq1 + pq2 * pq2 + pq3 * pq3 > 0.0:  # the last valid sample's (an
+                # invalid one since keeps _PM, _QH) norm, dip and levelled field, as measuring every sample leaves
+                _k_previous(s, pq0, pq1, pq2, pq3)  # them (_moved, _reexpress)
         s[_PM], s[_PM + 1], s[_PM + 2] = m0, m1, m2
         if fresh or not same or p[28] > 0.0:  # (held, calibrated otherwise: the fresh one's pairing, this value;
             # measure_interval: its fresh one may not have been measured)
@@ -913,7 +960,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         elif code == MAG_DISTURBED and p[1] != 0.0:
             out = _MAG_DISTURBED
         else:
-            k = _k_kf_gain(s, rn, rd) if kalman else s[_KM]
+            k = _k_kf_gain(s, rn, rd) if kalman else s[_KM] if dm == dt else 1.0 - math.exp(-dm / p[0])
             step = k * err
             _k_turn(s, step)
             if p[26] != 0.0:  # reexpress: delta's sensitivity to the calibration, R^T g

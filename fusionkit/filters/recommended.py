@@ -56,7 +56,7 @@ from pydantic import Field, model_validator
 
 from ..config import AlignmentConfig, FilterConfig, PipelineConfig, PluginSpec, param
 from ..correctors._factor import initial_attitude
-from ..correctors.heading import HEADING_VARIANCE, MAG_REFERENCE
+from ..correctors.heading import HEADING_VARIANCE, MAG_REFERENCE, MagHeadingConfig, measure_interval_error
 from ..correctors.tilt import RATE_ERROR as TILT_RATE_ERROR
 from ..correctors.tilt import RATE_KAPPA2 as TILT_KAPPA2
 from ..correctors.tilt import InertialTiltConfig, lowpass_coefficients, slow_interval_bound
@@ -221,8 +221,9 @@ class RecommendedConfig(FilterConfig):
         "changes nothing where values never repeat")
     mag_measure_interval: float = param(
         0.0, unit="s", description="mag-heading's measure_interval: one heading measurement (the magnetic reference's "
-        "step and the heading's correction) per this long instead of per sample, and at each recalibration; "
-        "0: every sample", ge=0)
+        "step and the heading's correction) per this long instead of per sample, and at each recalibration "
+        "(at most mag-heading's field_error_time, 1 s, and with heading_gain fixed tau_mag; mag_delay_estimate: at "
+        "most 0.04 s); 0: every sample", ge=0)
     mag_delay_estimate: bool = param(
         False, unit="-", description="estimate the magnetometer's delay against the gyroscope online (mag-heading's "
         "estimate; mag_delay until its standard deviation is below mag_delay_max_std)")
@@ -243,6 +244,17 @@ class RecommendedConfig(FilterConfig):
         if self.gyro_rate_acc_bias > 0 and self.gyro_rate_estimate == "off":  # (it would be silently ignored)
             raise ValueError("gyro_rate_acc_bias is estimated beside the gyro's rate error: it needs "
                              "gyro_rate_estimate 'tau' or 'correct' (with the bias in motion)")
+        return self
+
+    @model_validator(mode="after")
+    def _mag_measure_interval_bounds(self):
+        """mag-heading's ``measure_interval`` bounds, named as here (its own error would name its own)."""
+        error = measure_interval_error(self.mag_measure_interval, self.mag_delay_estimate,
+                                       MagHeadingConfig.model_fields["field_error_time"].default,
+                                       self.tau_mag if self.heading_gain == "fixed" else None,
+                                       ("mag_measure_interval", "mag_delay_estimate", "tau_mag"))
+        if error:
+            raise ValueError(error)
         return self
 
     @model_validator(mode="after")
