@@ -174,18 +174,25 @@ def test_a_called_twin_of_an_inlined_kernel_is_cached_and_stamped_like_the_kerne
     assert twin._cache._enabled and twin._cache._cache_file._source_stamp[1] == fusionkit_hash()
 
 
-def test_a_module_edited_after_its_package_was_hashed_turns_the_cache_off(tmp_path, monkeypatch):
-    """A module of a package imported after an edit made once the package's hash was taken: the
-    code in memory is not what the hash describes, so the package's functions neither load nor
-    save (they compile, with the edited code)."""
+def _probe_package(tmp_path, monkeypatch, **modules):
+    """A package of its own in ``tmp_path`` (a name no other test imports), with an empty
+    ``__init__`` and ``modules`` (module name -> source), on ``sys.path``: (its name, its directory)."""
     name = "probe_" + tmp_path.name.replace("-", "_")
     pkg = tmp_path / name
     pkg.mkdir()
     (pkg / "__init__.py").write_text("")
-    (pkg / "b.py").write_text(CALLEE.format(v="1.0"))
-    (pkg / "a.py").write_text(CALLER.format(callee="b"))
-    (pkg / "c.py").write_text(CALLEE.format(v="5.0"))
+    for mod, text in modules.items():
+        (pkg / f"{mod}.py").write_text(text)
     monkeypatch.syspath_prepend(str(tmp_path))
+    return name, pkg
+
+
+def test_a_module_edited_after_its_package_was_hashed_turns_the_cache_off(tmp_path, monkeypatch):
+    """A module of a package imported after an edit made once the package's hash was taken: the
+    code in memory is not what the hash describes, so the package's functions neither load nor
+    save (they compile, with the edited code)."""
+    name, pkg = _probe_package(tmp_path, monkeypatch, b=CALLEE.format(v="1.0"), a=CALLER.format(callee="b"),
+                               c=CALLEE.format(v="5.0"))
     import importlib
 
     from numba.core import config
@@ -217,14 +224,9 @@ def test_a_pipeline_loop_adopts_its_plugins_numba_functions(tmp_path, monkeypatc
     ``numba.njit(cache=True)`` (and what they call) get fusionkit's stamp when the loop is built."""
     from fusionkit import _loopgen
 
-    name = "probe_" + tmp_path.name.replace("-", "_")
-    pkg = tmp_path / name
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text("")
-    (pkg / "b.py").write_text(CALLEE.format(v="1.0"))
-    (pkg / "est.py").write_text(PLAIN + "\n\n@njit(cache=True)\ndef to_quat(x, q):\n    q[0] = x[0]\n"
-                                "\n\n@njit(cache=True)\ndef from_quat(q, x):\n    x[0] = q[0]\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
+    name, _ = _probe_package(tmp_path, monkeypatch, b=CALLEE.format(v="1.0"),
+                             est=PLAIN + "\n\n@njit(cache=True)\ndef to_quat(x, q):\n    q[0] = x[0]\n"
+                             "\n\n@njit(cache=True)\ndef from_quat(q, x):\n    x[0] = q[0]\n")
     monkeypatch.setenv("FUSIONKIT_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setattr(_loopgen, "_BUILT", {})
     import importlib
@@ -270,13 +272,7 @@ def test_a_long_compile_says_so_on_stderr_once_for_the_outermost_function(tmp_pa
     so the suite's captured stderr stays as it was.)"""
     import importlib
 
-    name = "probe_" + tmp_path.name.replace("-", "_")
-    pkg = tmp_path / name
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text("")
-    (pkg / "b.py").write_text(CALLEE.format(v="1.0"))
-    (pkg / "a.py").write_text(CALLER.format(callee="b"))
-    monkeypatch.syspath_prepend(str(tmp_path))
+    name, _ = _probe_package(tmp_path, monkeypatch, b=CALLEE.format(v="1.0"), a=CALLER.format(callee="b"))
     monkeypatch.setattr(_numba, "NOTICE_AFTER", 0.0)
     try:
         a = importlib.import_module(f"{name}.a")
