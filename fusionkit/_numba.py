@@ -139,7 +139,26 @@ def _light_load(dispatcher):
         _stamp_sources(dispatcher, cache)  # (numba's Cache: cache=True, JIT enabled; once)
         cache.load_overload = _Light(_load_overload_light, cache)
         _lock_compiles(dispatcher, cache)
+    elif cache is not None and not hasattr(cache, "_load_overload") and not getattr(dispatcher.compile,
+                                                                                  "_fusionkit_notice", False):
+        _notice_compiles(dispatcher)  # (no disk cache, e.g. a loop compiled in memory: the notice alone)
     return dispatcher
+
+
+def _notice_compiles(dispatcher) -> None:
+    """``dispatcher.compile`` with the compile notice around a signature the process has not got."""
+    inner = dispatcher.compile
+
+    def compile(sig):
+        from numba.core import sigutils
+
+        if tuple(sigutils.normalize_signature(sig)[0]) in dispatcher.overloads:
+            return inner(sig)
+        with _CompileNotice(dispatcher.py_func):
+            return inner(sig)
+
+    compile._fusionkit_notice = True
+    dispatcher.compile = compile
 
 
 class _Light(functools.partial):
@@ -304,13 +323,13 @@ def _lock_compiles(dispatcher, cache) -> None:
 
         if tuple(sigutils.normalize_signature(sig)[0]) in dispatcher.overloads:
             return inner(sig)
-        held = _acquire(path)
-        try:
-            with _CompileNotice(dispatcher.py_func):
+        with _CompileNotice(dispatcher.py_func):  # (also while another process compiles it: the lock's wait)
+            held = _acquire(path)
+            try:
                 return inner(sig)
-        finally:
-            if held:
-                _release(path)
+            finally:
+                if held:
+                    _release(path)
 
     dispatcher.compile = compile
 
@@ -364,8 +383,8 @@ class _CompileNotice:
 
     def _say(self) -> None:
         self.said = True
-        print(f"fusionkit: compiling {self._name()} for this machine (once: later runs load it from the disk "
-              f"cache) ...", file=sys.stderr, flush=True)
+        _tell(f"fusionkit: compiling {self._name()} for this machine (once: later runs load it from the disk "
+              f"cache) ...")
 
     def __exit__(self, *exc):
         _NOTICE.depth -= 1
@@ -373,9 +392,19 @@ class _CompileNotice:
             self.timer.cancel()
             self.timer.join()  # (a line being printed is finished first)
             if self.said:
-                print(f"fusionkit: compiled {self._name()} in {time.monotonic() - self.t0:.0f} s",
-                      file=sys.stderr, flush=True)
+                _tell(f"fusionkit: compiled {self._name()} in {time.monotonic() - self.t0:.0f} s")
         return False
+
+
+def _tell(line: str) -> None:
+    """``line`` on stderr; nothing where there is none or it is closed (the compile goes on)."""
+    err = sys.stderr
+    if err is None:
+        return
+    try:
+        print(line, file=err, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 def _acquire(path: str) -> bool:

@@ -15,6 +15,9 @@ import pytest
 # loops users run are checked against these, preset by preset, in test_inlined_loops*.py.
 # Set before fusionkit is imported; the tests' subprocesses inherit it.
 os.environ.setdefault("FUSIONKIT_LOOP_INLINE", "0")
+# No compile notice on stderr (fusionkit/_numba.py), whatever the developer's environment says: tests
+# count the lines a command writes there, and a cold run compiles (test_numba_cache checks the notice).
+os.environ["FUSIONKIT_COMPILE_NOTICE"] = "0"
 
 import fusionkit as fk  # noqa: E402
 from fusionkit import sim  # noqa: E402

@@ -238,7 +238,8 @@ def test_motion_carried_across_a_long_rest_expires():
     the next update are dropped once the blocks at REST since then last longer than four of the inclination's
     time constants (the update's measurement, low-passed at it, then holds under 5 % of what they saw); before,
     they never expired, and a rest with the detector flickering piled them up for one update (here 3 + 500
-    samples). A rest of 2.5 time constants keeps them (the low-pass still holds a quarter of them). Reference
+    samples). A rest of 2.5 time constants keeps them (the low-pass still gives
+    them about 13 % of its weight). Reference
     and kernel."""
     for m, kept in ((250, True), (450, False)):  # 5 s at rest (tau 2 s): kept; 9 s: dropped
         blocks = [(True, 3)] + [(True, 0)] * m + [(False, 4)]

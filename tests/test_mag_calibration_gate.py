@@ -676,16 +676,22 @@ def test_a_measure_interval_longer_than_its_time_constants_is_refused():
     """A measurement stands for the interval: one longer than the field errors' correlation time
     (``field_error_time``, 1 s) would count them as less than one sample's, one longer than the
     fixed gain's time constant would move the heading in steps larger than its filter (before: any
-    value accepted, 1e12 s too); recommended's error names ``mag_measure_interval``."""
+    value accepted, 1e12 s too); recommended's error names ``mag_measure_interval``. The field errors are the
+    Kalman gain's: the fixed gain is bounded by its time constant alone (rev26c)."""
     from fusionkit.correctors.heading import MagHeading
     from fusionkit.errors import ConfigError
 
-    with pytest.raises(ConfigError, match="mag_measure_interval must be at most field_error_time"):
+    with pytest.raises(ConfigError, match="mag_measure_interval must be at most mag-heading's field_error_time"):
         fk.make("recommended", mag_measure_interval=2.0)
     with pytest.raises(ConfigError, match="mag_measure_interval must be at most the fixed gain's time constant tau_mag"):
         fk.make("recommended", mag_measure_interval=0.5, heading_gain="fixed", tau_mag=0.2)
-    with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most field_error_time"):
-        MagHeading(measure_interval=1e12)
+    with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most mag-heading's field_error_time"):
+        MagHeading(measure_interval=1e12, gain="kalman")
+    with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most the fixed gain's time constant tau "):
+        MagHeading(measure_interval=1e12)  # (the fixed gain has no field errors: its time constant bounds it)
+    assert MagHeading(measure_interval=2.0).config.measure_interval == 2.0  # (fixed gain, tau 15 s; rev26c)
+    f = fk.make("recommended", mag_measure_interval=2.0, heading_gain="fixed")
+    assert f.config.mag_measure_interval == 2.0
     with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most the fixed gain's time constant tau "):
         MagHeading(measure_interval=0.5, gain="fixed", tau=0.2)
     assert MagHeading(measure_interval=0.5, gain="kalman", tau=0.2).config.measure_interval == 0.5

@@ -11,6 +11,7 @@ beside it, and run them in new processes before and after an edit of the callees
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -285,7 +286,19 @@ def test_a_long_compile_says_so_on_stderr_once_for_the_outermost_function(tmp_pa
         assert a.through(2.0) == 3.0 and capsys.readouterr().err == ""  # (compiled already)
         monkeypatch.setenv("FUSIONKIT_COMPILE_NOTICE", "0")
         assert a.through(np.float32(1.0)) == 2.0 and capsys.readouterr().err == ""  # (a new signature, silent)
-        monkeypatch.delenv("FUSIONKIT_COMPILE_NOTICE")
+        monkeypatch.setenv("FUSIONKIT_COMPILE_NOTICE", "1")
+        in_memory = _numba.njit(cache=False)(lambda x: x * 2.0)  # (no disk cache: a loop compiled in memory)
+        assert in_memory(1.0) == 2.0
+        lines = capsys.readouterr().err.splitlines()
+        assert len(lines) == 2 and "<lambda> for this machine" in lines[0], lines
+        closed = io.StringIO()
+        closed.close()
+        real, sys.stderr = sys.stderr, closed  # (a closed stderr: the compile goes on, silently)
+        try:
+            assert a.through(np.int64(1)) == 2.0
+        finally:
+            sys.stderr = real
+        monkeypatch.delenv("FUSIONKIT_COMPILE_NOTICE", raising=False)
         assert not _numba._notice_wanted()  # (pytest's captured stderr is not a terminal)
     finally:
         for m in [m for m in sys.modules if m == name or m.startswith(name + ".")]:

@@ -251,10 +251,11 @@ class MagHeadingConfig(PluginConfig):
         0.0, unit="s", description="take a heading measurement (the field's norm, dip and heading, the magnetic "
         "reference's step, the heading's correction) once per this long instead of on every sample, and on a "
         "recalibration (follow_calibration: judged against the sample before, as every sample would be); the "
-        "heading's variance still grows on every sample, a measurement stands for the time since the last one. "
+        "heading's variance still grows on every sample, a measurement stands for its readings' time since the last "
+        "one (the interval itself is counted in time, readings or not). "
         "Samples between repeat the last measurement's verdict (MAG_DISTURBED); while the reference is learned "
-        "every sample is measured; the delay estimate sees the measured samples only. At most field_error_time and, "
-        "gain fixed, tau (mag_delay_estimate: 0.04 s). 0: every sample", ge=0)
+        "every sample is measured; the delay estimate sees the measured samples only. At most field_error_time (gain "
+        "kalman) or tau (gain fixed); with mag_delay_estimate at most 0.04 s. 0: every sample", ge=0)
     reexpress: bool = param(
         True, unit="-", description="follow_calibration: at each recalibration it follows, move the heading by "
         "what the new calibration changes in the field it was learned from (that field read through the new "
@@ -286,11 +287,11 @@ def measure_interval_error(interval, delay_estimate, field_error_time, tau,
     parameters called ``names`` (mag-heading's, or a filter's that passes them on; ``tau``: the fixed
     gain's time constant, None with the Kalman gain). A measurement stands for the interval, so it may
     not be longer than the field errors' correlation time (``field_error_time``: one measurement would
-    count them as less than one sample's, :func:`_kf_noise`) nor than the fixed gain's time constant
+    count them as less than one sample's, :func:`_kf_noise`; the Kalman gain) nor than the fixed gain's time constant
     (the heading would follow in steps larger than its filter)."""
-    if interval > field_error_time:
-        return (f"{names[0]} must be at most field_error_time ({field_error_time:g} s: a measurement stands for "
-                f"the interval, the field errors are correlated over that), got {interval:g} s")
+    if tau is None and interval > field_error_time:  # (the Kalman gain's: the fixed gain has no field errors)
+        return (f"{names[0]} must be at most mag-heading's field_error_time ({field_error_time:g} s: a measurement "
+                f"stands for the interval, the field errors are correlated over that), got {interval:g} s")
     if tau is not None and interval > tau:
         return (f"{names[0]} must be at most the fixed gain's time constant {names[2]} ({tau:g} s), "
                 f"got {interval:g} s")
