@@ -154,7 +154,7 @@ def _notice_compiles(dispatcher) -> None:
 
         if tuple(sigutils.normalize_signature(sig)[0]) in dispatcher.overloads:
             return inner(sig)
-        with _CompileNotice(dispatcher.py_func):
+        with _CompileNotice(dispatcher.py_func, cached=False):
             return inner(sig)
 
     compile._fusionkit_notice = True
@@ -362,8 +362,8 @@ class _CompileNotice:
     """The notice above around one load-or-compile of ``func`` (a timer thread that prints after
     :data:`NOTICE_AFTER` seconds; cancelled when the compile ends sooner)."""
 
-    def __init__(self, func):
-        self.func, self.timer, self.said = func, None, False
+    def __init__(self, func, cached: bool = True):
+        self.func, self.cached, self.timer, self.said = func, cached, None, False
 
     def __enter__(self):
         depth = getattr(_NOTICE, "depth", 0)
@@ -383,8 +383,9 @@ class _CompileNotice:
 
     def _say(self) -> None:
         self.said = True
-        _tell(f"fusionkit: compiling {self._name()} for this machine (once: later runs load it from the disk "
-              f"cache) ...")
+        why = ("once: later runs load it from the disk cache" if self.cached else
+               "in memory, no disk cache: every process compiles it")
+        _tell(f"fusionkit: compiling {self._name()} for this machine ({why}) ...")
 
     def __exit__(self, *exc):
         _NOTICE.depth -= 1

@@ -290,7 +290,7 @@ def test_a_long_compile_says_so_on_stderr_once_for_the_outermost_function(tmp_pa
         in_memory = _numba.njit(cache=False)(lambda x: x * 2.0)  # (no disk cache: a loop compiled in memory)
         assert in_memory(1.0) == 2.0
         lines = capsys.readouterr().err.splitlines()
-        assert len(lines) == 2 and "<lambda> for this machine" in lines[0], lines
+        assert len(lines) == 2 and "<lambda> for this machine (in memory, no disk cache" in lines[0], lines
         closed = io.StringIO()
         closed.close()
         real, sys.stderr = sys.stderr, closed  # (a closed stderr: the compile goes on, silently)
