@@ -305,6 +305,7 @@ def _stamp_sources(dispatcher, cache) -> None:
 
 LOCK_WAIT = 600.0
 _HELD: dict = {}  # lock path -> [file descriptor, depth]: a compile that reaches its own function again
+_HELD_LOCK = threading.Lock()  # (its entries are shared by the threads of the process)
 
 
 def _lock_compiles(dispatcher, cache) -> None:
@@ -314,7 +315,8 @@ def _lock_compiles(dispatcher, cache) -> None:
         import fcntl  # noqa: F401  (POSIX only)
 
         path = os.path.join(cache._cache_path, cache._impl.filename_base + ".lock")
-    except (ImportError, AttributeError, TypeError):
+    except (ImportError, AttributeError, TypeError):  # (no fcntl, e.g. Windows: no lock, the notice still)
+        _notice_compiles(dispatcher)
         return
     inner = dispatcher.compile
 
@@ -370,9 +372,13 @@ class _CompileNotice:
         _NOTICE.depth = depth + 1
         if depth == 0 and _notice_wanted():
             self.t0 = time.monotonic()
-            self.timer = threading.Timer(NOTICE_AFTER, self._say)
-            self.timer.daemon = True
-            self.timer.start()
+            timer = threading.Timer(NOTICE_AFTER, self._say)
+            timer.daemon = True
+            try:
+                timer.start()
+                self.timer = timer
+            except RuntimeError:  # no thread to be had (a limit, the interpreter ending): the compile alone
+                pass
         return self
 
     def _name(self) -> str:
@@ -413,10 +419,11 @@ def _acquire(path: str) -> bool:
     import fcntl
     import time
 
-    entry = _HELD.get(path)
-    if entry is not None:
-        entry[1] += 1
-        return True
+    with _HELD_LOCK:  # (threads of one process share its entries: read and count them as one step)
+        entry = _HELD.get(path)
+        if entry is not None:
+            entry[1] += 1
+            return True
     try:
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
     except OSError:
@@ -441,12 +448,14 @@ def _acquire(path: str) -> bool:
 def _release(path: str) -> None:
     import fcntl
 
-    entry = _HELD[path]
-    entry[1] -= 1
-    if entry[1] == 0:
+    with _HELD_LOCK:
+        entry = _HELD[path]
+        entry[1] -= 1
+        if entry[1] != 0:
+            return
         del _HELD[path]
-        fcntl.flock(entry[0], fcntl.LOCK_UN)
-        os.close(entry[0])
+    fcntl.flock(entry[0], fcntl.LOCK_UN)
+    os.close(entry[0])
 
 
 def _load_overload_light(cache, sig, target_context):

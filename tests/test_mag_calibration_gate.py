@@ -677,21 +677,24 @@ def test_a_measure_interval_longer_than_its_time_constants_is_refused():
     (``field_error_time``, 1 s) would count them as less than one sample's, one longer than the
     fixed gain's time constant would move the heading in steps larger than its filter (before: any
     value accepted, 1e12 s too); recommended's error names ``mag_measure_interval``. The field errors are the
-    Kalman gain's: the fixed gain is bounded by its time constant alone (rev26c)."""
+    Kalman gain's (rev26c); with either gain at most 1 s, the magnetic reference's time scale (rev26d)."""
     from fusionkit.correctors.heading import MagHeading
     from fusionkit.errors import ConfigError
 
-    with pytest.raises(ConfigError, match="mag_measure_interval must be at most mag-heading's field_error_time"):
+    with pytest.raises(ConfigError, match="mag_measure_interval must be at most 1 s"):
         fk.make("recommended", mag_measure_interval=2.0)
     with pytest.raises(ConfigError, match="mag_measure_interval must be at most the fixed gain's time constant tau_mag"):
         fk.make("recommended", mag_measure_interval=0.5, heading_gain="fixed", tau_mag=0.2)
     with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most mag-heading's field_error_time"):
-        MagHeading(measure_interval=1e12, gain="kalman")
-    with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most the fixed gain's time constant tau "):
-        MagHeading(measure_interval=1e12)  # (the fixed gain has no field errors: its time constant bounds it)
-    assert MagHeading(measure_interval=2.0).config.measure_interval == 2.0  # (fixed gain, tau 15 s; rev26c)
-    f = fk.make("recommended", mag_measure_interval=2.0, heading_gain="fixed")
-    assert f.config.mag_measure_interval == 2.0
+        MagHeading(measure_interval=0.8, gain="kalman", field_error_time=0.5)
+    with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most 1 s \(the magnetic reference"):
+        MagHeading(measure_interval=1e12)  # (either gain: the magnetic reference's time scale; rev26d)
+    with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most 1 s"):
+        MagHeading(measure_interval=10.0, gain="kalman", field_error_time=20.0)
+    # the fixed gain has no field errors: an interval longer than field_error_time is its own (rev26c)
+    assert MagHeading(measure_interval=1.0, field_error_time=0.5).config.measure_interval == 1.0
+    f = fk.make("recommended", mag_measure_interval=1.0, heading_gain="fixed")
+    assert f.config.mag_measure_interval == 1.0
     with pytest.raises(ConfigError, match=r"\bmeasure_interval must be at most the fixed gain's time constant tau "):
         MagHeading(measure_interval=0.5, gain="fixed", tau=0.2)
     assert MagHeading(measure_interval=0.5, gain="kalman", tau=0.2).config.measure_interval == 0.5

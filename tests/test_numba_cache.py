@@ -303,3 +303,31 @@ def test_a_long_compile_says_so_on_stderr_once_for_the_outermost_function(tmp_pa
     finally:
         for m in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
             del sys.modules[m]
+
+
+def test_the_compile_notice_without_a_thread_or_without_file_locks(tmp_path, monkeypatch, capsys):
+    """No thread to be had: the compile goes on without the notice, and the next one has it again
+    (the depth count back at 0). No ``fcntl`` (Windows): no compile lock, the notice still (rev26d)."""
+    import importlib
+    import threading
+
+    monkeypatch.setattr(_numba, "NOTICE_AFTER", 0.0)
+    monkeypatch.setenv("FUSIONKIT_COMPILE_NOTICE", "1")
+
+    def no_thread(self):
+        raise RuntimeError("can't start new thread")
+
+    with monkeypatch.context() as mp:
+        mp.setattr(threading.Timer, "start", no_thread)
+        assert _numba.njit(cache=False)(lambda x: x - 1.0)(1.0) == 0.0
+    assert capsys.readouterr().err == "" and getattr(_numba._NOTICE, "depth", 0) == 0
+    name, _ = _probe_package(tmp_path, monkeypatch, b=CALLEE.format(v="1.0"), a=CALLER.format(callee="b"))
+    monkeypatch.setitem(sys.modules, "fcntl", None)  # (import fcntl raises ImportError)
+    try:
+        a = importlib.import_module(f"{name}.a")
+        assert a.through(1.0) == 2.0
+        lines = capsys.readouterr().err.splitlines()
+        assert len(lines) == 2 and lines[0].startswith(f"fusionkit: compiling {name}.a.through"), lines
+    finally:
+        for m in [m for m in sys.modules if m == name or m.startswith(name + ".")]:
+            del sys.modules[m]

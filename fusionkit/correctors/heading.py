@@ -254,8 +254,9 @@ class MagHeadingConfig(PluginConfig):
         "heading's variance still grows on every sample, a measurement stands for its readings' time since the last "
         "one (the interval itself is counted in time, readings or not). "
         "Samples between repeat the last measurement's verdict (MAG_DISTURBED); while the reference is learned "
-        "every sample is measured; the delay estimate sees the measured samples only. At most field_error_time (gain "
-        "kalman) or tau (gain fixed); with mag_delay_estimate at most 0.04 s. 0: every sample", ge=0)
+        "every sample is measured; the delay estimate sees the measured samples only. At most 1 s (the magnetic "
+        "reference's time scale), field_error_time (gain kalman) and tau (gain fixed); with mag_delay_estimate at most "
+        "0.04 s. 0: every sample", ge=0)
     reexpress: bool = param(
         True, unit="-", description="follow_calibration: at each recalibration it follows, move the heading by "
         "what the new calibration changes in the field it was learned from (that field read through the new "
@@ -281,6 +282,13 @@ class MagHeadingConfig(PluginConfig):
 MEASURE_INTERVAL_DELAY_MAX = 2.0 * _SEGMENT_TIME
 
 
+#: the longest ``measure_interval`` with either gain: the magnetic reference steps once per measurement, its
+#: new-field candidate low-passed over 1 s and its turning time counted per measurement (``magnetic_step``), so
+#: a measurement may not stand for longer than that (rev26d: at 10 s, three measurements made a field 30 % off
+#: the reference)
+MEASURE_INTERVAL_MAX = 1.0
+
+
 def measure_interval_error(interval, delay_estimate, field_error_time, tau,
                            names=("measure_interval", "mag_delay_estimate", "tau")) -> str:
     """What is wrong with a ``measure_interval`` of ``interval`` s (``""``: nothing), its
@@ -288,7 +296,11 @@ def measure_interval_error(interval, delay_estimate, field_error_time, tau,
     gain's time constant, None with the Kalman gain). A measurement stands for the interval, so it may
     not be longer than the field errors' correlation time (``field_error_time``: one measurement would
     count them as less than one sample's, :func:`_kf_noise`; the Kalman gain) nor than the fixed gain's time constant
-    (the heading would follow in steps larger than its filter)."""
+    (the heading would follow in steps larger than its filter), and with either gain not longer than the
+    magnetic reference's time scale (:data:`MEASURE_INTERVAL_MAX`)."""
+    if interval > MEASURE_INTERVAL_MAX:
+        return (f"{names[0]} must be at most {MEASURE_INTERVAL_MAX:g} s (the magnetic reference's new-field candidate "
+                f"is low-passed over 1 s and a measurement stands for the interval), got {interval:g} s")
     if tau is None and interval > field_error_time:  # (the Kalman gain's: the fixed gain has no field errors)
         return (f"{names[0]} must be at most mag-heading's field_error_time ({field_error_time:g} s: a measurement "
                 f"stands for the interval, the field errors are correlated over that), got {interval:g} s")

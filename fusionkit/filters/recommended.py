@@ -222,8 +222,8 @@ class RecommendedConfig(FilterConfig):
     mag_measure_interval: float = param(
         0.0, unit="s", description="mag-heading's measure_interval: one heading measurement (the magnetic reference's "
         "step and the heading's correction) per this long instead of per sample, and at each recalibration "
-        "(at most mag-heading's field_error_time, 1 s, with heading_gain kalman, tau_mag with heading_gain fixed; "
-        "mag_delay_estimate: at most 0.04 s); 0: every sample", ge=0)
+        "(at most 1 s, the magnetic reference's time scale, and tau_mag with heading_gain fixed; mag_delay_estimate: "
+        "at most 0.04 s); 0: every sample", ge=0)
     mag_delay_estimate: bool = param(
         False, unit="-", description="estimate the magnetometer's delay against the gyroscope online (mag-heading's "
         "estimate; mag_delay until its standard deviation is below mag_delay_max_std)")
