@@ -141,12 +141,14 @@ def _light_load(dispatcher):
         _lock_compiles(dispatcher, cache)
     elif cache is not None and not hasattr(cache, "_load_overload") and not getattr(dispatcher.compile,
                                                                                   "_fusionkit_notice", False):
-        _notice_compiles(dispatcher)  # (no disk cache, e.g. a loop compiled in memory: the notice alone)
+        _wrap_compile(dispatcher, None, cached=False)  # (no disk cache, e.g. a loop compiled in memory: the notice)
     return dispatcher
 
 
-def _notice_compiles(dispatcher) -> None:
-    """``dispatcher.compile`` with the compile notice around a signature the process has not got."""
+def _wrap_compile(dispatcher, lock_path: str | None, cached: bool) -> None:
+    """``dispatcher.compile`` for a signature the process has not got yet: the compile notice around it
+    (:class:`_CompileNotice`; ``cached``: whether the function has a disk cache), and the function's lock
+    file ``lock_path`` held while it loads or compiles (None: no lock; :func:`_lock_compiles`)."""
     inner = dispatcher.compile
 
     def compile(sig):
@@ -154,8 +156,13 @@ def _notice_compiles(dispatcher) -> None:
 
         if tuple(sigutils.normalize_signature(sig)[0]) in dispatcher.overloads:
             return inner(sig)
-        with _CompileNotice(dispatcher.py_func, cached=False):
-            return inner(sig)
+        with _CompileNotice(dispatcher.py_func, cached):  # (also while another process compiles it: the lock's wait)
+            held = lock_path is not None and _acquire(lock_path)
+            try:
+                return inner(sig)
+            finally:
+                if held:
+                    _release(lock_path)
 
     compile._fusionkit_notice = True
     dispatcher.compile = compile
@@ -310,30 +317,14 @@ _HELD_LOCK = threading.Lock()  # (its entries are shared by the threads of the p
 
 def _lock_compiles(dispatcher, cache) -> None:
     """Make ``dispatcher.compile`` hold the function's lock file while it loads or compiles a
-    signature the process has not got yet."""
+    signature the process has not got yet (with the compile notice: :func:`_wrap_compile`)."""
     try:
         import fcntl  # noqa: F401  (POSIX only)
 
         path = os.path.join(cache._cache_path, cache._impl.filename_base + ".lock")
     except (ImportError, AttributeError, TypeError):  # (no fcntl, e.g. Windows: no lock, the notice still)
-        _notice_compiles(dispatcher)
-        return
-    inner = dispatcher.compile
-
-    def compile(sig):
-        from numba.core import sigutils
-
-        if tuple(sigutils.normalize_signature(sig)[0]) in dispatcher.overloads:
-            return inner(sig)
-        with _CompileNotice(dispatcher.py_func):  # (also while another process compiles it: the lock's wait)
-            held = _acquire(path)
-            try:
-                return inner(sig)
-            finally:
-                if held:
-                    _release(path)
-
-    dispatcher.compile = compile
+        path = None
+    _wrap_compile(dispatcher, path, cached=True)
 
 
 # -- a line on the terminal while numba compiles ---------------------------------------------------
