@@ -384,7 +384,7 @@ class MagHeading(FactorCorrector):
                     x[_PMOK] = 1.0
                     if x[_MDIS] and c.rejection:  # the last measurement's verdict
                         out = _MAG_DISTURBED
-                    return quat_mul(np.array([x[_HC], *(x[_HS] * x[_AX + 6:_AX + 9])]), quat), out
+                    return self._applied(x, quat), out
                 dm, x[_MT], x[_MC] = x[_MT], 0.0, 0.0
                 if recalibrated and pq @ pq > 0.0:  # the last valid sample (an invalid one since keeps _PM, _QH) as
                     # a measurement leaves it (_moved, _reexpress)
@@ -403,8 +403,12 @@ class MagHeading(FactorCorrector):
             if c.mag_delay_estimate and fresh:
                 self._estimate(x, qc, m, g - bias, dt, code == MAG_USE and rate_ok)
         x[_PMOK] = float(sample.mag is not None)
-        up = x[_AX + 6:_AX + 9]
-        return quat_mul(np.array([x[_HC], *(x[_HS] * up)]), quat), out
+        return self._applied(x, quat), out
+
+    @staticmethod
+    def _applied(x, quat):
+        """``quat`` with the heading's correction turned onto it (``delta`` about the frame's up)."""
+        return quat_mul(np.array([x[_HC], *(x[_HS] * x[_AX + 6:_AX + 9])]), quat)
 
     def _estimate(self, x, qc, m, w, dt, use) -> None:
         """A fresh magnetometer sample ``m``, paired as configured with ``qc``, at the rate ``w``:
@@ -789,6 +793,16 @@ def _set_half(x) -> None:
     x[_HC], x[_HS] = math.cos(0.5 * x[_DELTA]), math.sin(0.5 * x[_DELTA])
 
 
+@njit(inline="always")
+def _k_apply(s, q, ax) -> None:
+    """The heading's correction (``delta`` about the frame's up, its half-angle cosine and sine ``_HC``,
+    ``_HS``) turned onto the output ``q`` in place (none while ``delta`` is 0: Rz(0) is the identity; a
+    run without a magnetometer never leaves 0). :meth:`MagHeading._applied` in the reference."""
+    if s[_DELTA] != 0.0:
+        c, sn = s[_HC], s[_HS]
+        q[0], q[1], q[2], q[3] = k_qmul(c, sn * s[ax + 6], sn * s[ax + 7], sn * s[ax + 8], q[0], q[1], q[2], q[3])
+
+
 _k_heading_error = njit(inline="always")(_heading_error)
 _k_turn = njit(inline="always")(_turn)
 _k_set_half = njit(_set_half)
@@ -906,10 +920,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
                 s[_PMOK] = 1.0
                 if s[_MDIS] != 0.0 and p[1] != 0.0:
                     out = _MAG_DISTURBED
-                if s[_DELTA] != 0.0:
-                    c, sn = s[_HC], s[_HS]
-                    q[0], q[1], q[2], q[3] = k_qmul(c, sn * s[ax + 6], sn * s[ax + 7], sn * s[ax + 8], q[0], q[1],
-                                                    q[2], q[3])
+                _k_apply(s, q, ax)
                 return out
             dm, s[_MT], s[_MC] = s[_MT], 0.0, 0.0
             if recal and pq0 * pq0 + pq1 * pq1 + pq2 * pq2 + pq3 * pq3 > 0.0:  # the last valid sample's (an
@@ -988,7 +999,5 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             _k_estimate(s, c0, c1, c2, c3, m0, m1, m2, g0 - b[0], g1 - b[1], g2 - b[2], dt,
                         code == MAG_USE and math.isfinite(h0), p[15], p[16])
     s[_PMOK] = 1.0 if mag_ok else 0.0
-    if s[_DELTA] != 0.0:  # Rz(0) is the identity (a run without a magnetometer never leaves 0)
-        c, sn = s[_HC], s[_HS]
-        q[0], q[1], q[2], q[3] = k_qmul(c, sn * s[ax + 6], sn * s[ax + 7], sn * s[ax + 8], q[0], q[1], q[2], q[3])
+    _k_apply(s, q, ax)
     return out
