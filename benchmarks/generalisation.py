@@ -10,6 +10,7 @@ tune anything: the point is to find the conditions where ``recommended`` loses.
 
     python benchmarks/generalisation.py [--quick] [--draws N] [--seed S] [--families A,B]
                                         [--filters recommended,vqf,imufusion] [--diagnose]
+                                        [--param KEY=VALUE ...]
     python benchmarks/generalisation.py --quick --filters recommended+offline,vqf-offline
 
 Scores: 6D inclination RMSE and 9D total RMSE (deg) over the moving samples
@@ -18,7 +19,9 @@ Scores: 6D inclination RMSE and 9D total RMSE (deg) over the moving samples
 the win rate of the first filter against the second (``recommended`` against ``vqf``) and the
 worst case. Then the conditions where the first loses by more than 10 %; ``--diagnose`` reruns
 each of them with one error source switched off at a time and prints the ratio each leaves
-(the source whose removal brings the ratio to 1 is the one behind the loss).
+(the source whose removal brings the ratio to 1 is the one behind the loss). ``--param KEY=VALUE``
+(repeatable, the value JSON) sets a parameter of fusionkit's own filters in the comparison that have
+it (``--param mag_distortion_significance=0.99``: an option measured against the default).
 """
 
 from __future__ import annotations
@@ -129,6 +132,17 @@ def build(cond: dict):
                      noise=Noise(**cond["noise"]), rate=cond["rate"], seed=cond["seed"], **cond["params"])
 
 
+#: ``--param KEY=VALUE``: parameters of fusionkit's own filters (those made with ``use_mag``), each given to
+#: the filters whose configuration has it
+PARAMS: dict = {}
+
+
+def _params(name: str) -> dict:
+    """The ``--param`` parameters (:data:`PARAMS`) the fusionkit filter ``name`` has."""
+    fields = fk.get(name, "filter").Config.model_fields
+    return {k: v for k, v in PARAMS.items() if k in fields}
+
+
 def make_filter(name: str, dims: str):
     """``name`` as a 6D or 9D filter: ``mode`` for the peers, ``use_mag`` for fusionkit's own.
     ``NAME+offline`` is fusionkit's offline mode of ``NAME`` (``fk.make(NAME, offline=True)``),
@@ -146,9 +160,9 @@ def make_filter(name: str, dims: str):
         from fusionkit.offline import OfflineFilter
 
         timing = "recording" if option == "offline-gyro-timing" else "lever"
-        return OfflineFilter(fk.make(name, use_mag=dims == "9D"), gyro_timing=timing)
+        return OfflineFilter(fk.make(name, use_mag=dims == "9D", **_params(name)), gyro_timing=timing)
     if "use_mag" in fields:
-        return fk.make(name, offline=option == "offline", use_mag=dims == "9D")
+        return fk.make(name, offline=option == "offline", use_mag=dims == "9D", **_params(name))
     raise SystemExit(f"{name}: no 'mode' or 'use_mag' parameter to choose 6D or 9D with")
 
 
@@ -283,7 +297,7 @@ def diagnose(cond: dict, dims: str, filters) -> list[tuple[str, float, float, fl
         rec = build(cond)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            ea = rms_errors(fk.make(a, mag_calibration=False).run(rec), rec)["total"]
+            ea = rms_errors(fk.make(a, mag_calibration=False, **_params(a)).run(rec), rec)["total"]
         eb = evaluate(cond, (b,), rec)[dims][b]
         out.append(("(recommended mag_calibration=False)", ea, eb, ea / eb))
     return out
@@ -320,15 +334,31 @@ def main() -> None:
     ap.add_argument("--json", default="", help="write each condition's description and RMSEs here")
     ap.add_argument("--iron", type=float, default=2.0,
                     help="residual hard iron bound, uT per axis (and soft iron, %%; default 2: after a calibration)")
+    ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                    help="a parameter (JSON value) of the fusionkit filters that have it, e.g. "
+                    "mag_distortion_significance=0.99; repeatable")
     args = ap.parse_args()
     families = args.families.split(",") if args.families else list(SCENARIOS)
     filters = args.filters.split(",")
     if len(filters) < 2:
         ap.error("--filters needs at least two filters")
+    for item in args.param:
+        key, eq, raw = item.partition("=")
+        if not eq:
+            ap.error(f"--param takes KEY=VALUE, got {item!r}")
+        try:
+            PARAMS[key] = json.loads(raw)
+        except json.JSONDecodeError:
+            PARAMS[key] = raw
+    fields = [fk.get(f.partition("+")[0], "filter").Config.model_fields for f in filters]
+    for key in PARAMS:
+        if not any(key in f and "use_mag" in f for f in fields):
+            ap.error(f"--param {key}: no fusionkit filter among {filters} has it")
     draws = args.draws or (2 if args.quick else 20)
     rows = run(families, draws, args.seed, filters, args.quick, iron=args.iron)
     print(f"# generalisation: {filters[0]} vs {filters[1]}, {len(rows)} conditions "
-          f"(seed {args.seed}, {draws} draws per family, iron {args.iron:g}{', quick' if args.quick else ''})")
+          f"(seed {args.seed}, {draws} draws per family, iron {args.iron:g}{', quick' if args.quick else ''})"
+          + "".join(f", {k}={json.dumps(v)}" for k, v in PARAMS.items()))
     print(tables(rows, filters))
     lost = losses(rows, filters)
     print(f"\n### conditions where {filters[0]} loses by > 10 % ({len(lost)} of {2 * len(rows)} runs)\n")

@@ -92,3 +92,14 @@ def test_perturbed_adds_errors_and_the_initial_rest_but_keeps_the_scenarios_own(
     np.testing.assert_array_equal(again.gyr, base.gyr)
     with pytest.raises(fk.errors.InputError, match="unknown SensorErrors"):
         perturbed("tapped", errors={"gyro_bias": 1.0})
+
+
+def test_param_sets_fusionkits_own_filters_that_have_it(monkeypatch):
+    """``--param KEY=VALUE`` (``gen.PARAMS``) goes to fusionkit's filters that have the parameter, in 6D
+    and 9D and offline, not to the peers; without it the filters are the defaults."""
+    assert gen.make_filter("recommended", "9D").config.mag_distortion_significance == 0.0
+    monkeypatch.setattr(gen, "PARAMS", {"mag_distortion_significance": 0.99})
+    for dims in ("6D", "9D"):
+        assert gen.make_filter("recommended", dims).config.mag_distortion_significance == 0.99
+    assert gen.make_filter("recommended+offline", "9D").inner.config.mag_distortion_significance == 0.99
+    gen.make_filter("vqf", "9D")  # (a peer: not given it)
