@@ -360,6 +360,66 @@ def test_mag_calibration_provisional_kernel_equals_reference(soft_iron):
     assert (st[:, 26] == 0.5).any()  # the provisional branch ran
 
 
+def test_mag_calibration_distortion_significance_kernel_equals_reference():
+    """``distortion_significance=0.99`` with a 10 % soft iron on x and the (15, -25, 10) offset, 15 s: the
+    offset alone is applied first (the distortion not yet significant), then the whole calibration; both
+    branches and the switch between them (flagged): reference = numba to 1e-9 (outputs, state, flags)."""
+    from fusionkit.models import mag_calibration as mc
+
+    rec = sim.scenarios.hard_iron_turning(matrix=np.diag([1.1, 1.0, 1.0])).slice(0, 1500)
+    p = fk.compose({"estimator": "poisson-quat", "models": [{"name": "mag-calibration", "params": {
+                        "distortion_significance": 0.99}}],
+                    "correctors": [{"name": "gradient-descent", "params": {"use_mag": True}}],
+                    "alignment": {"mode": "fixed", "duration": 1.0, "heading": "auto"}})
+    ref, fast = p.run(rec, backend="reference"), p.run(rec, backend="numba")
+    assert np.abs(fast.quat - ref.quat).max() < 1e-9
+    assert np.abs(fast.diagnostics["state"]["mod"][0] - ref.diagnostics["state"]["mod"][0]).max() < 1e-9
+    np.testing.assert_array_equal(fast.flags, ref.flags)
+    assert np.count_nonzero(ref.flags & int(fk.Flag.MAG_RECALIBRATED)) == 2  # the offset alone, then the whole
+    assert np.all(ref.diagnostics["state"]["mod"][0][mc._SAPP:mc._SAPP + 5] != 0.0)
+
+
+def test_mag_calibration_offset_alone_is_the_fit_without_the_distortion():
+    """The offset fitted alone from the accumulated normal equations, its standard deviation and the
+    distortion's squared Mahalanobis distance (through the Schur complement, no 5x5 inverse) against
+    numpy's, on random information matrices: reference and compiled twin bit-identical; the distortion
+    refused exactly where the distance reaches the quantile."""
+    from fusionkit.models import mag_calibration as mc
+
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        h = rng.normal(size=(30, 8)) * rng.uniform(0.05, 3.0, size=8)
+        a = h.T @ h
+        s = np.zeros(mc._SINVOK + 1)
+        s[mc._SA:mc._SA + 64] = a.ravel()
+        s[mc._SY:mc._SY + 8] = h.T @ rng.normal(size=30)
+        s[mc._SBEST:mc._SBEST + 8] = np.linalg.solve(a, s[mc._SY:mc._SY + 8])
+        s[mc._VAR] = rng.uniform(0.01, 1.0)
+        e = s[mc._SBEST:mc._SBEST + 5]
+        d = e @ np.linalg.solve(s[mc._VAR] * np.linalg.inv(a)[:5, :5], e)
+        ai = np.linalg.inv(a[5:8, 5:8])
+        for q in (0.5 * d, 2.0 * d):
+            out, out_k = np.zeros(4), np.zeros(4)
+            assert mc._offset_alone(s, ai, q, out) == mc._k_offset_alone(s, ai, q, out_k) == (q > d)
+            if q > d:
+                assert np.array_equal(out, out_k)
+                np.testing.assert_allclose(out[:3], ai @ s[mc._SY + 5:mc._SY + 8], rtol=1e-10)
+                assert out[3] == pytest.approx(np.sqrt(s[mc._VAR] * np.diag(ai)).max(), rel=1e-12)
+
+
+def test_mag_calibration_refuses_a_distortion_significance_that_does_nothing():
+    """``distortion_significance`` with ``soft_iron=False`` (no distortion to test) or at 1 (no quantile):
+    a FusionkitError naming it; the quantile is chi-squared(5)'s, computed in ``params()``."""
+    spec = {"estimator": "poisson-quat", "correctors": [{"name": "gradient-descent", "params": {"use_mag": True}}],
+            "alignment": {"mode": "fixed", "duration": 1.0, "heading": "auto"}}
+    for params in ({"soft_iron": False, "distortion_significance": 0.99}, {"distortion_significance": 1.0}):
+        with pytest.raises(fk.FusionkitError, match="distortion_significance"):
+            fk.compose({**spec, "models": [{"name": "mag-calibration", "params": params}]})
+    m = fk.make("mag-calibration", kind="model", distortion_significance=0.99)
+    assert m.params()[14] == pytest.approx(15.086, abs=1e-3)
+    assert fk.make("mag-calibration", kind="model").params()[14] == 0.0
+
+
 def test_mag_calibration_segment_test_is_the_rotation_angle():
     """The per-sample segment test (no arctangent): ``_turned`` says ``2 atan2(|v|, |w|) >= angle``
     for rotations of any norm, and an angle beyond pi is never reached."""

@@ -206,6 +206,13 @@ class RecommendedConfig(FilterConfig):
         "reading exactly (a lower-rate magnetometer's hold) counts as a reading each time (the default) or once (one "
         "observation, a segment's change applies from the next sample: for a 10-20 Hz magnetometer; not the default, "
         "its BROAD gain does not hold without trial 04: docs/algorithms/models.md)")
+    mag_distortion_significance: float = param(
+        0.0, unit="-", description="mag_calibration's distortion_significance: apply the soft-iron distortion only "
+        "where it is significant (its five entries' squared Mahalanobis distance from zero above the chi-squared "
+        "5-dof quantile at this probability, e.g. 0.99), otherwise the hard-iron offset alone, fitted alone; it "
+        "assumes a field uniform where the sensor moves. 0 (the default): the distortion applied whenever "
+        "confident (not the default: on BROAD its gain does not hold without trial 04, docs/algorithms/models.md)",
+        ge=0, lt=1)
     acc_delay: float | None = param(
         None, unit="s", description="how long before the end of the gyro's step the accelerometer sample describes: "
         "it is paired with the orientation R(q_gyr (x) exp(-(w - bias) d)). None: half the sample interval, the middle "
@@ -335,7 +342,9 @@ class RecommendedFilter(Pipeline):
             max_gap=c.max_gap, body=c.body,
             estimator=PluginSpec(name="poisson-quat", params={"step": "exact"}),
             detectors=detectors, correctors=correctors,
-            models=([PluginSpec(name="mag-calibration", params={"held_readings": c.mag_held_readings})] if c.mag_calibration and c.use_mag else [])
+            models=([PluginSpec(name="mag-calibration", params={
+                "held_readings": c.mag_held_readings, "distortion_significance": c.mag_distortion_significance})]
+                    if c.mag_calibration and c.use_mag else [])
             + ([PluginSpec(name="lever-arm")] if c.lever_arm else []),
             alignment=AlignmentConfig(mode="none", initial_quat=initial_attitude(c.frame)),
         )

@@ -57,6 +57,19 @@ passes it, the offset alone is applied (``W = I``: the calibrated sample ``m - c
 earth-fixed disturbance (``mag-heading`` then learns its reference there, as for a confident
 calibration applied there, only more often: the provisional offset comes earlier).
 
+The distortion only where significant (``distortion_significance`` > 0, a probability; off by
+default): a confident distortion may still be noise, and applied it turns the heading by that noise.
+Its five entries' squared Mahalanobis distance from zero, ``dE = E^T (sigma_e^2 (A^-1)_EE)^-1 E``,
+follows chi-squared with 5 degrees of freedom where there is no distortion; where it does not exceed
+that distribution's quantile at ``distortion_significance``, the offset alone is applied (``W = I``),
+fitted alone from the same normal equations (``A_cc c = y_c``: the whole fit's ``c`` carries ``E``'s
+noise through their correlation) and judged by its own standard deviation (confidence and
+``provisional_std``); a switch between the two is flagged as a recalibration. The fit itself (its
+best estimate, misfit test and residual noise) stays the whole one. It assumes a field uniform where
+the sensor moves and ``sigma_e`` the segments' noise: a field that changes with position puts its
+change into the segments, and whether ``dE`` crosses the quantile then depends on the room
+(docs/algorithms/models.md, "Stop 27").
+
 Held readings: a magnetometer read at a lower rate than the gyroscope (10-100 Hz against
 100-1000 Hz) repeats its last reading until the next one. With ``held_readings="once"`` a sample equal
 in every component to the last valid one (invalid samples between or not) is that held reading: no new
@@ -117,6 +130,7 @@ above is blind to a field that turns with the earth, which is the property that 
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import ClassVar, Literal
 
@@ -238,7 +252,24 @@ class MagCalibrationConfig(PluginConfig):
         "10-20 Hz magnetometer, but not the default: on BROAD (whose magnetometer repeats 29 % of its samples) it "
         "moves the consistency gate's timing and its gain does not hold without trial 04 "
         "(docs/algorithms/models.md)")
+    distortion_significance: float = param(
+        0.0, unit="-", description="soft_iron: apply the distortion only where it is significant, its five entries' "
+        "squared Mahalanobis distance from zero (with the fit's residual noise) above the chi-squared (5 degrees of "
+        "freedom) quantile at this probability; otherwise the offset alone, fitted alone from the same normal "
+        "equations, with its own standard deviation for the confidence and provisional_std. It assumes a field "
+        "uniform where the sensor moves (a non-uniform one makes a distortion look significant or hides one). 0: off, "
+        "the distortion applied with the offset whenever confident (docs/algorithms/models.md, \"Stop 27\")",
+        ge=0, lt=1)
 
+
+    @model_validator(mode="after")
+    def _significance_needs_soft_iron(self):
+        """``distortion_significance`` chooses between the distortion and the offset alone: with
+        ``soft_iron=False`` there is no distortion to test (silently nothing)."""
+        if not self.soft_iron and self.distortion_significance > 0.0:
+            raise ValueError(f"distortion_significance ({self.distortion_significance:g}) does nothing with "
+                             "soft_iron=False: there is no distortion to test")
+        return self
 
     @model_validator(mode="after")
     def _provisional_needs_room(self):
@@ -269,7 +300,7 @@ class MagCalibrationModel(SensorModel):
         return np.array([c.segment_angle, c.segment_time, c.forget_time, c.max_std, float(c.min_segments),
                          c.outlier_sigma, float(c.outlier_count), float(c.soft_iron), _gate_code(c),
                          c.min_reduction, math.cos(0.5 * c.segment_angle), c.gate_interval, c.provisional_std,
-                         float(c.held_readings == "each")])
+                         float(c.held_readings == "each"), _quantile(c.distortion_significance)])
 
     def kernel(self) -> SensorModelKernel:
         return SensorModelKernel(mag_calibration_apply, self.params())
@@ -447,11 +478,21 @@ class MagCalibrationModel(SensorModel):
         w = np.eye(3) + _distortion(best)
         field = float(np.linalg.norm(w @ m - best[5:8]))
         std = np.sqrt(s[_VAR] * np.diag(inv))
+        std_c, std_e = std[5:8].max(), std[:5].max()
         if s[_N] < c.min_segments:
             return
-        if std[5:8].max() <= c.max_std * field and std[:5].max() <= c.max_std:
-            conf, wg = 1.0, w  # confident: the whole calibration
-        elif _provisional(s[_CONF], std[5:8].max(), best[5:8], c.provisional_std * field):
+        q, alone = _quantile(c.distortion_significance), False
+        if q > 0.0:  # distortion_significance: the offset alone (W = I) where the distortion is not significant
+            ai, o = np.empty((3, 3)), np.empty(4)
+            alone = _inverse3(s[_SA:_SA + _NP * _NP].reshape(_NP, _NP)[5:8, 5:8].copy(), ai) and _offset_alone(
+                s, ai, q, o)
+            if alone:
+                best, w = np.concatenate((np.zeros(5), o[0:3])), np.eye(3)
+                field = float(np.linalg.norm(m - best[5:8]))
+                std_c, std_e = o[3], 0.0
+        if std_c <= c.max_std * field and std_e <= c.max_std:
+            conf, wg = 1.0, w  # confident: the whole calibration (or the offset alone, fitted alone)
+        elif _provisional(s[_CONF], std_c, best[5:8], c.provisional_std * field):
             conf, wg = _PROVISIONAL, np.eye(3)  # the offset alone: W = I
         else:
             return
@@ -463,7 +504,7 @@ class MagCalibrationModel(SensorModel):
             s[_B:_B + 3] = 0.0
             s[_CONF] = 0.0
             return
-        if conf == 1.0:
+        if conf == 1.0 and not alone:
             s[_SAPP:_SAPP + _NP] = best
             s[_B:_B + 3] = np.linalg.solve(w, best[5:8])  # the offset in the raw field's units, b = W^-1 c
         else:
@@ -473,14 +514,18 @@ class MagCalibrationModel(SensorModel):
         s[_CONF] = conf
 
 
-def _applied(s, soft) -> bool:
-    """Whether a calibration is applied (its entries not all zero). The same statements in the
-    reference and, compiled, in the kernel."""
-    i, n = (_SAPP, _NP) if soft else (_B, 3)
-    for j in range(n):
+def _applied(s, soft) -> int:
+    """Which calibration is applied: 0 none (its entries all zero), 1 an offset alone, 2 (soft iron) an
+    offset with a distortion. The same statements in the reference and, compiled, in the kernel."""
+    if soft:
+        for j in range(5):
+            if s[_SAPP + j] != 0.0:
+                return 2
+    i = _SAPP + 5 if soft else _B
+    for j in range(3):
         if s[i + j] != 0.0:
-            return True
-    return False
+            return 1
+    return 0
 
 
 def _provisional(conf, std, b, level) -> bool:
@@ -494,15 +539,64 @@ def _provisional(conf, std, b, level) -> bool:
     return b[0] * b[0] + b[1] * b[1] + b[2] * b[2] >= 9.0 * std * std
 
 
+def _offset_alone(s, ai, q, out) -> bool:
+    """``distortion_significance``: whether the soft-iron estimate's distortion ``E`` (its first five
+    unknowns, ``s[_SBEST:]``) is not significant, and if so the offset fitted alone. ``E``'s squared
+    Mahalanobis distance from zero is ``dE = E^T (sigma_e^2 (A^-1)_EE)^-1 E``; the inverse of that block
+    of ``A^-1`` is the Schur complement ``A_EE - A_Ec A_cc^-1 A_cE`` (``A`` the information matrix,
+    ``ai = A_cc^-1`` its offset block's inverse), so ``sigma_e^2 dE = E^T A_EE E - g^T A_cc^-1 g`` with
+    ``g = A_cE E``: no 5x5 inverse. ``E`` is significant where ``dE`` exceeds ``q`` (the chi-squared
+    quantile with 5 degrees of freedom, 0 never here): False, the estimate kept whole. Otherwise ``E``
+    is noise in the heading: ``out[0:3]`` is the offset fitted alone from the same normal equations,
+    ``c = A_cc^-1 y_c`` (not the whole fit's ``c``, which carries ``E``'s noise through their
+    correlation), and ``out[3]`` its largest standard deviation, ``sigma_e`` times the square root of
+    ``A_cc^-1``'s diagonal. The same statements in the reference and, compiled, in the kernel."""
+    ee = 0.0
+    for i in range(5):
+        x = 0.0
+        for j in range(5):
+            x += s[_SA + _NP * i + j] * s[_SBEST + j]
+        ee += s[_SBEST + i] * x
+    for k in range(3):  # g = A_cE E, in out[0:3] until the offset replaces it
+        x = 0.0
+        for j in range(5):
+            x += s[_SA + _NP * (5 + k) + j] * s[_SBEST + j]
+        out[k] = x
+    gg = 0.0
+    for k in range(3):
+        gg += out[k] * (ai[k, 0] * out[0] + ai[k, 1] * out[1] + ai[k, 2] * out[2])
+    if ee - gg > q * s[_VAR]:
+        return False
+    std = 0.0
+    for k in range(3):
+        out[k] = ai[k, 0] * s[_SY + 5] + ai[k, 1] * s[_SY + 6] + ai[k, 2] * s[_SY + 7]
+        std = max(std, math.sqrt(max(s[_VAR] * ai[k, k], 0.0)))
+    out[3] = std
+    return True
+
+
+@functools.lru_cache(maxsize=8)
+def _quantile(p) -> float:
+    """``distortion_significance``'s threshold: the chi-squared quantile with 5 degrees of freedom
+    (``E``'s entries) at ``p``; 0 for ``p`` 0 (off). Computed in ``params()`` and by the reference,
+    never in the kernel (scipy.stats is imported only where the option is on)."""
+    if not p > 0.0:
+        return 0.0
+    from scipy.stats import chi2
+
+    return float(chi2.ppf(p, 5))
+
+
 def _changed(conf, applied, conf_now, applied_now) -> int:
     """The flag bits of a closed segment, from the confidence and whether a calibration is applied
     before (``conf``, ``applied``) and after it (``conf_now``, ``applied_now``): MAG_RECALIBRATED where the field the correctors see changes by more than
     the fit's refinement: a new estimate is applied (the confidence rose: to 1, the first one, or the
     first one after the offset was learned again or the gate refused it, or to a provisional offset's
-    0.5, or from it to 1) or the applied one stopped
-    (the gate refused it: the samples pass unchanged). The same statements in the reference and,
-    compiled, in the kernel."""
-    if conf_now > conf or (applied and not applied_now):
+    0.5, or from it to 1), the applied one stopped (the gate refused it: the samples pass unchanged),
+    or changed its kind (``distortion_significance``: the distortion became significant or stopped
+    being so, a change of the field by several of its standard deviations; ``applied``: which one,
+    :func:`_applied`). The same statements in the reference and, compiled, in the kernel."""
+    if conf_now > conf or (applied != 0 and applied_now != applied):
         return _RECALIBRATED
     return 0
 
@@ -893,6 +987,7 @@ def _k_gate_timed(code, s, g, w, c, min_reduction, applied, max_std, work, prev,
 _k_applied = njit(_applied)
 _k_changed = njit(_changed)
 _k_provisional = njit(_provisional)
+_k_offset_alone = njit(_offset_alone, cold=True)  # (distortion_significance only: once per segment)
 
 
 @njit
@@ -950,7 +1045,7 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
                     s[h + 10 + i] = s[(_SAPP if soft else _B) + i]
             if soft:
                 _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11],
-                                p[12])
+                                p[12], p[14])
             else:
                 _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11], p[12])
             s[h + 7] = float(_k_changed(conf, applied, s[_CONF], _k_applied(s, soft)))
@@ -1082,7 +1177,7 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
 
 @njit(cold=True)
 def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, interval,
-                    prov):
+                    prov, sigq):
     prev, s[STATE_SOFT + _GV] = s[STATE_SOFT + _GV], 0.0
     # one allocation for every working array (views into it): a segment closes every few samples
     # while the body turns, and each small array allocated and freed cost about as much as the arithmetic
@@ -1167,6 +1262,24 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
             std_c = max(std_c, sd)
     if s[_N] < min_seg:
         return
+    alone = False
+    if sigq > 0.0:  # distortion_significance (buf[45:109], a's copy, is done with: the inverse is in s)
+        acc, ai, o = buf[64:73].reshape((3, 3)), buf[73:82].reshape((3, 3)), buf[82:86]
+        for i in range(3):
+            for j in range(3):
+                acc[i, j] = s[_SA + _NP * (5 + i) + 5 + j]
+        alone = _k_inverse3(acc, ai) and _k_offset_alone(s, ai, sigq, o)
+        if alone:  # the offset alone, fitted alone: W = I
+            t = buf[109:117]
+            for i in range(5):
+                t[i] = 0.0
+            for i in range(3):
+                t[5 + i] = o[i]
+                for j in range(3):
+                    w[i, j] = 1.0 if i == j else 0.0
+            f0, f1, f2 = m0 - t[5], m1 - t[6], m2 - t[7]
+            field = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+            std_c, std_e = o[3], 0.0
     if std_c <= max_std * field and std_e <= max_std:
         conf, wg = 1.0, w  # confident: the whole calibration
     elif _k_provisional(s[_CONF], std_c, t[5:8], prov * field):
@@ -1184,7 +1297,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
         s[_B], s[_B + 1], s[_B + 2] = 0.0, 0.0, 0.0
         s[_CONF] = 0.0
         return
-    if conf == 1.0:
+    if conf == 1.0 and not alone:
         for i in range(_NP):
             s[_SAPP + i] = t[i]
         winv = buf[182:191].reshape((3, 3))
