@@ -47,7 +47,7 @@ from .gnss_rows import NO_GNSS
 from .navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, PHASE, SEEN
 from .types import CHANNEL_SIZE
 
-__all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack", "repack", "STEP_WORK"]
+__all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack", "repack", "STEP_WORK", "static_params"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,12 @@ class KernelSpec:
     first: bool = False
     on_x: bool = False  # a corrector that works on the estimator's state itself (``state_layout``)
     channel: bool = False  # a corrector that publishes or reads the channel: ``ch`` after its parameters
+    static: tuple = ()  # compile-time options (bools), arguments after all the others (protocols.CorrectorKernel)
+
+    def __post_init__(self):
+        for v in self.static:
+            if type(v) is not bool:
+                raise TypeError(f"a kernel's static option must be a bool, got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -144,7 +150,7 @@ def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
         L += [f"v[{j}] = {s}" for j, s in enumerate(_SAMPLE.split(", "))]
         L.append("mflags = 0")
         for i in models:
-            L += [f"c = {names[i]}(s{i}, v, gyr_ok, acc_ok, mag_ok, al[{qp}:{qp + 4}], h, p{i})",
+            L += [f"c = {names[i]}(s{i}, v, gyr_ok, acc_ok, mag_ok, al[{qp}:{qp + 4}], h, p{i}{_st(lay.kernels[i], i)})",
                   "if c > 0:", "    mflags |= c"]
         L.append(f"{_SAMPLE} = v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8]")
         L.append("gyr_ok, acc_ok, mag_ok, flags = validity_flags(g0, g1, g2, a0, a1, a2, m0, m1, m2, has_mag, "
@@ -189,7 +195,7 @@ def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
             k = lay.kernels[i]
             direct = lay.unit_quat or k.on_x  # the state is the quaternion, or the corrector works on it
             qq = "x" if direct else "q"
-            gn = _ch(k) + (f", {_GN})" if k.gnss else ")")
+            gn = _ch(k) + (f", {_GN}" if k.gnss else "") + _st(k, i) + ")"
             if not direct:
                 L.append("    e_to_quat(x, q)")
             if k.role == "rate":
@@ -207,14 +213,50 @@ def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
     L.append("    q[0], q[1], q[2], q[3] = x[0], x[1], x[2], x[3]" if lay.unit_quat else "    e_to_quat(x, q)")
     for i in factors:  # 6. factor correctors compose the output, in order
         L += [f"    cf = {names[i]}(q, s{i}, bv, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, ga_ok, gm_ok, flags, "
-              f"h, p{i}{_ch(lay.kernels[i])})", "    if cf > 0:", "        flags |= cf"]
+              f"h, p{i}{_ch(lay.kernels[i])}{_st(lay.kernels[i], i)})", "    if cf > 0:", "        flags |= cf"]
     L.append(f"al[{qp}], al[{qp + 1}], al[{qp + 2}], al[{qp + 3}] = q[0], q[1], q[2], q[3]")
+    _check_calls(L, names)
     return [ind + s for s in L]
+
+
+#: CPython compiles a call of more positional arguments than this as ``f(*args)`` (a tuple built on
+#: the stack), which numba cannot inline into the loop
+MAX_CALL_ARGS = 30
+
+
+def _check_calls(lines: list[str], names: dict[int, str]) -> None:
+    """Raise where a kernel's call takes more than :data:`MAX_CALL_ARGS` arguments (a plugin's
+    kernel with too many ``static`` options: pack some into its ``params`` instead)."""
+    pat = re.compile(r"\b(" + "|".join(map(re.escape, names.values())) + r")\((.*)\)")
+    for line in lines:
+        m = pat.search(line)
+        if m and m.group(2).count(",") + 1 > MAX_CALL_ARGS:
+            raise ValueError(f"the loop's call {m.group(1)}(...) takes {m.group(2).count(',') + 1} arguments, more "
+                             f"than the {MAX_CALL_ARGS} numba can inline (a kernel with too many static options)")
 
 
 def _ch(k: KernelSpec) -> str:
     """The channel argument of a corrector kernel's call (none for one that does not take it)."""
     return ", ch" if k.channel else ""
+
+
+def _st(k: KernelSpec, i: int) -> str:
+    """The kernel's compile-time options, the arguments at the end of its call: literals in a loop
+    that inlines its kernels (numba then compiles only the branches they select), and read from
+    the end of the kernel's parameter vector (:func:`static_params`) in one that calls them, so
+    that one loop, and one compiled kernel, serves every value of them (the test suite's)."""
+    if _numba.LOOP_INLINE:
+        return "".join(f", {v!r}" for v in k.static)
+    m = len(k.static)
+    return "".join(f", p{i}[p{i}.shape[0] - {m - j}] != 0.0" for j in range(m))
+
+
+def static_params(params, static: tuple):
+    """A kernel's parameter vector as the loop packs it: ``params`` with its static options
+    appended (1.0 / 0.0), which a loop that calls its kernels passes from there (:func:`_st`)."""
+    import numpy as np
+
+    return np.concatenate([params, np.array(static, dtype=float)]) if static else params
 
 
 def _withholds(lay: Layout) -> bool:
@@ -232,7 +274,7 @@ def _bias_lines(lay: Layout, names: dict[int, str], factors: bool) -> list[str]:
     for i, k in enumerate(lay.kernels):
         if k.role == "bias":
             L += [f"    cf = {names[i]}(s{i}, bv, g0, g1, g2, a0, a1, a2, m0, m1, m2, ga_ok, gm_ok, flags, h, p{i}"
-                  f"{_ch(k)})",
+                  f"{_ch(k)}{_st(k, i)})",
                   "    if cf > 0:", "        flags |= cf"]
     if factors:  # h: the way back from the end of the step to its middle, exp(-w dt / 2), once per sample
         L += ["    hh = -0.5 * h",

@@ -1029,7 +1029,7 @@ def _calibration_kernel(s, gyr, acc, mag, dt, ok, p, out):
     v = np.empty(9)
     for k in range(gyr.shape[0]):
         _sample_vector(v, gyr, acc, mag, ok, k)
-        mag_calibration_apply(s, v, ok[k, 0], ok[k, 1], ok[k, 2], q, dt[k], p)
+        mag_calibration_apply(s, v, ok[k, 0], ok[k, 1], ok[k, 2], q, dt[k], p, p[7] != 0.0, p[13] == 0.0)
         for i in range(3):
             out[k, i] = v[6 + i] if ok[k, 2] else mag[k, i]
 

@@ -320,15 +320,17 @@ class Pipeline(Filter):
         """The compiled module for this composition with detectors ``dets`` (indices), and
         ``(S, P, O, states)``: the run state ``st`` and every parameter vector packed for it."""
         ek, mks, dks, cks = kernels
-        specs = [_loopgen.KernelSpec(k.apply, "model") for k in mks]
+        specs = [_loopgen.KernelSpec(k.apply, "model", static=tuple(k.static)) for k in mks]
         specs += [_loopgen.KernelSpec(dks[i].step, "det", dks[i].gnss, int(self.detectors[i].flag), i == 0)
                   for i in dets]
-        specs += [_loopgen.KernelSpec(k.correct, k.mode, k.gnss, on_x=bool(c.state_layout), channel=c.uses_channel)
+        specs += [_loopgen.KernelSpec(k.correct, k.mode, k.gnss, on_x=bool(c.state_layout), channel=c.uses_channel,
+                                    static=tuple(k.static))
                   for c, k in zip(self.correctors, cks)]
         lay = _loopgen.Layout((ek.propagate, ek.to_quat, ek.from_quat), bool(ek.unit_quat), tuple(specs),
                               _RCORR, _QPREV, _CHAN)
         states = [st["x"], *st["mod"], *[st["det"][i] for i in dets], *st["cor"], st["align"]]
-        params = [ek.params, *[k.params for k in mks], *[dks[i].params for i in dets], *[k.params for k in cks],
+        params = [ek.params, *[_loopgen.static_params(k.params, tuple(k.static)) for k in mks],
+                  *[dks[i].params for i in dets], *[_loopgen.static_params(k.params, tuple(k.static)) for k in cks],
                   self.aligner(st["dt"]).params(), self._loop_params()]
         S, P, O = _loopgen.pack(states, params)
         return _loopgen.get_compiled(lay), S, P, O, states

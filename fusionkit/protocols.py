@@ -139,22 +139,31 @@ class CorrectorKernel(NamedTuple):
 
     A corrector that publishes or reads a :class:`~fusionkit.types.Channel` quantity
     (:attr:`Corrector.uses_channel`) takes the channel ``ch`` (``CHANNEL_SIZE`` numbers, indexed by
-    the names; read and write) right after ``params``, before any GNSS row."""
+    the names; read and write) right after ``params``, before any GNSS row.
+
+    ``static``: the kernel's compile-time options (Python bools, ints or floats), passed as literal
+    arguments after all the others. Where they select a branch (``if soft_iron:``), the loop users
+    run (every kernel inlined) is compiled without the branches they rule out: typing and
+    lowering code that can never run was most of a first run's wait. A loop that calls its
+    kernels (the test suite's) compiles each kernel once for every value, as for ``params``."""
 
     correct: Callable
     params: np.ndarray
     mode: str = "state"
     gnss: bool = False
+    static: tuple = ()
 
 
 class SensorModelKernel(NamedTuple):
     """numba counterpart of a sensor model: ``apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, params) ->
     int``. ``v`` holds the sample ``g0, g1, g2, a0, a1, a2, m0, m1, m2`` (the magnetometer zeros
     without one) and is corrected in place; ``q`` is the pipeline's previous output quaternion
-    (read only); it returns flag bits (0 for none)."""
+    (read only); it returns flag bits (0 for none). ``static``: compile-time options passed after
+    ``params`` (as :class:`CorrectorKernel`'s)."""
 
     apply: Callable
     params: np.ndarray
+    static: tuple = ()
 
 
 class Correction(NamedTuple):

@@ -5,6 +5,7 @@ rest of the suite checks on the called loops holds for the inlined ones: here ev
 ``recommended``, whose compile (the suite's longest, online and offline) is test_inlined_loops_recommended.py's,
 so that ``-n 2 --dist loadfile`` runs the two files on both workers at once."""
 
+import numpy as np
 import pytest
 
 import fusionkit as fk
@@ -60,3 +61,60 @@ def test_call_copy_compiles_an_always_inlined_kernel_as_a_call():
     assert call_copy(_always) is twin  # one per function
     assert call_copy(_plain) is _plain and call_copy(len) is len
     assert twin(1.0) == 2.0
+
+
+def test_static_options_are_literals_inlined_and_parameters_called(monkeypatch):
+    """A kernel's compile-time options (``static``) reach it as literals in the loop users run (so
+    numba compiles only the branches they select) and, in the suite's called loops, from the end of
+    its parameter vector, so that one loop serves every value of them; more than 30 arguments in a
+    call (numba cannot inline CPython's ``*args`` call) and non-bool options are refused."""
+    f = fk.make("gradient-descent")
+    ek, mks, dks, cks = f._kernels()
+    est = [("m", "p"), ("m", "t"), ("m", "f")]
+
+    def text(inline, static):
+        monkeypatch.setattr(fn, "LOOP_INLINE", inline)
+        lay = _loopgen.Layout((ek.propagate, ek.to_quat, ek.from_quat), True,
+                              (_loopgen.KernelSpec(cks[0].correct, "state", static=static),), 20, 23)
+        return _loopgen.source(lay, True, {0: ("m", "k")}, est)
+
+    inlined, called = text(True, (True, False)), text(False, (True, False))
+    assert "p0, True, False)" in inlined
+    assert "p0, p0[p0.shape[0] - 2] != 0.0, p0[p0.shape[0] - 1] != 0.0)" in called
+    assert text(False, (False, True)) == called  # (one called loop for every value)
+    assert text(True, (False, True)) != inlined
+    with pytest.raises(ValueError, match="30"):
+        text(True, (True,) * 20)
+    with pytest.raises(TypeError, match="bool"):
+        _loopgen.KernelSpec(cks[0].correct, "state", static=(1,))
+    p = _loopgen.static_params(np.array([2.0, 3.0]), (True, False))
+    assert p.tolist() == [2.0, 3.0, 1.0, 0.0]
+
+
+@njit(cache=False, cold=True)
+def _if_soft(x):
+    return x + 1.0
+
+
+@njit(cache=False, cold=True)
+def _if_hard(x):
+    return x + 2.0
+
+
+@njit(cache=False, inline="always")
+def _kernel_with_option(x, soft):
+    return _if_soft(x) if soft else _if_hard(x)
+
+
+def test_a_literal_static_option_prunes_the_branch_it_rules_out():
+    """What the loop users run does with a static option: the kernel's twin inlined into a loop
+    compiled by the loop's compiler with the option as a literal; the branch it rules out is never
+    compiled (its cold helper, a call of its own, has no signature afterwards)."""
+    twin = fn.inline_copy(_kernel_with_option)
+
+    @njit(cache=False, forward_copies=True)
+    def loop(x):
+        return twin(x, True)
+
+    assert loop(1.0) == 2.0
+    assert _if_soft.signatures and not _if_hard.signatures

@@ -221,7 +221,8 @@ def test_heading_keeps_a_flagged_held_sample_paired_with_its_fresh_one():
 
     rec = sim.scenario("late-mag", delay=0.0, turns=2)
     cor = fk.make("mag-heading", kind="corrector")
-    p, ch, bias = cor.kernel(None).params, np.zeros(CHANNEL_SIZE), np.zeros(3)
+    kern = cor.kernel(None)
+    p, ch, bias = kern.params, np.zeros(CHANNEL_SIZE), np.zeros(3)
     s = cor.initial_state(rec.nominal_dt, "ENU")
     k = 500  # turning (after a 2 s rest)
     for i in range(k):
@@ -232,7 +233,7 @@ def test_heading_keeps_a_flagged_held_sample_paired_with_its_fresh_one():
     for flags in (int(fk.Flag.MAG_HELD), 0):
         s_ref, s_fast = s.copy(), s.copy()
         cor.compose(s_ref, rec.truth[k], Sample(g, a, m, dt), bias, g, flags)
-        mag_heading_kernel(rec.truth[k].copy(), s_fast, bias.copy(), *g, *h, *a, *m, True, True, flags, dt, p, ch)
+        mag_heading_kernel(rec.truth[k].copy(), s_fast, bias.copy(), *g, *h, *a, *m, True, True, flags, dt, p, ch, *kern.static)
         assert np.abs(s_fast - s_ref).max() < 1e-9
         moved = np.abs(s_ref[_QH:_QH + 4] - s[_QH:_QH + 4]).max()
         assert (moved == 0.0) if flags else (moved > 1e-3)

@@ -509,7 +509,9 @@ class MagHeading(FactorCorrector):
                       c.scale_sigma ** 2, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time,
                       float(c.inclination_noise), float(c.reexpress), 2.0 * c.mag_noise ** 2 + c.field_error ** 2,
                       c.measure_interval])
-        return CorrectorKernel(mag_heading_kernel, p, mode="factor")
+        static = (c.gain == "kalman", c.mag_delay_estimate, c.measure_interval > 0.0, c.scale_sigma ** 2 > 0.0,
+                  c.inclination_noise, c.reexpress, c.mag_bias)  # (p[18], p[14], p[28], p[21], p[25], p[26], p[4])
+        return CorrectorKernel(mag_heading_kernel, p, mode="factor", static=static)
 
 
 def _finite3(v) -> bool:
@@ -872,27 +874,27 @@ def _k_estimate(s, c0, c1, c2, c3, m0, m1, m2, w0, w1, w2, dt, use, max_std, for
 
 @njit(inline="always")
 def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p,
-                       ch):
+                       ch, kalman, estimate, interval, scale, incl_noise, reexpress, mag_bias):
     """The kernel of :meth:`MagHeading.compose`: ``p = (tau, rejection, mag_delay (NaN: None), rate_tau,
     mag_bias, motion_bias_tau, bias_max, *magnetic params (6), mag_hold, mag_delay_estimate, delay_max_std,
     delay_forget_time, follow_calibration, kalman (1) or fixed (0), gyro_noise^2, bias_sigma^2, scale_sigma^2,
     mag_noise^2, field_error^2, field_error_time, inclination_noise, reexpress, a calibrated sample's variance
-    (2 mag_noise^2 + field_error^2), measure_interval (0: every sample))``; ``ch`` the pipeline's channel."""
+    (2 mag_noise^2 + field_error^2), measure_interval (0: every sample))``; ``ch`` the pipeline's channel; the
+    compile-time options (``static``, :meth:`MagHeading.kernel`): the Kalman gain, mag_delay_estimate,
+    measure_interval > 0, scale_sigma > 0, inclination_noise, reexpress and mag_bias, which ``p`` holds too."""
     if s[_DT] != dt:
         s[_DT], s[_KM], s[_KW] = dt, 1.0 - math.exp(-dt / p[0]), 1.0 - math.exp(-dt / p[3])
     if math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2) and (acc_ok or (flags & _ACC_REJECTED) != 0):
         k_gyro_lowpass(s, _LW, _SEEN, g0, g1, g2, s[_KW])
     out = 0
     ax = _AX
-    estimate = p[14] != 0.0
     if estimate:
         _k_segment_time(s, dt, math.isfinite(h0))
-    if p[28] > 0.0:  # measure_interval: the time since the last measurement, with a magnetometer reading or not
+    if interval:  # measure_interval: the time since the last measurement, with a magnetometer reading or not
         s[_MC] += dt
-    kalman = p[18] != 0.0
     if kalman:
         wv = 0.0  # (read only with a scale error: p[21] > 0)
-        if p[21] > 0.0 and math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2):
+        if scale and math.isfinite(g0) and math.isfinite(g1) and math.isfinite(g2):
             w0, w1, w2 = k_rot(q[0], q[1], q[2], q[3], g0 - b[0], g1 - b[1], g2 - b[2])
             wv = w0 * s[ax + 6] + w1 * s[ax + 7] + w2 * s[ax + 8]
         _k_kf_predict(s, wv, dt, p[19], p[20], p[21])
@@ -912,7 +914,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             c0, c1, c2, c3 = p0, p1, p2, p3
         recal = p[17] != 0.0 and (flags & _MAG_RECALIBRATED) != 0
         dm = dt  # the time the measurement stands for
-        if p[28] > 0.0:  # measure_interval: a heading measurement once per interval (and at a recalibration)
+        if interval:  # measure_interval: a heading measurement once per interval (and at a recalibration)
             s[_MT] += dt
             learning = s[_MAG + MAG_COUNT] == 0.0 or s[_MAG + MAG_TIME] + 0.5 * dt < p[7]  # (every sample)
             if not recal and not learning and s[_MC] < p[28] - 0.5 * dt:
@@ -927,7 +929,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
                 # invalid one since keeps _PM, _QH) norm, dip and levelled field, as measuring every sample leaves
                 _k_previous(s, pq0, pq1, pq2, pq3)  # them (_moved, _reexpress)
         s[_PM], s[_PM + 1], s[_PM + 2] = m0, m1, m2
-        if fresh or not same or p[28] > 0.0:  # (held, calibrated otherwise: the fresh one's pairing, this value;
+        if fresh or not same or interval:  # (held, calibrated otherwise: the fresh one's pairing, this value;
             # measure_interval: its fresh one may not have been measured)
             v0, v1, v2 = k_rot(p0, p1, p2, p3, m0, m1, m2)
             norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
@@ -941,7 +943,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             norm, dip, sd, me, mn = s[_PN], s[_PD], s[_SD], s[_ME], s[_MN]
         rate = math.sqrt(s[_LW] * s[_LW] + s[_LW + 1] * s[_LW + 1] + s[_LW + 2] * s[_LW + 2])
         rex = False
-        if recal and p[26] != 0.0:  # reexpress: the calibration's change of the field, body frame, as learned
+        if recal and reexpress:  # reexpress: the calibration's change of the field, body frame, as learned
             d0, d1, d2 = k_rot(p0, -p1, -p2, -p3, v0 - s[_PL], v1 - s[_PL + 1], v2 - s[_PL + 2])
             t0, t1, t2 = d0 + s[_RD], d1 + s[_RD + 1], d2 + s[_RD + 2]  # with a deferred one's
             f0 = s[_RL] + s[_RM] * t0 + s[_RM + 1] * t1 + s[_RM + 2] * t2
@@ -965,7 +967,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         s[_PL], s[_PL + 1], s[_PL + 2] = v0, v1, v2
         err = _k_heading_error(me, mn, s[_HC], s[_HS])  # (me, mn: the field's east and north in the levelled frame)
         incl = 0.0
-        if p[25] != 0.0:
+        if incl_noise:
             le = ch[_CH_LET] * s[ax] + ch[_CH_LET + 1] * s[ax + 1] + ch[_CH_LET + 2] * s[ax + 2]
             ln = ch[_CH_LET] * s[ax + 3] + ch[_CH_LET + 1] * s[ax + 4] + ch[_CH_LET + 2] * s[ax + 5]
             incl = _k_inclination_noise(ch, me, mn, le, ln)
@@ -987,12 +989,12 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             k = _k_kf_gain(s, rn, rd) if kalman else s[_KM] if dm == dt else 1.0 - math.exp(-dm / p[0])
             step = k * err
             _k_turn(s, step)
-            if p[26] != 0.0:  # reexpress: delta's sensitivity to the calibration, R^T g
+            if reexpress:  # reexpress: delta's sensitivity to the calibration, R^T g
                 hh = max(me * me + mn * mn, 1e-300)
                 u0, u1, u2 = k_rot(p0, -p1, -p2, -p3, (mn * s[ax] - me * s[ax + 3]) / hh,
                                    (mn * s[ax + 1] - me * s[ax + 4]) / hh, (mn * s[ax + 2] - me * s[ax + 5]) / hh)
                 _k_trace(s, k, u0, u1, u2)
-            if p[4] != 0.0 and (flags & _REST) == 0:
+            if mag_bias and (flags & _REST) == 0:
                 r = step / dm
                 k_bias_step(b, q[0], q[1], q[2], q[3], s[ax + 6] * r, s[ax + 7] * r, s[ax + 8] * r, dm / p[5], p[6])
         if estimate and fresh:

@@ -1317,29 +1317,34 @@ class InertialTilt(FactorCorrector):
                       c.rate_error_interval, c.bias_update_interval, float(self._publishing()),
                       float(c.tau_adapt and c.tau_max_parallel), c.rate_error_acc_bias,
                       1.0 / c.motion_bias_tau if c.motion_bias_tau is not None else 0.0, c.slow_interval])
-        return CorrectorKernel(inertial_tilt_kernel, p, mode="factor")
+        static = (c.tau_adapt, p[3] > 0.0, c.bias_filter == "kalman", p[15] != 0.0, c.rate_error_estimate,
+                  c.rate_error_correct, c.tau_adapt and c.tau_max_parallel, c.slow_interval > 0.0)
+        return CorrectorKernel(inertial_tilt_kernel, p, mode="factor", static=tuple(bool(v) for v in static))
 
 
 @njit(inline="always")
 def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, acc_ok, mag_ok, flags, dt, p,
-                         ch):
+                         ch, adapt, motion_bias, kalman_bias, impulse, rate_est, rate_correct, parallel, slow):
     """The kernel of :meth:`InertialTilt.compose`: ``p = (tau, fast_start, acc_delay (NaN: None),
     motion_bias_tau (0: off), bias_max, kalman (1) or lowpass (0), bias_sigma_init, bias_sigma_motion,
     bias_sigma_rest (0: None), bias_vertical_forgetting, tau_adapt, gyro_rate_error, tau_min, tau_max,
     adapt_window, impulse_clip (0: None), impulse_window, impulse_floor, rate_error_estimate, rate_error_max,
     rate_error_correct, rate_error_interval, bias_update_interval, publish (1: a corrector reads the channel),
     tau_max_parallel (with tau_adapt), rate_error_acc_bias, 1 / motion_bias_tau (0: off), slow_interval)``;
-    ``ch`` the pipeline's channel."""
+    ``ch`` the pipeline's channel; the compile-time options (``static``, :meth:`InertialTilt.kernel`), which ``p``
+    holds too: tau_adapt, the bias in motion (motion_bias_tau), its Kalman filter, impulse_clip,
+    rate_error_estimate, rate_error_correct, tau_max_parallel and slow_interval > 0 (eight: a call of more than 30
+    arguments is compiled by CPython as one with ``*args``, which numba cannot inline)."""
     if acc_ok:
         p0, p1, p2, p3 = k_paired(q, p[2], h0, h1, h2, h3, g0, g1, g2, b, dt)
         v0, v1, v2 = k_rot(p0, p1, p2, p3, a0, a1, a2)
         tau = p[0]
         wb0, wb1, wb2 = g0 - b[0], g1 - b[1], g2 - b[2]  # the body rate before the bias filter's update
-        if p[20] != 0.0:  # rate_error_correct: the bias itself, for the bias filter
+        if rate_correct:  # rate_error_correct: the bias itself, for the bias filter
             b[0], b[1], b[2] = b[0] - s[_EW], b[1] - s[_EW + 1], b[2] - s[_EW + 2]
             if s[_READY] == 0.0:  # (a restart's fast start: the E w of a sample before it is stale)
                 s[_EW], s[_EW + 1], s[_EW + 2] = 0.0, 0.0, 0.0
-        if p[10] != 0.0:  # (once per block of slow_interval, on the block's means; the first at once)
+        if adapt:  # (once per block of slow_interval, on the block's means; the first at once)
             w0, w1, w2 = k_rot(p0, p1, p2, p3, wb0, wb1, wb2)
             tau = s[_TAU]
             if _k_adapt_add(s, dt, (flags & _REST) != 0, v0, v1, v2, w0, w1, w2) + 0.5 * dt >= p[27] \
@@ -1349,15 +1354,15 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
                     rn = 1.0 / math.sqrt(s[_Y] * s[_Y] + s[_Y + 1] * s[_Y + 1] + s[_Y + 2] * s[_Y + 2])
                     z0, z1, z2 = k_rot(p0, -p1, -p2, -p3, s[_Y] * rn, s[_Y + 1] * rn, s[_Y + 2] * rn)
                 ma0, ma1, ma2, mw0, mw1, mw2 = v0, v1, v2, w0, w1, w2  # (slow_interval 0: this sample's)
-                if p[27] > 0.0:  # the block's means, weighted by time
+                if slow:  # the block's means, weighted by time
                     na, nw = s[_ATT], s[_AWN]
                     ma0, ma1, ma2 = s[_AA] / na, s[_AA + 1] / na, s[_AA + 2] / na
                     mw0 = mw1 = mw2 = math.nan
                     if nw > 0.0:
                         mw0, mw1, mw2 = s[_AWS] / nw, s[_AWS + 1] / nw, s[_AWS + 2] / nw
                 tau = _k_adapt_step(s, ma0, ma1, ma2, mw0, mw1, mw2, z0, z1, z2,
-                                    s[_AREST] > 0.0, s[_ATT], p[0], p[14], p[7], p[6], p[3] if p[3] > 0.0 else _FORGET,
-                                    math.sqrt(s[_KAP2]) if p[18] != 0.0 else p[11], p[12], p[13])
+                                    s[_AREST] > 0.0, s[_ATT], p[0], p[14], p[7], p[6], p[3] if motion_bias else _FORGET,
+                                    math.sqrt(s[_KAP2]) if rate_est else p[11], p[12], p[13])
                 _k_adapt_clear(s)
         s[_TACC] += dt
         if p[1] != 0.0 and s[_READY] == 0.0 and s[_TACC] + 0.5 * dt < p[0]:
@@ -1369,28 +1374,28 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
         else:
             if s[_DT] != dt:
                 s[_DT] = dt
-                if p[10] == 0.0:
+                if not adapt:
                     s[_B], s[_B + 1], s[_B + 2], s[_B + 3], s[_B + 4] = _lp_coeffs(p[0], dt)
                     s[_BTAU] = p[0]
-                if p[3] > 0.0 and p[5] != 0.0:
+                if motion_bias and kalman_bias:
                     s[_N], s[_N + 1], s[_N + 2], s[_N + 3], s[_N + 4] = _k_kf_noise(dt, p[3], p[6], p[7], p[8], p[9])
-                if p[24] != 0.0:
+                if parallel:
                     s[_PB], s[_PB + 1], s[_PB + 2], s[_PB + 3], s[_PB + 4] = _lp_coeffs(p[13], dt)
-            sw = p[24] != 0.0 and _k_parallel_switch(s, tau >= p[13], dt, p[13])
+            sw = parallel and _k_parallel_switch(s, tau >= p[13], dt, p[13])
             if sw:
-                _k_set_tau(s, s[_PB], s[_PB + 1], s[_PB + 2], s[_PB + 3], s[_PB + 4], p[27] == 0.0)
+                _k_set_tau(s, s[_PB], s[_PB + 1], s[_PB + 2], s[_PB + 3], s[_PB + 4], not slow)
                 s[_BTAU] = p[13]
-            elif p[10] != 0.0 and abs(tau - s[_TAUC] * dt) > _TAU_STEP * s[_TAUC] * dt:
+            elif adapt and abs(tau - s[_TAUC] * dt) > _TAU_STEP * s[_TAUC] * dt:
                 s[_TAUC] = tau / dt
                 t0, t1, t2, t3, t4 = _lp_coeffs(tau, dt)
-                _k_set_tau(s, t0, t1, t2, t3, t4, p[27] == 0.0)
+                _k_set_tau(s, t0, t1, t2, t3, t4, not slow)
                 s[_BTAU] = tau
-            if p[15] != 0.0:
+            if impulse:
                 v0, v1, v2 = _k_impulse_clip(s, v0, v1, v2, dt, p[15], p[16], p[17])
             o0 = o1 = o2 = 0.0
             if sw:
                 o0, o1, o2 = _k_take_parallel(s, v0, v1, v2)
-            if p[24] != 0.0:
+            if parallel:
                 _k_parallel_lowpass(s, v0, v1, v2)
             y0, y1, y2 = _k_lowpass_vertical(s, v0, v1, v2)
             if sw:  # q_tilt turned by the switch's jump (the reference's comment)
@@ -1429,42 +1434,42 @@ def inertial_tilt_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1
             t0, t1, t2, t3 = k_qmul(c0, c1, c2, c3, x0, x1, x2, x3)
             e0, e1, e2, e3 = k_qmul(c0, c1, c2, c3, o0, o1, o2, o3)
         s[_QA], s[_QA + 1], s[_QA + 2], s[_QA + 3] = t0, t1, t2, t3  # (e: the output, and the bias step's q6)
-        if p[3] > 0.0 and p[5] != 0.0 and s[_READY] != 0.0:
+        if motion_bias and kalman_bias and s[_READY] != 0.0:
             # the correction as a rate is read only by an update (the bias filter's, or the rate error's, each once
             # per interval of motion: the tests below are theirs, on the sums they will have); on the samples
             # between, its square root, division and series are left out (0: a residual nothing reads)
             # (slow_interval: the bias filter and the rate error once per block of samples; 0: every sample)
             rest = (flags & _REST) != 0
-            if _k_block_add(s, dt, rest, wb0, wb1, wb2, p[18] != 0.0, e0, e1, e2, e3, 0.5 * p[27]) + 0.5 * dt >= p[27]:
+            if _k_block_add(s, dt, rest, wb0, wb1, wb2, rate_est, e0, e1, e2, e3, 0.5 * p[27]) + 0.5 * dt >= p[27]:
                 f = 0.0
                 if not rest and (p[22] <= 0.0 or s[_KTACC] + s[_SLM] + 0.5 * dt >= p[22] or (
-                        p[18] != 0.0 and s[_ETACC] + s[_SLE] + 0.5 * dt >= p[21])):
+                        rate_est and s[_ETACC] + s[_SLE] + 0.5 * dt >= p[21])):
                     sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
                     f = 2.0 * _atan_over(sn, c0) / dt if sn > 0.0 else 0.0
-                if p[27] == 0.0:  # every sample: the inclination's set, rescaled by _k_set_tau
+                if not slow:  # every sample: the inclination's set, rescaled by _k_set_tau
                     for i in range(5):
                         s[_SB + i] = s[_B + i]
                 elif s[_SBT] != s[_SLT] or s[_SBTAU] != s[_BTAU]:
                     t0, t1, t2, t3, t4 = _lp_coeffs(s[_BTAU], s[_SLT])
                     _k_slow_set(s, s[_SLT], t0, t1, t2, t3, t4)
                 f0, f1, f2 = _k_kalman(s, b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, rest, dt, p)
-                if p[18] != 0.0 and s[_SLWN] > 0.0:
+                if rate_est and s[_SLWN] > 0.0:
                     mw0, mw1, mw2 = wb0, wb1, wb2  # (slow_interval 0: this sample's)
-                    if p[27] > 0.0:  # the block's mean, weighted by time
+                    if slow:  # the block's mean, weighted by time
                         nw = s[_SLWN]
                         mw0, mw1, mw2 = s[_SLW] / nw, s[_SLW + 1] / nw, s[_SLW + 2] / nw
                     _k_rate_error_step(s, s[_SLQ], s[_SLQ + 1], s[_SLQ + 2], s[_SLQ + 3], mw0,
                                        mw1, mw2, f0, f1, f2, rest, dt, p[11], p[26], p[19],
-                                       p[20] != 0.0, p[21], p[25])
+                                       rate_correct, p[21], p[25])
                 _k_block_clear(s)
-            if p[20] != 0.0 and math.isfinite(wb0) and math.isfinite(wb1) and math.isfinite(wb2):
+            if rate_correct and math.isfinite(wb0) and math.isfinite(wb1) and math.isfinite(wb2):
                 _k_rate_error_correct(s, e0, e1, e2, e3, wb0, wb1, wb2)
-        elif p[3] > 0.0 and (flags & _REST) == 0 and s[_READY] != 0.0:
+        elif motion_bias and (flags & _REST) == 0 and s[_READY] != 0.0:
             sn = math.sqrt(c1 * c1 + c2 * c2 + c3 * c3)
             if sn > 0.0:
                 f = 2.0 * _atan_over(sn, c0) / dt
                 k_bias_step(b, e0, e1, e2, e3, c1 * f, c2 * f, c3 * f, dt / p[3], p[4])
-        if p[20] != 0.0:  # rate_error_correct: the next propagation removes this sample's E w
+        if rate_correct:  # rate_error_correct: the next propagation removes this sample's E w
             b[0], b[1], b[2] = b[0] + s[_EW], b[1] + s[_EW + 1], b[2] + s[_EW + 2]
         q[0], q[1], q[2], q[3] = e0, e1, e2, e3
         if p[23] != 0.0:  # (tau_adapt, and something reads it)

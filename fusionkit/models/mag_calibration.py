@@ -303,7 +303,8 @@ class MagCalibrationModel(SensorModel):
                          float(c.held_readings == "each"), _quantile(c.distortion_significance)])
 
     def kernel(self) -> SensorModelKernel:
-        return SensorModelKernel(mag_calibration_apply, self.params())
+        c = self.config
+        return SensorModelKernel(mag_calibration_apply, self.params(), static=(c.soft_iron, c.held_readings == "once"))
 
     def apply(self, state: np.ndarray, sample: Sample, quat: np.ndarray) -> tuple[Sample, int]:
         c, s = self.config, state
@@ -1005,10 +1006,11 @@ def _k_soft_rows(ct, ma, mk, h):
 
 
 @njit
-def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
-    """Kernel of :class:`MagCalibrationModel` (``SensorModelKernel.apply``)."""
+def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p, soft, once):
+    """Kernel of :class:`MagCalibrationModel` (``SensorModelKernel.apply``); ``soft`` (``soft_iron``)
+    and ``once`` (``held_readings == "once"``) are its compile-time options (``static``; ``p[7]`` and
+    ``p[13]`` say the same)."""
     seg_time, forget, max_std, min_seg, out_sigma, out_count = p[1], p[2], p[3], p[4], p[5], p[6]
-    soft = p[7] != 0.0
     gate, min_red = p[8], p[9]
     if not gyr_ok:
         s[_ANCHOR] = 0.0
@@ -1026,7 +1028,6 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p):
             s[_ANCHOR] = 0.0
         return 0
     m0, m1, m2 = v[6], v[7], v[8]
-    once = p[13] == 0.0
     same = s[h + 8] != 0.0 and m0 == s[h] and m1 == s[h + 1] and m2 == s[h + 2]
     held = same and s[h + 6] != 0.0
     if not same:
