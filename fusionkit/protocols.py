@@ -141,11 +141,12 @@ class CorrectorKernel(NamedTuple):
     (:attr:`Corrector.uses_channel`) takes the channel ``ch`` (``CHANNEL_SIZE`` numbers, indexed by
     the names; read and write) right after ``params``, before any GNSS row.
 
-    ``static``: the kernel's compile-time options (Python bools, ints or floats), passed as literal
-    arguments after all the others. Where they select a branch (``if soft_iron:``), the loop users
-    run (every kernel inlined) is compiled without the branches they rule out: typing and
-    lowering code that can never run was most of a first run's wait. A loop that calls its
-    kernels (the test suite's) compiles each kernel once for every value, as for ``params``."""
+    ``static``: the kernel's compile-time options (Python bools), arguments after all the others.
+    The loop users run (every kernel inlined) passes them as literals, so where they select a
+    branch (``if soft_iron:``) it is compiled without the branches they rule out (numba types and
+    lowers none of that code). A loop that calls its kernels (the test suite's) reads them from the
+    end of the kernel's parameter vector, so one compiled loop and kernel serve every value. A call
+    takes at most 30 arguments in all (``fusionkit._loopgen.MAX_CALL_ARGS``)."""
 
     correct: Callable
     params: np.ndarray
