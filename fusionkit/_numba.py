@@ -330,7 +330,7 @@ def _lock_compiles(dispatcher, cache) -> None:
 # -- a line on the terminal while numba compiles ---------------------------------------------------
 #
 # A filter's first run on a machine (or after an upgrade) waits for numba to compile its loop: a few
-# seconds for a small preset, up to a minute for ``recommended`` inlined, with nothing to show for it.
+# seconds for a small preset, half a minute for ``recommended`` inlined, with nothing to show for it.
 # Every later process loads the machine code from the disk cache in well under a second. A load or
 # compile that takes longer than :data:`NOTICE_AFTER` seconds says so on stderr, once when it starts to
 # be long and once when it is done (the outermost function only: the kernels a loop compiles inside it
