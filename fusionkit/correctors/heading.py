@@ -659,10 +659,11 @@ def _reexpress(x, e0, n0, u0, e1, n1, u1, sd, dd, norm, dip, var, d0, d1, d2):
     field matches this calibrated sample's (``norm``, ``dip``) within two standard deviations of a
     calibrated sample's error (``var``: the magnetometer's noise twice and the field error a
     calibration leaves, as fractions of the field; the squared relative norm plus the squared dip
-    difference within ``4 var``) and better than the learned field itself does, the iron was there when the heading was learned. Then the
-    heading is moved as if every sample it was made of had been read through the new calibration:
-    the learned heading's change (exact) times the weight it keeps in delta, plus the steps since,
-    to first order (``sd``: their sensitivity times the calibration's change, :func:`_trace`); its
+    difference within ``4 var``) and better than the learned field itself does, the iron was there
+    when the heading was learned. Then the heading is moved as if every sample it was made of had
+    been read through the new calibration: the learned heading's change (exact) times the weight it
+    keeps in delta, plus the steps since, to first order (``sd``: their sensitivity times the
+    calibration's change, :func:`_trace`); its
     variance grows by that sample's (over the horizontal part ``cos(dip)^2``). A change of the
     calibration (``dd``: its squared norm) within two standard deviations of a calibrated sample's
     error (``4 var norm^2``) is one the heading's filter already weighed its samples as carrying (its
@@ -835,7 +836,8 @@ def _k_previous(s, w, a, b, c):
     sample (its reading ``s[_PM:_PM + 3]`` levelled with its pairing ``w, a, b, c``; an invalid sample
     since changes neither) where a measurement on every sample leaves them (:func:`_moved` and
     :func:`_reexpress` compare this sample with that one: the calibration's change, one valid sample
-    apart): the kernel's statements for a measurement, so the same numbers. (The reference levels it as it does every sample, in :meth:`MagHeading.compose`.)"""
+    apart): the kernel's statements for a measurement, so the same numbers. (The reference levels it
+    as it does every sample, in :meth:`MagHeading.compose`.)"""
     v0, v1, v2 = k_rot(w, a, b, c, s[_PM], s[_PM + 1], s[_PM + 2])
     norm = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
     vu = v0 * s[_AX + 6] + v1 * s[_AX + 7] + v2 * s[_AX + 8]

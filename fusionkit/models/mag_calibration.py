@@ -261,7 +261,6 @@ class MagCalibrationConfig(PluginConfig):
         "the distortion applied with the offset whenever confident (docs/algorithms/models.md, \"Stop 27\")",
         ge=0, lt=1)
 
-
     @model_validator(mode="after")
     def _significance_needs_soft_iron(self):
         """``distortion_significance`` chooses between the distortion and the offset alone: with
