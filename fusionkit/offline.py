@@ -133,7 +133,7 @@ from typing import ClassVar
 import numpy as np
 
 from ._kernels import rotvec_quat_exact_entries, validity_all
-from ._numba import resolve_backend, njit
+from ._numba import inline_copy, njit, resolve_backend
 from .config import FilterConfig
 from .conventions import change_frame
 from .errors import ConfigError, InputError, PluginError
@@ -978,7 +978,7 @@ def calibration_passes(model, rec: Recording, max_gap: float | None = None, gyr_
         m = np.empty_like(r.mag)
         if resolve_backend(backend, True) == "numba":
             _calibration_kernel(s, gyr, r.acc, r.mag, dt, _validity(gyr, r.acc, r.mag, gyr_range, acc_range),
-                                model.params(), m)
+                                model.params(), m, model.kernel().static)
         else:
             _model_reference(model, s, gyr, r.acc, r.mag, dt, gyr_range, acc_range, m)
         out.append(m if k == 0 else m[::-1])
@@ -1021,17 +1021,50 @@ def _sample_vector(v, gyr, acc, mag, ok, k):
         v[6 + i] = mag[k, i]
 
 
-@njit
-def _calibration_kernel(s, gyr, acc, mag, dt, ok, p, out):
-    """The ``mag-calibration`` kernel alone over a recording; ``out`` the magnetometer it gives."""
+_calibration_apply = inline_copy(mag_calibration_apply)
+
+
+@njit(inline="always")
+def _calibration_loop(s, gyr, acc, mag, dt, ok, p, out, soft, once):
+    """The ``mag-calibration`` kernel alone over a recording; ``out`` the magnetometer it gives.
+    ``soft``, ``once``: the kernel's static options (``soft_iron``, ``held_readings == "once"``), literals in
+    each of the four entry points below, so each compiles only the branches it runs (as in a pipeline's loop)."""
     q = np.zeros(4)
     q[0] = 1.0
     v = np.empty(9)
     for k in range(gyr.shape[0]):
         _sample_vector(v, gyr, acc, mag, ok, k)
-        mag_calibration_apply(s, v, ok[k, 0], ok[k, 1], ok[k, 2], q, dt[k], p, p[7] != 0.0, p[13] == 0.0)
+        _calibration_apply(s, v, ok[k, 0], ok[k, 1], ok[k, 2], q, dt[k], p, soft, once)
         for i in range(3):
             out[k, i] = v[6 + i] if ok[k, 2] else mag[k, i]
+
+
+@njit
+def _calibration_soft_each(s, gyr, acc, mag, dt, ok, p, out):
+    _calibration_loop(s, gyr, acc, mag, dt, ok, p, out, True, False)
+
+
+@njit
+def _calibration_soft_once(s, gyr, acc, mag, dt, ok, p, out):
+    _calibration_loop(s, gyr, acc, mag, dt, ok, p, out, True, True)
+
+
+@njit
+def _calibration_hard_each(s, gyr, acc, mag, dt, ok, p, out):
+    _calibration_loop(s, gyr, acc, mag, dt, ok, p, out, False, False)
+
+
+@njit
+def _calibration_hard_once(s, gyr, acc, mag, dt, ok, p, out):
+    _calibration_loop(s, gyr, acc, mag, dt, ok, p, out, False, True)
+
+
+def _calibration_kernel(s, gyr, acc, mag, dt, ok, p, out, static):
+    """:func:`_calibration_loop` through the entry point of the model's static options ``static``
+    (``MagCalibrationModel.kernel().static``: soft_iron, held_readings once)."""
+    soft, once = static
+    run = ((_calibration_hard_each, _calibration_hard_once), (_calibration_soft_each, _calibration_soft_once))
+    run[bool(soft)][bool(once)](s, gyr, acc, mag, dt, ok, p, out)
 
 
 def mag_delay_recording(rec: Recording, gyr_range: float | None = None, acc_range: float | None = None,
