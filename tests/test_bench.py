@@ -207,3 +207,29 @@ def test_sweep_takes_the_navigation_metrics():
             sweep("ins-gnss", {"gnss_max_age": [-1.0]}, "unused", metric=metric)
     with pytest.raises(fk.ConfigError, match="metric must be one of"):
         sweep("ins-gnss", {"gnss_max_age": [0.5]}, "unused", metric="rmse")
+
+
+def test_metrics_of_a_nue_result_split_about_the_vertical():
+    """A result in source 000's NUE frame (Up is its second axis) gets the metrics of the same
+    orientations in ENU, NED or NWU: the heading/inclination split is about the vertical. It once
+    split about NUE's z axis (East): a pure heading error counted as inclination."""
+    from fusionkit.benchmarking.metrics import rms_errors, trial_metrics
+    from fusionkit.conventions import change_frame
+    from fusionkit.rotations import quat_from_axis_angle, quat_mul
+
+    rng = np.random.default_rng(3)
+    n = 200
+    truth = rng.normal(size=(n, 4))
+    truth /= np.linalg.norm(truth, axis=1, keepdims=True)
+    rec = fk.Recording(gyr=np.zeros((n, 3)), acc=np.tile([0.0, 0.0, 9.81], (n, 1)), rate=100.0, truth=truth)
+    # a heading error of 2 deg (about ENU's Up) and a tilt of 1 deg (about East), in the earth frame
+    err = quat_mul(quat_from_axis_angle([0.0, 0.0, 1.0], np.radians(2.0)),
+                   quat_from_axis_angle([1.0, 0.0, 0.0], np.radians(1.0)))
+    est = quat_mul(err, truth)
+    want = rms_errors(fk.Result(quat=est, flags=np.zeros(n, np.uint32), frame="ENU"), rec)
+    assert want["heading"] == pytest.approx(2.0, abs=0.02) and want["inclination"] == pytest.approx(1.0, abs=0.02)
+    for frame in ("NED", "NWU", "NUE"):
+        res = fk.Result(quat=change_frame(est, "ENU", frame), flags=np.zeros(n, np.uint32), frame=frame)
+        got = rms_errors(res, rec)
+        assert got == pytest.approx(want, rel=1e-9), frame
+        assert trial_metrics(res, rec, "9D")["inclination"] == pytest.approx(want["inclination"], rel=1e-9), frame
