@@ -30,6 +30,7 @@ from ._guard import file_errors
 __all__ = ["load", "load_broad", "load_csv", "write_csv"]
 
 _VEC = {k: [f"{k}_{a}" for a in "xyz"] for k in ("gyr", "acc", "mag")}
+_QUAT = ["qw", "qx", "qy", "qz"]
 
 
 def load(path, **kwargs) -> Recording:
@@ -104,6 +105,11 @@ def load_csv(path, rate: float | None = None, body: str | None = None) -> Record
     for k in ("gyr", "acc"):
         if not all(c in header for c in _VEC[k]):
             raise InputError(f"{p.name}: missing columns {_VEC[k]} (header is {header})")
+    for names in (_VEC["mag"], _QUAT):  # optional, but a sensor or a quaternion is all its columns or none
+        have = [c for c in names if c in header]
+        if have and len(have) < len(names):
+            raise InputError(f"{p.name}: columns {have} without {[c for c in names if c not in have]}: give all "
+                             f"of {names} or none (header is {header})")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data": reported below
         try:
@@ -127,7 +133,7 @@ def load_csv(path, rate: float | None = None, body: str | None = None) -> Record
         gyr=pick(_VEC["gyr"]), acc=pick(_VEC["acc"]),
         mag=pick(_VEC["mag"]) if all(c in col for c in _VEC["mag"]) else None,
         t=None if rate is not None else t, rate=rate,
-        truth=pick(["qw", "qx", "qy", "qz"]) if all(c in col for c in ("qw", "qx", "qy", "qz")) else None,
+        truth=pick(_QUAT) if all(c in col for c in _QUAT) else None,
         name=p.stem, meta={"path": str(p)}, body=body if body is not None else comment_body,
     )
 
@@ -161,6 +167,6 @@ def write_csv(rec: Recording, path) -> None:
         from ..conventions import change_frame
 
         cols.append(change_frame(rec.truth, rec.truth_frame, "ENU"))
-        names += ["qw", "qx", "qy", "qz"]
+        names += _QUAT
     header = ("" if rec.body is None else f"# body={rec.body}\n") + ",".join(names)
     np.savetxt(path, np.hstack(cols), delimiter=",", header=header, comments="", fmt="%.10g")
