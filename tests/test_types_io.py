@@ -160,6 +160,27 @@ def test_csv_round_trip(tmp_path):
     assert load_csv(tmp_path / "rate.csv").rate == 200.0
 
 
+def test_a_csv_rate_does_not_replace_its_t_column(tmp_path):
+    """A rate (argument or '# rate=' line) with a 't' column only confirms it: 't' stays the clock
+    (its gap kept), and a rate that contradicts it is an error naming both. The rate once replaced
+    't' silently: 100 Hz on a 200 Hz file halved every rate, 94 deg of inclination error."""
+    t = np.r_[np.arange(10) * 0.005, 1.0 + np.arange(10) * 0.005]  # 200 Hz with a 0.955 s gap
+    rows = "\n".join(f"{x},0,0,0,0,0,9.8" for x in t)
+    path = tmp_path / "t.csv"
+    path.write_text("t,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z\n" + rows + "\n")
+    for rec in (load_csv(path, rate=200.0), load_csv(path, rate=199.0)):
+        assert rec.rate is None
+        np.testing.assert_array_equal(rec.time, t)
+    with pytest.raises(InputError, match=r"^t.csv: the rate 100 Hz \(the rate argument\) contradicts the 't' "
+                                         r"column \(typical interval 0.005 s, 200 Hz\)"):
+        load_csv(path, rate=100.0)
+    (tmp_path / "c.csv").write_text("# rate=100\n" + path.read_text())
+    with pytest.raises(InputError, match=r"the rate 100 Hz \(its '# rate=' line\) contradicts"):
+        load_csv(tmp_path / "c.csv")
+    with pytest.raises(InputError, match="rate must be a finite number > 0"):
+        load_csv(path, rate=-200.0)
+
+
 def test_load_errors(tmp_path):
     with pytest.raises(InputError, match="no such file"):
         fk.load(tmp_path / "nope.hdf5")
