@@ -489,12 +489,17 @@ class Result:
     def to_csv(self, path, time: np.ndarray | None = None) -> None:
         """Write ``t`` (if given), ``qw, qx, qy, qz``, yaw/pitch/roll (deg) and ``flags``. The yaw
         column is named for the frame (``yaw_enu_deg``: from East, counter-clockwise, so body x
-        to North is 90; ``yaw_ned_deg`` is a compass heading)."""
+        to North is 90; ``yaw_ned_deg`` is a compass heading). ``time``: (N,) s, one per sample."""
+        if time is not None:
+            time = np.asarray(time)
+            if time.shape != (len(self),):  # (numpy's own error came from deep in hstack)
+                raise InputError(f"time must have shape ({len(self)},), one time in s per sample of the result, "
+                                 f"got {time.shape}")
         eul = np.degrees(self.euler())
         cols = [self.quat, eul, self.flags[:, None].astype(float)]
         names = ["qw", "qx", "qy", "qz", f"yaw_{self.frame.lower()}_deg", "pitch_deg", "roll_deg", "flags"]
         if time is not None:
-            cols.insert(0, np.asarray(time, dtype=float)[:, None])
+            cols.insert(0, time.astype(float)[:, None])
             names.insert(0, "t")
         fmt = ["%.9g"] * (len(names) - 1) + ["%d"]
         np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt=fmt)

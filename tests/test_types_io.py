@@ -1,3 +1,5 @@
+import re
+
 import numpy as np
 import pytest
 
@@ -197,6 +199,10 @@ def test_result_helpers(imu_rec, tmp_path):
     res.to_csv(tmp_path / "o.csv", time=imu_rec.time)
     data = np.loadtxt(tmp_path / "o.csv", delimiter=",", skiprows=1)
     assert data.shape == (len(imu_rec), 9)
+    for bad in (imu_rec.time[:-1], imu_rec.time[:, None]):  # numpy's hstack error, once
+        with pytest.raises(InputError, match=rf"time must have shape \({len(imu_rec)},\), one time in s per "
+                                             "sample of the result, got " + re.escape(str(bad.shape))):
+            res.to_csv(tmp_path / "o.csv", time=bad)
 
 
 def test_broad_trial_loads(broad_dir):
