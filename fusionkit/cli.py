@@ -97,10 +97,13 @@ def cmd_describe(args) -> int:
 
 
 def _check_output(path: str) -> None:
-    """Fail before any computing when ``path`` cannot be written (its folder is missing or
-    read-only): an hour's run must not end in a traceback."""
+    """Fail before any computing when ``path`` cannot be written (it is a folder, its folder is
+    missing or read-only): an hour's run must not end in a traceback, nor in an error after it.
+    ``run``'s CSV, ``bench``'s and ``sweep``'s table, ``demo``'s plot."""
     import os
 
+    if Path(path).expanduser().is_dir():
+        raise FusionkitError(f"cannot write {path}: it is a folder; give a file name")
     parent = Path(path).expanduser().resolve().parent
     if not parent.is_dir():
         raise FusionkitError(f"cannot write {path}: folder {parent} does not exist")
@@ -180,6 +183,8 @@ def cmd_bench(args) -> int:
     from .benchmarking import bench
     from .benchmarking.datasets import discover
 
+    if args.output:
+        _check_output(args.output)
     filters = [f for f in args.filters.split(",") if f]
     trials = [t for t in args.trials.split(",") if t] if args.trials else None
     res = bench(filters, args.data, trials=trials, params=_flat_params(args.param), jobs=args.jobs,
@@ -209,6 +214,8 @@ def cmd_bench(args) -> int:
 def cmd_sweep(args) -> int:
     from .benchmarking.sweep import sweep
 
+    if args.output:
+        _check_output(args.output)
     grid = {}
     for g in args.grid:
         if "=" not in g:
@@ -279,6 +286,8 @@ def _lag_row(name: str, load, args) -> tuple[str, bool]:
 def cmd_demo(args) -> int:
     from .demo import run_demo
 
+    if args.plot:
+        _check_output(args.plot)
     return run_demo(plot=args.plot, filters=args.filters.split(",") if args.filters else None)
 
 

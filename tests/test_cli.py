@@ -111,6 +111,23 @@ def test_run_checks_the_output_path_before_computing(tmp_path, capsys, monkeypat
     assert main(["run", "poisson", "sim:slow-rotation", "-o", str(tmp_path / "nope" / "x.csv")]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "does not exist" in err and "nope" in err
+    assert main(["run", "poisson", "sim:slow-rotation", "-o", str(tmp_path)]) == 2  # a folder, not a file
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "it is a folder; give a file name" in err
+
+
+def test_bench_sweep_and_demo_check_their_output_before_computing(tmp_path, capsys):
+    """The table or plot's folder is checked first: before, bench and sweep ran every trial and
+    then failed on writing ('[Errno 2] No such file or directory'), demo after its whole table.
+    Here the data, filter or grid are bad too: the output's error comes first, so nothing ran."""
+    out = str(tmp_path / "nope" / "x.md")
+    for argv in (["bench", "--data", str(tmp_path / "none"), "--filters", "poisson", "-o", out],
+                 ["sweep", "poisson", "--data", str(tmp_path / "none"), "--grid", "step=exact", "-o", out],
+                 ["demo", "--filters", "poison", "--plot", out],
+                 ["bench", "--data", str(tmp_path / "none"), "--filters", "poisson", "-o", str(tmp_path)]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and re.search(r"cannot write .*(does not exist|it is a folder)", err), err
 
 
 def test_run_takes_a_rate_for_a_csv_without_time(tmp_path, capsys):
