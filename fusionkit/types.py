@@ -225,6 +225,20 @@ class Gnss:
             self.pos = as_vectors("gnss.pos", self.pos, n)
 
 
+def _unit_rows(q: np.ndarray, block: int = 16384) -> np.ndarray:
+    """``q`` (N, 4) with every row of unit length, as scipy's Rotation takes a quaternion: the
+    metrics read angles off the error's w (``2 acos |w|``, clipped at 1: a truth scaled by 3 once
+    scored a total error of 0) and the lags the truth's derivative. ``q`` itself when every row is
+    within 1e-9 of unit length (NaN rows, no reference, are kept); else a normalised copy. Checked
+    in blocks: no (N,) temporary for a long recording's truth."""
+    for i in range(0, q.shape[0], block):
+        b = q[i:i + block]
+        if (np.abs(np.einsum("ij,ij->i", b, b) - 1.0) > 2e-9).any():  # |q|^2 - 1 = 2 (|q| - 1) near 1
+            norm = np.sqrt(np.einsum("ij,ij->i", q, q))
+            return q / np.where(np.abs(norm - 1.0) > 1e-9, norm, 1.0)[:, None]
+    return q
+
+
 @dataclass
 class Recording:
     """One IMU recording.
@@ -237,7 +251,8 @@ class Recording:
     rate : sampling rate in Hz, or
     t : (N,) timestamps in s, strictly increasing (one of the two is required).
     gnss : optional :class:`Gnss` stream.
-    truth : optional (N, 4) reference orientation, body -> ``truth_frame``, ``[w, x, y, z]``.
+    truth : optional (N, 4) reference orientation, body -> ``truth_frame``, ``[w, x, y, z]``
+        (normalised to unit length: a copy where a row is not; a NaN row is a sample without one).
     movement : optional (N,) bool mask of the samples the metrics are computed on.
     name, meta : free description.
     body : the sensors' body axis convention (``"FLU"``, ``"FRD"``, ``"RFU"``, ... see
@@ -307,6 +322,7 @@ class Recording:
                 i = int(np.argmax(zero))
                 raise InputError(f"truth[{i}] is {self.truth[i].tolist()}: a zero quaternion is no orientation (a "
                                  "sample without a reference is NaN)")
+            self.truth = _unit_rows(self.truth)
             check_frame(self.truth_frame, "truth_frame")
         if self.movement is not None:
             self.movement = as_mask("movement", self.movement)

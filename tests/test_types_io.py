@@ -96,6 +96,27 @@ def test_truth_zero_quaternion_check_is_cheap_and_exact():
         rec(truth=q)
 
 
+def test_truth_is_made_unit_length():
+    """A reference quaternion that is not of unit length (scaled, or rounded by a file) is the
+    orientation it points to: the metrics and the lags read it normalised. truth * 3 once scored a
+    total error of 0 against any estimate (2 acos |w| with |w| clipped at 1)."""
+    from fusionkit.benchmarking.metrics import rms_errors
+    from fusionkit.rotations import quat_from_axis_angle
+
+    q = quat_from_axis_angle([0.0, 0.0, 1.0], np.linspace(0.0, 1.0, 10))
+    unit = np.ascontiguousarray(q)
+    assert rec(truth=unit).truth is unit  # unit already: kept, not copied
+    scaled = 3.0 * q
+    scaled[4] = np.nan
+    r = rec(truth=scaled)
+    np.testing.assert_allclose(np.linalg.norm(r.truth[~np.isnan(r.truth[:, 0])], axis=1), 1.0, rtol=1e-15)
+    assert np.isnan(r.truth[4]).all() and scaled[0, 0] == 3.0  # the caller's array untouched
+    est = fk.Result(quat=quat_from_axis_angle([1.0, 0.0, 0.0], np.full(10, np.radians(2.0))), flags=np.zeros(10, np.uint32))
+    keep = np.arange(10) != 4
+    want = rms_errors(est, rec(truth=unit), mask=keep)
+    assert want["total"] > 2.0 and rms_errors(est, r, mask=keep) == pytest.approx(want, rel=1e-9)
+
+
 def test_movement_column_is_taken():
     """A movement column (N, 1) or row (1, N), what loadmat and h5py give, is one bool a sample:
     flattened, as before the shape check; a true 2-D mask is refused (above)."""
