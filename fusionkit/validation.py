@@ -82,11 +82,21 @@ def _list_elements(name: str, x, what: str, allow_bool: bool) -> None:
 
 
 def as_mask(name: str, x) -> np.ndarray:
-    """``x`` as a boolean array (a mask), refusing text: ``np.asarray(["False"], bool)`` is True."""
+    """``x`` as a boolean array (a mask), refusing text (``np.asarray(["False"], bool)`` is True)
+    and numbers other than 0 and 1 (0.5 or NaN, a weight or a missing value, would be True)."""
     arr = np.asarray(x)
     if arr.dtype.kind in ("U", "S") or (arr.dtype.kind == "O" and any(
             issubclass(tp, (str, bytes)) for tp in set(map(type, arr.flat)))):
         raise InputError(f"{name} must be booleans (a mask), not text: convert it first, e.g. x == 'True'")
+    if arr.dtype.kind != "b":
+        try:
+            other = np.flatnonzero((arr != 0) & (arr != 1))
+        except TypeError:  # (objects that cannot be compared with numbers: numpy's bool() decides, as before)
+            other = ()
+        if len(other):
+            i = int(other[0])
+            raise InputError(f"{name} must be booleans (a mask) or 0/1, but {name}[{i}] is "
+                             f"{np.asarray(arr.reshape(-1)[i]).tolist()!r:.40}: threshold it first, e.g. x > 0.5")
     return np.asarray(arr, dtype=bool)  # (a boolean array is kept, not copied)
 
 

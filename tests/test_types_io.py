@@ -128,6 +128,20 @@ def test_movement_column_is_taken():
         rec(movement=np.ones((9, 1), bool))
 
 
+def test_a_mask_of_numbers_is_0_or_1():
+    """movement and gnss.valid as numbers: 0 and 1 are False and True, anything else (a weight
+    0.5, a missing NaN, a 2) is refused by index; each was True before, counted in the metrics."""
+    assert (rec(movement=(np.arange(10) > 4).astype(float)).movement == (np.arange(10) > 4)).all()
+    for bad, shown in ((0.5, "0.5"), (np.nan, "nan"), (2, "2")):
+        m = np.zeros(10)
+        m[3] = bad
+        with pytest.raises(InputError, match=rf"movement must be booleans \(a mask\) or 0/1, but movement\[3\] is {shown}"):
+            rec(movement=m)
+    assert fk.Gnss(t=[0.0, 1.0], vel=np.zeros((2, 3)), valid=[1, 0]).valid.tolist() == [True, False]
+    with pytest.raises(InputError, match=r"gnss.valid\[0\] is nan"):
+        fk.Gnss(t=[0.0, 1.0], vel=np.zeros((2, 3)), valid=[np.nan, 1.0])
+
+
 def test_slice_across_a_gap_is_not_refused():
     """A slice of a checked recording is not checked for its typical interval again: a few
     samples across a 60 s gap have a 60 s median interval, but no unit mistake (slice refused it)."""
