@@ -14,7 +14,9 @@ def test_list_and_describe(capsys):
     out = capsys.readouterr().out
     assert "filter     poisson" in out and "detector   motion" in out
     assert main(["describe", "poisson"]) == 0
-    assert "alignment_duration = 10.0 [s]" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "alignment_duration = 10.0 [s]" in out
+    assert "    body = None\n" in out and "function" not in out  # (body's validator printed as its constraint)
     assert main(["describe", "nope"]) == 2
     assert "unknown plugin 'nope'" in capsys.readouterr().err
 
