@@ -8,6 +8,7 @@ import json
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 
 
@@ -291,6 +292,14 @@ def cmd_demo(args) -> int:
     return run_demo(plot=args.plot, filters=args.filters.split(",") if args.filters else None)
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning on the command line is one line, as an error is: ``fusionkit: warning: TEXT
+    (Category)``, not Python's ``path/cli.py:117: Category: TEXT`` followed by the source line
+    that called the filter."""
+    text = " ".join(str(message).split())
+    print(f"fusionkit: warning: {text} ({category.__name__})", file=sys.stderr if file is None else file)
+
+
 def _sub(sub, name: str, help: str, example: str, units: str = ""):
     """A subcommand whose help ends with an example and the units of what it prints."""
     epilog = f"example:\n  {example}" + (f"\n\n{units}" if units else "")
@@ -383,7 +392,9 @@ def main(argv: list[str] | None = None) -> int:
     m.set_defaults(func=cmd_demo)
     args = parser.parse_args(argv)
     try:
-        return args.func(args)
+        with warnings.catch_warnings():  # (restores showwarning: main() called from Python keeps its own)
+            warnings.showwarning = _show_warning
+            return args.func(args)
     except FusionkitError as exc:  # one line: a config's several problems joined with "; "
         first, *rest = [line.strip() for line in str(exc).splitlines() if line.strip()] or [type(exc).__name__]
         print(f"fusionkit: error: {first} {'; '.join(rest)}".rstrip(), file=sys.stderr)

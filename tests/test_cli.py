@@ -31,6 +31,20 @@ def test_run_on_a_simulated_recording(tmp_path, capsys):
     assert data.shape[1] == 9 and np.isfinite(data).all()
 
 
+def test_a_warning_is_one_line(tmp_path, capsys):
+    """A warning on the command line reads like an error, one line naming its kind: it was
+    Python's 'path/fusionkit/cli.py:117: AlignmentWarning: ...' and then the source line of the call."""
+    from fusionkit import make, sim
+    from fusionkit.types import AlignmentWarning
+
+    assert main(["run", "poisson", "sim:late-gyro", "-o", str(tmp_path / "o.csv")]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "compiling" not in line]
+    assert len(err) == 1 and re.fullmatch(r"fusionkit: warning: motion detected [\d.]+ s into the mandatory 10 s "
+                                          r"alignment: .* \(AlignmentWarning\)", err[0]), err
+    with pytest.warns(AlignmentWarning):  # a Python caller's warnings are its own again after main()
+        make("poisson").run(sim.scenario("late-gyro"))
+
+
 def test_run_with_a_config_file_and_bad_input(tmp_path, capsys):
     cfg = tmp_path / "p.json"
     cfg.write_text(json.dumps({"estimator": "poisson-dcm", "alignment": {"mode": "fixed", "duration": 2.0}}))
