@@ -37,15 +37,37 @@ def _build_filter(spec: str, params: dict):
 
     p = Path(spec)
     if p.suffix in (".toml", ".json"):
-        cfg = load_config(p)
-        cfg.update(params)
+        cfg = _merge(load_config(p), params)
         if "filter" in cfg:  # {"filter": "poisson", "params": {...}}: other keys are parameters too
             name, fparams = cfg.pop("filter"), cfg.pop("params", {})
             if not isinstance(name, str) or not isinstance(fparams, dict):
                 raise FusionkitError(f"{spec}: 'filter' must be a filter name and 'params' a table of its parameters")
-            return make(name, "filter", {**fparams, **cfg})
+            return make(name, "filter", _merge(fparams, cfg))
         return compose(cfg)
     return make(spec, **params)
+
+
+def _merge(base, over: dict, where: str = ""):
+    """``over``'s values set into ``base`` (a config file's tables) one leaf at a time: ``--param
+    alignment.duration=5`` changes the duration and keeps the file's alignment mode and heading, and
+    ``correctors.0.params.beta=0.2`` the first corrector's beta (a list's element by its index).
+    A dict replaced whole the table it named: the file's other settings fell back to the defaults
+    (or, for ``estimator.params.step``, the estimator lost its name)."""
+    for key, value in over.items():
+        if isinstance(base, list):
+            if not (key.isdigit() and int(key) < len(base)):
+                raise FusionkitError(f"--param {where}{key}: {where[:-1]} is a list of {len(base)} "
+                                     + (f"(give an index from 0 to {len(base) - 1}, e.g. {where}0)" if base else
+                                        "(add the entry to the config file)"))
+            key = int(key)
+            if isinstance(base[key], str) and isinstance(value, dict):  # a plugin by its name alone
+                base[key] = {"name": base[key]}
+        current = base[key] if isinstance(key, int) else base.get(key)
+        if isinstance(value, dict) and isinstance(current, (dict, list)):
+            _merge(current, value, f"{where}{key}.")
+        else:
+            base[key] = value
+    return base
 
 
 def _load_input(spec: str, rate: float | None = None):
