@@ -10,7 +10,8 @@
      "skipped": None | reason (e.g. a GNSS-aided filter on a recording without GNSS)}
 
 Results are cached by a hash of (filter, full config, trial file fingerprint, versions, the code
-that runs) in ``$FUSIONKIT_CACHE`` (default ``~/.cache/fusionkit``), so a re-run is instant. The
+that runs) in ``bench/`` under ``$FUSIONKIT_CACHE``, else ``$FUSIONKIT_CACHE_DIR`` (default
+``$XDG_CACHE_HOME/fusionkit`` or ``~/.cache/fusionkit``), so a re-run is instant. The
 code is fusionkit's own source files and, for a third-party plugin (the filter, or a plugin a
 pipeline composes), its distribution, version and source files (``versions["plugins"]``): fixing
 a plugin re-runs it. A record read from the cache has ``cached`` True, and tables mark it ``*``.
@@ -203,7 +204,13 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
 
 
 def _cache_dir(cache_dir) -> Path:
-    d = Path(cache_dir or os.environ.get("FUSIONKIT_CACHE") or Path.home() / ".cache" / "fusionkit") / "bench"
+    """``bench/`` under ``cache_dir``, else ``$FUSIONKIT_CACHE``, else fusionkit's cache directory
+    (``$FUSIONKIT_CACHE_DIR``, ``$XDG_CACHE_HOME/fusionkit`` or ``~/.cache/fusionkit``, where the
+    compiled loops go: README). It ignored ``$FUSIONKIT_CACHE_DIR``, so a user who moved the cache
+    there still read and wrote ``~/.cache/fusionkit/bench``."""
+    base = cache_dir or os.environ.get("FUSIONKIT_CACHE") or os.environ.get("FUSIONKIT_CACHE_DIR") or (
+        Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fusionkit")
+    d = Path(base) / "bench"
     d.mkdir(parents=True, exist_ok=True)
     return d
 
