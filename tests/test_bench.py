@@ -89,6 +89,7 @@ def test_a_failing_filter_is_reported_and_the_rest_continue(data, tmp_path):
         fk.default_registry().refresh()
     bad = [r for r in res.records if r["error"]]
     assert len(bad) == 1 and bad[0]["trial"] == "trial1" and "boom on trial1" in bad[0]["error"]
+    assert bad[0]["aiding"] == "gyro-only"  # (taken before the run: it was missing, and the table said 6D)
     assert "error: fragile-test on trial1: RuntimeError: boom on trial1" in res.table()
     assert all(not r["error"] for r in res.records if r["filter"] == "poisson")
 

@@ -183,6 +183,7 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
             rec_out["skipped"] = "not applicable: the filter needs a GNSS stream"
             return _jsonable(rec_out)
         rec_out["dimension"] = f.dimension(rec)
+        rec_out["aiding"] = aiding(f, rec)  # (before the run: a run that fails keeps it, not "6D" for poisson)
         rec_out["reference"] = None if rec.truth is None else rec.meta.get("truth_kind", "ground truth")
         if warmup:  # compile numba loops outside the timing
             f.run(rec.slice(0, min(len(rec), 200)), progress=False)
@@ -192,7 +193,6 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
         rec_out["samples_per_s"] = len(rec) / rec_out["seconds"]
         rec_out["backend"] = res.diagnostics.get("backend")
         rec_out["metrics"] = trial_metrics(res, rec, rec_out["dimension"])
-        rec_out["aiding"] = aiding(f, rec)
         na = not_applicable(rec_out["aiding"], gnss_heading=bool(f.requires_gnss))
         rec_out["not_applicable"] = {k: why for k, why in na.items() if k in rec_out["metrics"]}
         for k in rec_out["not_applicable"]:  # a number it cannot have (e.g. a 96 deg "total") is not reported
