@@ -270,8 +270,17 @@ def _recordings(specs: list[str]):
 
 
 def cmd_lags(args) -> int:
-    from .benchmarking.runner import Progress
+    import inspect
 
+    from .benchmarking.runner import Progress
+    from .benchmarking.timing import sensor_lags
+
+    step = inspect.signature(sensor_lags).parameters["step"].default  # its search grid, samples
+    if not step <= args.max_lag < math.inf:  # (NaN too) before the table: every row would say it
+        raise FusionkitError(f"--max-lag must be a finite number of samples >= {step} (the search step), "
+                             f"got {args.max_lag:g}")
+    if not args.cutoff > 0:
+        raise FusionkitError(f"--cutoff must be a frequency > 0 Hz, got {args.cutoff:g}")
     print("| recording | gyr lag (samples) | gyr lag (ms) | gyr residual (rad/s) | acc lag (samples) | acc lag (ms) "
           "| acc residual (m/s^2) | acc model | mag lag (samples) | mag lag (ms) | mag residual |\n"
           "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|", flush=True)

@@ -221,7 +221,10 @@ def test_cli_mistakes_are_named_before_any_run(tmp_path, capsys):
              (["sweep", "poisson", *data, "--grid", "step="], 2, r"step: Input should be 'first-order' or"),
              (["sweep", "poisson", *data, "--grid", "step=exact", "--metric", "rmse"], 2, "metric must be one of"),
              (["demo", "--filters", "poison", "--plot", ""], 2, "did you mean 'poisson'"),
-             (["lags", str(one)], 1, "too short to time")]
+             (["lags", str(one)], 1, "too short to time"),
+             (["lags", str(one), "--max-lag", "inf"], 2, r"--max-lag must be a finite number of samples >= 0.05"),
+             (["lags", str(one), "--max-lag", "0.01"], 2, r"--max-lag .* got 0.01"),
+             (["lags", str(one), "--cutoff", "-1"], 2, r"--cutoff must be a frequency > 0 Hz, got -1")]
     for argv, code, match in cases:
         assert main(argv) == code, argv
         cap = capsys.readouterr()
