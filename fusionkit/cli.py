@@ -155,8 +155,10 @@ def cmd_run(args) -> int:
         na = not_applicable(kind, gnss_heading=bool(getattr(f, "requires_gnss", False)))
         e = rms_errors(res, rec)
         over = "the movement samples" if rec.movement is not None else "all samples"
+        none = f"no finite reference sample among {over}"  # (NaN rows: samples without one; it printed "nan deg")
         print(f"RMS error vs truth over {over} ({kind} filter; heading = the error's rotation about the vertical): "
-              + ", ".join(f"{k} n/a ({na[k]})" if k in na else f"{k} {v:.3f} deg" for k, v in e.items()))
+              + ", ".join(f"{k} n/a ({na[k]})" if k in na else f"{k} {v:.3f} deg" if math.isfinite(v) else
+                          f"{k} n/a ({none})" for k, v in e.items()))
     return 0
 
 

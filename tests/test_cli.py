@@ -45,6 +45,19 @@ def test_a_warning_is_one_line(tmp_path, capsys):
         make("poisson").run(sim.scenario("late-gyro"))
 
 
+def test_run_without_a_finite_reference_prints_no_nan(tmp_path, capsys):
+    """A reference column that is all NaN (no sample has one) gives n/a and why, not 'nan deg'."""
+    from fusionkit import Recording, sim
+    from fusionkit.io.loaders import write_csv
+
+    rec = sim.demo_recordings()[0].slice(0, 300)
+    path = tmp_path / "nan_ref.csv"
+    write_csv(Recording(gyr=rec.gyr, acc=rec.acc, rate=200.0, truth=np.full((300, 4), np.nan)), path)
+    assert main(["run", "poisson", str(path), "-o", str(tmp_path / "o.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "inclination n/a (no finite reference sample among all samples)" in out and "nan" not in out
+
+
 def test_run_with_a_config_file_and_bad_input(tmp_path, capsys):
     cfg = tmp_path / "p.json"
     cfg.write_text(json.dumps({"estimator": "poisson-dcm", "alignment": {"mode": "fixed", "duration": 2.0}}))
