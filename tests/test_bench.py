@@ -95,6 +95,9 @@ def test_a_failing_filter_is_reported_and_the_rest_continue(data, tmp_path):
 
 
 def test_unknown_filter_and_parameters(data):
+    for jobs in (0, -1, 1.5, True):
+        with pytest.raises(ConfigError, match=r"jobs must be a whole number of worker processes >= 1"):
+            bench(["poisson"], data, jobs=jobs)
     with pytest.raises(PluginError, match="did you mean 'poisson'"):
         bench(["poison"], data)
     with pytest.raises(ConfigError, match="match no field"):
