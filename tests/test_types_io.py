@@ -224,6 +224,8 @@ def test_load_errors(tmp_path):
     (tmp_path / "x.bin").write_text("")
     with pytest.raises(InputError, match="supported are"):
         fk.load(tmp_path / "x.bin")
+    with pytest.raises(InputError, match=r"is a folder: give one recording file"):
+        fk.load(tmp_path)
 
 
 def test_result_helpers(imu_rec, tmp_path):

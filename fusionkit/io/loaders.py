@@ -42,6 +42,9 @@ def load(path, **kwargs) -> Recording:
     p = Path(path)
     if not p.exists():
         raise InputError(f"no such file: {str(p)!r}")
+    if p.is_dir():  # (it was "cannot read 'broad': supported are .hdf5/.h5 ...")
+        raise InputError(f"{str(p)!r} is a folder: give one recording file (fusionkit bench --data takes a folder "
+                         "of trials)")
     suffix = p.suffix.lower()
     if suffix in (".hdf5", ".h5"):
         from .gnss import is_gnss_scenario, load_gnss_scenario
