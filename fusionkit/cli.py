@@ -322,6 +322,7 @@ def cmd_demo(args) -> int:
 
     if args.plot:
         _check_output(args.plot)
+        _check_image_format(args.plot)
     return run_demo(plot=args.plot, filters=args.filters.split(",") if args.filters else None)
 
 
@@ -331,6 +332,22 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     that called the filter."""
     text = " ".join(str(message).split())
     print(f"fusionkit: warning: {text} ({category.__name__})", file=sys.stderr if file is None else file)
+
+
+def _check_image_format(path: str) -> None:
+    """``path``'s extension is a format matplotlib writes (checked before the demo runs: 'x.txt'
+    ended the demo's whole run in matplotlib's ValueError traceback). Without matplotlib the demo
+    says the plot is skipped."""
+    try:
+        from matplotlib.backend_bases import FigureCanvasBase
+    except ImportError:
+        return
+    kinds = FigureCanvasBase.get_supported_filetypes()
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if suffix not in kinds:
+        what = f"'.{suffix}' is not an image format matplotlib writes" if suffix else "it has no image extension"
+        raise FusionkitError(f"cannot write the plot {path}: {what}; use one of {', '.join(sorted(kinds))} "
+                             "(e.g. demo.png)")
 
 
 def _sub(sub, name: str, help: str, example: str, units: str = ""):

@@ -157,6 +157,11 @@ def test_bench_sweep_and_demo_check_their_output_before_computing(tmp_path, caps
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert len(err.strip().splitlines()) == 1 and re.search(r"cannot write .*(does not exist|it is a folder)", err), err
+    pytest.importorskip("matplotlib")
+    for name, what in (("x.txt", "'.txt' is not an image format"), ("plot", "it has no image extension")):
+        assert main(["demo", "--filters", "poison", "--plot", str(tmp_path / name)]) == 2  # (a traceback after the run)
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and what in err and "png" in err, err
 
 
 def test_run_takes_a_rate_for_a_csv_without_time(tmp_path, capsys):
