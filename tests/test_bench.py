@@ -64,7 +64,7 @@ def test_bench_records_and_tables(data, tmp_path):
 
 
 def test_cache_makes_a_rerun_instant(data, tmp_path):
-    first = bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path)
+    first = bench("poisson", data, trials=["trial0"], cache_dir=tmp_path)  # one name alone: one filter (was 'p')
     again = bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path)
     assert not first.records[0]["cached"] and again.records[0]["cached"]
     assert again.records[0]["metrics"] == first.records[0]["metrics"]

@@ -257,6 +257,8 @@ def bench(filters: Iterable[Any], data: Any, *, trials: list[str] | None = None,
 
     if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:  # (0, -1 ran serially, unsaid)
         raise ConfigError(f"jobs must be a whole number of worker processes >= 1, got {jobs!r}")
+    if isinstance(filters, (str, FilterSpec)):  # one filter: a name was iterated letter by letter ('p' unknown)
+        filters = [filters]
     specs = _apply_params([FilterSpec.of(f) for f in filters], params or {})
     if not specs:
         raise ConfigError("no filters to run: name at least one (e.g. filters=['recommended'])")
