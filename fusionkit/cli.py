@@ -246,6 +246,8 @@ def cmd_sweep(args) -> int:
         if "=" not in g:
             raise FusionkitError(f"--grid takes name=v1,v2,..., got {g!r}")
         k, raw = g.split("=", 1)
+        if k in grid:  # (the second replaced the first)
+            raise FusionkitError(f"--grid {k} is given twice: list its values once, {k}=v1,v2,...")
         grid[k] = _values(raw)
     trials = [t for t in args.trials.split(",") if t] if args.trials else None
     res = sweep(args.filter, grid, args.data, metric=args.metric, trials=trials, jobs=args.jobs,

@@ -131,7 +131,7 @@ def test_dask_local_cluster_on_loopback(data):
         sorted((r["trial"], r["metrics"].get("score")) for r in local.records)
 
 
-def test_sweep_reports_tagp_and_per_trial_minimum(data):
+def test_sweep_reports_tagp_and_per_trial_minimum(data, capsys):
     s = sweep("poisson", {"motion.window": [0.05, 0.2], "step": ["first-order", "exact"]}, data,
               trials=["trial0", "trial1"], cache=False)
     assert len(s.combos) == 4
@@ -144,6 +144,15 @@ def test_sweep_reports_tagp_and_per_trial_minimum(data):
     assert "TAGP" in s.report()
     with pytest.raises(ConfigError, match="no parameter 'beta'"):
         sweep("poisson", {"beta": [1]}, data)
+    # a fixed parameter beside the grid's in the same table is kept (the grid's table replaced it)
+    s = sweep("poisson", {"motion.window": [0.05]}, data, trials=["trial0"], base={"motion": {"arm_after": 5.0}},
+              cache=False)
+    assert s.combos == [{"motion": {"arm_after": 5.0, "window": 0.05}}]
+    for base in ({"motion": {"window": 0.1}}, {"motion": 3}):
+        with pytest.raises(ConfigError, match="'motion.window' is both in the grid and a fixed parameter"):
+            sweep("poisson", {"motion.window": [0.05]}, data, base=base)
+    assert main(["sweep", "poisson", "--data", str(data), "--grid", "step=exact", "--grid", "step=first-order"]) == 2
+    assert "--grid step is given twice" in capsys.readouterr().err  # (the second replaced the first)
 
 
 def test_filter_spec_labels():
