@@ -94,6 +94,19 @@ def test_a_failing_filter_is_reported_and_the_rest_continue(data, tmp_path):
     assert all(not r["error"] for r in res.records if r["filter"] == "poisson")
 
 
+def test_a_magnetometer_without_a_finite_sample_is_judged_6d(tmp_path):
+    """With nan_policy='skip' a filter runs an all-NaN magnetometer as none (the same
+    quaternions): it is judged as 6D (inclination; no total or heading), not on a 9D total of the
+    arbitrary heading it cannot know."""
+    r = sim.simulate([sim.Rest(11), sim.Rotate((0, 0, 1), 1.0, 2), sim.Rest(1)], rate=100.0,
+                     noise=sim.Noise.mems(), seed=3)
+    write_csv(fk.Recording(gyr=r.gyr, acc=r.acc, mag=np.full_like(r.mag, np.nan), rate=100.0, truth=r.truth),
+              tmp_path / "nan_mag.csv")
+    rec = bench([("gradient-descent", {"nan_policy": "skip"})], tmp_path, cache=False).records[0]
+    assert rec["error"] is None and rec["dimension"] == "6D" and rec["aiding"] == "6D"
+    assert rec["metrics"]["score"] == rec["metrics"]["inclination"] and rec["metrics"]["total"] is None
+
+
 def test_unknown_filter_and_parameters(data):
     for jobs in (0, -1, 1.5, True):
         with pytest.raises(ConfigError, match=r"jobs must be a whole number of worker processes >= 1"):

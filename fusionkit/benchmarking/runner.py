@@ -40,7 +40,7 @@ from ..config import set_dotted
 from ..errors import ConfigError
 from .datasets import Trial, discover
 from .metrics import trial_metrics
-from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, aiding, metric_label, not_applicable
+from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, aiding, dimension, metric_label, not_applicable
 
 __all__ = ["FilterSpec", "bench", "evaluate", "BenchResult"]
 
@@ -182,7 +182,7 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
         if f.requires_gnss and rec.gnss is None:
             rec_out["skipped"] = "not applicable: the filter needs a GNSS stream"
             return _jsonable(rec_out)
-        rec_out["dimension"] = f.dimension(rec)
+        rec_out["dimension"] = dimension(f, rec)
         rec_out["aiding"] = aiding(f, rec)  # (before the run: a run that fails keeps it, not "6D" for poisson)
         rec_out["reference"] = None if rec.truth is None else rec.meta.get("truth_kind", "ground truth")
         if warmup:  # compile numba loops outside the timing
