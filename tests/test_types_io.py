@@ -226,6 +226,10 @@ def test_load_errors(tmp_path):
         fk.load(tmp_path / "x.bin")
     with pytest.raises(InputError, match=r"is a folder: give one recording file"):
         fk.load(tmp_path)
+    for name in ("x.ulg", "x.h5", "x.hdf5"):  # (a log or GNSS scenario ignored body=FLU and kept FRD)
+        (tmp_path / name).write_text("")
+        with pytest.raises(InputError, match=rf"^{name}: body=, rate= only apply to a .csv file"):
+            fk.load(tmp_path / name, rate=100.0, body="FLU")
 
 
 def test_result_helpers(imu_rec, tmp_path):

@@ -46,6 +46,9 @@ def load(path, **kwargs) -> Recording:
         raise InputError(f"{str(p)!r} is a folder: give one recording file (fusionkit bench --data takes a folder "
                          "of trials)")
     suffix = p.suffix.lower()
+    if kwargs and suffix != ".csv":  # (a .ulg or GNSS scenario ignored them, a BROAD trial failed to "read")
+        raise InputError(f"{p.name}: {', '.join(f'{k}=' for k in sorted(kwargs))} only apply to a .csv file; this "
+                         "file carries its own clock and body axes")
     if suffix in (".hdf5", ".h5"):
         from .gnss import is_gnss_scenario, load_gnss_scenario
 
