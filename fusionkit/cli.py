@@ -416,7 +416,8 @@ def main(argv: list[str] | None = None) -> int:
     b.set_defaults(func=cmd_bench)
     s = _sub(sub, "sweep", "a parameter grid for one filter: TAGP and per-trial minimum",
              "fusionkit sweep ahrs-madgwick --data ../shared/data/broad --grid gain=0.03,0.06,0.12 --jobs 2",
-             "errors in deg (the --metric's RMSE over the movement samples); progress on stderr as for bench")
+             "errors in deg (the --metric's RMSE over the movement samples; m and m/s for position and velocity); "
+             "progress on stderr as for bench")
     s.add_argument("filter")
     s.add_argument("--data", required=True)
     s.add_argument("--grid", action="append", required=True, metavar="NAME=V1,V2,...")

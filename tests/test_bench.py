@@ -223,6 +223,23 @@ def test_cache_key_follows_the_code(data, tmp_path, monkeypatch):
     assert not bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path).records[0]["cached"]
 
 
+def test_a_sweep_report_gives_its_metrics_unit():
+    """A navigation metric's sweep says m (or m/s), not deg: the report's header, TAGP, per-trial
+    minimum and table all said deg, whatever the metric."""
+    from fusionkit.benchmarking.sweep import SweepResult
+
+    class Fake:  # a bench result: position error 1 / 3 m on two trials, + 0.5 m with max age 2
+        trials = ["a", "b"]
+
+        def value(self, label, trial, metric):
+            return {"a": 1.0, "b": 3.0}[trial] + (0.5 if "=2" in label else 0.0)
+
+    s = SweepResult("ins-gnss", {"gnss_max_age": [1, 2]}, "position", Fake(), [{"gnss_max_age": 1}, {"gnss_max_age": 2}])
+    body = s.report().split("\n", 1)[1]
+    assert "mean over trials (m)" in body and "-> 2.000 m" in body and "best): 2.000 m" in body
+    assert "| error (m) |" in body and "deg" not in body
+
+
 def test_sweep_takes_the_navigation_metrics():
     """``ins-gnss`` sweeps on GNSS flights rank by ``position`` / ``velocity`` / ``position_gap_end``
     (:func:`~fusionkit.benchmarking.metrics.navigation_errors`): the metric check once refused them.

@@ -37,6 +37,11 @@ METRIC_LABELS = {
 HIDDEN_BY_DEFAULT = ("score", "tilt", "heading")
 
 
+def metric_unit(name: str) -> str:
+    """The unit of a metric's values: m/s for a velocity, m for a position, else deg."""
+    return "m/s" if name.startswith("velocity") else "m" if name.startswith("position") else "deg"
+
+
 def metric_label(name: str) -> str:
     return METRIC_LABELS.get(name, name)
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..config import build_config, set_dotted
 from ..errors import ConfigError
-from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, metric_label
+from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, metric_label, metric_unit
 from .runner import BenchResult, FilterSpec, bench
 
 __all__ = ["sweep", "SweepResult"]
@@ -68,16 +68,19 @@ class SweepResult:
         return out
 
     def report(self) -> str:
+        """The sweep as text, every number with its unit (the metric's: deg, or m and m/s for the
+        navigation metrics, which were labelled deg)."""
+        u = metric_unit(self.metric)
         lines = [f"sweep of {self.filter} over {self.grid} ({len(self.combos)} sets, metric {self.metric}: "
                  f"{metric_label(self.metric)})", "",
-                 "| parameters | mean over trials (deg) |", "|---|---:|"]
+                 f"| parameters | mean over trials ({u}) |", "|---|---:|"]
         for c, v in sorted(self.mean_by_combo(), key=lambda cv: (np.isnan(cv[1]), cv[1])):
             lines.append(f"| {self._show(c)} | {v:.3f} |")
         p, v = self.tagp
         ptm = self.per_trial_minimum()
-        lines += ["", f"TAGP (best common parameters): {self._show(p)} -> {v:.3f}",
-                  f"per-trial minimum (mean of each trial's best): {np.mean([v for _, v in ptm.values()]):.3f}", "",
-                  "| trial | best parameters | error (deg) |", "|---|---|---:|"]
+        lines += ["", f"TAGP (best common parameters): {self._show(p)} -> {v:.3f} {u}",
+                  f"per-trial minimum (mean of each trial's best): {np.mean([v for _, v in ptm.values()]):.3f} {u}", "",
+                  f"| trial | best parameters | error ({u}) |", "|---|---|---:|"]
         lines += [f"| {t} | {self._show(c)} | {v:.3f} |" for t, (c, v) in ptm.items()]
         return "\n".join(lines)
 
