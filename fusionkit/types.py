@@ -13,7 +13,8 @@ import numpy as np
 
 from .conventions import DEFAULT_FRAME, change_frame, check_body, check_frame, quat_to_euler, to_scipy
 from .errors import InputError
-from .validation import MAX_INTERVAL, as_mask, as_vectors, check_positive, check_time, check_units
+from .validation import (MAX_INTERVAL, as_mask, as_vectors, check_acc_in_g, check_positive, check_time,
+                         check_units)
 
 
 class Flag(enum.IntFlag):
@@ -300,6 +301,7 @@ class Recording:
         if _GYR_UNITS[self.gyr_unit] != 1.0:
             self.gyr = self.gyr * _GYR_UNITS[self.gyr_unit]
         if _ACC_UNITS[self.acc_unit] != 1.0:
+            check_acc_in_g(self.gyr, self.acc, self.acc_unit)
             self.acc = self.acc * _ACC_UNITS[self.acc_unit]
         self.gyr_unit, self.acc_unit = "rad/s", "m/s^2"
         if (self.rate is None) == (self.t is None):

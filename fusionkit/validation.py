@@ -438,6 +438,15 @@ def _gyr_abs(gyr):
     return np.abs(gyr[np.isfinite(gyr).all(axis=1)])
 
 
+def check_acc_in_g(gyr: np.ndarray, acc: np.ndarray, unit: str) -> None:
+    """Refuse ``acc_unit="g"`` on data already in m/s^2: in g the median norm is about 1 (below
+    3); above, the conversion would make it ~96 m/s^2, which the check after the conversion
+    (data in g) does not look for."""
+    if _unit_medians(gyr, acc)[1] == 1:
+        raise InputError(f"acc looks like it is in m/s^2 already (median norm {np.median(_acc_norms(acc)):.3g} > 3), "
+                         f"but acc_unit={unit!r} would multiply it by 9.81: leave acc_unit out")
+
+
 def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,
                 dt: np.ndarray | float | None = None, t: np.ndarray | None = None) -> None:
     """Refuse an accelerometer in g and a gyroscope in deg/s (see above), naming the argument

@@ -168,6 +168,9 @@ def test_units_are_checked_and_converted():
         rec(acc=np.tile([0, 0, 1.0], (10, 1)))
     r = rec(acc=np.tile([0, 0, 1.0], (10, 1)), acc_unit="g")
     assert r.acc[0, 2] == pytest.approx(9.80665)
+    with pytest.raises(InputError, match=r"acc looks like it is in m/s\^2 already \(median norm 9.81 > 3\), but "
+                                         r"acc_unit='g' would multiply it by 9.81"):
+        rec(acc_unit="g")  # (it became 96 m/s^2, unsaid)
     with pytest.raises(InputError, match="gyr_unit='deg/s'"):
         rec(gyr=np.full((10, 3), 45.0))
     r = rec(gyr=np.full((10, 3), 45.0), gyr_unit="deg/s")
