@@ -377,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
     _sub(sub, "list", "list registered plugins", "fusionkit list").set_defaults(func=cmd_list)
     d = _sub(sub, "describe", "parameters and source of a plugin", "fusionkit describe motion",
              "each parameter is printed with its default and unit in [brackets]")
-    d.add_argument("name")
+    d.add_argument("name", help="a plugin's name (fusionkit list names them all)")
     d.add_argument("--kind", default=None, help="filter, estimator, corrector, detector or model")
     fmt = d.add_mutually_exclusive_group()
     fmt.add_argument("--toml", action="store_true", help="print a config to save, edit and pass to `fusionkit run` "
@@ -395,7 +395,9 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("-o", "--output", required=True, help="output CSV (its folder must exist)")
     r.add_argument("--rate", type=float, default=None, help="sampling rate in Hz, for a CSV without a 't' column")
     r.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="a filter parameter")
-    r.add_argument("--backend", default="auto", choices=["auto", "numba", "reference"])
+    r.add_argument("--backend", default="auto", choices=["auto", "numba", "reference"],
+                   help="numba: the compiled loop, reference: the readable Python path (the same numbers to 1e-9), "
+                        "auto: compiled where the filter can be (default)")
     r.add_argument("--progress", action="store_true", help="always show a progress bar")
     r.set_defaults(func=cmd_run)
     b = _sub(sub, "bench", "filters side by side on recordings, with the BROAD metrics",
@@ -409,7 +411,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="a parameter for every filter that has it, or FILTER.NAME=VALUE for one")
     b.add_argument("--jobs", type=int, default=1, help="worker processes")
     b.add_argument("--scheduler", default=None, help="a Dask distributed scheduler address (instead of --jobs)")
-    b.add_argument("--format", default="table", choices=["table", "json", "csv", "markdown"])
+    b.add_argument("--format", default="table", choices=["table", "json", "csv", "markdown"],
+                   help="the tables' format (default: table)")
     b.add_argument("-o", "--output", default=None, help="write the table to this file")
     b.add_argument("--plots", default=None, help="folder for PNG plots")
     b.add_argument("--no-cache", action="store_true", help="ignore and do not write the result cache")
@@ -418,15 +421,16 @@ def main(argv: list[str] | None = None) -> int:
              "fusionkit sweep ahrs-madgwick --data ../shared/data/broad --grid gain=0.03,0.06,0.12 --jobs 2",
              "errors in deg (the --metric's RMSE over the movement samples; m and m/s for position and velocity); "
              "progress on stderr as for bench")
-    s.add_argument("filter")
-    s.add_argument("--data", required=True)
-    s.add_argument("--grid", action="append", required=True, metavar="NAME=V1,V2,...")
+    s.add_argument("filter", help="the filter to sweep")
+    s.add_argument("--data", required=True, help="a folder (BROAD, GNSS scenarios, ULog, CSV) or a file")
+    s.add_argument("--grid", action="append", required=True, metavar="NAME=V1,V2,...",
+                   help="a parameter and its values (repeat for a grid of several; nested with dots)")
     s.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="a fixed parameter")
-    s.add_argument("--trials", default="")
+    s.add_argument("--trials", default="", help="comma-separated trial names or prefixes (default: all)")
     s.add_argument("--metric", default="score", help="score (9D: total, 6D: inclination), total, inclination, ...")
-    s.add_argument("--jobs", type=int, default=1)
-    s.add_argument("--no-cache", action="store_true")
-    s.add_argument("-o", "--output", default=None)
+    s.add_argument("--jobs", type=int, default=1, help="worker processes")
+    s.add_argument("--no-cache", action="store_true", help="ignore and do not write the result cache")
+    s.add_argument("-o", "--output", default=None, help="write the report to this file")
     s.set_defaults(func=cmd_sweep)
     lg = _sub(sub, "lags", "how many samples the gyro, accelerometer and magnetometer run behind the "
               "reference orientation (fusionkit's convention: 0.5)", "fusionkit lags ../shared/data/broad sim:slow-rotation",

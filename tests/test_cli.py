@@ -181,6 +181,26 @@ def test_run_takes_a_rate_for_a_csv_without_time(tmp_path, capsys):
     assert t[1] - t[0] == pytest.approx(1 / 200)
 
 
+def test_every_option_says_what_it_is(monkeypatch):
+    """Every argument of every subcommand has a help text (run --backend, sweep's --data, --trials,
+    --jobs, --no-cache, -o, describe's name had none)."""
+    import argparse
+
+    class Built(Exception):
+        pass
+
+    def capture(self, argv=None, namespace=None):
+        raise Built(self)
+
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", capture)
+    with pytest.raises(Built) as got:
+        main(["list"])
+    sub = next(a for a in got.value.args[0]._actions if isinstance(a, argparse._SubParsersAction))
+    bare = [f"{name} {a.dest}" for name, p in sub.choices.items() for a in p._actions
+            if not a.help and not isinstance(a, argparse._HelpAction)]
+    assert bare == []
+
+
 @pytest.mark.parametrize("cmd", ["list", "describe", "run", "bench", "sweep", "lags", "demo"])
 def test_every_help_has_an_example(cmd, capsys):
     with pytest.raises(SystemExit):
