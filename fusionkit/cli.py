@@ -8,6 +8,7 @@ import json
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 
 
@@ -36,15 +37,37 @@ def _build_filter(spec: str, params: dict):
 
     p = Path(spec)
     if p.suffix in (".toml", ".json"):
-        cfg = load_config(p)
-        cfg.update(params)
+        cfg = _merge(load_config(p), params)
         if "filter" in cfg:  # {"filter": "poisson", "params": {...}}: other keys are parameters too
             name, fparams = cfg.pop("filter"), cfg.pop("params", {})
             if not isinstance(name, str) or not isinstance(fparams, dict):
                 raise FusionkitError(f"{spec}: 'filter' must be a filter name and 'params' a table of its parameters")
-            return make(name, "filter", {**fparams, **cfg})
+            return make(name, "filter", _merge(fparams, cfg))
         return compose(cfg)
     return make(spec, **params)
+
+
+def _merge(base, over: dict, where: str = ""):
+    """``over``'s values set into ``base`` (a config file's tables) one leaf at a time: ``--param
+    alignment.duration=5`` changes the duration and keeps the file's alignment mode and heading, and
+    ``correctors.0.params.beta=0.2`` the first corrector's beta (a list's element by its index).
+    A dict replaced whole the table it named: the file's other settings fell back to the defaults
+    (or, for ``estimator.params.step``, the estimator lost its name)."""
+    for key, value in over.items():
+        if isinstance(base, list):
+            if not (key.isdigit() and int(key) < len(base)):
+                raise FusionkitError(f"--param {where}{key}: {where[:-1]} is a list of {len(base)} "
+                                     + (f"(give an index from 0 to {len(base) - 1}, e.g. {where}0)" if base else
+                                        "(add the entry to the config file)"))
+            key = int(key)
+            if isinstance(base[key], str) and isinstance(value, dict):  # a plugin by its name alone
+                base[key] = {"name": base[key]}
+        current = base[key] if isinstance(key, int) else base.get(key)
+        if isinstance(value, dict) and isinstance(current, (dict, list)):
+            _merge(current, value, f"{where}{key}.")
+        else:
+            base[key] = value
+    return base
 
 
 def _load_input(spec: str, rate: float | None = None):
@@ -97,10 +120,13 @@ def cmd_describe(args) -> int:
 
 
 def _check_output(path: str) -> None:
-    """Fail before any computing when ``path`` cannot be written (its folder is missing or
-    read-only): an hour's run must not end in a traceback."""
+    """Fail before any computing when ``path`` cannot be written (it is a folder, its folder is
+    missing or read-only): an hour's run must not end in a traceback, nor in an error after it.
+    ``run``'s CSV, ``bench``'s and ``sweep``'s table, ``demo``'s plot."""
     import os
 
+    if Path(path).expanduser().is_dir():
+        raise FusionkitError(f"cannot write {path}: it is a folder; give a file name")
     parent = Path(path).expanduser().resolve().parent
     if not parent.is_dir():
         raise FusionkitError(f"cannot write {path}: folder {parent} does not exist")
@@ -129,8 +155,10 @@ def cmd_run(args) -> int:
         na = not_applicable(kind, gnss_heading=bool(getattr(f, "requires_gnss", False)))
         e = rms_errors(res, rec)
         over = "the movement samples" if rec.movement is not None else "all samples"
+        none = f"no finite reference sample among {over}"  # (NaN rows: samples without one; it printed "nan deg")
         print(f"RMS error vs truth over {over} ({kind} filter; heading = the error's rotation about the vertical): "
-              + ", ".join(f"{k} n/a ({na[k]})" if k in na else f"{k} {v:.3f} deg" for k, v in e.items()))
+              + ", ".join(f"{k} n/a ({na[k]})" if k in na else f"{k} {v:.3f} deg" if math.isfinite(v) else
+                          f"{k} n/a ({none})" for k, v in e.items()))
     return 0
 
 
@@ -180,6 +208,8 @@ def cmd_bench(args) -> int:
     from .benchmarking import bench
     from .benchmarking.datasets import discover
 
+    if args.output:
+        _check_output(args.output)
     filters = [f for f in args.filters.split(",") if f]
     trials = [t for t in args.trials.split(",") if t] if args.trials else None
     res = bench(filters, args.data, trials=trials, params=_flat_params(args.param), jobs=args.jobs,
@@ -209,11 +239,15 @@ def cmd_bench(args) -> int:
 def cmd_sweep(args) -> int:
     from .benchmarking.sweep import sweep
 
+    if args.output:
+        _check_output(args.output)
     grid = {}
     for g in args.grid:
         if "=" not in g:
             raise FusionkitError(f"--grid takes name=v1,v2,..., got {g!r}")
         k, raw = g.split("=", 1)
+        if k in grid:  # (the second replaced the first)
+            raise FusionkitError(f"--grid {k} is given twice: list its values once, {k}=v1,v2,...")
         grid[k] = _values(raw)
     trials = [t for t in args.trials.split(",") if t] if args.trials else None
     res = sweep(args.filter, grid, args.data, metric=args.metric, trials=trials, jobs=args.jobs,
@@ -240,8 +274,17 @@ def _recordings(specs: list[str]):
 
 
 def cmd_lags(args) -> int:
-    from .benchmarking.runner import Progress
+    import inspect
 
+    from .benchmarking.runner import Progress
+    from .benchmarking.timing import sensor_lags
+
+    step = inspect.signature(sensor_lags).parameters["step"].default  # its search grid, samples
+    if not step <= args.max_lag < math.inf:  # (NaN too) before the table: every row would say it
+        raise FusionkitError(f"--max-lag must be a finite number of samples >= {step} (the search step), "
+                             f"got {args.max_lag:g}")
+    if not args.cutoff > 0:
+        raise FusionkitError(f"--cutoff must be a frequency > 0 Hz, got {args.cutoff:g}")
     print("| recording | gyr lag (samples) | gyr lag (ms) | gyr residual (rad/s) | acc lag (samples) | acc lag (ms) "
           "| acc residual (m/s^2) | acc model | mag lag (samples) | mag lag (ms) | mag residual |\n"
           "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|", flush=True)
@@ -279,7 +322,34 @@ def _lag_row(name: str, load, args) -> tuple[str, bool]:
 def cmd_demo(args) -> int:
     from .demo import run_demo
 
+    if args.plot:
+        _check_output(args.plot)
+        _check_image_format(args.plot)
     return run_demo(plot=args.plot, filters=args.filters.split(",") if args.filters else None)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning on the command line is one line, as an error is: ``fusionkit: warning: TEXT
+    (Category)``, not Python's ``path/cli.py:117: Category: TEXT`` followed by the source line
+    that called the filter."""
+    text = " ".join(str(message).split())
+    print(f"fusionkit: warning: {text} ({category.__name__})", file=sys.stderr if file is None else file)
+
+
+def _check_image_format(path: str) -> None:
+    """``path``'s extension is a format matplotlib writes (checked before the demo runs: 'x.txt'
+    ended the demo's whole run in matplotlib's ValueError traceback). Without matplotlib the demo
+    says the plot is skipped."""
+    try:
+        from matplotlib.backend_bases import FigureCanvasBase
+    except ImportError:
+        return
+    kinds = FigureCanvasBase.get_supported_filetypes()
+    suffix = Path(path).suffix.lower().lstrip(".")
+    if suffix not in kinds:
+        what = f"'.{suffix}' is not an image format matplotlib writes" if suffix else "it has no image extension"
+        raise FusionkitError(f"cannot write the plot {path}: {what}; use one of {', '.join(sorted(kinds))} "
+                             "(e.g. demo.png)")
 
 
 def _sub(sub, name: str, help: str, example: str, units: str = ""):
@@ -307,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
     _sub(sub, "list", "list registered plugins", "fusionkit list").set_defaults(func=cmd_list)
     d = _sub(sub, "describe", "parameters and source of a plugin", "fusionkit describe motion",
              "each parameter is printed with its default and unit in [brackets]")
-    d.add_argument("name")
+    d.add_argument("name", help="a plugin's name (fusionkit list names them all)")
     d.add_argument("--kind", default=None, help="filter, estimator, corrector, detector or model")
     fmt = d.add_mutually_exclusive_group()
     fmt.add_argument("--toml", action="store_true", help="print a config to save, edit and pass to `fusionkit run` "
@@ -325,7 +395,9 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("-o", "--output", required=True, help="output CSV (its folder must exist)")
     r.add_argument("--rate", type=float, default=None, help="sampling rate in Hz, for a CSV without a 't' column")
     r.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="a filter parameter")
-    r.add_argument("--backend", default="auto", choices=["auto", "numba", "reference"])
+    r.add_argument("--backend", default="auto", choices=["auto", "numba", "reference"],
+                   help="numba: the compiled loop, reference: the readable Python path (the same numbers to 1e-9), "
+                        "auto: compiled where the filter can be (default)")
     r.add_argument("--progress", action="store_true", help="always show a progress bar")
     r.set_defaults(func=cmd_run)
     b = _sub(sub, "bench", "filters side by side on recordings, with the BROAD metrics",
@@ -339,23 +411,26 @@ def main(argv: list[str] | None = None) -> int:
                    help="a parameter for every filter that has it, or FILTER.NAME=VALUE for one")
     b.add_argument("--jobs", type=int, default=1, help="worker processes")
     b.add_argument("--scheduler", default=None, help="a Dask distributed scheduler address (instead of --jobs)")
-    b.add_argument("--format", default="table", choices=["table", "json", "csv", "markdown"])
+    b.add_argument("--format", default="table", choices=["table", "json", "csv", "markdown"],
+                   help="the tables' format (default: table)")
     b.add_argument("-o", "--output", default=None, help="write the table to this file")
     b.add_argument("--plots", default=None, help="folder for PNG plots")
     b.add_argument("--no-cache", action="store_true", help="ignore and do not write the result cache")
     b.set_defaults(func=cmd_bench)
     s = _sub(sub, "sweep", "a parameter grid for one filter: TAGP and per-trial minimum",
              "fusionkit sweep ahrs-madgwick --data ../shared/data/broad --grid gain=0.03,0.06,0.12 --jobs 2",
-             "errors in deg (the --metric's RMSE over the movement samples); progress on stderr as for bench")
-    s.add_argument("filter")
-    s.add_argument("--data", required=True)
-    s.add_argument("--grid", action="append", required=True, metavar="NAME=V1,V2,...")
+             "errors in deg (the --metric's RMSE over the movement samples; m and m/s for position and velocity); "
+             "progress on stderr as for bench")
+    s.add_argument("filter", help="the filter to sweep")
+    s.add_argument("--data", required=True, help="a folder (BROAD, GNSS scenarios, ULog, CSV) or a file")
+    s.add_argument("--grid", action="append", required=True, metavar="NAME=V1,V2,...",
+                   help="a parameter and its values (repeat for a grid of several; nested with dots)")
     s.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="a fixed parameter")
-    s.add_argument("--trials", default="")
+    s.add_argument("--trials", default="", help="comma-separated trial names or prefixes (default: all)")
     s.add_argument("--metric", default="score", help="score (9D: total, 6D: inclination), total, inclination, ...")
-    s.add_argument("--jobs", type=int, default=1)
-    s.add_argument("--no-cache", action="store_true")
-    s.add_argument("-o", "--output", default=None)
+    s.add_argument("--jobs", type=int, default=1, help="worker processes")
+    s.add_argument("--no-cache", action="store_true", help="ignore and do not write the result cache")
+    s.add_argument("-o", "--output", default=None, help="write the report to this file")
     s.set_defaults(func=cmd_sweep)
     lg = _sub(sub, "lags", "how many samples the gyro, accelerometer and magnetometer run behind the "
               "reference orientation (fusionkit's convention: 0.5)", "fusionkit lags ../shared/data/broad sim:slow-rotation",
@@ -374,7 +449,9 @@ def main(argv: list[str] | None = None) -> int:
     m.set_defaults(func=cmd_demo)
     args = parser.parse_args(argv)
     try:
-        return args.func(args)
+        with warnings.catch_warnings():  # (restores showwarning: main() called from Python keeps its own)
+            warnings.showwarning = _show_warning
+            return args.func(args)
     except FusionkitError as exc:  # one line: a config's several problems joined with "; "
         first, *rest = [line.strip() for line in str(exc).splitlines() if line.strip()] or [type(exc).__name__]
         print(f"fusionkit: error: {first} {'; '.join(rest)}".rstrip(), file=sys.stderr)

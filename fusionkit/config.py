@@ -379,10 +379,12 @@ _OPS = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}
 
 
 def _constraint_text(m: Any) -> str:
+    """A bound as ``> 0``; "" for a validator function (``BodyAxes``' check: its repr, a function's
+    address, was printed as the constraint; its description says what it takes)."""
     for attr, op in _OPS.items():
         if getattr(m, attr, None) is not None:
             return f"{op} {getattr(m, attr)}"
-    return str(m)
+    return "" if callable(getattr(m, "func", None)) else str(m)
 
 
 def describe_config(cls: type[PluginConfig]) -> list[dict[str, Any]]:
@@ -390,7 +392,7 @@ def describe_config(cls: type[PluginConfig]) -> list[dict[str, Any]]:
     rows = []
     for name, f in cls.model_fields.items():
         extra = f.json_schema_extra if isinstance(f.json_schema_extra, dict) else {}
-        constraints = [_constraint_text(m) for m in f.metadata]
+        constraints = [c for c in map(_constraint_text, f.metadata) if c]
         default = f.default
         if isinstance(default, BaseModel):
             default = default.model_dump()

@@ -53,8 +53,8 @@ from typing import Literal
 
 import numpy as np
 
-from .errors import ConfigError
-from .rotations import matrix_to_quat, quat_from_axis_angle, quat_mul, quat_to_matrix
+from .errors import ConfigError, InputError
+from .rotations import _arr, matrix_to_quat, quat_from_axis_angle, quat_mul, quat_to_matrix
 
 __all__ = [
     "FRAMES",
@@ -158,9 +158,26 @@ def euler_to_quat(heading, pitch, roll, frame: str = DEFAULT_FRAME) -> np.ndarra
     return quat_mul(q, _axis_quat(0, roll))
 
 
+def _unit(quat, name: str = "quat") -> np.ndarray:
+    """``quat`` (``(4,)`` or ``(..., 4)``) with every quaternion of unit length: the Euler angles
+    and scipy's rotations are those of the rotation it stands for (``quat_to_matrix`` assumes unit
+    length: 2 x a 1 rad yaw read as 1.815 rad). A zero quaternion is no orientation: an InputError
+    by index; a NaN one stays NaN. ``quat`` itself when already of unit length to rounding."""
+    q = _arr(quat, name, (4,))
+    n2 = np.einsum("...i,...i->...", q, q)
+    if not (np.abs(n2 - 1.0) > 2e-9).any():  # (|q|^2 - 1 = 2 (|q| - 1) near 1; NaN: False)
+        return q
+    if (n2 == 0.0).any():
+        i = np.unravel_index(int(np.argmax(n2 == 0.0)), n2.shape) if n2.ndim else ()
+        raise InputError(f"{name}{list(map(int, i)) if i else ''} is a zero quaternion: no orientation")
+    return q / np.sqrt(n2)[..., None]
+
+
 def quat_to_euler(quat, frame: str = DEFAULT_FRAME) -> np.ndarray:
-    """``(..., 3)`` array of ``(heading, pitch, roll)`` in rad of body->``frame`` quaternions."""
+    """``(..., 3)`` array of ``(heading, pitch, roll)`` in rad of body->``frame`` quaternions
+    (normalised first: :func:`_unit`)."""
     check_frame(frame)
+    quat = _unit(quat)
     if frame == "NUE":
         return source000_euler(quat)
     r = quat_to_matrix(quat)
@@ -215,7 +232,7 @@ def to_scipy(quat):
     """scipy ``Rotation`` of ``[w, x, y, z]`` quaternions."""
     from scipy.spatial.transform import Rotation
 
-    q = np.asarray(quat, dtype=float)
+    q = _unit(quat)  # (shape checked: an (N, 3) array was an IndexError from inside, a zero row scipy's error)
     return Rotation.from_quat(q[..., [1, 2, 3, 0]])
 
 

@@ -22,7 +22,7 @@ from importlib import metadata
 from typing import Any
 
 from .config import describe_config
-from .errors import PluginError, PluginWarning
+from .errors import ConfigError, PluginError, PluginWarning
 from .protocols import KINDS, Plugin
 
 __all__ = ["Registry", "PluginInfo", "default_registry", "available", "make", "describe", "register", "get"]
@@ -250,7 +250,10 @@ class Registry:
         """Instantiate the plugin ``name`` with validated parameters (a parameter called ``name``
         is a parameter, refused by the config as unknown, not a second plugin name). ``offline``:
         the filter run forward and backward in time (:class:`fusionkit.offline.OfflineFilter`);
-        a PluginError for a plugin that is not a filter or a filter that does not support it."""
+        a PluginError for a plugin that is not a filter or a filter that does not support it, a
+        ConfigError for anything but True or False (``offline="no"`` is a non-empty string: true)."""
+        if type(offline).__name__ not in ("bool", "bool_"):  # Python's or numpy's, without importing numpy
+            raise ConfigError(f"offline must be True or False, got {offline!r:.80}")
         plugin = self.get(name, kind)(config, **params)
         if not offline:
             return plugin

@@ -13,7 +13,8 @@ import numpy as np
 
 from .conventions import DEFAULT_FRAME, change_frame, check_body, check_frame, quat_to_euler, to_scipy
 from .errors import InputError
-from .validation import MAX_INTERVAL, as_mask, as_vectors, check_positive, check_time, check_units
+from .validation import (MAX_INTERVAL, as_mask, as_vectors, check_acc_in_g, check_positive, check_time,
+                         check_units)
 
 
 class Flag(enum.IntFlag):
@@ -225,6 +226,20 @@ class Gnss:
             self.pos = as_vectors("gnss.pos", self.pos, n)
 
 
+def _unit_rows(q: np.ndarray, block: int = 16384) -> np.ndarray:
+    """``q`` (N, 4) with every row of unit length, as scipy's Rotation takes a quaternion: the
+    metrics read angles off the error's w (``2 acos |w|``, clipped at 1: a truth scaled by 3 once
+    scored a total error of 0) and the lags the truth's derivative. ``q`` itself when every row is
+    within 1e-9 of unit length (NaN rows, no reference, are kept); else a normalised copy. Checked
+    in blocks: no (N,) temporary for a long recording's truth."""
+    for i in range(0, q.shape[0], block):
+        b = q[i:i + block]
+        if (np.abs(np.einsum("ij,ij->i", b, b) - 1.0) > 2e-9).any():  # |q|^2 - 1 = 2 (|q| - 1) near 1
+            norm = np.sqrt(np.einsum("ij,ij->i", q, q))
+            return q / np.where(np.abs(norm - 1.0) > 1e-9, norm, 1.0)[:, None]
+    return q
+
+
 @dataclass
 class Recording:
     """One IMU recording.
@@ -237,7 +252,8 @@ class Recording:
     rate : sampling rate in Hz, or
     t : (N,) timestamps in s, strictly increasing (one of the two is required).
     gnss : optional :class:`Gnss` stream.
-    truth : optional (N, 4) reference orientation, body -> ``truth_frame``, ``[w, x, y, z]``.
+    truth : optional (N, 4) reference orientation, body -> ``truth_frame``, ``[w, x, y, z]``
+        (normalised to unit length: a copy where a row is not; a NaN row is a sample without one).
     movement : optional (N,) bool mask of the samples the metrics are computed on.
     name, meta : free description.
     body : the sensors' body axis convention (``"FLU"``, ``"FRD"``, ``"RFU"``, ... see
@@ -285,6 +301,7 @@ class Recording:
         if _GYR_UNITS[self.gyr_unit] != 1.0:
             self.gyr = self.gyr * _GYR_UNITS[self.gyr_unit]
         if _ACC_UNITS[self.acc_unit] != 1.0:
+            check_acc_in_g(self.gyr, self.acc, self.acc_unit)
             self.acc = self.acc * _ACC_UNITS[self.acc_unit]
         self.gyr_unit, self.acc_unit = "rad/s", "m/s^2"
         if (self.rate is None) == (self.t is None):
@@ -307,6 +324,7 @@ class Recording:
                 i = int(np.argmax(zero))
                 raise InputError(f"truth[{i}] is {self.truth[i].tolist()}: a zero quaternion is no orientation (a "
                                  "sample without a reference is NaN)")
+            self.truth = _unit_rows(self.truth)
             check_frame(self.truth_frame, "truth_frame")
         if self.movement is not None:
             self.movement = as_mask("movement", self.movement)
@@ -489,12 +507,17 @@ class Result:
     def to_csv(self, path, time: np.ndarray | None = None) -> None:
         """Write ``t`` (if given), ``qw, qx, qy, qz``, yaw/pitch/roll (deg) and ``flags``. The yaw
         column is named for the frame (``yaw_enu_deg``: from East, counter-clockwise, so body x
-        to North is 90; ``yaw_ned_deg`` is a compass heading)."""
+        to North is 90; ``yaw_ned_deg`` is a compass heading). ``time``: (N,) s, one per sample."""
+        if time is not None:
+            time = np.asarray(time)
+            if time.shape != (len(self),):  # (numpy's own error came from deep in hstack)
+                raise InputError(f"time must have shape ({len(self)},), one time in s per sample of the result, "
+                                 f"got {time.shape}")
         eul = np.degrees(self.euler())
         cols = [self.quat, eul, self.flags[:, None].astype(float)]
         names = ["qw", "qx", "qy", "qz", f"yaw_{self.frame.lower()}_deg", "pitch_deg", "roll_deg", "flags"]
         if time is not None:
-            cols.insert(0, np.asarray(time, dtype=float)[:, None])
+            cols.insert(0, time.astype(float)[:, None])
             names.insert(0, "t")
         fmt = ["%.9g"] * (len(names) - 1) + ["%d"]
         np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt=fmt)

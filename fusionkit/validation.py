@@ -82,11 +82,21 @@ def _list_elements(name: str, x, what: str, allow_bool: bool) -> None:
 
 
 def as_mask(name: str, x) -> np.ndarray:
-    """``x`` as a boolean array (a mask), refusing text: ``np.asarray(["False"], bool)`` is True."""
+    """``x`` as a boolean array (a mask), refusing text (``np.asarray(["False"], bool)`` is True)
+    and numbers other than 0 and 1 (0.5 or NaN, a weight or a missing value, would be True)."""
     arr = np.asarray(x)
     if arr.dtype.kind in ("U", "S") or (arr.dtype.kind == "O" and any(
             issubclass(tp, (str, bytes)) for tp in set(map(type, arr.flat)))):
         raise InputError(f"{name} must be booleans (a mask), not text: convert it first, e.g. x == 'True'")
+    if arr.dtype.kind != "b":
+        try:
+            other = np.flatnonzero((arr != 0) & (arr != 1))
+        except TypeError:  # (objects that cannot be compared with numbers: numpy's bool() decides, as before)
+            other = ()
+        if len(other):
+            i = int(other[0])
+            raise InputError(f"{name} must be booleans (a mask) or 0/1, but {name}[{i}] is "
+                             f"{np.asarray(arr.reshape(-1)[i]).tolist()!r:.40}: threshold it first, e.g. x > 0.5")
     return np.asarray(arr, dtype=bool)  # (a boolean array is kept, not copied)
 
 
@@ -426,6 +436,15 @@ def _acc_norms(acc):
 
 def _gyr_abs(gyr):
     return np.abs(gyr[np.isfinite(gyr).all(axis=1)])
+
+
+def check_acc_in_g(gyr: np.ndarray, acc: np.ndarray, unit: str) -> None:
+    """Refuse ``acc_unit="g"`` on data already in m/s^2: in g the median norm is about 1 (below
+    3); above, the conversion would make it ~96 m/s^2, which the check after the conversion
+    (data in g) does not look for."""
+    if _unit_medians(gyr, acc)[1] == 1:
+        raise InputError(f"acc looks like it is in m/s^2 already (median norm {np.median(_acc_norms(acc)):.3g} > 3), "
+                         f"but acc_unit={unit!r} would multiply it by 9.81: leave acc_unit out")
 
 
 def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,

@@ -44,6 +44,12 @@ def _without_t(lines, comment):
     return "\n".join([comment] + [line.split(",", 1)[1] for line in lines])
 
 
+def _drop(lines, column):
+    """The CSV without one column (a sensor's or the reference's set left partial)."""
+    j = lines[0].split(",").index(column)
+    return "\n".join(",".join(c for i, c in enumerate(line.split(",")) if i != j) for line in lines)
+
+
 GARBAGE = np.random.default_rng(0).bytes(4000)
 
 # name -> (file name, writer(path, lines), the message's tail after the file name)
@@ -58,6 +64,10 @@ BAD_RECORDINGS = {
                           r"column\(s\) \['gyr_x'\] appear more than once"),
     "short row": ("short.csv", lambda p, ls: p.write_text("\n".join(ls[:3] + [ls[3].rsplit(",", 1)[0]] + ls[4:])),
                   r"line 4 has \d+ values, the header \d+ names"),
+    "mag without mag_z": ("mag.csv", lambda p, ls: p.write_text(_drop(ls, "mag_z")),
+                          r"columns \['mag_x', 'mag_y'\] without \['mag_z'\]: give all of"),
+    "quaternion without qz": ("quat.csv", lambda p, ls: p.write_text(_drop(ls, "qz")),
+                              r"columns \['qw', 'qx', 'qy'\] without \['qz'\]: give all of"),
     "latin-1 csv": ("latin.csv", lambda p, ls: p.write_bytes("# caf\xe9\n".encode("latin-1") + "\n".join(ls).encode()),
                     r"cannot read this CSV file: UnicodeDecodeError"),
     "garbage ulg": ("junk.ulg", lambda p, ls: p.write_bytes(b"not a flight log\n" * 200),

@@ -64,7 +64,7 @@ def test_bench_records_and_tables(data, tmp_path):
 
 
 def test_cache_makes_a_rerun_instant(data, tmp_path):
-    first = bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path)
+    first = bench("poisson", data, trials=["trial0"], cache_dir=tmp_path)  # one name alone: one filter (was 'p')
     again = bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path)
     assert not first.records[0]["cached"] and again.records[0]["cached"]
     assert again.records[0]["metrics"] == first.records[0]["metrics"]
@@ -89,11 +89,28 @@ def test_a_failing_filter_is_reported_and_the_rest_continue(data, tmp_path):
         fk.default_registry().refresh()
     bad = [r for r in res.records if r["error"]]
     assert len(bad) == 1 and bad[0]["trial"] == "trial1" and "boom on trial1" in bad[0]["error"]
+    assert bad[0]["aiding"] == "gyro-only"  # (taken before the run: it was missing, and the table said 6D)
     assert "error: fragile-test on trial1: RuntimeError: boom on trial1" in res.table()
     assert all(not r["error"] for r in res.records if r["filter"] == "poisson")
 
 
+def test_a_magnetometer_without_a_finite_sample_is_judged_6d(tmp_path):
+    """With nan_policy='skip' a filter runs an all-NaN magnetometer as none (the same
+    quaternions): it is judged as 6D (inclination; no total or heading), not on a 9D total of the
+    arbitrary heading it cannot know."""
+    r = sim.simulate([sim.Rest(11), sim.Rotate((0, 0, 1), 1.0, 2), sim.Rest(1)], rate=100.0,
+                     noise=sim.Noise.mems(), seed=3)
+    write_csv(fk.Recording(gyr=r.gyr, acc=r.acc, mag=np.full_like(r.mag, np.nan), rate=100.0, truth=r.truth),
+              tmp_path / "nan_mag.csv")
+    rec = bench([("gradient-descent", {"nan_policy": "skip"})], tmp_path, cache=False).records[0]
+    assert rec["error"] is None and rec["dimension"] == "6D" and rec["aiding"] == "6D"
+    assert rec["metrics"]["score"] == rec["metrics"]["inclination"] and rec["metrics"]["total"] is None
+
+
 def test_unknown_filter_and_parameters(data):
+    for jobs in (0, -1, 1.5, True):
+        with pytest.raises(ConfigError, match=r"jobs must be a whole number of worker processes >= 1"):
+            bench(["poisson"], data, jobs=jobs)
     with pytest.raises(PluginError, match="did you mean 'poisson'"):
         bench(["poison"], data)
     with pytest.raises(ConfigError, match="match no field"):
@@ -127,7 +144,7 @@ def test_dask_local_cluster_on_loopback(data):
         sorted((r["trial"], r["metrics"].get("score")) for r in local.records)
 
 
-def test_sweep_reports_tagp_and_per_trial_minimum(data):
+def test_sweep_reports_tagp_and_per_trial_minimum(data, capsys):
     s = sweep("poisson", {"motion.window": [0.05, 0.2], "step": ["first-order", "exact"]}, data,
               trials=["trial0", "trial1"], cache=False)
     assert len(s.combos) == 4
@@ -140,6 +157,15 @@ def test_sweep_reports_tagp_and_per_trial_minimum(data):
     assert "TAGP" in s.report()
     with pytest.raises(ConfigError, match="no parameter 'beta'"):
         sweep("poisson", {"beta": [1]}, data)
+    # a fixed parameter beside the grid's in the same table is kept (the grid's table replaced it)
+    s = sweep("poisson", {"motion.window": [0.05]}, data, trials=["trial0"], base={"motion": {"arm_after": 5.0}},
+              cache=False)
+    assert s.combos == [{"motion": {"arm_after": 5.0, "window": 0.05}}]
+    for base in ({"motion": {"window": 0.1}}, {"motion": 3}):
+        with pytest.raises(ConfigError, match="'motion.window' is both in the grid and a fixed parameter"):
+            sweep("poisson", {"motion.window": [0.05]}, data, base=base)
+    assert main(["sweep", "poisson", "--data", str(data), "--grid", "step=exact", "--grid", "step=first-order"]) == 2
+    assert "--grid step is given twice" in capsys.readouterr().err  # (the second replaced the first)
 
 
 def test_filter_spec_labels():
@@ -197,6 +223,23 @@ def test_cache_key_follows_the_code(data, tmp_path, monkeypatch):
     assert not bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path).records[0]["cached"]
 
 
+def test_a_sweep_report_gives_its_metrics_unit():
+    """A navigation metric's sweep says m (or m/s), not deg: the report's header, TAGP, per-trial
+    minimum and table all said deg, whatever the metric."""
+    from fusionkit.benchmarking.sweep import SweepResult
+
+    class Fake:  # a bench result: position error 1 / 3 m on two trials, + 0.5 m with max age 2
+        trials = ["a", "b"]
+
+        def value(self, label, trial, metric):
+            return {"a": 1.0, "b": 3.0}[trial] + (0.5 if "=2" in label else 0.0)
+
+    s = SweepResult("ins-gnss", {"gnss_max_age": [1, 2]}, "position", Fake(), [{"gnss_max_age": 1}, {"gnss_max_age": 2}])
+    body = s.report().split("\n", 1)[1]
+    assert "mean over trials (m)" in body and "-> 2.000 m" in body and "best): 2.000 m" in body
+    assert "| error (m) |" in body and "deg" not in body
+
+
 def test_sweep_takes_the_navigation_metrics():
     """``ins-gnss`` sweeps on GNSS flights rank by ``position`` / ``velocity`` / ``position_gap_end``
     (:func:`~fusionkit.benchmarking.metrics.navigation_errors`): the metric check once refused them.
@@ -207,3 +250,29 @@ def test_sweep_takes_the_navigation_metrics():
             sweep("ins-gnss", {"gnss_max_age": [-1.0]}, "unused", metric=metric)
     with pytest.raises(fk.ConfigError, match="metric must be one of"):
         sweep("ins-gnss", {"gnss_max_age": [0.5]}, "unused", metric="rmse")
+
+
+def test_metrics_of_a_nue_result_split_about_the_vertical():
+    """A result in source 000's NUE frame (Up is its second axis) gets the metrics of the same
+    orientations in ENU, NED or NWU: the heading/inclination split is about the vertical. It once
+    split about NUE's z axis (East): a pure heading error counted as inclination."""
+    from fusionkit.benchmarking.metrics import rms_errors, trial_metrics
+    from fusionkit.conventions import change_frame
+    from fusionkit.rotations import quat_from_axis_angle, quat_mul
+
+    rng = np.random.default_rng(3)
+    n = 200
+    truth = rng.normal(size=(n, 4))
+    truth /= np.linalg.norm(truth, axis=1, keepdims=True)
+    rec = fk.Recording(gyr=np.zeros((n, 3)), acc=np.tile([0.0, 0.0, 9.81], (n, 1)), rate=100.0, truth=truth)
+    # a heading error of 2 deg (about ENU's Up) and a tilt of 1 deg (about East), in the earth frame
+    err = quat_mul(quat_from_axis_angle([0.0, 0.0, 1.0], np.radians(2.0)),
+                   quat_from_axis_angle([1.0, 0.0, 0.0], np.radians(1.0)))
+    est = quat_mul(err, truth)
+    want = rms_errors(fk.Result(quat=est, flags=np.zeros(n, np.uint32), frame="ENU"), rec)
+    assert want["heading"] == pytest.approx(2.0, abs=0.02) and want["inclination"] == pytest.approx(1.0, abs=0.02)
+    for frame in ("NED", "NWU", "NUE"):
+        res = fk.Result(quat=change_frame(est, "ENU", frame), flags=np.zeros(n, np.uint32), frame=frame)
+        got = rms_errors(res, rec)
+        assert got == pytest.approx(want, rel=1e-9), frame
+        assert trial_metrics(res, rec, "9D")["inclination"] == pytest.approx(want["inclination"], rel=1e-9), frame

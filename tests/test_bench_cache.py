@@ -121,6 +121,22 @@ def test_the_cli_says_how_many_results_came_from_the_cache(data, tmp_path, plugi
     assert "from the cache" not in capsys.readouterr().err
 
 
+def test_the_result_cache_follows_fusionkits_cache_directory(tmp_path, monkeypatch):
+    """$FUSIONKIT_CACHE_DIR (README: fusionkit's cache) moves the bench results too; it was
+    ignored (~/.cache/fusionkit/bench whatever it said). $FUSIONKIT_CACHE still wins."""
+    from fusionkit.benchmarking.runner import _cache_dir
+
+    monkeypatch.delenv("FUSIONKIT_CACHE", raising=False)
+    monkeypatch.setenv("FUSIONKIT_CACHE_DIR", str(tmp_path / "dir"))
+    assert _cache_dir(None) == tmp_path / "dir" / "bench"
+    monkeypatch.delenv("FUSIONKIT_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert _cache_dir(None) == tmp_path / "xdg" / "fusionkit" / "bench"
+    monkeypatch.setenv("FUSIONKIT_CACHE", str(tmp_path / "old"))
+    assert _cache_dir(None) == tmp_path / "old" / "bench"
+    assert _cache_dir(tmp_path / "given") == tmp_path / "given" / "bench"
+
+
 def test_a_filter_whose_source_cannot_be_found_is_never_cached(data, tmp_path, monkeypatch):
     from fusionkit.filters.poisson import PoissonFilter
 

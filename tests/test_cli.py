@@ -14,7 +14,9 @@ def test_list_and_describe(capsys):
     out = capsys.readouterr().out
     assert "filter     poisson" in out and "detector   motion" in out
     assert main(["describe", "poisson"]) == 0
-    assert "alignment_duration = 10.0 [s]" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "alignment_duration = 10.0 [s]" in out
+    assert "    body = None\n" in out and "function" not in out  # (body's validator printed as its constraint)
     assert main(["describe", "nope"]) == 2
     assert "unknown plugin 'nope'" in capsys.readouterr().err
 
@@ -27,6 +29,33 @@ def test_run_on_a_simulated_recording(tmp_path, capsys):
     assert "samples/s" in text and "RMS error vs truth" in text
     data = np.loadtxt(out, delimiter=",", skiprows=1)
     assert data.shape[1] == 9 and np.isfinite(data).all()
+
+
+def test_a_warning_is_one_line(tmp_path, capsys):
+    """A warning on the command line reads like an error, one line naming its kind: it was
+    Python's 'path/fusionkit/cli.py:117: AlignmentWarning: ...' and then the source line of the call."""
+    from fusionkit import make, sim
+    from fusionkit.types import AlignmentWarning
+
+    assert main(["run", "poisson", "sim:late-gyro", "-o", str(tmp_path / "o.csv")]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "compiling" not in line]
+    assert len(err) == 1 and re.fullmatch(r"fusionkit: warning: motion detected [\d.]+ s into the mandatory 10 s "
+                                          r"alignment: .* \(AlignmentWarning\)", err[0]), err
+    with pytest.warns(AlignmentWarning):  # a Python caller's warnings are its own again after main()
+        make("poisson").run(sim.scenario("late-gyro"))
+
+
+def test_run_without_a_finite_reference_prints_no_nan(tmp_path, capsys):
+    """A reference column that is all NaN (no sample has one) gives n/a and why, not 'nan deg'."""
+    from fusionkit import Recording, sim
+    from fusionkit.io.loaders import write_csv
+
+    rec = sim.demo_recordings()[0].slice(0, 300)
+    path = tmp_path / "nan_ref.csv"
+    write_csv(Recording(gyr=rec.gyr, acc=rec.acc, rate=200.0, truth=np.full((300, 4), np.nan)), path)
+    assert main(["run", "poisson", str(path), "-o", str(tmp_path / "o.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "inclination n/a (no finite reference sample among all samples)" in out and "nan" not in out
 
 
 def test_run_with_a_config_file_and_bad_input(tmp_path, capsys):
@@ -111,6 +140,28 @@ def test_run_checks_the_output_path_before_computing(tmp_path, capsys, monkeypat
     assert main(["run", "poisson", "sim:slow-rotation", "-o", str(tmp_path / "nope" / "x.csv")]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "does not exist" in err and "nope" in err
+    assert main(["run", "poisson", "sim:slow-rotation", "-o", str(tmp_path)]) == 2  # a folder, not a file
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "it is a folder; give a file name" in err
+
+
+def test_bench_sweep_and_demo_check_their_output_before_computing(tmp_path, capsys):
+    """The table or plot's folder is checked first: before, bench and sweep ran every trial and
+    then failed on writing ('[Errno 2] No such file or directory'), demo after its whole table.
+    Here the data, filter or grid are bad too: the output's error comes first, so nothing ran."""
+    out = str(tmp_path / "nope" / "x.md")
+    for argv in (["bench", "--data", str(tmp_path / "none"), "--filters", "poisson", "-o", out],
+                 ["sweep", "poisson", "--data", str(tmp_path / "none"), "--grid", "step=exact", "-o", out],
+                 ["demo", "--filters", "poison", "--plot", out],
+                 ["bench", "--data", str(tmp_path / "none"), "--filters", "poisson", "-o", str(tmp_path)]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and re.search(r"cannot write .*(does not exist|it is a folder)", err), err
+    pytest.importorskip("matplotlib")
+    for name, what in (("x.txt", "'.txt' is not an image format"), ("plot", "it has no image extension")):
+        assert main(["demo", "--filters", "poison", "--plot", str(tmp_path / name)]) == 2  # (a traceback after the run)
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and what in err and "png" in err, err
 
 
 def test_run_takes_a_rate_for_a_csv_without_time(tmp_path, capsys):
@@ -128,6 +179,26 @@ def test_run_takes_a_rate_for_a_csv_without_time(tmp_path, capsys):
     assert main(["run", "poisson", str(path), "--rate", "200", "-o", str(tmp_path / "o.csv")]) == 0
     t = np.loadtxt(tmp_path / "o.csv", delimiter=",", skiprows=1)[:, 0]
     assert t[1] - t[0] == pytest.approx(1 / 200)
+
+
+def test_every_option_says_what_it_is(monkeypatch):
+    """Every argument of every subcommand has a help text (run --backend, sweep's --data, --trials,
+    --jobs, --no-cache, -o, describe's name had none)."""
+    import argparse
+
+    class Built(Exception):
+        pass
+
+    def capture(self, argv=None, namespace=None):
+        raise Built(self)
+
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", capture)
+    with pytest.raises(Built) as got:
+        main(["list"])
+    sub = next(a for a in got.value.args[0]._actions if isinstance(a, argparse._SubParsersAction))
+    bare = [f"{name} {a.dest}" for name, p in sub.choices.items() for a in p._actions
+            if not a.help and not isinstance(a, argparse._HelpAction)]
+    assert bare == []
 
 
 @pytest.mark.parametrize("cmd", ["list", "describe", "run", "bench", "sweep", "lags", "demo"])
@@ -188,7 +259,10 @@ def test_cli_mistakes_are_named_before_any_run(tmp_path, capsys):
              (["sweep", "poisson", *data, "--grid", "step="], 2, r"step: Input should be 'first-order' or"),
              (["sweep", "poisson", *data, "--grid", "step=exact", "--metric", "rmse"], 2, "metric must be one of"),
              (["demo", "--filters", "poison", "--plot", ""], 2, "did you mean 'poisson'"),
-             (["lags", str(one)], 1, "too short to time")]
+             (["lags", str(one)], 1, "too short to time"),
+             (["lags", str(one), "--max-lag", "inf"], 2, r"--max-lag must be a finite number of samples >= 0.05"),
+             (["lags", str(one), "--max-lag", "0.01"], 2, r"--max-lag .* got 0.01"),
+             (["lags", str(one), "--cutoff", "-1"], 2, r"--cutoff must be a frequency > 0 Hz, got -1")]
     for argv, code, match in cases:
         assert main(argv) == code, argv
         cap = capsys.readouterr()

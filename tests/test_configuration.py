@@ -43,6 +43,34 @@ def test_a_printed_config_runs_to_the_same_numbers(name, fmt, rec, capsys, tmp_p
         assert cfg["estimator"]["name"] == fk.make(name).pipeline_config().estimator.name
 
 
+def test_a_param_changes_one_setting_of_a_config_file(capsys, tmp_path):
+    """``fusionkit run CONFIG --param a.b=v`` sets that one value in the file's table: the table was
+    replaced by {b: v}, so alignment.duration dropped gradient-descent's fixed mode, auto heading
+    and max_rate for the defaults (a motion alignment that no detector ends: an error here, a silent
+    change where a motion detector is listed) and estimator.params.step dropped the estimator's name."""
+    from fusionkit.cli import _build_filter, _parse_params
+
+    text = _describe(capsys, "gradient-descent", "--toml")
+    path = tmp_path / "gd.toml"
+    path.write_text(text)
+    cfg = tomllib.loads(text)
+
+    def build(*params):
+        return _build_filter(str(path), _parse_params(list(params))).config
+
+    got = build("alignment.duration=5", "estimator.params.step=exact", "correctors.0.params.beta=0.2",
+                "detectors.0.params.norm_threshold=0.2")
+    want = fk.compose(cfg).config.alignment.model_dump() | {"duration": 5.0}
+    assert got.alignment.model_dump() == want and want["mode"] == "fixed" and want["heading"] == "auto"
+    assert (got.estimator.name, got.estimator.params["step"]) == ("poisson-quat", "exact")
+    assert got.correctors[0].name == "gradient-descent" and got.correctors[0].params["beta"] == 0.2
+    assert got.correctors[0].params["iterations"] == cfg["correctors"][0]["params"]["iterations"]
+    assert got.detectors[0].name == "magnetic" and got.detectors[0].params["norm_threshold"] == 0.2
+    with pytest.raises(fk.FusionkitError, match=r"--param correctors.3: correctors is a list of 1 \(give an index "
+                                                r"from 0 to 0, e.g. correctors.0\)"):
+        build("correctors.3.params.beta=0.2")
+
+
 def test_a_preset_with_one_plugin_changed(rec, capsys, tmp_path):
     """gradient-descent's composition with the magnetic detector swapped for the acceleration
     detector runs through `fusionkit run` and differs where the new detector fires."""

@@ -3,7 +3,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from fusionkit import conventions as cv
-from fusionkit.errors import ConfigError
+from fusionkit.errors import ConfigError, InputError
 from fusionkit.rotations import quat_angle, quat_to_matrix
 
 rng = np.random.default_rng(0)
@@ -68,6 +68,23 @@ def test_source000_printed_quaternions_disagree_with_matrix_1():
 def test_euler_nue_uses_source000_sequence():
     q = cv.euler_to_quat(0.2, -0.1, 0.4, "NUE")
     np.testing.assert_allclose(cv.quat_to_euler(q, "NUE"), [0.2, -0.1, 0.4], atol=1e-12)
+
+
+@pytest.mark.parametrize("frame", ["ENU", "NED", "NUE"])
+def test_euler_of_a_quaternion_not_of_unit_length(frame):
+    """quat_to_euler and to_scipy read a quaternion as the rotation it stands for: 2 q once gave a
+    yaw of 1.815 rad for q's 1 rad (quat_to_matrix assumes unit length); a zero quaternion is an
+    error by index, a NaN one stays NaN, a wrong shape is an InputError (to_scipy's was an IndexError)."""
+    q = cv.euler_to_quat(1.0, -0.2, 0.3, frame)
+    np.testing.assert_allclose(cv.quat_to_euler(2.0 * q, frame), cv.quat_to_euler(q, frame), atol=1e-12)
+    np.testing.assert_allclose(cv.to_scipy(0.5 * q).as_matrix(), cv.to_scipy(q).as_matrix(), atol=1e-12)
+    assert np.isnan(cv.quat_to_euler(np.array([[np.nan, 0, 0, 0]]), frame)).all()
+    stack = np.array([q, np.zeros(4)])
+    for f in (lambda x: cv.quat_to_euler(x, frame), cv.to_scipy):
+        with pytest.raises(InputError, match=r"quat\[1\] is a zero quaternion: no orientation"):
+            f(stack)
+        with pytest.raises(InputError, match=r"quat must have shape \(4,\) or \(N, 4\), got \(5, 3\)"):
+            f(np.zeros((5, 3)))
 
 
 def test_scipy_interop():

@@ -299,6 +299,33 @@ def test_stream_equals_run_with_magnetometer():
     np.testing.assert_allclose(q, res.quat, atol=1e-12)
 
 
+def test_a_stream_continues_a_run_and_its_state_is_saved():
+    """state / set_state, which every filter has (ins-gnss had neither: AttributeError): a stream
+    set from the first part's run state gives the one run's numbers on the rest, and a stream's
+    state restores it to the bit."""
+    rec = simulate_flight(25.0, rest=11.0, seed=3)
+    site = {"latitude": rec.meta["origin_lla"][0], "altitude": rec.meta["origin_lla"][2],
+            "declination": rec.meta["mag_declination_deg"], "heading": "magnetometer"}
+    full = _run(rec, "reference", **site)
+    rows, h = gnss_epoch_rows(rec), 1500
+
+    def feed(f, k):
+        return f.update(rec.gyr[k], rec.acc[k], rec.mag[k], rec.dt[k], gnss=rows[k, 1:] if rows[k, 0] else None,
+                        t=rec.time[k])
+
+    f = InsGnssFilter(frame="NED", **site)
+    assert f.state is None
+    first = InsGnssFilter(frame="NED", **site).run(rec.slice(0, h), backend="reference")
+    f.set_state(first.diagnostics["state"])
+    np.testing.assert_allclose([feed(f, k) for k in range(h, h + 300)], full.quat[h:h + 300], atol=1e-12)
+    g = InsGnssFilter(frame="NED", **site)
+    g.set_state(f.state)
+    for k in range(h + 300, h + 310):
+        np.testing.assert_array_equal(feed(g, k), feed(f, k))
+    with pytest.raises(InputError, match="state must be the diagnostics"):
+        g.set_state({"x": 1})
+
+
 def test_needs_gnss_and_is_registered():
     rec = fk.sim.simulate([fk.sim.Rest(2.0)], gnss_rate=None)
     f = fk.make("ins-gnss")

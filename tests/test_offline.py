@@ -202,6 +202,10 @@ def test_api_errors():
         fk.make("vqf-offline", offline=True)
     with pytest.raises(PluginError, match="for filters"):
         fk.make("rest", kind="detector", offline=True)
+    for value in ("no", "false", 0, None):  # offline="no" once made the offline filter (a true string)
+        with pytest.raises(ConfigError, match=f"offline must be True or False, got {value!r}"):
+            fk.make("recommended", offline=value)
+    assert not isinstance(fk.make("poisson", offline=np.False_), OfflineFilter)
     f = fk.make("recommended", offline=True)
     assert isinstance(f, OfflineFilter) and supports_offline(fk.make("recommended")) is None
     with pytest.raises(PluginError, match="cannot stream"):

@@ -80,6 +80,37 @@ def test_imufusion_constructor_ignores_its_convention():
     assert s.convention != imufusion.CONVENTION_ENU  # the quirk the adapter works around
 
 
+@pytest.mark.parametrize("name", [p for p in PEERS if p != "vqf-offline"])
+def test_a_stream_continues_a_run_and_its_state_is_saved(name, rec):
+    """A peer has state / set_state like every filter (they were missing: AttributeError):
+    set_state takes a run's Result.diagnostics['state'] and update() continues it with the run's
+    numbers; a stream's state restores it (imufusion's objects cannot be copied: its stream's
+    state is an error saying so)."""
+    h = 300
+    full = fk.make(name).run(rec).quat
+    f = fk.make(name)
+    assert f.state is None
+    f.set_state(fk.make(name).run(rec.slice(0, h)).diagnostics["state"])
+    q = np.array([f.update(rec.gyr[k], rec.acc[k], rec.mag[k], dt=1 / rec.rate) for k in range(h, len(rec))])
+    np.testing.assert_allclose(q, full[h:], atol=1e-12)
+    if name == "imufusion":
+        with pytest.raises(fk.PluginError, match="cannot be copied"):
+            f.state
+        return
+    g = fk.make(name)
+    g.set_state(f.state)
+    for k in range(5):
+        np.testing.assert_array_equal(g.update(rec.gyr[k], rec.acc[k], rec.mag[k], dt=1 / rec.rate),
+                                      f.update(rec.gyr[k], rec.acc[k], rec.mag[k], dt=1 / rec.rate))
+    with pytest.raises(fk.InputError, match=f"state must be Result.diagnostics\\['state'\\] of an earlier {name}"):
+        g.set_state({"filter": name})
+
+
+def test_offline_peer_has_no_stream_state():
+    with pytest.raises(fk.PluginError, match="offline"):
+        fk.make("vqf-offline").set_state({})
+
+
 def test_mode_6d_ignores_mag(rec):
     six = fk.make("vqf", mode="6D").run(rec)
     np.testing.assert_allclose(six.quat, vqf.VQF(1 / rec.rate).updateBatch(c(rec.gyr), c(rec.acc))["quat6D"], atol=1e-12)

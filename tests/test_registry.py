@@ -263,12 +263,15 @@ def test_cli_list_reports_a_duplicate_and_a_plugin_that_exits(on_path, capsys):
     fake_exiting_plugin(on_path, 0)
     fk.default_registry().refresh()
     try:
-        with pytest.warns(PluginWarning):
-            code = main(["list"])
+        code = main(["list"])
     finally:
         fk.default_registry().refresh()
-    out = capsys.readouterr().out
+    cap = capsys.readouterr()
+    out = cap.out
     assert code == 1
+    # the duplicate's PluginWarning: on stderr, one line, as the command line prints a warning
+    assert re.search(r"^fusionkit: warning: duplicate plugin name: filter 'vqf': fake_dup_mod:Other from fake-dup is ignored.* "
+                     r"\(PluginWarning\)$", cap.err, re.M), cap.err
     assert "DUPLICATE: filter 'vqf': fake_dup_mod:Other from fake-dup is ignored" in out
     assert re.search(r"detector\s+exiter\s+\[fake-exit\]\s+BROKEN: .*SystemExit: 0", out)
     assert re.search(r"filter\s+poisson\s+\[fusionkit\]", out)

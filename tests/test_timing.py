@@ -155,6 +155,8 @@ def test_bad_input_is_refused():
         sensor_lags(dataclasses.replace(rec, truth=None))
     with pytest.raises(InputError, match="max_lag"):
         sensor_lags(rec, step=0.0)
+    with pytest.raises(InputError, match=r"need a finite max_lag > 0 \(samples\).* got max_lag=inf"):
+        sensor_lags(rec, max_lag=np.inf)  # (OverflowError from the grid's size, once)
     with pytest.raises(InputError, match="too short"):
         sensor_lags(rec.slice(0, 20))
     with pytest.raises(InputError, match="too few usable"):

@@ -1,3 +1,5 @@
+import re
+
 import numpy as np
 import pytest
 
@@ -94,6 +96,27 @@ def test_truth_zero_quaternion_check_is_cheap_and_exact():
         rec(truth=q)
 
 
+def test_truth_is_made_unit_length():
+    """A reference quaternion that is not of unit length (scaled, or rounded by a file) is the
+    orientation it points to: the metrics and the lags read it normalised. truth * 3 once scored a
+    total error of 0 against any estimate (2 acos |w| with |w| clipped at 1)."""
+    from fusionkit.benchmarking.metrics import rms_errors
+    from fusionkit.rotations import quat_from_axis_angle
+
+    q = quat_from_axis_angle([0.0, 0.0, 1.0], np.linspace(0.0, 1.0, 10))
+    unit = np.ascontiguousarray(q)
+    assert rec(truth=unit).truth is unit  # unit already: kept, not copied
+    scaled = 3.0 * q
+    scaled[4] = np.nan
+    r = rec(truth=scaled)
+    np.testing.assert_allclose(np.linalg.norm(r.truth[~np.isnan(r.truth[:, 0])], axis=1), 1.0, rtol=1e-15)
+    assert np.isnan(r.truth[4]).all() and scaled[0, 0] == 3.0  # the caller's array untouched
+    est = fk.Result(quat=quat_from_axis_angle([1.0, 0.0, 0.0], np.full(10, np.radians(2.0))), flags=np.zeros(10, np.uint32))
+    keep = np.arange(10) != 4
+    want = rms_errors(est, rec(truth=unit), mask=keep)
+    assert want["total"] > 2.0 and rms_errors(est, r, mask=keep) == pytest.approx(want, rel=1e-9)
+
+
 def test_movement_column_is_taken():
     """A movement column (N, 1) or row (1, N), what loadmat and h5py give, is one bool a sample:
     flattened, as before the shape check; a true 2-D mask is refused (above)."""
@@ -103,6 +126,20 @@ def test_movement_column_is_taken():
         assert r.movement.shape == (10,) and (r.movement == m).all()
     with pytest.raises(InputError, match="movement has 9 samples but gyr has 10"):
         rec(movement=np.ones((9, 1), bool))
+
+
+def test_a_mask_of_numbers_is_0_or_1():
+    """movement and gnss.valid as numbers: 0 and 1 are False and True, anything else (a weight
+    0.5, a missing NaN, a 2) is refused by index; each was True before, counted in the metrics."""
+    assert (rec(movement=(np.arange(10) > 4).astype(float)).movement == (np.arange(10) > 4)).all()
+    for bad, shown in ((0.5, "0.5"), (np.nan, "nan"), (2, "2")):
+        m = np.zeros(10)
+        m[3] = bad
+        with pytest.raises(InputError, match=rf"movement must be booleans \(a mask\) or 0/1, but movement\[3\] is {shown}"):
+            rec(movement=m)
+    assert fk.Gnss(t=[0.0, 1.0], vel=np.zeros((2, 3)), valid=[1, 0]).valid.tolist() == [True, False]
+    with pytest.raises(InputError, match=r"gnss.valid\[0\] is nan"):
+        fk.Gnss(t=[0.0, 1.0], vel=np.zeros((2, 3)), valid=[np.nan, 1.0])
 
 
 def test_slice_across_a_gap_is_not_refused():
@@ -131,6 +168,9 @@ def test_units_are_checked_and_converted():
         rec(acc=np.tile([0, 0, 1.0], (10, 1)))
     r = rec(acc=np.tile([0, 0, 1.0], (10, 1)), acc_unit="g")
     assert r.acc[0, 2] == pytest.approx(9.80665)
+    with pytest.raises(InputError, match=r"acc looks like it is in m/s\^2 already \(median norm 9.81 > 3\), but "
+                                         r"acc_unit='g' would multiply it by 9.81"):
+        rec(acc_unit="g")  # (it became 96 m/s^2, unsaid)
     with pytest.raises(InputError, match="gyr_unit='deg/s'"):
         rec(gyr=np.full((10, 3), 45.0))
     r = rec(gyr=np.full((10, 3), 45.0), gyr_unit="deg/s")
@@ -160,12 +200,39 @@ def test_csv_round_trip(tmp_path):
     assert load_csv(tmp_path / "rate.csv").rate == 200.0
 
 
+def test_a_csv_rate_does_not_replace_its_t_column(tmp_path):
+    """A rate (argument or '# rate=' line) with a 't' column only confirms it: 't' stays the clock
+    (its gap kept), and a rate that contradicts it is an error naming both. The rate once replaced
+    't' silently: 100 Hz on a 200 Hz file halved every rate, 94 deg of inclination error."""
+    t = np.r_[np.arange(10) * 0.005, 1.0 + np.arange(10) * 0.005]  # 200 Hz with a 0.955 s gap
+    rows = "\n".join(f"{x},0,0,0,0,0,9.8" for x in t)
+    path = tmp_path / "t.csv"
+    path.write_text("t,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z\n" + rows + "\n")
+    for rec in (load_csv(path, rate=200.0), load_csv(path, rate=199.0)):
+        assert rec.rate is None
+        np.testing.assert_array_equal(rec.time, t)
+    with pytest.raises(InputError, match=r"^t.csv: the rate 100 Hz \(the rate argument\) contradicts the 't' "
+                                         r"column \(typical interval 0.005 s, 200 Hz\)"):
+        load_csv(path, rate=100.0)
+    (tmp_path / "c.csv").write_text("# rate=100\n" + path.read_text())
+    with pytest.raises(InputError, match=r"the rate 100 Hz \(its '# rate=' line\) contradicts"):
+        load_csv(tmp_path / "c.csv")
+    with pytest.raises(InputError, match="rate must be a finite number > 0"):
+        load_csv(path, rate=-200.0)
+
+
 def test_load_errors(tmp_path):
     with pytest.raises(InputError, match="no such file"):
         fk.load(tmp_path / "nope.hdf5")
     (tmp_path / "x.bin").write_text("")
     with pytest.raises(InputError, match="supported are"):
         fk.load(tmp_path / "x.bin")
+    with pytest.raises(InputError, match=r"is a folder: give one recording file"):
+        fk.load(tmp_path)
+    for name in ("x.ulg", "x.h5", "x.hdf5"):  # (a log or GNSS scenario ignored body=FLU and kept FRD)
+        (tmp_path / name).write_text("")
+        with pytest.raises(InputError, match=rf"^{name}: body=, rate= only apply to a .csv file"):
+            fk.load(tmp_path / name, rate=100.0, body="FLU")
 
 
 def test_result_helpers(imu_rec, tmp_path):
@@ -176,6 +243,10 @@ def test_result_helpers(imu_rec, tmp_path):
     res.to_csv(tmp_path / "o.csv", time=imu_rec.time)
     data = np.loadtxt(tmp_path / "o.csv", delimiter=",", skiprows=1)
     assert data.shape == (len(imu_rec), 9)
+    for bad in (imu_rec.time[:-1], imu_rec.time[:, None]):  # numpy's hstack error, once
+        with pytest.raises(InputError, match=rf"time must have shape \({len(imu_rec)},\), one time in s per "
+                                             "sample of the result, got " + re.escape(str(bad.shape))):
+            res.to_csv(tmp_path / "o.csv", time=bad)
 
 
 def test_broad_trial_loads(broad_dir):

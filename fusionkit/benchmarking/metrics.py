@@ -8,18 +8,20 @@ vertical; both quaternions body->ENU or both body->NED, ...):
 * inclination error: ``2 acos(sqrt(w^2 + z^2))``
 
 RMS over the ``movement`` samples, ignoring samples where the reference is NaN. All in degrees.
-A 6D (magnetometer-free) filter is judged on inclination, a 9D filter on total error.
+A 6D (magnetometer-free) filter is judged on inclination, a 9D filter on total error. A result in
+source 000's NUE frame (whose vertical is its second axis) is compared in ENU
+(:func:`truth_errors`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..conventions import change_frame
+from ..conventions import change_frame, up_vector
 from ..errors import InputError
 from ..rotations import quat_conj, quat_mul
 
-__all__ = ["broad_errors", "rms_errors", "trial_metrics", "gnss_masks", "navigation_errors"]
+__all__ = ["broad_errors", "rms_errors", "trial_metrics", "truth_errors", "gnss_masks", "navigation_errors"]
 
 
 def broad_errors(q_est, q_ref) -> dict[str, np.ndarray]:
@@ -37,13 +39,22 @@ def broad_errors(q_est, q_ref) -> dict[str, np.ndarray]:
     return {"total": np.degrees(total), "heading": np.degrees(heading), "inclination": np.degrees(incl)}
 
 
+def truth_errors(quat, frame: str, rec) -> dict[str, np.ndarray]:
+    """:func:`broad_errors` of body->``frame`` quaternions against ``rec.truth``, both expressed
+    in a frame whose z axis is vertical, as the heading/inclination split needs: ``frame`` itself
+    (ENU, NED, NWU), or ENU for NUE (its z axis is East: split about it, a heading error counted
+    as inclination and the reverse)."""
+    if abs(up_vector(frame)[2]) != 1.0:
+        quat, frame = change_frame(quat, frame, "ENU"), "ENU"
+    return broad_errors(quat, change_frame(rec.truth, rec.truth_frame, frame))
+
+
 def rms_errors(result, rec, mask=None) -> dict[str, float]:
     """RMS total/heading/inclination errors (deg) of a :class:`Result` against ``rec.truth``,
     over ``mask`` (default ``rec.movement``, else all samples)."""
     if rec.truth is None:
         raise InputError(f"recording {rec.name!r} has no ground truth")
-    q_ref = change_frame(rec.truth, rec.truth_frame, result.frame)
-    errs = broad_errors(result.quat, q_ref)
+    errs = truth_errors(result.quat, result.frame, rec)
     if mask is None:
         mask = rec.movement if rec.movement is not None else np.ones(len(rec), bool)
     out = {}
@@ -99,8 +110,7 @@ def trial_metrics(result, rec, dimension: str) -> dict[str, float]:
     """
     if rec.truth is None:
         return {}
-    q_ref = change_frame(rec.truth, rec.truth_frame, result.frame)
-    errs = broad_errors(result.quat, q_ref)
+    errs = truth_errors(result.quat, result.frame, rec)
     if rec.movement is not None:
         m = rec.movement
         out = {k: _rms(v[m]) for k, v in errs.items()}

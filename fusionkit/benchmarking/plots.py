@@ -80,10 +80,9 @@ def throughput_bars(ax, names, values, backends) -> None:
 def plot_error_over_time(filters, trial, path, max_points: int = 4000) -> Path:
     """Error over time on one trial for several filters: inclination (every filter) and total
     (9D filters only: a 6D filter's total is its unknown heading) in two panels."""
-    from .metrics import broad_errors
+    from .metrics import truth_errors
     from .report import aiding, not_applicable
     from .runner import FilterSpec
-    from ..conventions import change_frame
 
     plt = _plt()
     rec = trial.load()
@@ -95,7 +94,7 @@ def plot_error_over_time(filters, trial, path, max_points: int = 4000) -> Path:
     for spec in specs:
         f = spec.build()
         res = f.run(rec, progress=False)
-        e = broad_errors(res.quat, change_frame(rec.truth, rec.truth_frame, res.frame))
+        e = truth_errors(res.quat, res.frame, rec)
         for ax, m in zip(axes, ("inclination", "total")):
             if m not in not_applicable(aiding(f, rec), gnss_heading=bool(f.requires_gnss)):
                 ax.plot(t[::step], e[m][::step], lw=1, label=spec.label, **style[spec.label])

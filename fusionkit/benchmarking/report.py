@@ -10,6 +10,8 @@ number. Tables keep 6D inclination and 9D total apart: they are different quanti
 
 from __future__ import annotations
 
+import numpy as np
+
 __all__ = ["METRIC_LABELS", "HEADING_DEFINITION", "aiding", "not_applicable", "metric_label"]
 
 HEADING_DEFINITION = ("heading error: the error's rotation about the vertical (deg), whatever the "
@@ -35,8 +37,23 @@ METRIC_LABELS = {
 HIDDEN_BY_DEFAULT = ("score", "tilt", "heading")
 
 
+def metric_unit(name: str) -> str:
+    """The unit of a metric's values: m/s for a velocity, m for a position, else deg."""
+    return "m/s" if name.startswith("velocity") else "m" if name.startswith("position") else "deg"
+
+
 def metric_label(name: str) -> str:
     return METRIC_LABELS.get(name, name)
+
+
+def dimension(f, rec) -> str:
+    """``f.dimension(rec)``, the error a benchmark judges ``f`` on (9D: total, 6D: inclination),
+    but "6D" when ``rec``'s magnetometer has not one finite sample: with ``nan_policy="skip"`` the
+    filter runs without it (the quaternions of a run without ``mag``, its heading the gyro's), and
+    its arbitrary heading was scored as a 9D filter's total and heading error."""
+    if rec.mag is not None and not np.isfinite(rec.mag).any():
+        return "6D"
+    return f.dimension(rec)
 
 
 def aiding(f, rec) -> str:
@@ -44,7 +61,7 @@ def aiding(f, rec) -> str:
     (a pipeline without correctors: integration from the alignment, nothing corrects it)."""
     if getattr(f, "correctors", None) == []:
         return "gyro-only"
-    return f.dimension(rec)
+    return dimension(f, rec)
 
 
 def not_applicable(kind: str, gnss_heading: bool = False) -> dict[str, str]:

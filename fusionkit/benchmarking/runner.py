@@ -10,7 +10,8 @@
      "skipped": None | reason (e.g. a GNSS-aided filter on a recording without GNSS)}
 
 Results are cached by a hash of (filter, full config, trial file fingerprint, versions, the code
-that runs) in ``$FUSIONKIT_CACHE`` (default ``~/.cache/fusionkit``), so a re-run is instant. The
+that runs) in ``bench/`` under ``$FUSIONKIT_CACHE``, else ``$FUSIONKIT_CACHE_DIR`` (default
+``$XDG_CACHE_HOME/fusionkit`` or ``~/.cache/fusionkit``), so a re-run is instant. The
 code is fusionkit's own source files and, for a third-party plugin (the filter, or a plugin a
 pipeline composes), its distribution, version and source files (``versions["plugins"]``): fixing
 a plugin re-runs it. A record read from the cache has ``cached`` True, and tables mark it ``*``.
@@ -39,7 +40,7 @@ from ..config import set_dotted
 from ..errors import ConfigError
 from .datasets import Trial, discover
 from .metrics import trial_metrics
-from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, aiding, metric_label, not_applicable
+from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, aiding, dimension, metric_label, not_applicable
 
 __all__ = ["FilterSpec", "bench", "evaluate", "BenchResult"]
 
@@ -181,7 +182,8 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
         if f.requires_gnss and rec.gnss is None:
             rec_out["skipped"] = "not applicable: the filter needs a GNSS stream"
             return _jsonable(rec_out)
-        rec_out["dimension"] = f.dimension(rec)
+        rec_out["dimension"] = dimension(f, rec)
+        rec_out["aiding"] = aiding(f, rec)  # (before the run: a run that fails keeps it, not "6D" for poisson)
         rec_out["reference"] = None if rec.truth is None else rec.meta.get("truth_kind", "ground truth")
         if warmup:  # compile numba loops outside the timing
             f.run(rec.slice(0, min(len(rec), 200)), progress=False)
@@ -191,7 +193,6 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
         rec_out["samples_per_s"] = len(rec) / rec_out["seconds"]
         rec_out["backend"] = res.diagnostics.get("backend")
         rec_out["metrics"] = trial_metrics(res, rec, rec_out["dimension"])
-        rec_out["aiding"] = aiding(f, rec)
         na = not_applicable(rec_out["aiding"], gnss_heading=bool(f.requires_gnss))
         rec_out["not_applicable"] = {k: why for k, why in na.items() if k in rec_out["metrics"]}
         for k in rec_out["not_applicable"]:  # a number it cannot have (e.g. a 96 deg "total") is not reported
@@ -203,7 +204,13 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
 
 
 def _cache_dir(cache_dir) -> Path:
-    d = Path(cache_dir or os.environ.get("FUSIONKIT_CACHE") or Path.home() / ".cache" / "fusionkit") / "bench"
+    """``bench/`` under ``cache_dir``, else ``$FUSIONKIT_CACHE``, else fusionkit's cache directory
+    (``$FUSIONKIT_CACHE_DIR``, ``$XDG_CACHE_HOME/fusionkit`` or ``~/.cache/fusionkit``, where the
+    compiled loops go: README). It ignored ``$FUSIONKIT_CACHE_DIR``, so a user who moved the cache
+    there still read and wrote ``~/.cache/fusionkit/bench``."""
+    base = cache_dir or os.environ.get("FUSIONKIT_CACHE") or os.environ.get("FUSIONKIT_CACHE_DIR") or (
+        Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fusionkit")
+    d = Path(base) / "bench"
     d.mkdir(parents=True, exist_ok=True)
     return d
 
@@ -248,6 +255,10 @@ def bench(filters: Iterable[Any], data: Any, *, trials: list[str] | None = None,
     """
     from ..registry import get
 
+    if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:  # (0, -1 ran serially, unsaid)
+        raise ConfigError(f"jobs must be a whole number of worker processes >= 1, got {jobs!r}")
+    if isinstance(filters, (str, FilterSpec)):  # one filter: a name was iterated letter by letter ('p' unknown)
+        filters = [filters]
     specs = _apply_params([FilterSpec.of(f) for f in filters], params or {})
     if not specs:
         raise ConfigError("no filters to run: name at least one (e.g. filters=['recommended'])")

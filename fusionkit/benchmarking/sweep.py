@@ -15,7 +15,7 @@ import numpy as np
 
 from ..config import build_config, set_dotted
 from ..errors import ConfigError
-from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, metric_label
+from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, metric_label, metric_unit
 from .runner import BenchResult, FilterSpec, bench
 
 __all__ = ["sweep", "SweepResult"]
@@ -68,16 +68,19 @@ class SweepResult:
         return out
 
     def report(self) -> str:
+        """The sweep as text, every number with its unit (the metric's: deg, or m and m/s for the
+        navigation metrics, which were labelled deg)."""
+        u = metric_unit(self.metric)
         lines = [f"sweep of {self.filter} over {self.grid} ({len(self.combos)} sets, metric {self.metric}: "
                  f"{metric_label(self.metric)})", "",
-                 "| parameters | mean over trials (deg) |", "|---|---:|"]
+                 f"| parameters | mean over trials ({u}) |", "|---|---:|"]
         for c, v in sorted(self.mean_by_combo(), key=lambda cv: (np.isnan(cv[1]), cv[1])):
             lines.append(f"| {self._show(c)} | {v:.3f} |")
         p, v = self.tagp
         ptm = self.per_trial_minimum()
-        lines += ["", f"TAGP (best common parameters): {self._show(p)} -> {v:.3f}",
-                  f"per-trial minimum (mean of each trial's best): {np.mean([v for _, v in ptm.values()]):.3f}", "",
-                  "| trial | best parameters | error (deg) |", "|---|---|---:|"]
+        lines += ["", f"TAGP (best common parameters): {self._show(p)} -> {v:.3f} {u}",
+                  f"per-trial minimum (mean of each trial's best): {np.mean([v for _, v in ptm.values()]):.3f} {u}", "",
+                  f"| trial | best parameters | error ({u}) |", "|---|---|---:|"]
         lines += [f"| {t} | {self._show(c)} | {v:.3f} |" for t, (c, v) in ptm.items()]
         return "\n".join(lines)
 
@@ -97,12 +100,30 @@ def sweep(filter_name: str, grid: dict[str, list[Any]], data, *, metric: str = "
     if metric not in (*METRIC_LABELS, *HIDDEN_BY_DEFAULT):
         raise ConfigError(f"metric must be one of {sorted({*METRIC_LABELS, *HIDDEN_BY_DEFAULT})}, got {metric!r}")
     keys = list(grid)
+    fixed = _flatten(base or {})
+    for k in keys:  # (the grid's value replaced the fixed one, or a table of it dropped the others)
+        same = [b for b in fixed if b == k or b.startswith(k + ".") or k.startswith(b + ".")]
+        if same:
+            raise ConfigError(f"{k!r} is both in the grid and a fixed parameter ({same[0]!r}): give it in one place")
     combos = [dict(zip(keys, vals)) for vals in itertools.product(*(grid[k] for k in keys))]
-    specs = [FilterSpec.of((filter_name, {**(base or {}), **_nest(c)})) for c in combos]
+    specs = [FilterSpec.of((filter_name, _nest({**fixed, **c}))) for c in combos]
     for s in specs:  # a value the filter refuses is an error now, not a set that "ran on no trial"
         build_config(cls.Config, None, s.kwargs, f"filter {filter_name!r} ({s.label})")
     res = bench(specs, data, **bench_kwargs)
     return SweepResult(filter_name, grid, metric, res, [dict(s.kwargs) for s in specs])
+
+
+def _flatten(nested: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"motion": {"window": 0.2}}`` -> ``{"motion.window": 0.2}``: fixed parameters and grid
+    values meet leaf by leaf (a grid on ``motion.window`` with a fixed ``motion.arm_after``: both;
+    the grid's ``motion`` table replaced the fixed one whole, dropping ``arm_after``)."""
+    out: dict[str, Any] = {}
+    for k, v in nested.items():
+        if isinstance(v, dict) and v:
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
 
 
 def _nest(flat: dict[str, Any]) -> dict[str, Any]:

@@ -162,9 +162,9 @@ def sensor_lags(rec, max_lag: float = 8.0, step: float = 0.05, cutoff: float = 2
     """
     if rec.truth is None:
         raise InputError(f"recording {rec.name!r} has no reference orientation (truth) to time the sensors against")
-    if not (max_lag > 0 and 0 < step <= max_lag and cutoff > 0 and outlier > 1):
-        raise InputError(f"need max_lag > 0, 0 < step <= max_lag, cutoff > 0, outlier > 1; got "
-                         f"{max_lag}, {step}, {cutoff}, {outlier}")
+    if not (0 < max_lag < np.inf and 0 < step <= max_lag and cutoff > 0 and outlier > 1):  # (inf: no grid)
+        raise InputError(f"need a finite max_lag > 0 (samples), 0 < step <= max_lag, cutoff > 0 (Hz), outlier > 1; "
+                         f"got max_lag={max_lag}, step={step}, cutoff={cutoff}, outlier={outlier}")
     n = len(rec)
     if n < 10:  # (no interval to take a median of below 2; the edges below need more anyway)
         raise InputError(f"recording {rec.name!r} is too short to time ({n} samples)")

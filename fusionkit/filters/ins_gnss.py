@@ -60,6 +60,7 @@ the diagonal of its last propagation), ``time_offset``, ``time_offset_std`` (N, 
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Any, ClassVar, Literal
 
@@ -694,16 +695,38 @@ class InsGnssFilter(Filter):
                 **{nm: ext[:, 3 * i:3 * i + 3] for i, nm in enumerate(names)}}
         return Result(q, flags, self.config.frame, diag)
 
-    def _continued(self, state, rec: Recording) -> dict:
-        """A copy of an earlier run's state, checked against this filter and ``rec``."""
+    def _check_state(self, state) -> None:
         if not (isinstance(state, dict) and isinstance(state.get("x"), np.ndarray) and state["x"].shape == (_SIZE,)
                 and state.get("filter") == self.name):
-            raise InputError(f"state must be the diagnostics['state'] of an earlier {self.name} run")
+            raise InputError(f"state must be the diagnostics['state'] of an earlier {self.name} run (or its .state)")
+
+    def _continued(self, state, rec: Recording) -> dict:
+        """A copy of an earlier run's state, checked against this filter and ``rec``."""
+        self._check_state(state)
         if not math.isclose(state["dt"], rec.nominal_dt, rel_tol=1e-6):
             raise InputError(f"state is of a {1.0 / state['dt']:g} Hz run, rec is {1.0 / rec.nominal_dt:g} Hz")
         if bool(state["use_mag"]) != self._use_mag(rec):
             raise InputError("state was run with a magnetometer heading and rec is not (or the other way round)")
         return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in state.items()}
+
+    @property
+    def state(self) -> dict[str, Any] | None:
+        """A copy of the stream's state (None before the first :meth:`update`). (It had neither
+        this nor :meth:`set_state`, which every filter has: an AttributeError.)"""
+        return None if self._stream is None else copy.deepcopy(self._stream)
+
+    def set_state(self, state) -> None:
+        """Continue the stream from :attr:`state`, or from a run's ``diagnostics["state"]`` (the
+        samples it keeps for a re-run become the stream's buffer). The stream's GNSS epochs are the
+        ones that arrive after it (the run's last one is not given again)."""
+        self._check_state(state)
+        st = copy.deepcopy(state)
+        kept = st.pop("kept", None)
+        if "buffer" not in st:  # a run's state: its kept rows, as update() buffers them
+            use = bool(st["use_mag"])
+            st["buffer"] = [] if kept is None else [(g, a, m if use else None, float(d), float(t), gn)
+                                                   for g, a, m, d, t, gn in zip(*kept)]
+        self._stream = st
 
     def reset(self) -> None:
         self._stream = None

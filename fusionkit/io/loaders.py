@@ -13,7 +13,9 @@ column             meaning
 =================  ==========================================================
 
 A comment line ``# rate=285.7`` gives the rate when there is no ``t`` column, ``# body=FRD``
-the sensors' body axes (``Recording.body``; without it they are not known).
+the sensors' body axes (``Recording.body``; without it they are not known). With a ``t`` column a
+rate (``rate=`` or the comment) must match its typical interval within 1 %, and ``t`` is the clock.
+A magnetometer or a reference is all its columns or none.
 """
 
 from __future__ import annotations
@@ -25,11 +27,13 @@ import numpy as np
 
 from ..errors import InputError
 from ..types import Recording
+from ..validation import check_positive
 from ._guard import file_errors
 
 __all__ = ["load", "load_broad", "load_csv", "write_csv"]
 
 _VEC = {k: [f"{k}_{a}" for a in "xyz"] for k in ("gyr", "acc", "mag")}
+_QUAT = ["qw", "qx", "qy", "qz"]
 
 
 def load(path, **kwargs) -> Recording:
@@ -38,7 +42,13 @@ def load(path, **kwargs) -> Recording:
     p = Path(path)
     if not p.exists():
         raise InputError(f"no such file: {str(p)!r}")
+    if p.is_dir():  # (it was "cannot read 'broad': supported are .hdf5/.h5 ...")
+        raise InputError(f"{str(p)!r} is a folder: give one recording file (fusionkit bench --data takes a folder "
+                         "of trials)")
     suffix = p.suffix.lower()
+    if kwargs and suffix != ".csv":  # (a .ulg or GNSS scenario ignored them, a BROAD trial failed to "read")
+        raise InputError(f"{p.name}: {', '.join(f'{k}=' for k in sorted(kwargs))} only apply to a .csv file; this "
+                         "file carries its own clock and body axes")
     if suffix in (".hdf5", ".h5"):
         from .gnss import is_gnss_scenario, load_gnss_scenario
 
@@ -77,7 +87,8 @@ def load_broad(path) -> Recording:
 
 @file_errors("CSV")
 def load_csv(path, rate: float | None = None, body: str | None = None) -> Recording:
-    """A CSV file in the layout of the module doc; ``rate`` and ``body`` override the comments."""
+    """A CSV file in the layout of the module doc; ``rate`` and ``body`` override the comments
+    (a rate with a ``t`` column only confirms it: an InputError where they disagree)."""
     p = Path(path)
     header, comment_rate, comment_body, skip = None, None, None, 0
     with open(p, encoding="utf-8-sig") as fh:  # a byte-order mark is not part of the first name
@@ -104,6 +115,11 @@ def load_csv(path, rate: float | None = None, body: str | None = None) -> Record
     for k in ("gyr", "acc"):
         if not all(c in header for c in _VEC[k]):
             raise InputError(f"{p.name}: missing columns {_VEC[k]} (header is {header})")
+    for names in (_VEC["mag"], _QUAT):  # optional, but a sensor or a quaternion is all its columns or none
+        have = [c for c in names if c in header]
+        if have and len(have) < len(names):
+            raise InputError(f"{p.name}: columns {have} without {[c for c in names if c not in have]}: give all "
+                             f"of {names} or none (header is {header})")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data": reported below
         try:
@@ -120,16 +136,36 @@ def load_csv(path, rate: float | None = None, body: str | None = None) -> Record
         return data[:, [col[c] for c in names]]
 
     t = data[:, col["t"]] if "t" in col else None
+    given = "the rate argument" if rate is not None else "its '# rate=' line"
     rate = rate if rate is not None else comment_rate
     if t is None and rate is None:
         raise InputError(f"{p.name}: no 't' column and no rate: pass rate= or add '# rate=...'")
+    if t is not None and rate is not None:
+        _check_rate_against_t(p.name, given, check_positive("rate", rate), t)
+        rate = None  # the 't' column is the clock (its gaps included); the rate only confirmed it
     return Recording(
         gyr=pick(_VEC["gyr"]), acc=pick(_VEC["acc"]),
         mag=pick(_VEC["mag"]) if all(c in col for c in _VEC["mag"]) else None,
-        t=None if rate is not None else t, rate=rate,
-        truth=pick(["qw", "qx", "qy", "qz"]) if all(c in col for c in ("qw", "qx", "qy", "qz")) else None,
+        t=t, rate=rate,
+        truth=pick(_QUAT) if all(c in col for c in _QUAT) else None,
         name=p.stem, meta={"path": str(p)}, body=body if body is not None else comment_body,
     )
+
+
+def _check_rate_against_t(name: str, given: str, rate: float, t: np.ndarray) -> None:
+    """A rate given with a 't' column must describe it: its typical (median) interval within 1 %
+    of ``1 / rate``. The rate is meant for a file without timestamps; one that contradicts them
+    (a '# rate=' line from another export, ``--rate`` typed for a different file) once replaced
+    them silently, every sample's interval wrong by their ratio."""
+    d = np.diff(t)
+    d = d[np.isfinite(d)]
+    if d.size == 0:  # one sample (or no finite interval): nothing to compare; Recording checks t
+        return
+    typical = float(np.median(d))
+    if not abs(typical * rate - 1.0) <= 0.01:
+        raise InputError(f"{name}: the rate {rate:g} Hz ({given}) contradicts the 't' column (typical interval "
+                         f"{typical:.6g} s, {1.0 / typical if typical > 0 else float('inf'):.6g} Hz): give one "
+                         "clock, the 't' column or a rate for a file without it")
 
 
 def _bad_row(p: Path, skip: int, width: int) -> str:
@@ -161,6 +197,6 @@ def write_csv(rec: Recording, path) -> None:
         from ..conventions import change_frame
 
         cols.append(change_frame(rec.truth, rec.truth_frame, "ENU"))
-        names += ["qw", "qx", "qy", "qz"]
+        names += _QUAT
     header = ("" if rec.body is None else f"# body={rec.body}\n") + ",".join(names)
     np.savetxt(path, np.hstack(cols), delimiter=",", header=header, comments="", fmt="%.10g")

@@ -39,6 +39,9 @@ class PeerFilter(Filter):
     #: the magnetometer magnitudes (largest axis, any unit) the peer's arithmetic squares without
     #: over- or underflow; outside, a sample is MAG_INVALID for it (float32 peers: narrower)
     mag_limits: ClassVar[tuple[float, float]] = (TINY, HUGE)
+    #: whether :meth:`_save` copies the peer's object (imufusion's cannot be copied: its snapshot is
+    #: the live object, so a stream's ``state`` would keep changing with the stream)
+    copyable: ClassVar[bool] = True
 
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
@@ -105,9 +108,7 @@ class PeerFilter(Filter):
         if not self.streaming:
             raise InputError(f"{self.name} is an offline filter (it uses future samples): a split run cannot "
                              "continue it, so run() takes no state=")
-        if not isinstance(state, dict) or set(state) != {"filter", "rate", "use_mag", "peer", "q"} \
-                or state["filter"] != self.name:
-            raise InputError(f"state must be Result.diagnostics['state'] of an earlier {self.name} run")
+        self._check_state(state)
         if state["use_mag"] != use_mag or abs(state["rate"] - rate) > 1e-6 * rate:  # (a clock's median interval)
             raise InputError(f"state was made at {state['rate']:.6g} Hz, {'9D' if state['use_mag'] else '6D'}; "
                              f"this run is at {rate:.6g} Hz, {'9D' if use_mag else '6D'}")
@@ -179,6 +180,35 @@ class PeerFilter(Filter):
         valid[out, 2] = False
         flags[out] |= np.uint32(Flag.MAG_INVALID)
 
+    def _check_state(self, state) -> None:
+        if not isinstance(state, dict) or set(state) != {"filter", "rate", "use_mag", "peer", "q"} \
+                or state["filter"] != self.name:
+            raise InputError(f"state must be Result.diagnostics['state'] of an earlier {self.name} run "
+                             f"(or {self.name}'s .state)")
+
+    @property
+    def state(self) -> dict[str, Any] | None:
+        """A copy of the stream's state (None before the first :meth:`update`), in the form of
+        ``run()``'s ``Result.diagnostics["state"]``: :meth:`set_state` takes either, so a stream
+        continues a run. (Peers had neither, an AttributeError where every filter has them.)"""
+        s = self._stream
+        if s is None:
+            return None
+        if not self.copyable:
+            raise PluginError(f"{self.name}: the peer's objects cannot be copied, so a stream's state cannot be "
+                              "saved (a run's Result.diagnostics['state'] continues once, by run(state=) or set_state)")
+        return {"filter": self.name, "rate": 1.0 / s["dt"], "use_mag": s["use_mag"], "peer": self._save(s["obj"]),
+                "q": np.array(s["q"], dtype=float)}
+
+    def set_state(self, state) -> None:
+        """Continue the stream from :attr:`state` or from a run's ``Result.diagnostics["state"]``."""
+        if not self.streaming:
+            raise PluginError(f"{self.name} is an offline (batch) filter: it has no streaming state to set")
+        self._check_state(state)
+        rate, use_mag = float(state["rate"]), bool(state["use_mag"])
+        self._stream = {"obj": self._load(state["peer"], rate, use_mag), "q": np.array(state["q"], dtype=float),
+                        "dt": 1.0 / rate, "use_mag": use_mag}
+
     def reset(self) -> None:
         self._stream = None
 
@@ -195,7 +225,8 @@ class PeerFilter(Filter):
         check_sample_finite(c.nan_policy, gyr=g, acc=a, mag=m)
         self.check_stream_units(g, a)
         if self._stream is None:
-            self._stream = {"obj": self._new(1.0 / dt, use_mag), "q": np.array([1.0, 0.0, 0.0, 0.0]), "dt": dt}
+            self._stream = {"obj": self._new(1.0 / dt, use_mag), "q": np.array([1.0, 0.0, 0.0, 0.0]), "dt": dt,
+                            "use_mag": use_mag}
         g, dt, gap = stream_gap(g, dt, self._stream["dt"], c.max_gap)
         gyr_ok, acc_ok, mag_ok, flags = sample_validity(g, a, m, c.gyr_range, c.acc_range)
         if mag_ok:

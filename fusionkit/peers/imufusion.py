@@ -27,6 +27,7 @@ class ImufusionFilter(PeerFilter):
     package: ClassVar[str] = "imufusion"
     Config = ImufusionConfig
     mag_limits: ClassVar[tuple[float, float]] = (1e-15, 1e15)  # Fusion computes in float32
+    copyable: ClassVar[bool] = False  # (see _save)
     source: ClassVar[str] = "peer: imufusion (x-io Technologies Fusion)"
     summary: ClassVar[str] = "peer: Fusion AHRS (imufusion), recommended settings"
 
