@@ -135,6 +135,8 @@ def build(cond: dict):
 #: ``--param KEY=VALUE``: parameters of fusionkit's own filters (those made with ``use_mag``), each given to
 #: the filters whose configuration has it
 PARAMS: dict = {}
+#: what the script itself gives fusionkit's filters (refused as --param: a keyword given twice)
+_SET_HERE = ("use_mag", "offline", "mag_calibration")
 
 
 def _params(name: str) -> dict:
@@ -352,6 +354,8 @@ def main() -> None:
             PARAMS[key] = raw
     fields = [fk.get(f.partition("+")[0], "filter").Config.model_fields for f in filters]
     for key in PARAMS:
+        if key in _SET_HERE:
+            ap.error(f"--param {key}: the script sets it itself (6D / 9D, offline, the diagnosis's calibration off)")
         if not any(key in f and "use_mag" in f for f in fields):
             ap.error(f"--param {key}: no fusionkit filter among {filters} has it")
     draws = args.draws or (2 if args.quick else 20)

@@ -45,6 +45,7 @@ from . import _numba
 from ._sources import fusionkit_hash, source_hash
 from .gnss_rows import NO_GNSS
 from .navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, PHASE, SEEN
+from .errors import PluginError
 from .types import CHANNEL_SIZE
 
 __all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack", "repack", "STEP_WORK", "static_params"]
@@ -70,7 +71,8 @@ class KernelSpec:
     def __post_init__(self):
         for v in self.static:
             if type(v) is not bool:
-                raise TypeError(f"a kernel's static option must be a bool, got {v!r}")
+                raise PluginError(f"kernel {_name(self.func)}: each static option must be a Python bool (bool(x) of a "
+                                  f"numpy one), got {v!r} of type {type(v).__name__}")
 
 
 @dataclass(frozen=True)
@@ -215,7 +217,7 @@ def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
         L += [f"    cf = {names[i]}(q, s{i}, bv, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, m2, ga_ok, gm_ok, flags, "
               f"h, p{i}{_ch(lay.kernels[i])}{_st(lay.kernels[i], i)})", "    if cf > 0:", "        flags |= cf"]
     L.append(f"al[{qp}], al[{qp + 1}], al[{qp + 2}], al[{qp + 3}] = q[0], q[1], q[2], q[3]")
-    _check_calls(L, names)
+    _check_calls(L, names, lay)
     return [ind + s for s in L]
 
 
@@ -224,15 +226,24 @@ def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
 MAX_CALL_ARGS = 30
 
 
-def _check_calls(lines: list[str], names: dict[int, str]) -> None:
+def _check_calls(lines: list[str], names: dict[int, str], lay: Layout) -> None:
     """Raise where a kernel's call takes more than :data:`MAX_CALL_ARGS` arguments (a plugin's
     kernel with too many ``static`` options: pack some into its ``params`` instead)."""
+    index = {n: i for i, n in names.items()}
     pat = re.compile(r"\b(" + "|".join(map(re.escape, names.values())) + r")\((.*)\)")
     for line in lines:
         m = pat.search(line)
         if m and m.group(2).count(",") + 1 > MAX_CALL_ARGS:
-            raise ValueError(f"the loop's call {m.group(1)}(...) takes {m.group(2).count(',') + 1} arguments, more "
-                             f"than the {MAX_CALL_ARGS} numba can inline (a kernel with too many static options)")
+            k = lay.kernels[index[m.group(1)]]
+            raise PluginError(f"kernel {_name(k.func)}: the loop's call takes {m.group(2).count(',') + 1} arguments "
+                              f"with its {len(k.static)} static options, more than the {MAX_CALL_ARGS} numba can inline "
+                              "(CPython passes more as *args): move some options into its params")
+
+
+def _name(func) -> str:
+    """A kernel function's name for a message."""
+    py = getattr(func, "py_func", func)
+    return f"{getattr(py, '__module__', '?')}.{getattr(py, '__qualname__', repr(py))}"
 
 
 def _ch(k: KernelSpec) -> str:
@@ -435,9 +446,21 @@ def _fingerprint(module: str) -> str:
     return fusionkit_hash() if top == "fusionkit" else (source_hash(top) or "")
 
 
+def _static_blind(lay: Layout) -> Layout:
+    """``lay`` with every kernel's static options set to False: what a loop that calls its kernels is
+    generated from (its source reads their values from the parameters, :func:`_st`), so that every
+    value of them is one module in the process, not one each with the same source."""
+    import dataclasses
+
+    ks = tuple(dataclasses.replace(k, static=(False,) * len(k.static)) if k.static else k for k in lay.kernels)
+    return dataclasses.replace(lay, kernels=ks)
+
+
 def get_compiled(lay: Layout):
     """The module holding ``loop`` and ``step`` for ``lay`` (built once per process; from the
     disk cache when every kernel can be imported by name)."""
+    if not _numba.LOOP_INLINE:  # (the called loop reads the static options from the parameters: one for every value)
+        lay = _static_blind(lay)
     key = (lay, _numba.LOOP_INLINE)
     if key in _BUILT:
         return _BUILT[key]

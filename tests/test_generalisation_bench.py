@@ -103,3 +103,15 @@ def test_param_sets_fusionkits_own_filters_that_have_it(monkeypatch):
         assert gen.make_filter("recommended", dims).config.mag_distortion_significance == 0.99
     assert gen.make_filter("recommended+offline", "9D").inner.config.mag_distortion_significance == 0.99
     gen.make_filter("vqf", "9D")  # (a peer: not given it)
+
+
+@pytest.mark.parametrize("key", ["use_mag", "offline", "mag_calibration"])
+def test_param_refuses_what_the_script_sets_itself(monkeypatch, capsys, key):
+    """``--param`` of a keyword the script already gives its filters (``use_mag`` for 6D / 9D, ``offline``,
+    the diagnosis's ``mag_calibration=False``) is refused before any run, naming it, instead of a
+    ``TypeError`` (a keyword given twice) in the middle of the comparison (review rev27a)."""
+    monkeypatch.setattr(sys, "argv", ["generalisation.py", "--quick", "--param", f"{key}=true"])
+    monkeypatch.setattr(gen, "PARAMS", {})
+    with pytest.raises(SystemExit):
+        gen.main()
+    assert f"--param {key}" in capsys.readouterr().err

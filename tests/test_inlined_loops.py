@@ -83,10 +83,13 @@ def test_static_options_are_literals_inlined_and_parameters_called(monkeypatch):
     assert "p0, p0[p0.shape[0] - 2] != 0.0, p0[p0.shape[0] - 1] != 0.0)" in called
     assert text(False, (False, True)) == called  # (one called loop for every value)
     assert text(True, (False, True)) != inlined
-    with pytest.raises(ValueError, match="30"):
+    with pytest.raises(fk.PluginError, match="gradient.*30"):
         text(True, (True,) * 20)
-    with pytest.raises(TypeError, match="bool"):
-        _loopgen.KernelSpec(cks[0].correct, "state", static=(1,))
+    with pytest.raises(fk.PluginError, match="gradient.*bool"):
+        _loopgen.KernelSpec(cks[0].correct, "state", static=(np.True_,))
+    blind = _loopgen._static_blind(_loopgen.Layout((ek.propagate, ek.to_quat, ek.from_quat), True, (
+        _loopgen.KernelSpec(cks[0].correct, "state", static=(True, False)),), 20, 23))
+    assert blind.kernels[0].static == (False, False)  # (the called loop's key: one module for every value)
     p = _loopgen.static_params(np.array([2.0, 3.0]), (True, False))
     assert p.tolist() == [2.0, 3.0, 1.0, 0.0]
 

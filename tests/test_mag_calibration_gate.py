@@ -118,6 +118,16 @@ def test_a_significant_distortion_is_applied():
     assert _late_heading_deg(rec, on) < 0.7
 
 
+def test_a_distortion_near_the_quantile_is_applied_once():
+    """``mag_distortion_significance=0.99`` with a 1.5 % gain on x: the distortion's distance hovers about the
+    quantile as the segments come. Applied once (with a confident estimate), the distortion stays until the
+    fit is learned again: two recalibrations (the offset alone, then the whole), not a switch back and forth at
+    every crossing (eight, each a recalibration mag-heading relearns from, before this rule; review rev27a)."""
+    rec = sim.scenarios.hard_iron_turning(matrix=np.diag([1.015, 1.0, 1.0]))
+    on = fk.make("recommended", mag_distortion_significance=0.99).run(rec)
+    assert np.count_nonzero(on.flags & _RECAL) == 2
+
+
 @pytest.mark.parametrize("name", ["undisturbed", "nearby"])
 def test_no_body_fixed_iron_leaves_the_output_unchanged(runs, name):
     """An undisturbed field and a magnet on the desk the sensor walks to (11 uT, fixed in the earth

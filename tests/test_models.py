@@ -383,7 +383,8 @@ def test_mag_calibration_offset_alone_is_the_fit_without_the_distortion():
     """The offset fitted alone from the accumulated normal equations, its standard deviation and the
     distortion's squared Mahalanobis distance (through the Schur complement, no 5x5 inverse) against
     numpy's, on random information matrices: reference and compiled twin bit-identical; the distortion
-    refused exactly where the distance reaches the quantile."""
+    kept where the quantile is half the distance, the offset alone where it is twice the distance (at
+    equality the offset alone: the distance must exceed the quantile)."""
     from fusionkit.models import mag_calibration as mc
 
     rng = np.random.default_rng(7)

@@ -256,7 +256,9 @@ class MagCalibrationConfig(PluginConfig):
         0.0, unit="-", description="soft_iron: apply the distortion only where it is significant, its five entries' "
         "squared Mahalanobis distance from zero (with the fit's residual noise) above the chi-squared (5 degrees of "
         "freedom) quantile at this probability; otherwise the offset alone, fitted alone from the same normal "
-        "equations, with its own standard deviation for the confidence and provisional_std. It assumes a field "
+        "equations, with its own standard deviation for the confidence and provisional_std. A distortion once applied "
+        "with a confident estimate stays until the fit is learned again (no switching back and forth where the "
+        "distance hovers at the quantile). It assumes a field "
         "uniform where the sensor moves (a non-uniform one makes a distortion look significant or hides one). 0: off, "
         "the distortion applied with the offset whenever confident (docs/algorithms/models.md, \"Stop 27\")",
         ge=0, lt=1)
@@ -482,7 +484,10 @@ class MagCalibrationModel(SensorModel):
         if s[_N] < c.min_segments:
             return
         q, alone = _quantile(c.distortion_significance), False
-        if q > 0.0:  # distortion_significance: the offset alone (W = I) where the distortion is not significant
+        # distortion_significance: the offset alone (W = I) where the distortion is not significant; a distortion once
+        # applied with a confident estimate stays until the fit is learned again (no switching back and forth, each
+        # switch a recalibration, where the distance hovers at the quantile)
+        if q > 0.0 and not (s[_CONF] == 1.0 and _applied(s, True) == 2):
             ai, o = np.empty((3, 3)), np.empty(4)
             alone = _inverse3(s[_SA:_SA + _NP * _NP].reshape(_NP, _NP)[5:8, 5:8].copy(), ai) and _offset_alone(
                 s, ai, q, o)
@@ -1263,7 +1268,9 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     if s[_N] < min_seg:
         return
     alone = False
-    if sigq > 0.0:  # distortion_significance (buf[45:109], a's copy, is done with: the inverse is in s)
+    # distortion_significance (buf[45:109], a's copy, is done with: the inverse is in s); a distortion once applied
+    # with a confident estimate stays until the fit is learned again (the reference's comment)
+    if sigq > 0.0 and not (s[_CONF] == 1.0 and _k_applied(s, True) == 2):
         acc, ai, o = buf[64:73].reshape((3, 3)), buf[73:82].reshape((3, 3)), buf[82:86]
         for i in range(3):
             for j in range(3):
