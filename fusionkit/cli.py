@@ -60,9 +60,9 @@ def _merge(base, over: dict, where: str = ""):
                                      + (f"(give an index from 0 to {len(base) - 1}, e.g. {where}0)" if base else
                                         "(add the entry to the config file)"))
             key = int(key)
-            if isinstance(base[key], str) and isinstance(value, dict):  # a plugin by its name alone
-                base[key] = {"name": base[key]}
         current = base[key] if isinstance(key, int) else base.get(key)
+        if isinstance(current, str) and isinstance(value, dict):  # a plugin by its name alone ("estimator":
+            base[key] = current = {"name": current}               # "poisson-dcm", or a list's entry)
         if isinstance(value, dict) and isinstance(current, (dict, list)):
             _merge(current, value, f"{where}{key}.")
         else:

@@ -69,6 +69,14 @@ def test_a_param_changes_one_setting_of_a_config_file(capsys, tmp_path):
     with pytest.raises(fk.FusionkitError, match=r"--param correctors.3: correctors is a list of 1 \(give an index "
                                                 r"from 0 to 0, e.g. correctors.0\)"):
         build("correctors.3.params.beta=0.2")
+    # plugins by their names alone, in a table and in a list (the estimator lost its name: review rev27b)
+    short = tmp_path / "short.json"
+    short.write_text('{"estimator": "poisson-quat", "correctors": ["gradient-descent"], '
+                     '"alignment": {"mode": "fixed", "duration": 2.0, "heading": "auto"}}')
+    got = _build_filter(str(short), _parse_params(["estimator.params.step=exact",
+                                                   "correctors.0.params.beta=0.2"])).config
+    assert (got.estimator.name, got.estimator.params["step"]) == ("poisson-quat", "exact")
+    assert (got.correctors[0].name, got.correctors[0].params["beta"]) == ("gradient-descent", 0.2)
 
 
 def test_a_preset_with_one_plugin_changed(rec, capsys, tmp_path):

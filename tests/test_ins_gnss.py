@@ -326,6 +326,30 @@ def test_a_stream_continues_a_run_and_its_state_is_saved():
         g.set_state({"x": 1})
 
 
+def test_a_state_keeps_the_body_axes_of_its_run():
+    """A run reads its samples in the recording's body axes; a stream set from its state goes on in
+    those axes, not in the filter's config's (FRD by default): a FLU flight continued from the first
+    part's run gives the one run's numbers (before: up to 0.97 off, silently; review rev27b). A run
+    continuing a state on a recording of other axes is refused."""
+    frd = simulate_flight(25.0, rest=11.0, seed=3)
+    flip = np.array([1.0, -1.0, -1.0])  # FRD -> FLU
+    rec = fk.Recording(gyr=frd.gyr * flip, acc=frd.acc * flip, mag=frd.mag * flip, t=frd.time, gnss=frd.gnss,
+                       body="FLU")
+    site = {"latitude": frd.meta["origin_lla"][0], "altitude": frd.meta["origin_lla"][2],
+            "declination": frd.meta["mag_declination_deg"], "heading": "magnetometer"}
+    full = InsGnssFilter(frame="NED", **site).run(rec, backend="reference")
+    rows, h = gnss_epoch_rows(rec), 1500
+    first = InsGnssFilter(frame="NED", **site).run(rec.slice(0, h), backend="reference")
+    f = InsGnssFilter(frame="NED", **site)
+    f.set_state(first.diagnostics["state"])
+    q = [f.update(rec.gyr[k], rec.acc[k], rec.mag[k], rec.dt[k], gnss=rows[k, 1:] if rows[k, 0] else None,
+                  t=rec.time[k]) for k in range(h, h + 300)]
+    np.testing.assert_allclose(q, full.quat[h:h + 300], atol=1e-12)
+    with pytest.raises(InputError, match="body axes"):
+        InsGnssFilter(frame="NED", **site).run(frd.slice(h, h + 300), state=first.diagnostics["state"],
+                                               backend="reference")
+
+
 def test_needs_gnss_and_is_registered():
     rec = fk.sim.simulate([fk.sim.Rest(2.0)], gnss_rate=None)
     f = fk.make("ins-gnss")

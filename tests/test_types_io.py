@@ -8,6 +8,8 @@ from fusionkit import sim
 from fusionkit.errors import InputError
 from fusionkit.io import load_csv, write_csv
 
+from conftest import data_dir
+
 
 def rec(**kw):
     n = kw.pop("n", 10)
@@ -115,6 +117,25 @@ def test_truth_is_made_unit_length():
     keep = np.arange(10) != 4
     want = rms_errors(est, rec(truth=unit), mask=keep)
     assert want["total"] > 2.0 and rms_errors(est, r, mask=keep) == pytest.approx(want, rel=1e-9)
+
+
+def test_a_long_truth_is_checked_in_one_compiled_pass():
+    """From 50,000 samples the unit-length test is one compiled pass (``unit_rows_off``: numpy's two
+    passes doubled a 1M-sample ``Recording``'s build, review rev27b); it decides as numpy's does: a
+    unit truth kept as it is, one row off by more than 1e-9 normalised, NaN rows kept."""
+    from fusionkit.validation import unit_rows_off
+
+    n = 60_000
+    q = np.zeros((n, 4))
+    q[:, 0] = 1.0
+    q[7] = np.nan
+    rate = {"gyr": np.zeros((n, 3)), "acc": np.tile([0.0, 0.0, 9.81], (n, 1)), "rate": 100.0}
+    assert fk.Recording(truth=q, **rate).truth is q and not unit_rows_off(q, 2e-9)
+    q2 = q.copy()
+    q2[n - 1, 0] = 1.0 + 1e-6
+    assert unit_rows_off(q2, 2e-9) and unit_rows_off.py_func(q2, 2e-9)
+    r = fk.Recording(truth=q2, **rate)
+    assert r.truth is not q2 and r.truth[n - 1, 0] == 1.0 and np.isnan(r.truth[7]).all()
 
 
 def test_movement_column_is_taken():
@@ -231,8 +252,14 @@ def test_load_errors(tmp_path):
         fk.load(tmp_path)
     for name in ("x.ulg", "x.h5", "x.hdf5"):  # (a log or GNSS scenario ignored body=FLU and kept FRD)
         (tmp_path / name).write_text("")
-        with pytest.raises(InputError, match=rf"^{name}: body=, rate= only apply to a .csv file"):
+        with pytest.raises(InputError, match=rf"^{name}: body=, rate= apply to a .csv file only"):
             fk.load(tmp_path / name, rate=100.0, body="FLU")
+        with pytest.raises(InputError, match=rf"^{name}: rate= applies to a .csv file only"):
+            fk.load(tmp_path / name, rate=100.0, body=None)
+    # None is "not given" (a caller passing an optional value on): a ULog reads as it did (review rev27b)
+    ulog = data_dir() / "ulog" / "sample_px4_events.ulg"
+    if ulog.exists():
+        assert len(fk.load(ulog, rate=None, body=None)) == len(fk.load(ulog))
 
 
 def test_result_helpers(imu_rec, tmp_path):

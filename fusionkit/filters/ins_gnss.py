@@ -322,8 +322,10 @@ class InsGnssFilter(Filter):
         x[_TLAST] = x[_TGOOD] = -np.inf
         x[_TIME] = np.nan
         use_mag = self._use_mag(rec)
+        # "M": the body axes the samples are read in (run(): the recording's; update(): the config's), kept with
+        # the state so that a stream or run continuing it reads its samples in the same axes
         return {"filter": self.name, "dt": dt, "x": x, "det": self.detector.initial_state(dt), "use_mag": use_mag,
-                "align": self.aligner(dt, use_mag).new_state(), "p": self.params(rec)}
+                "align": self.aligner(dt, use_mag).new_state(), "p": self.params(rec), "M": self.M.copy()}
 
     # -- the readable reference ----------------------------------------------------------------
     def _step(self, st, gyr, acc, mag, dt, t, gn) -> tuple[np.ndarray, int]:
@@ -707,6 +709,9 @@ class InsGnssFilter(Filter):
             raise InputError(f"state is of a {1.0 / state['dt']:g} Hz run, rec is {1.0 / rec.nominal_dt:g} Hz")
         if bool(state["use_mag"]) != self._use_mag(rec):
             raise InputError("state was run with a magnetometer heading and rec is not (or the other way round)")
+        if "M" in state and not np.array_equal(state["M"], self.M):
+            raise InputError(f"state was run with other body axes than rec's ({self.body_axes(rec) or 'FRD'}): give "
+                             "rec the body axes of the run the state comes from")
         return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in state.items()}
 
     @property
@@ -726,10 +731,13 @@ class InsGnssFilter(Filter):
             use = bool(st["use_mag"])
             st["buffer"] = [] if kept is None else [(g, a, m if use else None, float(d), float(t), gn)
                                                    for g, a, m, d, t, gn in zip(*kept)]
+        if "M" in st:  # the samples go on in the body axes the state's run read them in (review rev27b)
+            self.M = np.array(st["M"], dtype=float)
         self._stream = st
 
     def reset(self) -> None:
         self._stream = None
+        self.M = body_matrix(self.config.body or "FRD", "FRD")  # (set_state may have taken a run's axes)
 
     def update(self, gyr, acc, mag=None, dt: float | None = None, gnss=None, t: float | None = None) -> np.ndarray:
         """One sample of a stream. ``gnss``: an epoch that arrived with this sample, ``(t_epoch,

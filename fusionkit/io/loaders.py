@@ -46,9 +46,13 @@ def load(path, **kwargs) -> Recording:
         raise InputError(f"{str(p)!r} is a folder: give one recording file (fusionkit bench --data takes a folder "
                          "of trials)")
     suffix = p.suffix.lower()
-    if kwargs and suffix != ".csv":  # (a .ulg or GNSS scenario ignored them, a BROAD trial failed to "read")
-        raise InputError(f"{p.name}: {', '.join(f'{k}=' for k in sorted(kwargs))} only apply to a .csv file; this "
-                         "file carries its own clock and body axes")
+    given = sorted(k for k, v in kwargs.items() if v is not None)  # (None: not given, as a caller passes it on)
+    if given and suffix != ".csv":  # (a .ulg or GNSS scenario ignored them, a BROAD trial failed to "read")
+        raise InputError(f"{p.name}: {', '.join(f'{k}=' for k in given)} "
+                         f"{'applies' if len(given) == 1 else 'apply'} to a .csv file only; this file carries its "
+                         "own clock and body axes")
+    if suffix != ".csv":
+        kwargs = {}
     if suffix in (".hdf5", ".h5"):
         from .gnss import is_gnss_scenario, load_gnss_scenario
 
