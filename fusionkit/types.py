@@ -231,7 +231,8 @@ def _unit_rows(q: np.ndarray, block: int = 16384) -> np.ndarray:
     """``q`` (N, 4) with every row of unit length, as scipy's Rotation takes a quaternion: the
     metrics read angles off the error's w (``2 acos |w|``, clipped at 1: a truth scaled by 3 once
     scored a total error of 0) and the lags the truth's derivative. ``q`` itself when every row is
-    within 1e-9 of unit length (NaN rows, no reference, are kept); else a normalised copy. Checked
+    within 1e-9 of unit length (NaN rows, no reference, are kept); else a normalised copy. Checked in
+    one compiled pass from ``SCAN_MIN_SAMPLES`` rows (:func:`fusionkit.validation.unit_rows_off`), else
     in blocks: no (N,) temporary for a long recording's truth."""
     if HAVE_NUMBA and q.shape[0] >= SCAN_MIN_SAMPLES and q.dtype == np.float64:  # one compiled pass
         off = unit_rows_off(q, 2e-9)

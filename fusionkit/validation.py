@@ -454,8 +454,9 @@ def check_acc_in_g(gyr: np.ndarray, acc: np.ndarray, unit: str) -> None:
     """Refuse ``acc_unit="g"`` on data already in m/s^2: in g the median norm is about 1 (below
     3); above, the conversion would make it ~96 m/s^2, which the check after the conversion
     (data in g) does not look for."""
-    step = max(1, acc.shape[0] // 65536)  # (a coarse verdict, medians ten times apart: 65536 evenly spaced rows)
-    if _unit_medians(gyr[::step], acc[::step])[1] == 1:
+    step = max(1, acc.shape[0] // 65536)  # (a coarse verdict, medians ten times apart: 65536 evenly spaced rows,
+    # copied contiguous: the scan's compiled specialisation for C arrays, not a second one for strided views)
+    if _unit_medians(np.ascontiguousarray(gyr[::step]), np.ascontiguousarray(acc[::step]))[1] == 1:
         raise InputError(f"acc looks like it is in m/s^2 already (median norm {np.median(_acc_norms(acc)):.3g} > 3), "
                          f"but acc_unit={unit!r} would multiply it by 9.81: leave acc_unit out")
 
