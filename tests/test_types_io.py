@@ -240,6 +240,11 @@ def test_a_csv_rate_does_not_replace_its_t_column(tmp_path):
         load_csv(tmp_path / "c.csv")
     with pytest.raises(InputError, match="rate must be a finite number > 0"):
         load_csv(path, rate=-200.0)
+    # a 't' that repeats (ms stamps at 2 kHz) is said to repeat, not "typical interval 0 s, inf Hz" (review rev27b)
+    coarse = "\n".join(f"{np.floor(k * 0.5) / 1000:.3f},0,0,0,0,0,9.8" for k in range(40))
+    (tmp_path / "ms.csv").write_text("# rate=2000\nt,gyr_x,gyr_y,gyr_z,acc_x,acc_y,acc_z\n" + coarse + "\n")
+    with pytest.raises(InputError, match=r"^ms.csv: the 't' column repeats its values \(20 of its 39 intervals"):
+        load_csv(tmp_path / "ms.csv")
 
 
 def test_load_errors(tmp_path):

@@ -166,6 +166,11 @@ def _check_rate_against_t(name: str, given: str, rate: float, t: np.ndarray) -> 
     if d.size == 0:  # one sample (or no finite interval): nothing to compare; Recording checks t
         return
     typical = float(np.median(d))
+    if typical <= 0.0:  # (it said "typical interval 0 s, inf Hz": the column repeats, review rev27b)
+        raise InputError(f"{name}: the 't' column repeats its values ({int(np.count_nonzero(d == 0.0))} of its "
+                         f"{d.size} intervals are 0, e.g. timestamps rounded coarser than the {rate:g} Hz rate "
+                         f"({given}) samples): give t at a finer resolution, or leave the 't' column out and give "
+                         "the rate alone")
     if not abs(typical * rate - 1.0) <= 0.01:
         raise InputError(f"{name}: the rate {rate:g} Hz ({given}) contradicts the 't' column (typical interval "
                          f"{typical:.6g} s, {1.0 / typical if typical > 0 else float('inf'):.6g} Hz): give one "
