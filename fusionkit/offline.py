@@ -972,13 +972,13 @@ def calibration_passes(model, rec: Recording, max_gap: float | None = None, gyr_
     if state is not None and np.shape(state) != fresh.shape:  # (the kernel writes without bounds checks)
         raise InputError(f"state has shape {np.shape(state)}, but this model's state is {fresh.shape} (a state "
                          "saved by another configuration or an older fusionkit?)")
+    kern = model.kernel() if resolve_backend(backend, True) == "numba" else None  # (params and static, once)
     for k, r in enumerate((rec, reverse_recording(rec))):
         s = fresh.copy() if k or state is None else np.array(state, dtype=float)
         gyr, dt, _ = hold_gaps(r.gyr, r.dt, r.nominal_dt, max_gap)
         m = np.empty_like(r.mag)
-        if resolve_backend(backend, True) == "numba":
-            _calibration_kernel(s, gyr, r.acc, r.mag, dt, _validity(gyr, r.acc, r.mag, gyr_range, acc_range),
-                                model.params(), m, model.kernel().static)
+        if kern is not None:
+            _calibration_kernel(s, gyr, r.acc, r.mag, dt, _validity(gyr, r.acc, r.mag, gyr_range, acc_range), kern, m)
         else:
             _model_reference(model, s, gyr, r.acc, r.mag, dt, gyr_range, acc_range, m)
         out.append(m if k == 0 else m[::-1])
@@ -1059,12 +1059,12 @@ def _calibration_hard_once(s, gyr, acc, mag, dt, ok, p, out):
     _calibration_loop(s, gyr, acc, mag, dt, ok, p, out, False, True)
 
 
-def _calibration_kernel(s, gyr, acc, mag, dt, ok, p, out, static):
-    """:func:`_calibration_loop` through the entry point of the model's static options ``static``
-    (``MagCalibrationModel.kernel().static``: soft_iron, held_readings once)."""
-    soft, once = static
+def _calibration_kernel(s, gyr, acc, mag, dt, ok, kern, out):
+    """:func:`_calibration_loop` with the model's kernel ``kern`` (``MagCalibrationModel.kernel()``: its
+    parameters, and its static options soft_iron and held_readings once, which choose the entry point)."""
+    soft, once = kern.static
     run = ((_calibration_hard_each, _calibration_hard_once), (_calibration_soft_each, _calibration_soft_once))
-    run[bool(soft)][bool(once)](s, gyr, acc, mag, dt, ok, p, out)
+    run[soft][once](s, gyr, acc, mag, dt, ok, kern.params, out)
 
 
 def mag_delay_recording(rec: Recording, gyr_range: float | None = None, acc_range: float | None = None,
