@@ -37,7 +37,7 @@ import os
 import re
 import sys
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -48,7 +48,7 @@ from .navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, P
 from .errors import PluginError
 from .types import CHANNEL_SIZE
 
-__all__ = ["Layout", "KernelSpec", "get_compiled", "cache_dir", "pack", "unpack", "repack", "STEP_WORK", "static_params"]
+__all__ = ["Layout", "KernelSpec", "get_compiled", "cache_base", "cache_dir", "pack", "unpack", "repack", "STEP_WORK", "static_params"]
 
 
 @dataclass(frozen=True)
@@ -420,14 +420,20 @@ def _step_sample(cache: bool, n: int) -> list[str]:
 _BUILT: dict[Any, Any] = {}
 
 
-def cache_dir() -> Path | None:
-    """Where generated loops are written: ``$FUSIONKIT_CACHE_DIR``, else
-    ``$XDG_CACHE_HOME/fusionkit`` or ``~/.cache/fusionkit``, else a per-user temporary directory;
-    None when none is writable (the loops are then compiled in memory)."""
+def cache_base() -> Path:
+    """fusionkit's cache directory: ``$FUSIONKIT_CACHE_DIR``, else ``$XDG_CACHE_HOME/fusionkit`` or
+    ``~/.cache/fusionkit`` (the compiled loops' and the bench results' home)."""
     env = os.environ.get("FUSIONKIT_CACHE_DIR")
-    cands = [Path(env)] if env else [
-        Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fusionkit",
-        Path(tempfile.gettempdir()) / f"fusionkit-{os.getuid() if hasattr(os, 'getuid') else 'user'}"]
+    return Path(env) if env else Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fusionkit"
+
+
+def cache_dir() -> Path | None:
+    """Where generated loops are written: ``loops/`` under :func:`cache_base`, else (without
+    ``$FUSIONKIT_CACHE_DIR``) under a per-user temporary directory; None when none is writable (the
+    loops are then compiled in memory)."""
+    cands = [cache_base()]
+    if not os.environ.get("FUSIONKIT_CACHE_DIR"):
+        cands.append(Path(tempfile.gettempdir()) / f"fusionkit-{os.getuid() if hasattr(os, 'getuid') else 'user'}")
     for d in cands:
         try:
             (d / "loops").mkdir(parents=True, exist_ok=True)
@@ -450,10 +456,8 @@ def _static_blind(lay: Layout) -> Layout:
     """``lay`` with every kernel's static options set to False: what a loop that calls its kernels is
     generated from (its source reads their values from the parameters, :func:`_st`), so that every
     value of them is one module in the process, not one each with the same source."""
-    import dataclasses
-
-    ks = tuple(dataclasses.replace(k, static=(False,) * len(k.static)) if k.static else k for k in lay.kernels)
-    return dataclasses.replace(lay, kernels=ks)
+    ks = tuple(replace(k, static=(False,) * len(k.static)) if k.static else k for k in lay.kernels)
+    return replace(lay, kernels=ks)
 
 
 def get_compiled(lay: Layout):

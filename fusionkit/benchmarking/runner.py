@@ -208,9 +208,9 @@ def _cache_dir(cache_dir) -> Path:
     (``$FUSIONKIT_CACHE_DIR``, ``$XDG_CACHE_HOME/fusionkit`` or ``~/.cache/fusionkit``, where the
     compiled loops go: README). It ignored ``$FUSIONKIT_CACHE_DIR``, so a user who moved the cache
     there still read and wrote ``~/.cache/fusionkit/bench``."""
-    base = cache_dir or os.environ.get("FUSIONKIT_CACHE") or os.environ.get("FUSIONKIT_CACHE_DIR") or (
-        Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "fusionkit")
-    d = Path(base) / "bench"
+    from .._loopgen import cache_base
+
+    d = Path(cache_dir or os.environ.get("FUSIONKIT_CACHE") or cache_base()) / "bench"
     d.mkdir(parents=True, exist_ok=True)
     return d
 
