@@ -173,7 +173,7 @@ def _check_rate_against_t(name: str, given: str, rate: float, t: np.ndarray) -> 
                          "the rate alone")
     if not abs(typical * rate - 1.0) <= 0.01:
         raise InputError(f"{name}: the rate {rate:g} Hz ({given}) contradicts the 't' column (typical interval "
-                         f"{typical:.6g} s, {1.0 / typical if typical > 0 else float('inf'):.6g} Hz): give one "
+                         f"{typical:.6g} s, {1.0 / typical:.6g} Hz): give one "
                          "clock, the 't' column or a rate for a file without it")
 
 
