@@ -303,6 +303,7 @@ class Recording:
             raise InputError(f"acc_unit must be one of {list(_ACC_UNITS)}, got {self.acc_unit!r}")
         # converted only when the unit asks for it: C-contiguous float64 input in the library's
         # units is kept, not copied (the Recording shares its memory)
+        declared = self.gyr_unit  # (the turning check asks whether a gyro declared deg/s was in rad/s)
         if _GYR_UNITS[self.gyr_unit] != 1.0:
             self.gyr = self.gyr * _GYR_UNITS[self.gyr_unit]
         if _ACC_UNITS[self.acc_unit] != 1.0:
@@ -318,7 +319,7 @@ class Recording:
         self._check_interval()
         if self.body is not None:
             self.body = check_body(self.body, "body", InputError)
-        self._check_units()
+        self._check_units(declared)
         if self.truth is not None:
             self.truth = as_vectors("truth", self.truth, n, width=4)
             # a zero quaternion (a NaN row is a sample without a reference: the metrics skip it, and
@@ -374,13 +375,14 @@ class Recording:
             self.gnss = Gnss(t=g.t[inside], vel=g.vel[inside], valid=g.valid[inside], frame=g.frame,
                              pos=None if g.pos is None else g.pos[inside])
 
-    def _check_units(self) -> None:
+    def _check_units(self, gyr_unit: str = "rad/s") -> None:
         """Refuse data in g or deg/s (:func:`fusionkit.validation.check_units`: the medians in one
-        pass, and whether the gyroscope explains the magnetometer's and accelerometer's turning)."""
+        pass, and whether the gyroscope explains the magnetometer's and accelerometer's turning;
+        ``gyr_unit`` is the unit ``gyr`` was declared in, before its conversion)."""
         if self.rate is not None:  # a constant interval: no (N,) array of it
-            check_units(self.gyr, self.acc, self.mag, dt=1.0 / self.rate)
+            check_units(self.gyr, self.acc, self.mag, dt=1.0 / self.rate, gyr_unit=gyr_unit)
         else:
-            check_units(self.gyr, self.acc, self.mag, t=self.t)
+            check_units(self.gyr, self.acc, self.mag, t=self.t, gyr_unit=gyr_unit)
 
     def __len__(self) -> int:
         return self.gyr.shape[0]

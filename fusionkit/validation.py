@@ -462,12 +462,13 @@ def check_acc_in_g(gyr: np.ndarray, acc: np.ndarray, unit: str) -> None:
 
 
 def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,
-                dt: np.ndarray | float | None = None, t: np.ndarray | None = None) -> None:
+                dt: np.ndarray | float | None = None, t: np.ndarray | None = None, gyr_unit: str = "rad/s") -> None:
     """Refuse an accelerometer in g and a gyroscope in deg/s (see above), naming the argument
     that converts them; the medians are computed for the message only when one is refused. With
     the clock (``dt``: the (N,) intervals or one constant interval; or ``t``: the timestamps),
     also a gyroscope whose turning the magnetometer and accelerometer contradict
-    (:func:`check_turning`: a deg/s gyro on a recording that never turns a turn per second)."""
+    (:func:`check_turning`: a deg/s gyro on a recording that never turns a turn per second, or
+    ``gyr``, converted from the declared ``gyr_unit="deg/s"``, that was in rad/s already)."""
     acc_lo, acc_hi, gyr_hi = _unit_medians(gyr, acc)
     if acc_lo is not None and acc_lo > 0 and acc_hi < 0:
         raise InputError(
@@ -480,20 +481,24 @@ def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,
             "fusionkit expects rad/s: pass gyr_unit='deg/s' to convert"
         )
     if dt is not None or t is not None:
-        check_turning(gyr, acc, mag, dt, t=t)
+        check_turning(gyr, acc, mag, dt, t=t, gyr_unit=gyr_unit)
 
 DEG = np.pi / 180.0
 
 
 def check_turning(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, dt: np.ndarray | float | None = None,
-                  *, t: np.ndarray | None = None) -> None:
+                  *, t: np.ndarray | None = None, gyr_unit: str = "rad/s") -> None:
     """:class:`InputError` when the magnetometer (or, nearly still, the accelerometer) turns as the
     gyroscope scaled by pi/180 predicts, not as given: a gyro in deg/s that never exceeds the
-    magnitude bound of :func:`check_units` (:func:`turning_scale`). The clock is ``dt`` (the
-    (N,) intervals, or one constant interval) or ``t`` (the timestamps)."""
+    magnitude bound of :func:`check_units` (:func:`turning_scale`). With ``gyr_unit="deg/s"``
+    (``gyr`` already converted from it), also when they turn as the gyro read before the
+    conversion predicts: a gyro in rad/s declared deg/s (:func:`_check_declared_deg`). The clock
+    is ``dt`` (the (N,) intervals, or one constant interval) or ``t`` (the timestamps)."""
     if gyr.shape[0] < 4:
         return
     turns = window_turns(gyr, dt, t=t)
+    if gyr_unit == "deg/s":
+        _check_declared_deg(turns, acc, mag)
     for name, vec in (("mag", mag), ("acc", acc)):
         if vec is None:
             continue
@@ -510,6 +515,29 @@ def check_turning(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, dt: 
             f"gyr looks like it is in deg/s: the {name} turns as the gyro scaled by pi/180 predicts, not as given "
             f"(fitted scale {scale:.3g}, deg/s would be {DEG:.3g}); fusionkit expects rad/s: pass gyr_unit='deg/s' "
             "to convert")
+
+
+def _check_declared_deg(turns, acc: np.ndarray, mag: np.ndarray | None) -> None:
+    """:class:`InputError` when a gyro converted from deg/s was in rad/s already: the vectors
+    turn 180/pi times faster than the converted gyro says. The fit of :func:`turning_scale` on
+    the gyro as given (the converted windows times 180/pi), whose two hypotheses are then 1 (it
+    was in rad/s) and pi/180 (deg/s was right). Silent where nothing turns enough to tell them
+    apart (a recording at rest, a turn about gravity seen by the accelerometer alone), and where
+    the vector does not follow the gyro at all (a fit near 0: a specific force that stays on the
+    thrust axis, a gyro bias scaled by 180/pi on a still sensor)."""
+    i0, i1, th, duration = turns
+    given = (i0, i1, th / DEG, duration)
+    for name, vec in (("mag", mag), ("acc", acc)):
+        if vec is None:
+            continue
+        scale = turning_scale(given, vec, quasi_static=name == "acc")
+        # the geometric middle of the two hypotheses, mirroring check_turning's bounds
+        if scale is None or not np.sqrt(DEG) <= scale < 4.0:
+            continue
+        raise InputError(
+            f"gyr looks like it is in rad/s already: the {name} turns {scale / DEG:.3g} times as fast as the gyro "
+            f"converted from deg/s predicts (a gyro in rad/s would give {1 / DEG:.3g}, a right unit 1), but "
+            "gyr_unit='deg/s' multiplies it by pi/180: leave gyr_unit out")
 
 
 def _fast_turn_rare(gyr: np.ndarray) -> bool:

@@ -46,6 +46,16 @@ def test_building_a_recording_computes_no_interval_array(slow_turns, monkeypatch
                 fk.Recording(gyr=np.degrees(rec.gyr), acc=rec.acc, mag=mag, **clock)
 
 
+def test_a_gyro_in_rad_s_declared_deg_s_is_refused_on_the_compiled_path(slow_turns):
+    """The turning check's fit on the gyro as given (before the deg/s conversion), compiled."""
+    rec = slow_turns
+    for clock in ({"rate": RATE}, {"t": rec.time}):
+        for mag in (rec.mag, None):
+            with pytest.raises(InputError, match="gyr looks like it is in rad/s already"):
+                fk.Recording(gyr=rec.gyr, acc=rec.acc, mag=mag, gyr_unit="deg/s", **clock)
+            fk.Recording(gyr=np.degrees(rec.gyr), acc=rec.acc, mag=mag, gyr_unit="deg/s", **clock)
+
+
 def test_a_long_recording_shares_the_callers_arrays(slow_turns):
     rec = slow_turns
     gyr, acc, mag, t = (np.ascontiguousarray(x, dtype=np.float64) for x in (rec.gyr, rec.acc, rec.mag, rec.time))

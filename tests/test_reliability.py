@@ -144,6 +144,26 @@ def test_a_gyro_in_deg_s_is_found_from_the_turning(mostly_still, with_mag):
     fk.Recording(gyr=rec.gyr, acc=rec.acc, mag=mag, rate=100.0)  # rad/s is accepted
 
 
+@pytest.mark.parametrize("with_mag", [True, False])
+def test_a_gyro_in_rad_s_declared_deg_s_is_found_from_the_turning(mostly_still, with_mag):
+    """gyr_unit="deg/s" on a gyro in rad/s made it 57 times too slow, unsaid: the field (or, still
+    between the turns, gravity) turns 180/pi times as fast as the converted gyro says."""
+    rec = mostly_still
+    mag = rec.mag if with_mag else None
+    with pytest.raises(fk.InputError, match=r"gyr looks like it is in rad/s already: the " + ("mag" if with_mag else "acc")
+                       + r" turns 5\d(\.\d)? times as fast .* leave gyr_unit out"):
+        fk.Recording(gyr=rec.gyr, acc=rec.acc, mag=mag, rate=100.0, gyr_unit="deg/s")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fk.Recording(gyr=np.degrees(rec.gyr), acc=rec.acc, mag=mag, rate=100.0, gyr_unit="deg/s")  # right: silent
+        # too little turning to tell the units apart: nothing said, whichever was declared
+        for segs in ([sim.Rest(30)], [sim.Rest(10), sim.Rotate((1, 0, 0), 3 * DEG, 2.0), sim.Rest(10)]):
+            still = sim.simulate(segs, rate=100.0, noise=sim.Noise.mems(), seed=2, gnss_rate=None)
+            for gyr in (still.gyr, np.degrees(still.gyr)):
+                fk.Recording(gyr=gyr, acc=still.acc, mag=still.mag if with_mag else None, rate=100.0,
+                             gyr_unit="deg/s")
+
+
 def test_no_false_alarm_when_the_specific_force_does_not_follow_gravity():
     """A multicopter's thrust stays on its z axis while it tilts: the accelerometer does not turn
     with the gyro, and a rad/s gyro below a turn per second must still be accepted."""
@@ -152,6 +172,8 @@ def test_no_false_alarm_when_the_specific_force_does_not_follow_gravity():
     gyr = np.stack([1.5 * np.sin(2 * np.pi * 0.5 * t), 1.0 * np.cos(2 * np.pi * 0.3 * t), 0.2 * np.ones(n)], axis=1)
     acc = np.tile([0.0, 0.0, 9.81], (n, 1)) + 0.05 * np.random.default_rng(0).standard_normal((n, 3))
     fk.Recording(gyr=gyr, acc=acc, rate=100.0)
+    fk.Recording(gyr=np.degrees(gyr), acc=acc, rate=100.0, gyr_unit="deg/s")  # nor a deg/s one declared so
+    fk.Recording(gyr=gyr, acc=acc, rate=100.0, gyr_unit="deg/s")  # (nothing turns the acc: no unit is told)
 
 
 @pytest.mark.parametrize("field", ["gyr", "acc", "mag"])
