@@ -119,6 +119,34 @@ def test_truth_is_made_unit_length():
     assert want["total"] > 2.0 and rms_errors(est, r, mask=keep) == pytest.approx(want, rel=1e-9)
 
 
+def test_the_estimate_is_read_as_the_rotation_it_stands_for():
+    """broad_errors normalises the estimate's rows as the Recording does the truth's: an estimate
+    scaled by 3 scored a total error of 0 (and one scaled by 0.5 a larger one); a zero or a
+    non-finite estimate row is an InputError naming it (a NaN reference row stays a sample
+    without a reference)."""
+    from fusionkit.benchmarking.metrics import broad_errors
+    from fusionkit.rotations import quat_from_axis_angle
+
+    truth = quat_from_axis_angle([0.0, 0.0, 1.0], np.linspace(0.0, 1.0, 10))
+    est = quat_from_axis_angle([1.0, 0.0, 0.0], np.full(10, np.radians(2.0)))
+    want = broad_errors(est, truth)
+    assert want["total"].min() > 1.9
+    for scale in (3.0, 0.5):
+        got = broad_errors(scale * est, truth)
+        for k in want:
+            np.testing.assert_allclose(got[k], want[k], rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(broad_errors(est, scale * truth)["total"], want["total"], rtol=1e-9)
+    ref = truth.copy()
+    ref[3] = np.nan
+    assert np.isnan(broad_errors(est, ref)["total"][3]) and np.isfinite(broad_errors(est, ref)["total"]).sum() == 9
+    for bad, value in (("q_est", 0.0), ("q_est", np.nan), ("q_est", np.inf), ("q_ref", 0.0)):
+        q = (est if bad == "q_est" else truth).copy()
+        q[6] = value
+        args = (q, truth) if bad == "q_est" else (est, q)
+        with pytest.raises(InputError, match=rf"{bad}\[6\] is"):
+            broad_errors(*args)
+
+
 def test_a_long_truth_is_checked_in_one_compiled_pass():
     """From 50,000 samples the unit-length test is one compiled pass (``unit_rows_off``: numpy's two
     passes doubled a 1M-sample ``Recording``'s build, review rev27b); it decides as numpy's does: a

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..conventions import change_frame, up_vector
+from ..conventions import _unit, change_frame, up_vector
 from ..errors import InputError
 from ..rotations import quat_conj, quat_mul
 
@@ -25,11 +25,23 @@ __all__ = ["broad_errors", "rms_errors", "trial_metrics", "truth_errors", "gnss_
 
 
 def broad_errors(q_est, q_ref) -> dict[str, np.ndarray]:
-    """Per-sample total, heading and inclination errors in degrees (NaN where ``q_ref`` is)."""
+    """Per-sample total, heading and inclination errors in degrees (NaN where ``q_ref`` is).
+
+    Both sides are read as the rotations they stand for, normalised where a row is off unit
+    length (the angles come off the error's w, clipped at 1: an estimate scaled by 3 scored 0), as
+    a :class:`~fusionkit.Recording` normalises its truth. A zero row of either, or a non-finite
+    row of the estimate (a reference row that is NaN is a sample without one), is an
+    :class:`InputError` naming it."""
     q_est = np.asarray(q_est, dtype=float)
     q_ref = np.asarray(q_ref, dtype=float)
     if q_est.shape != q_ref.shape or q_est.shape[-1] != 4:
         raise InputError(f"q_est {q_est.shape} and q_ref {q_ref.shape} must both have shape (N, 4)")
+    finite = np.isfinite(q_est).all(axis=-1)
+    if not finite.all():
+        i = np.unravel_index(int(np.argmin(finite)), finite.shape) if finite.ndim else ()
+        raise InputError(f"q_est{list(map(int, i)) if i else ''} is {q_est[i].tolist()}: an estimate must be a "
+                         "finite quaternion")
+    q_est, q_ref = _unit(q_est, "q_est"), _unit(q_ref, "q_ref")
     e = quat_mul(q_est, quat_conj(q_ref))
     w, z = np.abs(e[..., 0]), e[..., 3]
     with np.errstate(invalid="ignore", divide="ignore"):
