@@ -273,6 +273,21 @@ def _recordings(specs: list[str]):
             yield spec, lambda spec=spec: _load_input(spec)
 
 
+def _check_inputs(specs: list[str]) -> None:
+    """Fail before any output when an input names no recording: a missing file, one of a kind
+    fusionkit does not read, an unknown ``sim:`` name (a folder: :func:`_recordings` finds its
+    trials). ``lags`` printed its table's header first, then the error."""
+    from . import sim
+    from .io.loaders import check_path
+
+    for spec in specs:
+        if spec.startswith("sim:"):
+            if spec[4:] not in sim.SCENARIOS:
+                _load_input(spec)  # a demo recording (a few ms to simulate), else the error naming the choices
+        elif not Path(spec).is_dir():
+            check_path(spec)
+
+
 def cmd_lags(args) -> int:
     import inspect
 
@@ -285,10 +300,11 @@ def cmd_lags(args) -> int:
                              f"got {args.max_lag:g}")
     if not args.cutoff > 0:
         raise FusionkitError(f"--cutoff must be a frequency > 0 Hz, got {args.cutoff:g}")
+    _check_inputs(args.inputs)
+    todo = list(_recordings(args.inputs))  # (a folder's trials: none found is an error, before the header too)
     print("| recording | gyr lag (samples) | gyr lag (ms) | gyr residual (rad/s) | acc lag (samples) | acc lag (ms) "
           "| acc residual (m/s^2) | acc model | mag lag (samples) | mag lag (ms) | mag residual |\n"
           "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|", flush=True)
-    todo = list(_recordings(args.inputs))
     progress = Progress(len(todo), "lags")  # on stderr: a bar on a terminal, else a line per recording
     failed = 0
     for name, load in todo:

@@ -121,6 +121,18 @@ def test_lags_table(tmp_path, capsys):
     assert "no reference" in capsys.readouterr().out
 
 
+def test_lags_checks_its_inputs_before_the_table(tmp_path, capsys):
+    """A path that names no recording (missing, a kind fusionkit does not read, an empty folder,
+    an unknown sim: name) is one error line and no table header, also after a good input."""
+    (tmp_path / "notes.txt").write_text("x")
+    (tmp_path / "empty").mkdir()
+    for bad, what in ((tmp_path / "nope.hdf5", "no such file"), (tmp_path / "notes.txt", "cannot read 'notes.txt'"),
+                      (tmp_path / "empty", "no recordings"), ("sim:nope", "unknown simulated recording")):
+        assert main(["lags", "sim:fast-rotation", str(bad)]) == 2, bad
+        out, err = capsys.readouterr()
+        assert out == "" and len(err.strip().splitlines()) == 1 and what in err, (bad, out, err)
+
+
 def test_version(capsys):
     import fusionkit as fk
 

@@ -36,15 +36,26 @@ _VEC = {k: [f"{k}_{a}" for a in "xyz"] for k in ("gyr", "acc", "mag")}
 _QUAT = ["qw", "qx", "qy", "qz"]
 
 
-def load(path, **kwargs) -> Recording:
-    """Read a recording: a BROAD trial or GNSS scenario (``.hdf5``/``.h5``), a PX4 log (``.ulg``)
-    or ``.csv`` (see module doc)."""
+def check_path(path) -> Path:
+    """``path`` as a :class:`~pathlib.Path` when it is a file of a kind :func:`load` reads, else
+    the :class:`InputError` that :func:`load` gives, before anything is read (a command checks
+    its inputs before it prints a table's header)."""
     p = Path(path)
     if not p.exists():
         raise InputError(f"no such file: {str(p)!r}")
     if p.is_dir():  # (it was "cannot read 'broad': supported are .hdf5/.h5 ...")
         raise InputError(f"{str(p)!r} is a folder: give one recording file (fusionkit bench --data takes a folder "
                          "of trials)")
+    if p.suffix.lower() not in (".hdf5", ".h5", ".csv", ".ulg"):
+        raise InputError(f"cannot read {p.name!r}: supported are .hdf5/.h5 (BROAD, GNSS scenario), .ulg (PX4) and "
+                         ".csv")
+    return p
+
+
+def load(path, **kwargs) -> Recording:
+    """Read a recording: a BROAD trial or GNSS scenario (``.hdf5``/``.h5``), a PX4 log (``.ulg``)
+    or ``.csv`` (see module doc)."""
+    p = check_path(path)
     suffix = p.suffix.lower()
     given = sorted(k for k, v in kwargs.items() if v is not None)  # (None: not given, as a caller passes it on)
     if given and suffix != ".csv":  # (a .ulg or GNSS scenario ignored them, a BROAD trial failed to "read")
@@ -59,11 +70,9 @@ def load(path, **kwargs) -> Recording:
         return load_gnss_scenario(p) if is_gnss_scenario(p) else load_broad(p, **kwargs)
     if suffix == ".csv":
         return load_csv(p, **kwargs)
-    if suffix == ".ulg":
-        from .ulog import load_ulog
+    from .ulog import load_ulog  # (.ulg: check_path left no other suffix)
 
-        return load_ulog(p)
-    raise InputError(f"cannot read {p.name!r}: supported are .hdf5/.h5 (BROAD, GNSS scenario), .ulg (PX4) and .csv")
+    return load_ulog(p)
 
 
 @file_errors("HDF5")
