@@ -15,6 +15,13 @@ import time
 
 from .errors import ConfigError
 
+# numba writes an error message for every typing template it tries and rejects while it compiles
+# (tens of thousands per composition), and with colorama installed it marks each one up through
+# colorama's terminal set-up and tear-down: about a twentieth of a compile's time, for messages
+# nobody reads. numba's own switch (it reads it at its import) leaves its messages unmarked; a
+# value the user set stays.
+os.environ.setdefault("NUMBA_DISABLE_ERROR_MESSAGE_HIGHLIGHTING", "1")
+
 try:  # pragma: no cover - exercised implicitly
     import numba as _nb
 
@@ -122,6 +129,7 @@ def njit(func=None, *, cache: bool = True, inline: str = "never", forward_copies
             return f
         extra = {"pipeline_class": loop_compiler()} if forward_copies else {}
         d = _light_load(_nb.njit(cache=cache, fastmath=False, nogil=True, inline=inline, **extra)(f))
+        _no_integer_literals(d)
         if cold:
             _COLD.add(d)
         return d
@@ -166,6 +174,33 @@ def _wrap_compile(dispatcher, lock_path: str | None, cached: bool) -> None:
 
     compile._fusionkit_notice = True
     dispatcher.compile = compile
+
+
+# -- one compile of a function for every integer constant it is called with ---------------------
+#
+# An integer constant passed to an njit function from another (a module constant such as a state
+# offset, a literal size) reaches numba's dispatcher typed as that value (``Literal[int](121)``), and
+# the dispatcher compiles a specialisation for each value: a helper called with two offsets was
+# compiled twice, with the same machine code but for the constant. fusionkit's functions never
+# need an integer's value at compile time, so their dispatchers compile for the integer's type
+# (``int64``) instead: one compile for every constant. Boolean constants keep their value: a rare
+# path called with ``False`` is compiled without the branch it rules out (numba's dead-branch pruning).
+
+
+def _no_integer_literals(dispatcher) -> None:
+    if not HAVE_NUMBA or not hasattr(dispatcher, "get_call_template"):
+        return
+    from numba.core import types
+
+    inner = dispatcher.get_call_template
+
+    def unliteral(t):
+        return types.unliteral(t) if isinstance(t, types.IntegerLiteral) else t
+
+    def get_call_template(args, kws):
+        return inner(tuple(unliteral(a) for a in args), {k: unliteral(v) for k, v in kws.items()})
+
+    dispatcher.get_call_template = get_call_template
 
 
 class _Light(functools.partial):
@@ -564,6 +599,12 @@ def loop_compiler():
 # ``copy.deepcopy(blocks)`` of the whole: the blocks of a copy share one copied scope, as the
 # blocks of the function they come from do. Installed at the first compile of a process (it
 # imports numba's inliner, which numba's compiler imports anyway).
+#
+# The second of the two copies is the callee's IR "unmutated", returned to the caller of
+# ``inline_ir``, and numba's two callers (the inlining passes for ``inline="always"`` functions and
+# for overloads) discard it: the shim hands back a block of the first copy as it is, instead of a
+# copy of it. Only where those three functions have the source this was checked against
+# (:data:`_NUMBA_SOURCES`); elsewhere both copies are made, as numba does.
 
 
 def _install_linear_inline_copy() -> None:
@@ -573,17 +614,29 @@ def _install_linear_inline_copy() -> None:
     if isinstance(icc.copy, _BlockCopy) or not hasattr(icc.InlineWorker, "inline_ir"):
         return
     shim = _BlockCopy(icc.copy, ir.Block)
-    inner = icc.InlineWorker.inline_ir
+    inner = NUMBA_ORIGINAL.setdefault("inline_ir", icc.InlineWorker.inline_ir)
+    shim.once = _copy_once_checked()
 
     def inline_ir(self, *args, **kwargs):
-        shim.memos = {}
+        shim.memos, shim.made = {}, {}
         try:
             return inner(self, *args, **kwargs)
         finally:
-            shim.memos = None
+            shim.memos = shim.made = None
 
     icc.copy = shim
     icc.InlineWorker.inline_ir = inline_ir
+
+
+def _copy_once_checked() -> bool:
+    """Whether numba's ``inline_ir`` and its two callers have the sources the single copy was
+    checked against."""
+    from numba.core import inline_closurecall as icc
+    from numba.core import typed_passes, untyped_passes
+
+    return (_same_source(NUMBA_ORIGINAL.get("inline_ir", icc.InlineWorker.inline_ir))
+            and _same_source(getattr(untyped_passes.InlineInlinables, "_do_work", None))
+            and _same_source(getattr(typed_passes.InlineOverloads, "_run_inliner", None)))
 
 
 class _BlockCopy:
@@ -591,17 +644,21 @@ class _BlockCopy:
     ``inline_ir`` shares one memo with the other blocks of its scope."""
 
     def __init__(self, real, block_type):
-        self._real, self._block, self.memos = real, block_type, None
+        self._real, self._block, self.memos, self.made, self.once = real, block_type, None, None, False
 
     def __getattr__(self, name):
         return getattr(self._real, name)
 
     def deepcopy(self, x, memo=None):
         if memo is None and self.memos is not None and isinstance(x, self._block):
+            if self.once and id(x.scope) in self.made:  # a block of the first copy: the discarded second copy
+                return x
             entry = self.memos.get(id(x.scope))
             if entry is None:  # the scope kept with its memo, so its id is not reused meanwhile
                 entry = self.memos[id(x.scope)] = (x.scope, {})
-            memo = entry[1]
+            y = self._real.deepcopy(x, entry[1])
+            self.made[id(y.scope)] = y.scope  # (kept: its id not reused meanwhile)
+            return y
         return self._real.deepcopy(x, memo)
 
 
@@ -621,7 +678,7 @@ class _BlockCopy:
 # only where numba's functions have the source it was checked against (:data:`_NUMBA_SOURCES`).
 
 
-NUMBA_ORIGINAL: dict = {}  # numba's functions that the two passes below replace, by name (for the tests)
+NUMBA_ORIGINAL: dict = {}  # numba's functions that fusionkit's replace (the inliner's, the two passes below), by name
 
 
 def _run_ssa_local(blocks):
@@ -671,7 +728,8 @@ def _run_ssa_local(blocks):
 # The sources of the numba functions the two passes stand in for, as checked equal (numba 0.68.1,
 # tests/test_numba_ssa.py): another numba whose sources differ keeps its own passes.
 _NUMBA_SOURCES = {"_run_ssa": "c497422bcf049990", "_fix_ssa_vars": "3f183045a5355bf4",
-                  "_fresh_vars": "4a4d13bc0ec57cfb", "compute_live_map": "713c4c094977e93b"}
+                  "_fresh_vars": "4a4d13bc0ec57cfb", "compute_live_map": "713c4c094977e93b",
+                  "inline_ir": "26fd2b7600c9d929", "_do_work": "5e0a1f246f0fcb5d", "_run_inliner": "cfaed222e938f558"}
 
 
 def _same_source(func) -> bool:
@@ -862,6 +920,7 @@ def call_copy(func):
         opts = {k: v for k, v in func.targetoptions.items() if k not in ("inline", "nopython")}
         cache = not isinstance(getattr(func, "_cache", None), _nb.core.caching.NullCache)
         _CALLED[func] = _light_load(_nb.njit(cache=cache, **{**opts, "inline": "never"})(func.py_func))
+        _no_integer_literals(_CALLED[func])
     return _CALLED[func]
 
 

@@ -1,0 +1,95 @@
+"""What fusionkit does to numba's compile to make a first run shorter (fusionkit/_numba.py): no
+colour markup of the error messages numba writes (and discards) while it types, one compile of a
+function for every integer constant it is called with, and one copy of an inlined function's IR
+per call site instead of two. The numbers compiled are the same: the inlined loops are checked
+against the called ones to the bit in test_inlined_loops*.py."""
+
+import os
+
+import numpy as np
+import pytest
+
+import fusionkit._numba as fn
+from fusionkit._numba import njit
+
+pytestmark = pytest.mark.skipif(not fn.HAVE_NUMBA, reason="numba is not installed")
+
+
+def test_numbas_error_messages_are_not_marked_up():
+    from numba.core import errors
+
+    assert os.environ.get("NUMBA_DISABLE_ERROR_MESSAGE_HIGHLIGHTING")
+    assert type(errors.termcolor()).__name__ == "NOPColorScheme"
+
+
+@njit(cache=False)
+def _at(s, i):
+    return s[i]
+
+
+@njit(cache=False)
+def _flagged(x, on):
+    return x + 1.0 if on else x - 1.0
+
+
+@njit(cache=False)
+def _caller(s):
+    return _at(s, 3) + _at(s, 5) + _flagged(s[0], True)
+
+
+def test_integer_constants_share_one_compile_and_booleans_keep_their_value():
+    from numba.core import types
+
+    assert _caller(np.arange(8.0)) == 3.0 + 5.0 + 1.0
+    (sig,) = _at.overloads  # one compile for 3 and 5 (numba alone: one for each)
+    assert sig[1] == types.int64
+    (sig,) = _flagged.overloads  # a boolean constant's value still selects the branch at compile time
+    assert isinstance(sig[1], types.BooleanLiteral)
+
+
+@njit(cache=False, inline="always")
+def _helper(x):
+    y = x * 2.0
+    if y > 3.0:
+        return y - 1.0
+    return y
+
+
+@njit(cache=False)
+def _inlines(x):
+    return _helper(x) + _helper(x + 1.0)
+
+
+def test_the_inliner_copies_a_callee_once_per_call_site():
+    """The shim numba's inliner copies through: a block of the copy it made (the "unmutated"
+    second copy numba's callers discard) comes back as it is; any other block is copied; with
+    numba's sources unlike those it was checked against, both copies are made."""
+    from numba.core import inline_closurecall as icc
+    from numba.core import ir
+
+    assert _inlines(1.0) == 2.0 + 3.0  # (compiled with the shim installed)
+    shim = icc.copy
+    assert isinstance(shim, fn._BlockCopy) and shim.once
+    scope = ir.Scope(None, ir.Loc("f", 1))
+    block = ir.Block(scope, ir.Loc("f", 1))
+    block.append(ir.Assign(ir.Const(1.0, block.loc), scope.redefine("a", block.loc), block.loc))
+    saved = shim.memos, shim.made
+    try:
+        shim.memos, shim.made = {}, {}
+        first = shim.deepcopy(block)
+        assert first is not block and first.scope is not scope and first.body[0].target.name == "a"
+        assert shim.deepcopy(first) is first
+        shim.once = False
+        assert shim.deepcopy(first) is not first
+    finally:
+        shim.memos, shim.made = saved
+        shim.once = True
+
+
+def test_a_numba_with_other_inliner_sources_copies_twice(monkeypatch):
+    fn._install_linear_inline_copy()
+    assert fn._copy_once_checked()
+    for name in ("inline_ir", "_do_work", "_run_inliner"):
+        with monkeypatch.context() as m:
+            m.setitem(fn._NUMBA_SOURCES, name, "0" * 16)
+            assert not fn._copy_once_checked()
