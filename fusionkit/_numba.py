@@ -18,9 +18,14 @@ from .errors import ConfigError
 # numba writes an error message for every typing template it tries and rejects while it compiles
 # (tens of thousands per composition), and with colorama installed it marks each one up through
 # colorama's terminal set-up and tear-down: about a twentieth of a compile's time, for messages
-# nobody reads. numba's own switch (it reads it at its import) leaves its messages unmarked; a
-# value the user set stays.
-os.environ.setdefault("NUMBA_DISABLE_ERROR_MESSAGE_HIGHLIGHTING", "1")
+# nobody reads. numba's own switch (read at its import; process-wide, and inherited by child
+# processes) leaves its messages unmarked (plain text, no bold). Where numba was imported first,
+# its colour scheme's markup is made a no-op instead. A user who chose numba's colours (either
+# variable set) keeps them and the cost.
+_USER_COLOURS = any(v in os.environ for v in ("NUMBA_COLOR_SCHEME", "NUMBA_DISABLE_ERROR_MESSAGE_HIGHLIGHTING"))
+_NUMBA_FIRST = "numba" in sys.modules
+if not _USER_COLOURS:
+    os.environ["NUMBA_DISABLE_ERROR_MESSAGE_HIGHLIGHTING"] = "1"
 
 try:  # pragma: no cover - exercised implicitly
     import numba as _nb
@@ -29,6 +34,19 @@ try:  # pragma: no cover - exercised implicitly
 except ImportError:  # pragma: no cover
     _nb = None
     HAVE_NUMBA = False
+
+
+def _unmark_numba_errors() -> None:
+    """numba's error messages left unmarked where numba was imported before fusionkit (above)."""
+    from numba.core import errors
+
+    scheme = errors.termcolor()
+    if hasattr(scheme, "_markup"):  # (numba's highlighting scheme; the no-op one has nothing to mark)
+        scheme._markup = lambda msg, *args, **kwargs: msg
+
+
+if HAVE_NUMBA and _NUMBA_FIRST and not _USER_COLOURS:
+    _unmark_numba_errors()
 
 BACKENDS = ("auto", "numba", "reference")
 
@@ -602,9 +620,10 @@ def loop_compiler():
 #
 # The second of the two copies is the callee's IR "unmutated", returned to the caller of
 # ``inline_ir``, and numba's two callers (the inlining passes for ``inline="always"`` functions and
-# for overloads) discard it: the shim hands back a block of the first copy as it is, instead of a
-# copy of it. Only where those three functions have the source this was checked against
-# (:data:`_NUMBA_SOURCES`); elsewhere both copies are made, as numba does.
+# for overloads, the first through ``inline_function``) discard it: the shim hands back a block of
+# the first copy as it is, instead of a copy of it. Only where those four functions have the source
+# this was checked against (:data:`_NUMBA_SOURCES`; no other numba code calls ``inline_ir``); elsewhere
+# both copies are made, as numba does.
 
 
 def _install_linear_inline_copy() -> None:
@@ -635,6 +654,7 @@ def _copy_once_checked() -> bool:
     from numba.core import typed_passes, untyped_passes
 
     return (_same_source(NUMBA_ORIGINAL.get("inline_ir", icc.InlineWorker.inline_ir))
+            and _same_source(getattr(icc.InlineWorker, "inline_function", None))
             and _same_source(getattr(untyped_passes.InlineInlinables, "_do_work", None))
             and _same_source(getattr(typed_passes.InlineOverloads, "_run_inliner", None)))
 
@@ -729,7 +749,8 @@ def _run_ssa_local(blocks):
 # tests/test_numba_ssa.py): another numba whose sources differ keeps its own passes.
 _NUMBA_SOURCES = {"_run_ssa": "c497422bcf049990", "_fix_ssa_vars": "3f183045a5355bf4",
                   "_fresh_vars": "4a4d13bc0ec57cfb", "compute_live_map": "713c4c094977e93b",
-                  "inline_ir": "26fd2b7600c9d929", "_do_work": "5e0a1f246f0fcb5d", "_run_inliner": "cfaed222e938f558"}
+                  "inline_ir": "26fd2b7600c9d929", "inline_function": "1b53f183258e659d", "_do_work": "5e0a1f246f0fcb5d",
+                  "_run_inliner": "cfaed222e938f558"}
 
 
 def _same_source(func) -> bool:
