@@ -750,7 +750,8 @@ def _run_ssa_local(blocks):
 _NUMBA_SOURCES = {"_run_ssa": "c497422bcf049990", "_fix_ssa_vars": "3f183045a5355bf4",
                   "_fresh_vars": "4a4d13bc0ec57cfb", "compute_live_map": "713c4c094977e93b",
                   "inline_ir": "26fd2b7600c9d929", "inline_function": "1b53f183258e659d", "_do_work": "5e0a1f246f0fcb5d",
-                  "_run_inliner": "cfaed222e938f558"}
+                  "_run_inliner": "cfaed222e938f558",
+                  "get_call_type": "6559c167bfc0ad36"}
 
 
 def _same_source(func) -> bool:
@@ -852,6 +853,50 @@ def _install_live_map_bits() -> None:
             mod.compute_live_map = _live_map_bits
 
 
+
+# -- numba types a call of a function or an operator from scratch each time --------------------
+#
+# ``BaseFunction.get_call_type`` (numba.core.types.functions) resolves a call, ``a + b`` on two
+# floats or ``math.sqrt(x)``, by trying the function's typing templates in order until one accepts
+# the argument types, building an error message for every one that does not; nothing is kept, so
+# the kernels' thousands of scalar operations on the same few types repeat the same search: about
+# a tenth of a compile. The version below keeps each successful resolution, keyed on the function
+# type, the typing context, the target, the argument types (literal values included) and the
+# number of templates (a template registered later is a new search); a failure is not kept and
+# raises as before. The signature kept is the one numba returned, and numba has recorded its
+# implementation key then (lowering reads it by the signature's arguments). Installed only where
+# numba's function has the source this was checked against (:data:`_NUMBA_SOURCES`).
+
+
+def _install_call_memo() -> None:
+    from numba.core.target_extension import get_local_target
+    from numba.core.types import functions
+
+    if getattr(functions.BaseFunction.get_call_type, "_fusionkit_memo", False):
+        return
+    inner = NUMBA_ORIGINAL.setdefault("get_call_type", functions.BaseFunction.get_call_type)
+    if not _same_source(inner):
+        return
+    memo: dict = {}
+
+    def get_call_type(self, context, args, kws):
+        """numba's ``BaseFunction.get_call_type``, each successful resolution kept (above)."""
+        try:
+            key = (self, context, get_local_target(context), tuple(args), tuple(sorted(kws.items())),
+                   len(self.templates))
+            sig = memo.get(key)
+        except TypeError:  # (an unhashable type: resolved as numba does)
+            return inner(self, context, args, kws)
+        if sig is None:
+            sig = inner(self, context, args, kws)
+            if sig is not None:
+                memo[key] = sig
+        return sig
+
+    get_call_type._fusionkit_memo = True
+    functions.BaseFunction.get_call_type = get_call_type
+
+
 if HAVE_NUMBA:
     from numba.core import event as _event
 
@@ -861,7 +906,8 @@ if HAVE_NUMBA:
         def on_start(self, event):
             if not self.done:  # (kept registered: removing it while numba broadcasts would skip the next one)
                 self.done = True
-                for install in (_install_linear_inline_copy, _install_local_ssa, _install_live_map_bits):
+                for install in (_install_linear_inline_copy, _install_local_ssa, _install_live_map_bits,
+                                _install_call_memo):
                     try:
                         install()
                     except Exception:  # an unexpected numba: its own pass
@@ -965,3 +1011,4 @@ def resolve_backend(backend: str, has_kernel: bool) -> str:
             )
         return "numba"
     return "numba" if (HAVE_NUMBA and has_kernel) else "reference"
+

@@ -1,7 +1,7 @@
 """What fusionkit does to numba's compile to make a first run shorter (fusionkit/_numba.py): no
 colour markup of the error messages numba writes (and discards) while it types, one compile of a
-function for every integer constant it is called with, and one copy of an inlined function's IR
-per call site instead of two. The numbers compiled are the same: the inlined loops are checked
+function for every integer constant it is called with, one copy of an inlined function's IR per
+call site instead of two, and each call's typing resolved once. The numbers compiled are the same: the inlined loops are checked
 against the called ones to the bit in test_inlined_loops*.py."""
 
 import os
@@ -115,3 +115,49 @@ def test_a_numba_with_other_inliner_sources_copies_twice(monkeypatch):
         with monkeypatch.context() as m:
             m.setitem(fn._NUMBA_SOURCES, name, "0" * 16)
             assert not fn._copy_once_checked()
+
+
+def test_a_resolved_call_is_kept_and_a_failure_raises_each_time():
+    """numba's typing of a call of a function or an operator: a resolution that succeeded is kept
+    (the same signature, numba's own, without searching the templates again); one that failed is
+    searched again and raises as numba does."""
+    import operator
+
+    from numba.core import errors, types
+    from numba.core.registry import cpu_target
+    from numba.core.types import functions
+
+    assert _inlines(2.0) == 4.0 - 1.0 + 5.0  # (a compile: the memo installed)
+    original = fn.NUMBA_ORIGINAL.get("get_call_type", functions.BaseFunction.get_call_type)
+    if "get_call_type" in fn._NUMBA_SOURCES and not fn._same_source(original):
+        pytest.skip("numba's get_call_type is not the one the memo was checked against")
+    ctx = cpu_target.typing_context
+    ctx.refresh()
+    fnty = ctx.resolve_value_type(operator.add)
+    assert getattr(functions.BaseFunction.get_call_type, "_fusionkit_memo", False)
+    args = (types.float64, types.intp)
+    first = fnty.get_call_type(ctx, args, {})
+    assert fnty.get_call_type(ctx, args, {}) is first  # kept
+    numbas = fn.NUMBA_ORIGINAL["get_call_type"](fnty, ctx, args, {})
+    assert numbas == first and first.return_type == types.float64
+    bad = (types.float64, types.unicode_type)
+    for _ in range(2):
+        with pytest.raises(errors.TypingError):
+            fnty.get_call_type(ctx, bad, {})
+
+
+def test_a_numba_with_another_get_call_type_keeps_its_own(monkeypatch):
+    from numba.core.types import functions
+
+    _inlines(1.0)
+    original = fn.NUMBA_ORIGINAL.get("get_call_type", functions.BaseFunction.get_call_type)
+    if "get_call_type" in fn._NUMBA_SOURCES and not fn._same_source(original):
+        pytest.skip("numba's get_call_type is not the one the memo was checked against")
+    installed = functions.BaseFunction.get_call_type
+    try:
+        functions.BaseFunction.get_call_type = original
+        monkeypatch.setitem(fn._NUMBA_SOURCES, "get_call_type", "0" * 16)
+        fn._install_call_memo()
+        assert functions.BaseFunction.get_call_type is original
+    finally:
+        functions.BaseFunction.get_call_type = installed
