@@ -648,8 +648,8 @@ def _install_linear_inline_copy() -> None:
 
 
 def _copy_once_checked() -> bool:
-    """Whether numba's ``inline_ir`` and its two callers have the sources the single copy was
-    checked against."""
+    """Whether numba's ``inline_ir``, ``inline_function`` and the two passes that call them have
+    the sources the single copy was checked against."""
     from numba.core import inline_closurecall as icc
     from numba.core import typed_passes, untyped_passes
 
@@ -745,12 +745,14 @@ def _run_ssa_local(blocks):
     return blocks
 
 
-# The sources of the numba functions the two passes stand in for, as checked equal (numba 0.68.1,
-# tests/test_numba_ssa.py): another numba whose sources differ keeps its own passes.
+# The sources of the numba functions fusionkit's replacements stand in for or rely on, as checked
+# (numba 0.68.1; tests/test_numba_ssa.py, tests/test_numba_compile.py): another numba whose sources
+# differ keeps its own.
 _NUMBA_SOURCES = {"_run_ssa": "c497422bcf049990", "_fix_ssa_vars": "3f183045a5355bf4",
                   "_fresh_vars": "4a4d13bc0ec57cfb", "compute_live_map": "713c4c094977e93b",
-                  "inline_ir": "26fd2b7600c9d929", "inline_function": "1b53f183258e659d", "_do_work": "5e0a1f246f0fcb5d",
-                  "_run_inliner": "cfaed222e938f558",
+                  # the inliner's single copy (above) and the call-typing memo (below)
+                  "inline_ir": "26fd2b7600c9d929", "inline_function": "1b53f183258e659d",
+                  "_do_work": "5e0a1f246f0fcb5d", "_run_inliner": "cfaed222e938f558",
                   "get_call_type": "6559c167bfc0ad36"}
 
 
@@ -851,7 +853,6 @@ def _install_live_map_bits() -> None:
     for mod in (analysis, ir_utils):
         if getattr(mod, "compute_live_map", None) is not None:
             mod.compute_live_map = _live_map_bits
-
 
 
 # -- numba types a call of a function or an operator from scratch each time --------------------
@@ -1011,4 +1012,3 @@ def resolve_backend(backend: str, has_kernel: bool) -> str:
             )
         return "numba"
     return "numba" if (HAVE_NUMBA and has_kernel) else "reference"
-
