@@ -212,6 +212,14 @@ class MagCalibrationConfig(PluginConfig):
         gt=0)
     outlier_count: int = param(
         3, unit="-", description="this many misfits in a row: the offset changed, learn it again", ge=1)
+    first_check: bool = param(
+        True, unit="-", description="when the residual noise is first trusted (min_segments segments, up to the "
+        "gate ring's 32), judge the segments it rests on, which no misfit test saw, by their deleted residuals: the "
+        "worst removed while over outlier_sigma standard deviations of the noise the others show, and the fit "
+        "rebuilt from the rest. A segment that enters or leaves a field change fixed in the earth frame (a "
+        "disturbance) does not fit body-fixed iron; kept, it pulls the estimate and inflates the noise estimate, "
+        "which then asks for several times the rotation before the estimate is confident. False: the model before "
+        "(every early segment kept)")
     soft_iron: bool = param(
         True, unit="-", description="estimate the soft-iron distortion (a symmetric matrix) with the offset; "
         "False: the offset alone, which needs less rotation to become confident")
@@ -301,7 +309,7 @@ class MagCalibrationModel(SensorModel):
         return np.array([c.segment_angle, c.segment_time, c.forget_time, c.max_std, float(c.min_segments),
                          c.outlier_sigma, float(c.outlier_count), float(c.soft_iron), _gate_code(c),
                          c.min_reduction, math.cos(0.5 * c.segment_angle), c.gate_interval, c.provisional_std,
-                         float(c.held_readings == "each"), _quantile(c.distortion_significance)])
+                         float(c.held_readings == "each"), _quantile(c.distortion_significance), float(c.first_check)])
 
     def kernel(self) -> SensorModelKernel:
         c = self.config
@@ -415,6 +423,9 @@ class MagCalibrationModel(SensorModel):
         s[_RR] = lam * s[_RR] + float(r @ r)
         s[_NE] = lam * s[_NE] + 1.0
         s[_N] = n + 1.0
+        if c.first_check and s[_N] == c.min_segments and s[STATE + _GC] == c.min_segments:
+            _first_check(s, False, c.min_segments, c.outlier_sigma)
+            a = s[_A:_A + 9].reshape(3, 3).copy()
         best = _solve3(a, s[_Y:_Y + 3])
         if best is None:
             return
@@ -470,6 +481,9 @@ class MagCalibrationModel(SensorModel):
         s[_RR] = lam * s[_RR] + float(r @ r)
         s[_NE] = lam * s[_NE] + 1.0
         s[_N] = n + 1.0
+        if c.first_check and s[_N] == c.min_segments and s[STATE_SOFT + _GC] == c.min_segments:
+            _first_check(s, True, c.min_segments, c.outlier_sigma)
+            a = s[_SA:_SA + _NP * _NP].reshape(_NP, _NP).copy()
         s[_SINVOK] = float(_invert_spd(a.copy(), np.empty((_NP, _NP)), inv, _NP))  # inv: untouched if not invertible
         if not s[_SINVOK]:
             return
@@ -937,6 +951,141 @@ def _solve3(a, y):
     return np.array([inv[i, 0] * y[0] + inv[i, 1] * y[1] + inv[i, 2] * y[2] for i in range(3)])
 
 
+def _ring_rows(s, g, q, soft, h, r) -> None:
+    """The equations of the ring's segment ``q`` (0 the newest) into ``h`` (3 x unknowns) and ``r``:
+    rebuilt from what the ring keeps of it (its first and last raw field and the gyro's turn ``C``)
+    as the segment built them when it closed."""
+    k = g + _GBUF + _GE * ((int(s[g + _GI]) - 1 - q) % _GK)
+    ct = s[k + 12:k + 21].reshape(3, 3).T  # R(dq)^T
+    ma, mk = s[k + 9:k + 12], s[k:k + 3]
+    if soft:
+        _soft_rows(ct, ma, mk, h)
+    else:
+        h[:, :] = np.eye(3) - ct
+    r[:] = mk - ct @ ma
+
+
+def _rebuild(s, ia, iy, hs, rs, keep, n, npar) -> None:
+    """The fit's sums (information matrix at ``ia``, right-hand side at ``iy``, ``sum |r|^2``, the
+    weights, the count) from the kept segments among ``hs``/``rs``, each with weight 1. The same
+    statements in the reference and, compiled, in the kernel."""
+    for i in range(npar * npar):
+        s[ia + i] = 0.0
+    for i in range(npar):
+        s[iy + i] = 0.0
+    s[_RR] = s[_NE] = s[_N] = 0.0
+    for q in range(n):
+        if not keep[q]:
+            continue
+        for i in range(npar):
+            for j in range(npar):
+                s[ia + npar * i + j] += hs[q, 0, i] * hs[q, 0, j] + hs[q, 1, i] * hs[q, 1, j] + hs[q, 2, i] * hs[q, 2, j]
+            s[iy + i] += hs[q, 0, i] * rs[q, 0] + hs[q, 1, i] * rs[q, 1] + hs[q, 2, i] * rs[q, 2]
+        s[_RR] += rs[q, 0] * rs[q, 0] + rs[q, 1] * rs[q, 1] + rs[q, 2] * rs[q, 2]
+        s[_NE] += 1.0
+        s[_N] += 1.0
+
+
+def _fit_sums(hs, rs, keep, n, npar, a, y) -> tuple[int, float]:
+    """The normal equations of the kept segments among ``hs``/``rs`` (unit weights) into ``a`` and
+    ``y``; returns their count and ``sum |r|^2``. The same statements in the reference and, compiled,
+    in the kernel."""
+    kept, rr = 0, 0.0
+    for i in range(npar):
+        y[i] = 0.0
+        for j in range(npar):
+            a[i, j] = 0.0
+    for q in range(n):
+        if keep[q]:
+            kept += 1
+            for i in range(npar):
+                for j in range(npar):
+                    a[i, j] += hs[q, 0, i] * hs[q, 0, j] + hs[q, 1, i] * hs[q, 1, j] + hs[q, 2, i] * hs[q, 2, j]
+                y[i] += hs[q, 0, i] * rs[q, 0] + hs[q, 1, i] * rs[q, 1] + hs[q, 2, i] * rs[q, 2]
+            rr += rs[q, 0] * rs[q, 0] + rs[q, 1] * rs[q, 1] + rs[q, 2] * rs[q, 2]
+    return kept, rr
+
+
+def _worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p) -> tuple[float, int]:
+    """The kept segments' worst *deleted* residual, given the fit's inverse information matrix
+    ``inv`` and right-hand side ``y`` (:func:`_fit_sums`). For a kept segment ``q`` with residual
+    ``e = r - H x`` against the whole fit, ``d = e^T (I - H A^-1 H^T)^-1 e`` is what removing it
+    takes off the residual sum of squares, so ``(RSS - d) / dof`` is the noise the other segments
+    show, and ``d / 3`` over it is the segment's misfit in units of that noise. Returns ``(ratio,
+    q)`` of the largest (q -1: none; a segment without which the fit would be undetermined,
+    ``I - H A^-1 H^T`` singular, is not judged). ``x``, ``e``, ``p``: scratch. The same statements in
+    the reference and, compiled, in the kernel."""
+    rss = rr
+    for i in range(npar):
+        t = 0.0
+        for j in range(npar):
+            t += inv[i, j] * y[j]
+        x[i] = t
+        rss -= y[i] * t
+    worst, wq = 0.0, -1
+    for q in range(n):
+        if not keep[q]:
+            continue
+        for i in range(3):
+            t = rs[q, i]
+            for j in range(npar):
+                t -= hs[q, i, j] * x[j]
+            e[i] = t
+        for i in range(3):
+            for j in range(3):
+                t = 1.0 if i == j else 0.0
+                for u in range(npar):
+                    for w in range(npar):
+                        t -= hs[q, i, u] * inv[u, w] * hs[q, j, w]
+                p[i, j] = t
+        # d = e^T P^-1 e by the adjugate (P symmetric): e^T adj(P) e / det(P)
+        c00, c11, c22 = p[1, 1] * p[2, 2] - p[1, 2] * p[2, 1], p[0, 0] * p[2, 2] - p[0, 2] * p[2, 0], \
+            p[0, 0] * p[1, 1] - p[0, 1] * p[1, 0]
+        c01, c02, c12 = p[0, 2] * p[2, 1] - p[0, 1] * p[2, 2], p[0, 1] * p[1, 2] - p[0, 2] * p[1, 1], \
+            p[0, 2] * p[1, 0] - p[0, 0] * p[1, 2]
+        det = p[0, 0] * c00 + p[0, 1] * (p[1, 2] * p[2, 0] - p[1, 0] * p[2, 2]) + p[0, 2] * (
+            p[1, 0] * p[2, 1] - p[1, 1] * p[2, 0])
+        if not det > 1e-12:
+            continue
+        d = (c00 * e[0] * e[0] + c11 * e[1] * e[1] + c22 * e[2] * e[2]
+             + 2.0 * (c01 * e[0] * e[1] + c02 * e[0] * e[2] + c12 * e[1] * e[2])) / det
+        var = (rss - d) / dof
+        if var > 0.0 and d / 3.0 > worst * var:
+            worst, wq = d / (3.0 * var), q
+    return worst, wq
+
+
+def _first_check(s, soft, n, out_sigma) -> None:
+    """``first_check``: the ``n`` segments the fit rests on when its residual noise is first trusted
+    (``min_segments``), judged by their deleted residuals (:func:`_worst_deleted`); the worst removed
+    while it exceeds ``out_sigma`` standard deviations, one at a time, and the fit's sums rebuilt from
+    the rest (:func:`_rebuild`; unit weights: they span seconds, the forgetting minutes). Before the
+    noise is trusted no segment is tested, and a segment that straddles a change of the field in the
+    earth frame (entering or leaving a disturbance) does not fit body-fixed iron: kept, it pulls the
+    estimate and inflates the noise estimate for ``forget_time``, which then asks for several times
+    the rotation before the estimate is confident and lets later misfits through. Nothing changes
+    where all fit. The kernel's twin (:func:`_k_first_check`) calls the compiled twins of the same
+    functions."""
+    g, npar, ia, iy = (STATE_SOFT, _NP, _SA, _SY) if soft else (STATE, 3, _A, _Y)
+    hs, rs = np.empty((n, 3, npar)), np.empty((n, 3))
+    for q in range(n):
+        _ring_rows(s, g, q, soft, hs[q], rs[q])
+    keep = np.ones(n, dtype=bool)
+    a, inv, m, y = np.empty((npar, npar)), np.empty((npar, npar)), np.empty((npar, npar)), np.empty(npar)
+    x, e, p = np.empty(npar), np.empty(3), np.empty((3, 3))
+    while True:
+        kept, rr = _fit_sums(hs, rs, keep, n, npar, a, y)
+        dof = 3 * (kept - 1) - npar
+        if dof < 3 or not _invert_spd(a, m, inv, npar):
+            break
+        worst, q = _worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p)
+        if q < 0 or not worst > out_sigma * out_sigma:
+            break
+        keep[q] = False
+    if not keep.all():
+        _rebuild(s, ia, iy, hs, rs, keep, n, npar)
+
+
 def _min_eig_sym3(a) -> float:
     """The smallest eigenvalue of a symmetric 3x3 matrix (closed form, trigonometric)."""
     p1 = a[0, 1] ** 2 + a[0, 2] ** 2 + a[1, 2] ** 2
@@ -1009,6 +1158,56 @@ def _k_soft_rows(ct, ma, mk, h):
             h[i, 5 + j] = (1.0 if i == j else 0.0) - ct[i, j]
 
 
+
+@njit
+def _k_ring_rows(s, g, q, soft, h, r):
+    """:func:`_ring_rows`, compiled."""
+    k = g + _GBUF + _GE * ((int(s[g + _GI]) - 1 - q) % _GK)
+    ct = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            ct[i, j] = s[k + 12 + 3 * j + i]
+    ma = (s[k + 9], s[k + 10], s[k + 11])
+    mk = (s[k], s[k + 1], s[k + 2])
+    if soft:
+        _k_soft_rows(ct, ma, mk, h)
+    else:
+        for i in range(3):
+            for j in range(3):
+                h[i, j] = (1.0 if i == j else 0.0) - ct[i, j]
+    for i in range(3):
+        r[i] = mk[i] - (ct[i, 0] * ma[0] + ct[i, 1] * ma[1] + ct[i, 2] * ma[2])
+
+
+_k_rebuild = njit(_rebuild)
+
+
+_k_fit_sums = njit(_fit_sums)
+_k_worst_deleted = njit(_worst_deleted)
+
+
+@njit(cold=True)
+def _k_first_check(s, soft, n, out_sigma):
+    """:func:`_first_check`, compiled (once per learning: a call, not inlined)."""
+    g, npar, ia, iy = (STATE_SOFT, _NP, _SA, _SY) if soft else (STATE, 3, _A, _Y)
+    hs, rs = np.empty((n, 3, npar)), np.empty((n, 3))
+    for q in range(n):
+        _k_ring_rows(s, g, q, soft, hs[q], rs[q])
+    keep = np.ones(n, dtype=np.bool_)
+    a, inv, m, y = np.empty((npar, npar)), np.empty((npar, npar)), np.empty((npar, npar)), np.empty(npar)
+    x, e, p = np.empty(npar), np.empty(3), np.empty((3, 3))
+    while True:
+        kept, rr = _k_fit_sums(hs, rs, keep, n, npar, a, y)
+        dof = 3 * (kept - 1) - npar
+        if dof < 3 or not _k_invert_spd(a, m, inv, npar):
+            break
+        worst, q = _k_worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p)
+        if q < 0 or not worst > out_sigma * out_sigma:
+            break
+        keep[q] = False
+    if not keep.all():
+        _k_rebuild(s, ia, iy, hs, rs, keep, n, npar)
+
 @njit
 def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p, soft, once):
     """Kernel of :class:`MagCalibrationModel` (``SensorModelKernel.apply``); ``soft`` (``soft_iron``)
@@ -1050,9 +1249,10 @@ def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p, soft, once):
                     s[h + 10 + i] = s[(_SAPP if soft else _B) + i]
             if soft:
                 _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11],
-                                p[12], p[14])
+                                p[12], p[14], p[15] != 0.0)
             else:
-                _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11], p[12])
+                _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, p[11], p[12],
+                           p[15] != 0.0)
             s[h + 7] = float(_k_changed(conf, applied, s[_CONF], _k_applied(s, soft)))
             s[_ANCHOR] = 0.0
     if gyr_ok and s[_ANCHOR] == 0.0 and fresh:
@@ -1113,7 +1313,7 @@ def k_forget_accumulate(s, ia, iy, irr, ine, h, r, lam, a):
 
 
 @njit(cold=True)
-def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, interval, prov):
+def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, interval, prov, first):
     prev, s[STATE + _GV] = s[STATE + _GV], 0.0
     c9 = np.empty(9)
     quat_to_dcm(s[_DQ:_DQ + 4], c9)
@@ -1150,6 +1350,11 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
     a = np.empty((3, 3))
     k_forget_accumulate(s, _A, _Y, _RR, _NE, h, r, lam, a)
     s[_N] = n + 1.0
+    if first and s[_N] == min_seg and s[STATE + _GC] == min_seg:
+        _k_first_check(s, False, int(min_seg), out_sigma)
+        for i in range(3):
+            for j in range(3):
+                a[i, j] = s[_A + 3 * i + j]
     inv = np.empty((3, 3))
     if not _k_inverse3(a, inv):
         return
@@ -1182,7 +1387,7 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
 
 @njit(cold=True)
 def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, gate, min_red, interval,
-                    prov, sigq):
+                    prov, sigq, first):
     prev, s[STATE_SOFT + _GV] = s[STATE_SOFT + _GV], 0.0
     # one allocation for every working array (views into it): a segment closes every few samples
     # while the body turns, and each small array allocated and freed cost about as much as the arithmetic
@@ -1236,6 +1441,11 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     s[_RR] = lam * s[_RR] + (r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
     s[_NE] = lam * s[_NE] + 1.0
     s[_N] = n + 1.0
+    if first and s[_N] == min_seg and s[STATE_SOFT + _GC] == min_seg:
+        _k_first_check(s, True, int(min_seg), out_sigma)
+        for i in range(_NP):
+            for j in range(_NP):
+                a[i, j] = s[_SA + _NP * i + j]
     inv = s[_SINV:_SINV + _NP * _NP].reshape((_NP, _NP))  # (untouched where a is not invertible)
     s[_SINVOK] = 1.0 if _k_invert_spd(a, buf[_SEG_BUF - _NP * _NP:_SEG_BUF].reshape((_NP, _NP)), inv, _NP) else 0.0
     if s[_SINVOK] == 0.0:
