@@ -421,15 +421,18 @@ def test_follow_field_kernel_equals_reference():
     """The restart test on its own: no reference yet, a described sample, a norm and a dip off."""
     from fusionkit.detectors.magnetic import MAG_SIZE, follow_field, k_follow_field
 
-    for norm, dip, learned in [(50.0, 1.0, 0.0), (52.0, 1.1, 3.0), (60.0, 1.0, 3.0), (50.0, 0.7, 3.0)]:
-        s = np.zeros(MAG_SIZE)
-        s[:4] = 50.0, 1.0, learned, 0.5
-        s[6] = 7.0
-        k = s.copy()
-        off = learned > 0.0 and (norm, dip) in [(60.0, 1.0), (50.0, 0.7)]
-        assert follow_field(s, norm, dip, 0.1, 0.17) == k_follow_field(k, norm, dip, 0.1, 0.17) == off
-        assert (s[2] == 0.0) == (off or learned == 0.0)
-        np.testing.assert_array_equal(s, k)
+    for evidence in (True, False):
+        for norm, dip, learned in [(50.0, 1.0, 0.0), (52.0, 1.1, 3.0), (60.0, 1.0, 3.0), (50.0, 0.7, 3.0)]:
+            s = np.zeros(MAG_SIZE)
+            s[:4] = 50.0, 1.0, learned, 0.5
+            s[6] = 7.0
+            k = s.copy()
+            off = learned > 0.0 and (norm, dip) in [(60.0, 1.0), (50.0, 0.7)]
+            assert follow_field(s, norm, dip, 0.1, 0.17, evidence) == k_follow_field(k, norm, dip, 0.1, 0.17,
+                                                                                     evidence) == off
+            assert (s[2] == 0.0) == (off or learned == 0.0)
+            assert s[7] == (1.0 if off and evidence else 0.0)  # relearned: its time in use counted (relearn_evidence)
+            np.testing.assert_array_equal(s, k)
 
 
 @pytest.mark.parametrize("soft_iron", [True, False])
@@ -763,3 +766,32 @@ def test_a_measure_interval_longer_than_its_time_constants_is_refused():
         MagHeading(measure_interval=0.5, gain="fixed", tau=0.2)
     assert MagHeading(measure_interval=0.5, gain="kalman", tau=0.2).config.measure_interval == 0.5
     assert fk.make("recommended", mag_measure_interval=1.0).config.mag_measure_interval == 1.0
+
+
+def test_a_calibration_inside_an_earth_fixed_field_does_not_keep_it_as_the_reference():
+    """A 30 uT hard iron, slow turns, and a field fixed in the earth frame from 6 to 11 s: the calibration
+    becomes confident inside it, so ``mag-heading`` learns its magnetic reference again there (on the
+    disturbance). When the disturbance ends, the earth's field is a new consistent field: with
+    ``relearn_evidence`` (the default) it replaces the relearned reference after as long as that one was
+    used; without it, after new_time (20 s), the heading meanwhile coasting on the gyro from where the
+    disturbance left it."""
+    from fusionkit.benchmarking.metrics import truth_errors
+    from fusionkit.sim import FieldPatch
+    from fusionkit.sim.scenarios import perturbed
+
+    rec = perturbed("hard-iron-turning", initial_rest=1.5, rate=100.0, seed=4,
+                    errors={"patches": (FieldPatch((-4.5, -10.8, -2.2), 6.0, 11.0),)})
+    t = np.arange(len(rec)) / 100.0
+    rms = {}
+    for evidence in (True, False):
+        res = fk.make("recommended", magnetic={"relearn_evidence": evidence}).run(rec)
+        recal = np.flatnonzero(res.flags & Flag.MAG_RECALIBRATED)
+        assert recal.size and 6.0 < t[recal[0]] < 11.0  # confident inside the disturbance
+        h = truth_errors(res.quat, "ENU", rec)["heading"]
+        rms[evidence] = np.sqrt(np.mean(h[(t > 20.0) & (t < 35.0)] ** 2))
+    assert rms[True] < 0.3 * rms[False]
+    # the relearned reference's count and its replacement, compiled, give the reference path's numbers
+    ref, fast = (fk.make("recommended").run(rec.slice(0, 2500), backend=b) for b in ("reference", "numba"))
+    assert np.abs(fast.quat - ref.quat).max() < 1e-9
+    np.testing.assert_array_equal(fast.flags, ref.flags)
+

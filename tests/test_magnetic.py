@@ -65,6 +65,43 @@ def test_a_new_homogeneous_field_becomes_the_reference_while_turning(rec):
     assert res.fired[1000:].mean() > 0.6
 
 
+def _relearned(det, evidence, relearn=True):
+    """Turning at 1 rad/s, 100 Hz: 2 s of field A (norm 50), then (``relearn``) the reference learned again on
+    field B (norm 60: a recalibration inside a disturbance) and B for 3 s, then A for 25 s. Both paths step
+    together (states equal to 1e-12); returns the seconds A is disturbed before it is the reference again."""
+    from fusionkit.detectors.magnetic import follow_field, k_follow_field
+
+    a, b = np.zeros(MAG_SIZE), np.zeros(MAG_SIZE)
+    fields = [(50.0, 200), (60.0, 300), (50.0, 2500)]
+    k, back = 0, None
+    for i, (norm, n) in enumerate(fields):
+        if i == 1 and relearn:
+            assert follow_field(a, norm, 1.1, det.config.norm_threshold, det.config.dip_threshold, evidence)
+            assert k_follow_field(b, norm, 1.1, det.config.norm_threshold, det.config.dip_threshold, evidence)
+        for _ in range(n):
+            ra = det.reference_step(a, norm, 1.1, 1.0, 0.01)
+            assert magnetic_step(b, norm, 1.1, 1.0, 0.01, *det.params()) == ra
+            np.testing.assert_allclose(a, b, atol=1e-12)
+            if i == 2 and back is None and ra != 1:  # (1: MAG_DISTURBED)
+                back = k * 0.01
+            k += 1
+    return back - 5.0
+
+
+def test_a_relearned_reference_yields_to_a_field_seen_longer():
+    """``relearn_evidence``: a reference learned again at a recalibration inside a disturbance (field B, used
+    for 2 s while turning after its 1 s of learning) yields to the earth's field (A, consistent while turning)
+    after those 2 s, instead of new_time (20 s); with the option off, after new_time. A reference learned at the
+    start keeps new_time either way, so a disturbance that lasts less than new_time stays rejected."""
+    det = MagneticDetector()
+    assert abs(_relearned(det, True) - 2.0) < 0.05
+    assert abs(_relearned(MagneticDetector(relearn_evidence=False), False) - 20.0) < 0.05
+    # no relearn: B is a disturbance against the reference learned at the start, A its end (never disturbed)
+    a = np.zeros(MAG_SIZE)
+    codes = [det.reference_step(a, norm, 1.1, 1.0, 0.01) for norm, n in ((50.0, 200), (60.0, 1500)) for _ in range(n)]
+    assert all(c == 1 for c in codes[300:])  # 15 s of B: still disturbed
+
+
 def test_pipeline_withholds_the_disturbed_magnetometer(rec):
     """With the detector, a gradient-descent pipeline's heading ignores the magnet."""
     mag = rec.mag.copy()

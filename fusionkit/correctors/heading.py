@@ -466,7 +466,7 @@ class MagHeading(FactorCorrector):
         # was there when the reference was learned too: whatever the calibration moved here, it is what takes the
         # field off that reference)
         if recalibrated and (ok or _moved(x, norm, dip, mc.norm_threshold, mc.dip_threshold)) and follow_field(
-                x[_MAG:_MAG + MAG_SIZE], norm, dip, mc.norm_threshold, mc.dip_threshold):
+                x[_MAG:_MAG + MAG_SIZE], norm, dip, mc.norm_threshold, mc.dip_threshold, mc.relearn_evidence):
             x[_RELEARN] = 1.0  # learned again; the heading keeps its filter meanwhile
         x[_PN], x[_PD] = norm, dip
         x[_PL:_PL + 3] = m
@@ -508,7 +508,7 @@ class MagHeading(FactorCorrector):
                       float(c.follow_calibration), float(c.gain == "kalman"), c.gyro_noise ** 2, c.bias_sigma ** 2,
                       c.scale_sigma ** 2, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time,
                       float(c.inclination_noise), float(c.reexpress), 2.0 * c.mag_noise ** 2 + c.field_error ** 2,
-                      c.measure_interval])
+                      c.measure_interval, float(self.magnetic.config.relearn_evidence)])
         static = (c.gain == "kalman", c.mag_delay_estimate, c.measure_interval > 0.0, c.scale_sigma ** 2 > 0.0,
                   c.inclination_noise, c.reexpress, c.mag_bias)  # (p[18], p[14], p[28], p[21], p[25], p[26], p[4])
         return CorrectorKernel(mag_heading_kernel, p, mode="factor", static=static)
@@ -963,7 +963,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
                 s[_RL], s[_RL + 1], s[_RL + 2] = f0, f1, f2
                 _k_turn(s, st)
                 rex = True
-        if recal and (rex or _k_moved(s, norm, dip, p[8], p[9])) and k_follow_field(s, norm, dip, p[8], p[9]):
+        if recal and (rex or _k_moved(s, norm, dip, p[8], p[9])) and k_follow_field(s, norm, dip, p[8], p[9],
+                                                                                      p[29] != 0.0):
             s[_RELEARN] = 1.0  # (the reference's state sits at the start of the corrector's)
         s[_PN], s[_PD] = norm, dip
         s[_PL], s[_PL + 1], s[_PL + 2] = v0, v1, v2

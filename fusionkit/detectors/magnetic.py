@@ -15,7 +15,14 @@ Recovery:
   ``new_min_rate``) becomes the new reference. Turning is the test that tells a new homogeneous
   field (constant in the earth frame: norm and dip stay put while the body turns) from a magnet
   carried along with the body (its norm and dip seen against the vertical change as the body
-  turns, or it is never consistent).
+  turns, or it is never consistent);
+- a reference *learned again* (:func:`follow_field`: ``mag-heading`` relearns it where a
+  recalibration of the magnetometer moved the field) is learned over ``init_time`` s wherever the
+  body then is, inside a disturbance as likely as outside. With ``relearn_evidence`` (the default) a
+  new consistent field replaces it once it has been consistent while turning for as long as the
+  relearned reference has been seen while turning (at most ``new_time``): two homogeneous fields,
+  and the one seen longer is taken for the earth's. A reference learned at the start keeps
+  ``new_time``.
 
 The core, :func:`magnetic_step`, works on scalars: the ``mag-heading`` corrector and the ``ekf`` filter call
 it with the norm and dip of the field seen in their own levelled frame (the dip needs a vertical;
@@ -41,9 +48,10 @@ __all__ = ["MagneticDetector", "MagneticConfig", "magnetic_step", "MAG_SIZE", "M
            "MAG_DISTURBED", "MAG_LEARNING", "field_norm_dip", "follow_field", "k_follow_field"]
 
 # state: reference norm, reference dip, samples learned, seconds learned, candidate norm, candidate dip,
-# seconds the candidate has been consistent while turning
-_RN, _RD, _N, _T, _CN, _CD, _CT = 0, 1, 2, 3, 4, 5, 6
-MAG_SIZE = 7
+# seconds the candidate has been consistent while turning; for a reference learned again (follow_field with
+# relearn_evidence), 1 + the seconds it has been used while turning (0: a reference learned at the start)
+_RN, _RD, _N, _T, _CN, _CD, _CT, _EV = 0, 1, 2, 3, 4, 5, 6, 7
+MAG_SIZE = 8
 MAG_COUNT = _N  #: index of the number of samples the reference was learned from
 MAG_TIME = _T  #: index of the seconds it was learned over
 #: what :func:`magnetic_step` says of a sample
@@ -62,6 +70,11 @@ class MagneticConfig(PluginConfig):
         20.0, unit="s", description="a new consistent field becomes the reference after this long while turning", gt=0)
     new_min_rate: float = param(
         math.radians(20.0), unit="rad/s", description="turning rate that counts towards new_time", ge=0)
+    relearn_evidence: bool = param(
+        True, unit="-", description="a reference learned again (mag-heading's, where a recalibration moved the "
+        "field) is replaced by a new field consistent while turning for as long as it has itself been used while "
+        "turning (at most new_time): the second it was learned over may lie in a disturbance. False: new_time for "
+        "every reference (the detector before). A reference learned at the start keeps new_time")
 
 
 @njit
@@ -80,6 +93,8 @@ def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, 
             else 1.0 - math.exp(-x)
         s[_RN] += k * (norm - s[_RN])
         s[_RD] += k * (dip - s[_RD])
+        if s[_EV] > 0.0 and rate >= new_min_rate:  # a relearned reference's time in use while turning
+            s[_EV] += dt
         return MAG_USE
     # disturbed: is it a new homogeneous field (consistent while the sensor turns)?
     if abs(norm - s[_CN]) < norm_th * s[_CN] and abs(dip - s[_CD]) < dip_th:
@@ -90,24 +105,29 @@ def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, 
         s[_CD] += k * (dip - s[_CD])
     else:
         s[_CN], s[_CD], s[_CT] = norm, dip, 0.0
-    if s[_CT] >= new_time:
+    if s[_CT] >= new_time or (s[_EV] > 0.0 and s[_CT] >= s[_EV] - 1.0):
+        if s[_EV] > 0.0:  # the new reference's time consistent while turning, against the next one
+            s[_EV] = 1.0 + s[_CT]
         s[_RN], s[_RD], s[_CT] = s[_CN], s[_CD], 0.0
     return MAG_DISTURBED
 
 
-def follow_field(s, norm, dip, norm_th, dip_th) -> bool:
+def follow_field(s, norm, dip, norm_th, dip_th, evidence) -> bool:
     """The field the detector judges changed for a known reason (a sensor model changed the
     magnetometer's calibration) and this sample of it has ``norm`` and ``dip``: unless the
     reference describes it (within the thresholds, as a usable sample; or none is learned yet),
     the reference learned before describes another field, so it is learned again from the next
     samples (the next ``init_time`` s, as at the start). Whether it restarts. One sample is
-    enough to judge: a calibrated field's norm and dip are the same at every orientation. The
-    same statements in the reference and, compiled, in the kernel."""
+    enough to judge: a calibrated field's norm and dip are the same at every orientation.
+    ``evidence`` (``relearn_evidence``): the relearned reference yields to a new consistent field
+    after as long as it has itself been used while turning (:func:`magnetic_step`). The same
+    statements in the reference and, compiled, in the kernel."""
     if s[_N] == 0.0 or (abs(norm - s[_RN]) <= norm_th * s[_RN] and abs(dip - s[_RD]) <= dip_th):
         return False
     s[_N] = 0.0
     s[_T] = 0.0
     s[_CT] = 0.0
+    s[_EV] = 1.0 if evidence else 0.0
     return True
 
 
@@ -168,6 +188,8 @@ class MagneticDetector(Detector):
             return MAG_LEARNING
         if abs(norm - ref[0]) <= c.norm_threshold * ref[0] and abs(dip - ref[1]) <= c.dip_threshold:
             ref += (1.0 - math.exp(-dt / c.ref_tau)) * (np.array([norm, dip]) - ref)  # follow slowly
+            if s[_EV] > 0.0 and rate >= c.new_min_rate:  # a relearned reference's time in use while turning
+                s[_EV] += dt
             return MAG_USE
         cand = s[_CN:_CD + 1]
         if abs(norm - cand[0]) < c.norm_threshold * cand[0] and abs(dip - cand[1]) < c.dip_threshold:
@@ -176,7 +198,10 @@ class MagneticDetector(Detector):
             cand += (1.0 - math.exp(-dt)) * (np.array([norm, dip]) - cand)
         else:  # a different field: a new candidate
             cand[:], s[_CT] = (norm, dip), 0.0
-        if s[_CT] >= c.new_time:
+        # replaced after new_time, or a relearned reference after as long as it has been used (relearn_evidence)
+        if s[_CT] >= c.new_time or (s[_EV] > 0.0 and s[_CT] >= s[_EV] - 1.0):
+            if s[_EV] > 0.0:
+                s[_EV] = 1.0 + s[_CT]
             ref[:], s[_CT] = cand, 0.0
         return MAG_DISTURBED
 

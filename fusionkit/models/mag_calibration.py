@@ -424,7 +424,7 @@ class MagCalibrationModel(SensorModel):
         s[_NE] = lam * s[_NE] + 1.0
         s[_N] = n + 1.0
         if c.first_check and s[_N] == c.min_segments and s[STATE + _GC] == c.min_segments:
-            _first_check(s, False, c.min_segments, c.outlier_sigma)
+            _first_check(s, 3, c.min_segments, c.outlier_sigma)
             a = s[_A:_A + 9].reshape(3, 3).copy()
         best = _solve3(a, s[_Y:_Y + 3])
         if best is None:
@@ -482,7 +482,7 @@ class MagCalibrationModel(SensorModel):
         s[_NE] = lam * s[_NE] + 1.0
         s[_N] = n + 1.0
         if c.first_check and s[_N] == c.min_segments and s[STATE_SOFT + _GC] == c.min_segments:
-            _first_check(s, True, c.min_segments, c.outlier_sigma)
+            _first_check(s, _NP, c.min_segments, c.outlier_sigma)
             a = s[_SA:_SA + _NP * _NP].reshape(_NP, _NP).copy()
         s[_SINVOK] = float(_invert_spd(a.copy(), np.empty((_NP, _NP)), inv, _NP))  # inv: untouched if not invertible
         if not s[_SINVOK]:
@@ -965,27 +965,6 @@ def _ring_rows(s, g, q, soft, h, r) -> None:
     r[:] = mk - ct @ ma
 
 
-def _rebuild(s, ia, iy, hs, rs, keep, n, npar) -> None:
-    """The fit's sums (information matrix at ``ia``, right-hand side at ``iy``, ``sum |r|^2``, the
-    weights, the count) from the kept segments among ``hs``/``rs``, each with weight 1. The same
-    statements in the reference and, compiled, in the kernel."""
-    for i in range(npar * npar):
-        s[ia + i] = 0.0
-    for i in range(npar):
-        s[iy + i] = 0.0
-    s[_RR] = s[_NE] = s[_N] = 0.0
-    for q in range(n):
-        if not keep[q]:
-            continue
-        for i in range(npar):
-            for j in range(npar):
-                s[ia + npar * i + j] += hs[q, 0, i] * hs[q, 0, j] + hs[q, 1, i] * hs[q, 1, j] + hs[q, 2, i] * hs[q, 2, j]
-            s[iy + i] += hs[q, 0, i] * rs[q, 0] + hs[q, 1, i] * rs[q, 1] + hs[q, 2, i] * rs[q, 2]
-        s[_RR] += rs[q, 0] * rs[q, 0] + rs[q, 1] * rs[q, 1] + rs[q, 2] * rs[q, 2]
-        s[_NE] += 1.0
-        s[_N] += 1.0
-
-
 def _fit_sums(hs, rs, keep, n, npar, a, y) -> tuple[int, float]:
     """The normal equations of the kept segments among ``hs``/``rs`` (unit weights) into ``a`` and
     ``y``; returns their count and ``sum |r|^2``. The same statements in the reference and, compiled,
@@ -1055,18 +1034,19 @@ def _worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p) -> tuple[flo
     return worst, wq
 
 
-def _first_check(s, soft, n, out_sigma) -> None:
+def _first_check(s, npar, n, out_sigma) -> None:
     """``first_check``: the ``n`` segments the fit rests on when its residual noise is first trusted
     (``min_segments``), judged by their deleted residuals (:func:`_worst_deleted`); the worst removed
     while it exceeds ``out_sigma`` standard deviations, one at a time, and the fit's sums rebuilt from
-    the rest (:func:`_rebuild`; unit weights: they span seconds, the forgetting minutes). Before the
+    the rest (:func:`_fit_sums`; unit weights: they span seconds, the forgetting minutes). Before the
     noise is trusted no segment is tested, and a segment that straddles a change of the field in the
     earth frame (entering or leaving a disturbance) does not fit body-fixed iron: kept, it pulls the
     estimate and inflates the noise estimate for ``forget_time``, which then asks for several times
     the rotation before the estimate is confident and lets later misfits through. Nothing changes
     where all fit. The kernel's twin (:func:`_k_first_check`) calls the compiled twins of the same
     functions."""
-    g, npar, ia, iy = (STATE_SOFT, _NP, _SA, _SY) if soft else (STATE, 3, _A, _Y)
+    soft = npar == _NP  # (the unknowns' count, not a flag: one compile of the twin for both layouts)
+    g, ia, iy = (STATE_SOFT, _SA, _SY) if soft else (STATE, _A, _Y)
     hs, rs = np.empty((n, 3, npar)), np.empty((n, 3))
     for q in range(n):
         _ring_rows(s, g, q, soft, hs[q], rs[q])
@@ -1082,8 +1062,11 @@ def _first_check(s, soft, n, out_sigma) -> None:
         if q < 0 or not worst > out_sigma * out_sigma:
             break
         keep[q] = False
-    if not keep.all():
-        _rebuild(s, ia, iy, hs, rs, keep, n, npar)
+    if not keep.all():  # the fit's sums from the rest
+        kept, rr = _fit_sums(hs, rs, keep, n, npar, a, y)
+        s[ia:ia + npar * npar] = a.ravel()
+        s[iy:iy + npar] = y
+        s[_RR], s[_NE], s[_N] = rr, float(kept), float(kept)
 
 
 def _min_eig_sym3(a) -> float:
@@ -1179,17 +1162,15 @@ def _k_ring_rows(s, g, q, soft, h, r):
         r[i] = mk[i] - (ct[i, 0] * ma[0] + ct[i, 1] * ma[1] + ct[i, 2] * ma[2])
 
 
-_k_rebuild = njit(_rebuild)
-
-
 _k_fit_sums = njit(_fit_sums)
 _k_worst_deleted = njit(_worst_deleted)
 
 
 @njit(cold=True)
-def _k_first_check(s, soft, n, out_sigma):
+def _k_first_check(s, npar, n, out_sigma):
     """:func:`_first_check`, compiled (once per learning: a call, not inlined)."""
-    g, npar, ia, iy = (STATE_SOFT, _NP, _SA, _SY) if soft else (STATE, 3, _A, _Y)
+    soft = npar == _NP  # (the unknowns' count, not a flag: one compile of the twin for both layouts)
+    g, ia, iy = (STATE_SOFT, _SA, _SY) if soft else (STATE, _A, _Y)
     hs, rs = np.empty((n, 3, npar)), np.empty((n, 3))
     for q in range(n):
         _k_ring_rows(s, g, q, soft, hs[q], rs[q])
@@ -1205,8 +1186,13 @@ def _k_first_check(s, soft, n, out_sigma):
         if q < 0 or not worst > out_sigma * out_sigma:
             break
         keep[q] = False
-    if not keep.all():
-        _k_rebuild(s, ia, iy, hs, rs, keep, n, npar)
+    if not keep.all():  # the fit's sums from the rest
+        kept, rr = _k_fit_sums(hs, rs, keep, n, npar, a, y)
+        for i in range(npar):
+            for j in range(npar):
+                s[ia + npar * i + j] = a[i, j]
+            s[iy + i] = y[i]
+        s[_RR], s[_NE], s[_N] = rr, float(kept), float(kept)
 
 @njit
 def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p, soft, once):
@@ -1351,7 +1337,7 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
     k_forget_accumulate(s, _A, _Y, _RR, _NE, h, r, lam, a)
     s[_N] = n + 1.0
     if first and s[_N] == min_seg and s[STATE + _GC] == min_seg:
-        _k_first_check(s, False, int(min_seg), out_sigma)
+        _k_first_check(s, 3, int(min_seg), out_sigma)
         for i in range(3):
             for j in range(3):
                 a[i, j] = s[_A + 3 * i + j]
@@ -1442,7 +1428,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     s[_NE] = lam * s[_NE] + 1.0
     s[_N] = n + 1.0
     if first and s[_N] == min_seg and s[STATE_SOFT + _GC] == min_seg:
-        _k_first_check(s, True, int(min_seg), out_sigma)
+        _k_first_check(s, _NP, int(min_seg), out_sigma)
         for i in range(_NP):
             for j in range(_NP):
                 a[i, j] = s[_SA + _NP * i + j]
