@@ -89,17 +89,36 @@ def _relearned(det, evidence, relearn=True):
 
 
 def test_a_relearned_reference_yields_to_a_field_seen_longer():
-    """``relearn_evidence``: a reference learned again at a recalibration inside a disturbance (field B, used
-    for 2 s while turning after its 1 s of learning) yields to the earth's field (A, consistent while turning)
-    after those 2 s, instead of new_time (20 s); with the option off, after new_time. A reference learned at the
+    """``relearn_evidence``: a reference learned again at a recalibration inside a disturbance (field B, learned
+    over 1 s and used for 2 s while turning) yields to the earth's field (A, consistent while turning) after those
+    3 s, instead of new_time (20 s); with the option off, after new_time. A reference learned at the
     start keeps new_time either way, so a disturbance that lasts less than new_time stays rejected."""
     det = MagneticDetector()
-    assert abs(_relearned(det, True) - 2.0) < 0.05
+    assert abs(_relearned(det, True) - 3.0) < 0.05  # its 1 s of learning and 2 s of use while turning
     assert abs(_relearned(MagneticDetector(relearn_evidence=False), False) - 20.0) < 0.05
     # no relearn: B is a disturbance against the reference learned at the start, A its end (never disturbed)
     a = np.zeros(MAG_SIZE)
     codes = [det.reference_step(a, norm, 1.1, 1.0, 0.01) for norm, n in ((50.0, 200), (60.0, 1500)) for _ in range(n)]
     assert all(c == 1 for c in codes[300:])  # 15 s of B: still disturbed
+
+
+def test_a_relearned_reference_is_not_replaced_without_turning():
+    """A reference learned again and never used while turning still has its second of learning as evidence: a
+    different field at rest (which cannot be told from a magnet carried along) stays disturbed, on both paths."""
+    from fusionkit.detectors.magnetic import follow_field, k_follow_field
+
+    det = MagneticDetector()
+    a, b = np.zeros(MAG_SIZE), np.zeros(MAG_SIZE)
+    for norm, n, rate in ((50.0, 200, 1.0), (60.0, 200, 0.0), (75.0, 500, 0.0), (75.0, 50, 1.0)):
+        if norm == 60.0:
+            assert follow_field(a, norm, 1.1, 0.1, 0.17, True) and k_follow_field(b, norm, 1.1, 0.1, 0.17, True)
+        codes = []
+        for _ in range(n):
+            codes.append(det.reference_step(a, norm, 1.1, rate, 0.01))
+            assert magnetic_step(b, norm, 1.1, rate, 0.01, *det.params()) == codes[-1]
+            np.testing.assert_allclose(a, b, atol=1e-12)
+        if norm == 75.0:
+            assert all(c == 1 for c in codes)  # 5 s at rest, then 0.5 s turning: under the 1 s it needs
 
 
 def test_pipeline_withholds_the_disturbed_magnetometer(rec):

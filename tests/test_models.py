@@ -278,6 +278,10 @@ def test_mag_calibration_first_check_kernel_equals_reference(soft_iron):
     assert np.abs(fast.diagnostics["state"]["mod"][0] - ref.diagnostics["state"]["mod"][0]).max() < 1e-9
     np.testing.assert_array_equal(fast.flags, ref.flags)
     assert ref.diagnostics["state"]["mod"][0][mc._CONF] == 1.0
+    # the check removed a segment here: without it the same pipeline is never confident
+    off = fk.compose({**pipe.config.model_dump(), "models": [{"name": "mag-calibration", "params": {
+        "soft_iron": soft_iron, "first_check": False}}]}).run(r, backend="numba")
+    assert off.diagnostics["state"]["mod"][0][mc._CONF] == 0.0
 
 
 @pytest.mark.parametrize("soft_iron", [False, True])

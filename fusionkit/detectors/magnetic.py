@@ -20,8 +20,8 @@ Recovery:
   recalibration of the magnetometer moved the field) is learned over ``init_time`` s wherever the
   body then is, inside a disturbance as likely as outside. With ``relearn_evidence`` (the default) a
   new consistent field replaces it once it has been consistent while turning for as long as the
-  relearned reference has been seen while turning (at most ``new_time``): two homogeneous fields,
-  and the one seen longer is taken for the earth's. A reference learned at the start keeps
+  relearned reference was learned (``init_time``) and then used while turning (at most
+  ``new_time``): two homogeneous fields, and the one seen longer is taken for the earth's. A reference learned at the start keeps
   ``new_time``.
 
 The core, :func:`magnetic_step`, works on scalars: the ``mag-heading`` corrector and the ``ekf`` filter call
@@ -72,8 +72,8 @@ class MagneticConfig(PluginConfig):
         math.radians(20.0), unit="rad/s", description="turning rate that counts towards new_time", ge=0)
     relearn_evidence: bool = param(
         True, unit="-", description="a reference learned again (mag-heading's, where a recalibration moved the "
-        "field) is replaced by a new field consistent while turning for as long as it has itself been used while "
-        "turning (at most new_time): the second it was learned over may lie in a disturbance. False: new_time for "
+        "field) is replaced by a new field consistent while turning for as long as it was itself learned (init_time) "
+        "and then used while turning (at most new_time): the second it was learned over may lie in a disturbance. False: new_time for "
         "every reference (the detector before). A reference learned at the start keeps new_time")
 
 
@@ -105,7 +105,9 @@ def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, 
         s[_CD] += k * (dip - s[_CD])
     else:
         s[_CN], s[_CD], s[_CT] = norm, dip, 0.0
-    if s[_CT] >= new_time or (s[_EV] > 0.0 and s[_CT] >= s[_EV] - 1.0):
+    # a relearned reference's evidence: the init_time it was learned over and its time in use while turning (s[_EV]
+    # - 1); a candidate needs as much time consistent while turning
+    if s[_CT] >= new_time or (s[_EV] > 0.0 and s[_CT] >= s[_EV] - 1.0 + init_time):
         if s[_EV] > 0.0:  # the new reference's time consistent while turning, against the next one
             s[_EV] = 1.0 + s[_CT]
         s[_RN], s[_RD], s[_CT] = s[_CN], s[_CD], 0.0
@@ -198,8 +200,9 @@ class MagneticDetector(Detector):
             cand += (1.0 - math.exp(-dt)) * (np.array([norm, dip]) - cand)
         else:  # a different field: a new candidate
             cand[:], s[_CT] = (norm, dip), 0.0
-        # replaced after new_time, or a relearned reference after as long as it has been used (relearn_evidence)
-        if s[_CT] >= c.new_time or (s[_EV] > 0.0 and s[_CT] >= s[_EV] - 1.0):
+        # replaced after new_time, or a relearned reference after as long as it was learned and used while turning
+        # (relearn_evidence)
+        if s[_CT] >= c.new_time or (s[_EV] > 0.0 and s[_CT] >= s[_EV] - 1.0 + c.init_time):
             if s[_EV] > 0.0:
                 s[_EV] = 1.0 + s[_CT]
             ref[:], s[_CT] = cand, 0.0

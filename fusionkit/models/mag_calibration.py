@@ -213,8 +213,8 @@ class MagCalibrationConfig(PluginConfig):
     outlier_count: int = param(
         3, unit="-", description="this many misfits in a row: the offset changed, learn it again", ge=1)
     first_check: bool = param(
-        True, unit="-", description="when the residual noise is first trusted (min_segments segments, up to the "
-        "gate ring's 32), judge the segments it rests on, which no misfit test saw, by their deleted residuals: the "
+        True, unit="-", description="when the residual noise is first trusted (min_segments segments, fewer than the "
+        "gate ring's 32, which must hold exactly the fit's segments: no check with min_segments 32 or more), judge the segments it rests on, which no misfit test saw, by their deleted residuals: the "
         "worst removed while over outlier_sigma standard deviations of the noise the others show, and the fit "
         "rebuilt from the rest. A segment that enters or leaves a field change fixed in the earth frame (a "
         "disturbance) does not fit body-fixed iron; kept, it pulls the estimate and inflates the noise estimate, "
@@ -423,7 +423,7 @@ class MagCalibrationModel(SensorModel):
         s[_RR] = lam * s[_RR] + float(r @ r)
         s[_NE] = lam * s[_NE] + 1.0
         s[_N] = n + 1.0
-        if c.first_check and s[_N] == c.min_segments and s[STATE + _GC] == c.min_segments:
+        if c.first_check and s[_N] == c.min_segments < _GK and s[STATE + _GC] == c.min_segments:
             _first_check(s, 3, c.min_segments, c.outlier_sigma)
             a = s[_A:_A + 9].reshape(3, 3).copy()
         best = _solve3(a, s[_Y:_Y + 3])
@@ -481,7 +481,7 @@ class MagCalibrationModel(SensorModel):
         s[_RR] = lam * s[_RR] + float(r @ r)
         s[_NE] = lam * s[_NE] + 1.0
         s[_N] = n + 1.0
-        if c.first_check and s[_N] == c.min_segments and s[STATE_SOFT + _GC] == c.min_segments:
+        if c.first_check and s[_N] == c.min_segments < _GK and s[STATE_SOFT + _GC] == c.min_segments:
             _first_check(s, _NP, c.min_segments, c.outlier_sigma)
             a = s[_SA:_SA + _NP * _NP].reshape(_NP, _NP).copy()
         s[_SINVOK] = float(_invert_spd(a.copy(), np.empty((_NP, _NP)), inv, _NP))  # inv: untouched if not invertible
@@ -1336,7 +1336,7 @@ def _k_segment(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_count, ga
     a = np.empty((3, 3))
     k_forget_accumulate(s, _A, _Y, _RR, _NE, h, r, lam, a)
     s[_N] = n + 1.0
-    if first and s[_N] == min_seg and s[STATE + _GC] == min_seg:
+    if first and s[_N] == min_seg and min_seg < _GK and s[STATE + _GC] == min_seg:
         _k_first_check(s, 3, int(min_seg), out_sigma)
         for i in range(3):
             for j in range(3):
@@ -1427,7 +1427,7 @@ def _k_segment_soft(s, m0, m1, m2, forget, max_std, min_seg, out_sigma, out_coun
     s[_RR] = lam * s[_RR] + (r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
     s[_NE] = lam * s[_NE] + 1.0
     s[_N] = n + 1.0
-    if first and s[_N] == min_seg and s[STATE_SOFT + _GC] == min_seg:
+    if first and s[_N] == min_seg and min_seg < _GK and s[STATE_SOFT + _GC] == min_seg:
         _k_first_check(s, _NP, int(min_seg), out_sigma)
         for i in range(_NP):
             for j in range(_NP):
