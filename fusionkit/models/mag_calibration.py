@@ -985,14 +985,15 @@ def _fit_sums(hs, rs, keep, n, npar, a, y) -> tuple[int, float]:
     return kept, rr
 
 
-def _worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p) -> tuple[float, int]:
+def _worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p, only) -> tuple[float, int]:
     """The kept segments' worst *deleted* residual, given the fit's inverse information matrix
     ``inv`` and right-hand side ``y`` (:func:`_fit_sums`). For a kept segment ``q`` with residual
     ``e = r - H x`` against the whole fit, ``d = e^T (I - H A^-1 H^T)^-1 e`` is what removing it
     takes off the residual sum of squares, so ``(RSS - d) / dof`` is the noise the other segments
     show, and ``d / 3`` over it is the segment's misfit in units of that noise. Returns ``(ratio,
     q)`` of the largest (q -1: none; a segment without which the fit would be undetermined,
-    ``I - H A^-1 H^T`` singular, is not judged). ``x``, ``e``, ``p``: scratch. The same statements in
+    ``I - H A^-1 H^T`` singular, is not judged); ``only`` >= 0: that segment's alone (its residual
+    against the fit of the others: whether it fits them). ``x``, ``e``, ``p``: scratch. The same statements in
     the reference and, compiled, in the kernel."""
     rss = rr
     for i in range(npar):
@@ -1003,7 +1004,7 @@ def _worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p) -> tuple[flo
         rss -= y[i] * t
     worst, wq = 0.0, -1
     for q in range(n):
-        if not keep[q]:
+        if not keep[q] or (only >= 0 and q != only):
             continue
         for i in range(3):
             t = rs[q, i]
@@ -1034,11 +1035,22 @@ def _worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p) -> tuple[flo
     return worst, wq
 
 
+def _fit_worst(hs, rs, keep, n, npar, only, a, inv, m, y, x, e, p) -> tuple[float, int]:
+    """The fit of the kept segments and :func:`_worst_deleted` of it ((0, -1) where the fit is
+    undetermined or has fewer than 3 degrees of freedom); the arrays after ``only`` are scratch."""
+    kept, rr = _fit_sums(hs, rs, keep, n, npar, a, y)
+    dof = 3 * (kept - 1) - npar
+    if dof < 3 or not _invert_spd(a, m, inv, npar):
+        return 0.0, -1
+    return _worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p, only)
+
+
 def _first_check(s, npar, n, out_sigma) -> None:
     """``first_check``: the ``n`` segments the fit rests on when its residual noise is first trusted
-    (``min_segments``), judged by their deleted residuals (:func:`_worst_deleted`); the worst removed
-    while it exceeds ``out_sigma`` standard deviations, one at a time, and the fit's sums rebuilt from
-    the rest (:func:`_fit_sums`; unit weights: they span seconds, the forgetting minutes). Before the
+    (``min_segments``), judged by their deleted residuals (:func:`_worst_deleted`): the worst quarter taken
+    out one at a time whatever their misfit (two misfits, a short disturbance's two edges, would each hide in
+    the other's noise), each put back if it fits the rest within ``out_sigma`` standard deviations, then any
+    other over that removed one at a time; the fit's sums rebuilt from the rest (:func:`_fit_sums`; unit weights: they span seconds, the forgetting minutes). Before the
     noise is trusted no segment is tested, and a segment that straddles a change of the field in the
     earth frame (entering or leaving a disturbance) does not fit body-fixed iron: kept, it pulls the
     estimate and inflates the noise estimate for ``forget_time``, which then asks for several times
@@ -1053,13 +1065,27 @@ def _first_check(s, npar, n, out_sigma) -> None:
     keep = np.ones(n, dtype=bool)
     a, inv, m, y = np.empty((npar, npar)), np.empty((npar, npar)), np.empty((npar, npar)), np.empty(npar)
     x, e, p = np.empty(npar), np.empty(3), np.empty((3, 3))
-    while True:
-        kept, rr = _fit_sums(hs, rs, keep, n, npar, a, y)
-        dof = 3 * (kept - 1) - npar
-        if dof < 3 or not _invert_spd(a, m, inv, npar):
+    thr, out, k = out_sigma * out_sigma, np.empty(n // 4, dtype=np.int64), 0
+    while k < n // 4:  # out: the worst, over the threshold or not, up to a quarter (two misfits mask each other)
+        worst, q = _fit_worst(hs, rs, keep, n, npar, -1, a, inv, m, y, x, e, p)
+        if q < 0:
             break
-        worst, q = _worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p)
-        if q < 0 or not worst > out_sigma * out_sigma:
+        keep[q], out[k], k = False, q, k + 1
+    while True:  # back in, the best first: each that fits the rest
+        best, bq = thr, -1
+        for j in range(k):
+            if not keep[out[j]]:
+                keep[out[j]] = True
+                ratio, q = _fit_worst(hs, rs, keep, n, npar, out[j], a, inv, m, y, x, e, p)
+                keep[out[j]] = False
+                if q >= 0 and ratio <= best:
+                    best, bq = ratio, out[j]
+        if bq < 0:
+            break
+        keep[bq] = True
+    while True:  # then any other over the threshold, one at a time
+        worst, q = _fit_worst(hs, rs, keep, n, npar, -1, a, inv, m, y, x, e, p)
+        if q < 0 or not worst > thr:
             break
         keep[q] = False
     if not keep.all():  # the fit's sums from the rest
@@ -1166,6 +1192,16 @@ _k_fit_sums = njit(_fit_sums)
 _k_worst_deleted = njit(_worst_deleted)
 
 
+@njit
+def _k_fit_worst(hs, rs, keep, n, npar, only, a, inv, m, y, x, e, p):
+    """:func:`_fit_worst`, compiled."""
+    kept, rr = _k_fit_sums(hs, rs, keep, n, npar, a, y)
+    dof = 3 * (kept - 1) - npar
+    if dof < 3 or not _k_invert_spd(a, m, inv, npar):
+        return 0.0, -1
+    return _k_worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p, only)
+
+
 @njit(cold=True)
 def _k_first_check(s, npar, n, out_sigma):
     """:func:`_first_check`, compiled (once per learning: a call, not inlined)."""
@@ -1177,13 +1213,27 @@ def _k_first_check(s, npar, n, out_sigma):
     keep = np.ones(n, dtype=np.bool_)
     a, inv, m, y = np.empty((npar, npar)), np.empty((npar, npar)), np.empty((npar, npar)), np.empty(npar)
     x, e, p = np.empty(npar), np.empty(3), np.empty((3, 3))
-    while True:
-        kept, rr = _k_fit_sums(hs, rs, keep, n, npar, a, y)
-        dof = 3 * (kept - 1) - npar
-        if dof < 3 or not _k_invert_spd(a, m, inv, npar):
+    thr, out, k = out_sigma * out_sigma, np.empty(n // 4, dtype=np.int64), 0
+    while k < n // 4:
+        worst, q = _k_fit_worst(hs, rs, keep, n, npar, -1, a, inv, m, y, x, e, p)
+        if q < 0:
             break
-        worst, q = _k_worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p)
-        if q < 0 or not worst > out_sigma * out_sigma:
+        keep[q], out[k], k = False, q, k + 1
+    while True:
+        best, bq = thr, -1
+        for j in range(k):
+            if not keep[out[j]]:
+                keep[out[j]] = True
+                ratio, q = _k_fit_worst(hs, rs, keep, n, npar, out[j], a, inv, m, y, x, e, p)
+                keep[out[j]] = False
+                if q >= 0 and ratio <= best:
+                    best, bq = ratio, out[j]
+        if bq < 0:
+            break
+        keep[bq] = True
+    while True:
+        worst, q = _k_fit_worst(hs, rs, keep, n, npar, -1, a, inv, m, y, x, e, p)
+        if q < 0 or not worst > thr:
             break
         keep[q] = False
     if not keep.all():  # the fit's sums from the rest
