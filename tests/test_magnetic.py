@@ -103,11 +103,16 @@ def test_a_relearned_reference_yields_to_a_field_seen_longer():
 
 
 def test_a_relearned_reference_is_not_replaced_without_turning():
-    """A reference learned again and never used while turning still has its second of learning as evidence: a
-    different field at rest (which cannot be told from a magnet carried along) stays disturbed, on both paths."""
+    """A reference learned again and never used while turning still has its second of learning as evidence (or,
+    learned from one sample, ``init_time`` 0, the candidate's own second): a different field at rest (which cannot
+    be told from a magnet carried along) stays disturbed, on both paths."""
     from fusionkit.detectors.magnetic import follow_field, k_follow_field
 
-    det = MagneticDetector()
+    for init_time in (1.0, 0.0):
+        _relearned_at_rest(MagneticDetector(init_time=init_time), follow_field, k_follow_field)
+
+
+def _relearned_at_rest(det, follow_field, k_follow_field):
     a, b = np.zeros(MAG_SIZE), np.zeros(MAG_SIZE)
     for norm, n, rate in ((50.0, 200, 1.0), (60.0, 200, 0.0), (75.0, 500, 0.0), (75.0, 50, 1.0)):
         if norm == 60.0:

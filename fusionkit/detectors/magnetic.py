@@ -20,9 +20,9 @@ Recovery:
   recalibration of the magnetometer moved the field) is learned over ``init_time`` s wherever the
   body then is, inside a disturbance as likely as outside. With ``relearn_evidence`` (the default) a
   new consistent field replaces it once it has been consistent while turning for as long as the
-  relearned reference was learned (``init_time``) and then used while turning (at most
-  ``new_time``): two homogeneous fields, and the one seen longer is taken for the earth's. A reference learned at the start keeps
-  ``new_time``.
+  relearned reference was learned (``init_time``) and then used while turning, at least the
+  candidate's own 1 s and at most ``new_time``: two homogeneous fields, and the one seen longer is
+  taken for the earth's. A reference learned at the start keeps ``new_time``.
 
 The core, :func:`magnetic_step`, works on scalars: the ``mag-heading`` corrector and the ``ekf`` filter call
 it with the norm and dip of the field seen in their own levelled frame (the dip needs a vertical;
@@ -73,8 +73,9 @@ class MagneticConfig(PluginConfig):
     relearn_evidence: bool = param(
         True, unit="-", description="a reference learned again (mag-heading's, where a recalibration moved the "
         "field) is replaced by a new field consistent while turning for as long as it was itself learned (init_time) "
-        "and then used while turning (at most new_time): the second it was learned over may lie in a disturbance. False: new_time for "
-        "every reference (the detector before). A reference learned at the start keeps new_time")
+        "and then used while turning (at least 1 s, at most new_time): the second it was learned over may lie in a "
+        "disturbance. False: new_time for every reference (the detector before). A reference learned at the start "
+        "keeps new_time")
 
 
 @njit
@@ -106,8 +107,8 @@ def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, 
     else:
         s[_CN], s[_CD], s[_CT] = norm, dip, 0.0
     # a relearned reference's evidence: the init_time it was learned over and its time in use while turning (s[_EV]
-    # - 1); a candidate needs as much time consistent while turning
-    if s[_CT] >= new_time or (s[_EV] > 0.0 and s[_CT] >= s[_EV] - 1.0 + init_time):
+    # - 1); a candidate needs as much time consistent while turning, and at least its own low-pass's 1 s
+    if s[_CT] >= new_time or (s[_EV] > 0.0 and s[_CT] >= max(s[_EV] - 1.0 + init_time, 1.0)):
         if s[_EV] > 0.0:  # the new reference's time consistent while turning, against the next one
             s[_EV] = 1.0 + s[_CT]
         s[_RN], s[_RD], s[_CT] = s[_CN], s[_CD], 0.0
@@ -122,7 +123,7 @@ def follow_field(s, norm, dip, norm_th, dip_th, evidence) -> bool:
     samples (the next ``init_time`` s, as at the start). Whether it restarts. One sample is
     enough to judge: a calibrated field's norm and dip are the same at every orientation.
     ``evidence`` (``relearn_evidence``): the relearned reference yields to a new consistent field
-    after as long as it has itself been used while turning (:func:`magnetic_step`). The same
+    after as long as it was itself learned and then used while turning (:func:`magnetic_step`). The same
     statements in the reference and, compiled, in the kernel."""
     if s[_N] == 0.0 or (abs(norm - s[_RN]) <= norm_th * s[_RN] and abs(dip - s[_RD]) <= dip_th):
         return False
@@ -202,7 +203,7 @@ class MagneticDetector(Detector):
             cand[:], s[_CT] = (norm, dip), 0.0
         # replaced after new_time, or a relearned reference after as long as it was learned and used while turning
         # (relearn_evidence)
-        if s[_CT] >= c.new_time or (s[_EV] > 0.0 and s[_CT] >= s[_EV] - 1.0 + c.init_time):
+        if s[_CT] >= c.new_time or (s[_EV] > 0.0 and s[_CT] >= max(s[_EV] - 1.0 + c.init_time, 1.0)):
             if s[_EV] > 0.0:
                 s[_EV] = 1.0 + s[_CT]
             ref[:], s[_CT] = cand, 0.0
