@@ -214,12 +214,13 @@ class MagCalibrationConfig(PluginConfig):
         3, unit="-", description="this many misfits in a row: the offset changed, learn it again", ge=1)
     first_check: bool = param(
         True, unit="-", description="when the residual noise is first trusted (min_segments segments, fewer than the "
-        "gate ring's 32, which must hold exactly the fit's segments: no check with min_segments 32 or more), judge the segments it rests on, which no misfit test saw, by their deleted residuals: the "
-        "worst removed while over outlier_sigma standard deviations of the noise the others show, and the fit "
-        "rebuilt from the rest. A segment that enters or leaves a field change fixed in the earth frame (a "
-        "disturbance) does not fit body-fixed iron; kept, it pulls the estimate and inflates the noise estimate, "
-        "which then asks for several times the rotation before the estimate is confident. False: the model before "
-        "(every early segment kept)")
+        "gate ring's 32, which must hold exactly the fit's segments: no check with min_segments 32 or more), judge "
+        "the segments it rests on, which no misfit test saw, by their deleted residuals: the worst quarter out "
+        "whatever their misfit (two misfits hide in each other's noise), each put back that fits the rest within "
+        "outlier_sigma standard deviations, any other over that removed, and the fit rebuilt from the rest. A "
+        "segment that enters or leaves a field change fixed in the earth frame (a disturbance) does not fit "
+        "body-fixed iron; kept, it pulls the estimate and inflates the noise estimate, which then asks for several "
+        "times the rotation before the estimate is confident. False: the model before (every early segment kept)")
     soft_iron: bool = param(
         True, unit="-", description="estimate the soft-iron distortion (a symmetric matrix) with the offset; "
         "False: the offset alone, which needs less rotation to become confident")
@@ -993,8 +994,8 @@ def _worst_deleted(hs, rs, keep, n, npar, inv, y, rr, dof, x, e, p, only) -> tup
     show, and ``d / 3`` over it is the segment's misfit in units of that noise. Returns ``(ratio,
     q)`` of the largest (q -1: none; a segment without which the fit would be undetermined,
     ``I - H A^-1 H^T`` singular, is not judged); ``only`` >= 0: that segment's alone (its residual
-    against the fit of the others: whether it fits them). ``x``, ``e``, ``p``: scratch. The same statements in
-    the reference and, compiled, in the kernel."""
+    against the fit of the others: whether it fits them). ``x``, ``e``, ``p``: scratch. The same
+    statements in the reference and, compiled, in the kernel."""
     rss = rr
     for i in range(npar):
         t = 0.0
@@ -1050,13 +1051,13 @@ def _first_check(s, npar, n, out_sigma) -> None:
     (``min_segments``), judged by their deleted residuals (:func:`_worst_deleted`): the worst quarter taken
     out one at a time whatever their misfit (two misfits, a short disturbance's two edges, would each hide in
     the other's noise), each put back if it fits the rest within ``out_sigma`` standard deviations, then any
-    other over that removed one at a time; the fit's sums rebuilt from the rest (:func:`_fit_sums`; unit weights: they span seconds, the forgetting minutes). Before the
-    noise is trusted no segment is tested, and a segment that straddles a change of the field in the
-    earth frame (entering or leaving a disturbance) does not fit body-fixed iron: kept, it pulls the
-    estimate and inflates the noise estimate for ``forget_time``, which then asks for several times
-    the rotation before the estimate is confident and lets later misfits through. Nothing changes
-    where all fit. The kernel's twin (:func:`_k_first_check`) calls the compiled twins of the same
-    functions."""
+    other over that removed one at a time; the fit's sums rebuilt from the rest (:func:`_fit_sums`; unit
+    weights: they span seconds, the forgetting minutes). Before the noise is trusted no segment is
+    tested, and a segment that straddles a change of the field in the earth frame (entering or leaving
+    a disturbance) does not fit body-fixed iron: kept, it pulls the estimate and inflates the noise
+    estimate for ``forget_time``, which then asks for several times the rotation before the estimate
+    is confident and lets later misfits through. Nothing changes where all fit. The kernel's twin
+    (:func:`_k_first_check`) calls the compiled twins of the same functions."""
     soft = npar == _NP  # (the unknowns' count, not a flag: one compile of the twin for both layouts)
     g, ia, iy = (STATE_SOFT, _SA, _SY) if soft else (STATE, _A, _Y)
     hs, rs = np.empty((n, 3, npar)), np.empty((n, 3))
