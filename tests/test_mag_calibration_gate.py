@@ -789,7 +789,7 @@ def test_a_calibration_inside_an_earth_fixed_field_does_not_keep_it_as_the_refer
         assert recal.size and 6.0 < t[recal[0]] < 11.0  # confident inside the disturbance
         h = truth_errors(res.quat, "ENU", rec)["heading"]
         rms[evidence] = np.sqrt(np.mean(h[(t > 20.0) & (t < 35.0)] ** 2))
-    assert rms[True] < 0.3 * rms[False]
+    assert rms[True] < 0.5 * rms[False]  # (16 against 64 deg on the development machine)
     # the relearned reference's count and its replacement, compiled, give the reference path's numbers
     ref, fast = (fk.make("recommended").run(rec.slice(0, 2500), backend=b) for b in ("reference", "numba"))
     assert np.abs(fast.quat - ref.quat).max() < 1e-9
