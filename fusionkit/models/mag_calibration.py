@@ -1189,8 +1189,8 @@ def _k_ring_rows(s, g, q, soft, h, r):
         r[i] = mk[i] - (ct[i, 0] * ma[0] + ct[i, 1] * ma[1] + ct[i, 2] * ma[2])
 
 
-_k_fit_sums = njit(_fit_sums)
-_k_worst_deleted = njit(_worst_deleted)
+_k_fit_sums = njit(inline="always")(_fit_sums)  # (inlined: one compile less, the same statements)
+_k_worst_deleted = njit(inline="always")(_worst_deleted)
 
 
 @njit
