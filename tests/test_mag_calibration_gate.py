@@ -773,7 +773,7 @@ def test_a_calibration_inside_an_earth_fixed_field_does_not_keep_it_as_the_refer
     becomes confident inside it, so ``mag-heading`` learns its magnetic reference again there (on the
     disturbance). When the disturbance ends, the earth's field is a new consistent field: with
     ``relearn_evidence`` (the default) it replaces the relearned reference after as long as that one was
-    used; without it, after new_time (20 s), the heading meanwhile coasting on the gyro from where the
+    learned and then used while turning; without it, after new_time (20 s), the heading meanwhile coasting on the gyro from where the
     disturbance left it."""
     from fusionkit.benchmarking.metrics import truth_errors
     from fusionkit.sim import FieldPatch
