@@ -1168,7 +1168,6 @@ def _k_soft_rows(ct, ma, mk, h):
             h[i, 5 + j] = (1.0 if i == j else 0.0) - ct[i, j]
 
 
-
 @njit
 def _k_ring_rows(s, g, q, soft, h, r):
     """:func:`_ring_rows`, compiled."""
@@ -1205,7 +1204,9 @@ def _k_fit_worst(hs, rs, keep, n, npar, only, a, inv, m, y, x, e, p):
 
 @njit(cold=True)
 def _k_first_check(s, npar, n, out_sigma):
-    """:func:`_first_check`, compiled (once per learning: a call, not inlined)."""
+    """:func:`_first_check`, compiled (once per learning: a call, not inlined). A twin, not one body with the
+    path's functions as arguments: a compiled function that passes dispatchers as arguments cannot be
+    cached by numba ("dynamic globals"), and ``_k_segment_soft`` would compile again in every process."""
     soft = npar == _NP  # (the unknowns' count, not a flag: one compile of the twin for both layouts)
     g, ia, iy = (STATE_SOFT, _SA, _SY) if soft else (STATE, _A, _Y)
     hs, rs = np.empty((n, 3, npar)), np.empty((n, 3))
@@ -1244,6 +1245,7 @@ def _k_first_check(s, npar, n, out_sigma):
                 s[ia + npar * i + j] = a[i, j]
             s[iy + i] = y[i]
         s[_RR], s[_NE], s[_N] = rr, float(kept), float(kept)
+
 
 @njit
 def mag_calibration_apply(s, v, gyr_ok, acc_ok, mag_ok, q, dt, p, soft, once):
