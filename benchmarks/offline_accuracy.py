@@ -4,6 +4,12 @@ the mean without the trial the offline mode helps most (leave-one-out), and end-
 throughput (samples/s, compilation excluded).
 
     python benchmarks/offline_accuracy.py [--data DIR] [--trials 01,06] [--param key=value ...]
+    python benchmarks/offline_accuracy.py --targets     # issue 14's tables: means, groups, leave-one-out
+
+``--targets`` adds VQF online to both modes and prints issue 14's tables from the one run: each
+mean (online and offline, 6D and 9D) against its target and its peer (``vqf``, ``vqf-offline``), the
+mean per BROAD group of each pair with the groups where the peer's is lower named, and each pair's
+means without the trial where fusionkit's lead over its peer is largest;
 
 ``--param`` sets a parameter of the recommended filter in both of its runs (an ablation);
 ``--equal-weights`` adds a column with the two passes fused half and half (the information
@@ -229,6 +235,9 @@ def main() -> None:
     ap.add_argument("--gyro-timing", action="store_true",
                     help="add the gyroscope re-timed onto the accelerometer's clock (gyro_timing='recording')")
     ap.add_argument("--groups", action="store_true", help="add the mean per BROAD group (trials.json)")
+    ap.add_argument("--targets", action="store_true",
+                    help="add VQF online and print issue 14's targets: the means, per group and without each "
+                         "comparison's best trial, against VQF in the same run")
     ap.add_argument("--bands", action="store_true", help="add where in frequency each column's tilt error is")
     ap.add_argument("--lever-blocks", action="store_true", help="print how far the lever fit explains each trial")
     ap.add_argument("--lever-band", default=",".join(map(str, LEVER_BAND)),
@@ -256,6 +265,7 @@ def main() -> None:
               "median / least | blocks under 4 |\n|---|---:|---:|---:|---:|---:|---:|")
         for rec in recs:
             print(_lever_blocks(rec, (lo, hi)))
+    targets: dict = {}
     for mode in args.modes.split(","):
         six = mode == "6D"
         kw = dict(params, use_mag=False) if six else params
@@ -263,6 +273,8 @@ def main() -> None:
                 "recommended offline": (_Passes if args.oracle_fusion else OfflineFilter)(
                     fk.make("recommended", **kw), disturbance_gap=args.gap),
                 "vqf-offline": fk.make("vqf-offline", mode="6D" if six else "auto")}
+        if args.targets:
+            runs["vqf"] = fk.make("vqf", mode="6D" if six else "auto")
         if args.equal_weights:
             runs["offline, equal weights"] = _EqualWeights(fk.make("recommended", **kw), disturbance_gap=args.gap)
         if args.no_mask and not six:
@@ -332,6 +344,8 @@ def main() -> None:
         print("| samples/s (end to end) | " + " | ".join(f"{total / secs[n]:,.0f}" for n in names) + " |")
         if args.groups:
             _groups(Path(args.data) / "trials.json", recs, err, key)
+        if args.targets:
+            targets[mode] = err
         if args.rest_offset:
             print(f"\n{mode}: inclination RMSE [deg] with the accelerometer's tilt against the reference at the rests "
                   "taken out of the reference; those tilts (deg, body x, y) before / after the movement\n| trial | "
@@ -362,6 +376,55 @@ def main() -> None:
             for n in names:
                 print(f"| mean | {n} | " + " | ".join(f"{np.mean([b[0][j] for b in bands[n]]):.4f}"
                                                 for j in range(len(BANDS))) + " | | |")
+    if args.targets:
+        _targets(Path(args.data) / "trials.json", recs, targets)
+
+
+#: issue 14's targets on BROAD's 16 development trials (mode, column: the most its mean may be, deg)
+TARGETS = {("6D", "recommended"): 0.62, ("9D", "recommended"): 2.0, ("6D", "recommended offline"): 0.50,
+           ("9D", "recommended offline"): 1.8}
+#: each of fusionkit's columns against its peer
+PEERS = (("recommended", "vqf"), ("recommended offline", "vqf-offline"))
+
+
+def _targets(path: Path, recs, targets: dict) -> None:
+    """Issue 14's tables from the errors of one run (``targets[mode][column]``, per trial): each mean
+    against its target and its peer, the mean per BROAD group with the lower of each pair in bold
+    (and the groups where the peer's is lower named), and each pair's means without the trial where
+    fusionkit's lead over the peer is largest (does the lead hold without it?)."""
+    trials = json.loads(path.read_text())["trials"] if path.exists() else {}
+    member = [set(trials.get(r.name, {}).get("groups", ["all_trials"])) | {"all_trials"} for r in recs]
+    groups = sorted(dict.fromkeys(g for m in member for g in m), key=lambda g: g != "all_trials")
+    cols = [(mode, ours, peer) for mode in targets for ours, peer in PEERS]
+    print("\nissue 14's targets: the mean over the trials against the target and the peer in the same run (deg; "
+          "6D inclination, 9D total)\n| mode | filter | mean | target | peer | peer's mean | met |")
+    print("|---|---|---:|---:|---|---:|---|")
+    for mode, ours, peer in cols:
+        m, target = float(np.mean(targets[mode][ours])), TARGETS.get((mode, ours))
+        met = "-" if target is None else "yes" if m <= target else "no"
+        print(f"| {mode} | {ours} | {m:.3f} | {target if target is not None else '-'} | {peer} | "
+              f"{np.mean(targets[mode][peer]):.3f} | {met} |")
+    head = " | ".join(f"{mode} {ours} | {peer}" for mode, ours, peer in cols)
+    print(f"\nper group (mean of its trials; the lower of each pair in bold)\n| group (trials) | {head} | "
+          "the peer's mean is lower in |\n|---|" + "---:|" * (2 * len(cols)) + "---|")
+    for g in groups:
+        idx = [i for i, m in enumerate(member) if g in m]
+        cells, lost = [], []
+        for mode, ours, peer in cols:
+            a, b = (float(np.mean([targets[mode][c][i] for i in idx])) for c in (ours, peer))
+            cells += [f"**{a:.3f}**" if a <= b else f"{a:.3f}", f"**{b:.3f}**" if b < a else f"{b:.3f}"]
+            if b < a:
+                lost.append(f"{mode} {ours}")
+        print(f"| {g} ({len(idx)}) | " + " | ".join(cells) + f" | {', '.join(lost) or '-'} |")
+    print("\nleave-one-out: each pair's means without the trial where fusionkit's lead over the peer is largest\n"
+          "| mode | pair | trial left out | its lead | mean | peer's mean |\n|---|---|---|---:|---:|---:|")
+    for mode, ours, peer in cols:
+        lead = np.array(targets[mode][peer]) - np.array(targets[mode][ours])
+        best = int(np.argmax(lead))
+        rest = [i for i in range(len(recs)) if i != best]
+        print(f"| {mode} | {ours} / {peer} | {recs[best].name} | {lead[best]:.2f} | "
+              f"{np.mean([targets[mode][ours][i] for i in rest]):.3f} | "
+              f"{np.mean([targets[mode][peer][i] for i in rest]):.3f} |")
 
 
 if __name__ == "__main__":
