@@ -10,7 +10,7 @@ tune anything: the point is to find the conditions where ``recommended`` loses.
 
     python benchmarks/generalisation.py [--quick] [--draws N] [--seed S] [--families A,B]
                                         [--filters recommended,vqf,imufusion] [--diagnose]
-                                        [--param KEY=VALUE ...]
+                                        [--param KEY=VALUE ...] [--cut S]
     python benchmarks/generalisation.py --quick --filters recommended+offline,vqf-offline
 
 Scores: 6D inclination RMSE and 9D total RMSE (deg) over the moving samples
@@ -93,10 +93,11 @@ def _skew_free(rng, size: float) -> np.ndarray:
     return m
 
 
-def draw(family: str, seed: int, quick: bool = False, iron: float = 2.0) -> dict:
+def draw(family: str, seed: int, quick: bool = False, iron: float = 2.0, cut: float | None = None) -> dict:
     """One condition: the family, its seed and the physics drawn from :data:`RANGES` (a plain
     dict, so a condition can be printed, changed and rebuilt with :func:`build`); ``iron`` (uT)
-    bounds the residual hard iron per axis, and in % the soft iron's."""
+    bounds the residual hard iron per axis, and in % the soft iron's; ``cut`` (s): the recording
+    starts this long after its initial rest ends (in motion), the samples before it cut off."""
     rng = np.random.default_rng([seed, sorted(SCENARIOS).index(family)])
     rate = float(rng.choice([100.0, 200.0, 400.0, 1000.0]))
     rest = float(np.exp(rng.uniform(math.log(0.5), math.log(30.0))))
@@ -122,14 +123,20 @@ def draw(family: str, seed: int, quick: bool = False, iron: float = 2.0) -> dict
         errors["mag_rate"] = mag_rate
     errors = {k: v for k, v in errors.items() if k not in OWN.get(family, ())}
     params = {"duration": 120.0 if quick else 300.0} if family == "drifting-bias-long" else {}
-    return {"family": family, "seed": seed, "rate": rate, "initial_rest": rest, "noise": noise, "errors": errors,
-            "params": params}
+    out = {"family": family, "seed": seed, "rate": rate, "initial_rest": rest, "noise": noise, "errors": errors,
+           "params": params}
+    if cut is not None:
+        out["cut"] = cut
+    return out
 
 
 def build(cond: dict):
-    """The recording of a condition."""
-    return perturbed(cond["family"], initial_rest=cond["initial_rest"], errors=cond["errors"],
-                     noise=Noise(**cond["noise"]), rate=cond["rate"], seed=cond["seed"], **cond["params"])
+    """The recording of a condition (from ``cond["cut"]`` s after its initial rest, where it has one)."""
+    rec = perturbed(cond["family"], initial_rest=cond["initial_rest"], errors=cond["errors"],
+                    noise=Noise(**cond["noise"]), rate=cond["rate"], seed=cond["seed"], **cond["params"])
+    if cond.get("cut") is not None:
+        rec = rec.slice(int(round((cond["initial_rest"] + cond["cut"]) * cond["rate"])), None)
+    return rec
 
 
 #: ``--param KEY=VALUE``: parameters of fusionkit's own filters (those made with ``use_mag``), each given to
@@ -207,6 +214,8 @@ def describe(cond: dict) -> str:
         bits.append(f"delay gyr {e.get('gyr_delay', 0) * cond['rate']:.1f} mag {e.get('mag_delay', 0) * cond['rate']:.1f} smp")
     if "mag_rate" in e:
         bits.append(f"mag {e['mag_rate']:.0f} Hz")
+    if cond.get("cut") is not None:
+        bits.append(f"from {cond['cut']:g} s into the motion")
     return ", ".join(bits)
 
 
@@ -306,13 +315,13 @@ def diagnose(cond: dict, dims: str, filters) -> list[tuple[str, float, float, fl
 
 
 def run(families, draws: int, seed: int, filters, quick: bool = False, progress: bool = True,
-        iron: float = 2.0) -> list[dict]:
+        iron: float = 2.0, cut: float | None = None) -> list[dict]:
     """Draw and evaluate ``draws`` conditions per family: rows of ``{"cond", "rmse"}``."""
     rows = []
     t0 = time.time()
     for i in range(draws):
         for fam in families:
-            cond = draw(fam, seed * 1000 + i, quick, iron)
+            cond = draw(fam, seed * 1000 + i, quick, iron, cut)
             rows.append({"cond": cond, "rmse": evaluate(cond, filters)})
             if progress:
                 r = rows[-1]["rmse"]
@@ -336,6 +345,8 @@ def main() -> None:
     ap.add_argument("--json", default="", help="write each condition's description and RMSEs here")
     ap.add_argument("--iron", type=float, default=2.0,
                     help="residual hard iron bound, uT per axis (and soft iron, %%; default 2: after a calibration)")
+    ap.add_argument("--cut", type=float, default=None, metavar="S",
+                    help="start each recording S s after its initial rest ends (in motion: no rest to learn from)")
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                     help="a parameter (JSON value) of the fusionkit filters that have it, e.g. "
                     "mag_distortion_significance=0.99; repeatable")
@@ -359,9 +370,10 @@ def main() -> None:
         if not any(key in f and "use_mag" in f for f in fields):
             ap.error(f"--param {key}: no fusionkit filter among {filters} has it")
     draws = args.draws or (2 if args.quick else 20)
-    rows = run(families, draws, args.seed, filters, args.quick, iron=args.iron)
+    rows = run(families, draws, args.seed, filters, args.quick, iron=args.iron, cut=args.cut)
     print(f"# generalisation: {filters[0]} vs {filters[1]}, {len(rows)} conditions "
-          f"(seed {args.seed}, {draws} draws per family, iron {args.iron:g}{', quick' if args.quick else ''})"
+          f"(seed {args.seed}, {draws} draws per family, iron {args.iron:g}{', quick' if args.quick else ''}"
+          f"{'' if args.cut is None else f', from {args.cut:g} s into the motion'})"
           + "".join(f", {k}={json.dumps(v)}" for k, v in PARAMS.items()))
     print(tables(rows, filters))
     lost = losses(rows, filters)
