@@ -31,7 +31,7 @@ def test_kernel_equals_reference_on_random_fields():
         norm, dip = base + rng.normal(scale=0.5), 1.1 + 0.3 * ((k // 300) % 2) + rng.normal(scale=0.01)
         rate = abs(rng.normal(scale=0.5))
         ra = det.reference_step(a, norm, dip, rate, 0.01)
-        rb = magnetic_step(b, norm, dip, rate, 0.01, *det.params())
+        rb = magnetic_step(b, norm, dip, rate, 0.01, *det.step_params())
         assert ra == rb, k
         np.testing.assert_allclose(a, b, atol=1e-12)
 
@@ -80,7 +80,7 @@ def _relearned(det, evidence, relearn=True):
             assert k_follow_field(b, norm, 1.1, det.config.norm_threshold, det.config.dip_threshold, evidence)
         for _ in range(n):
             ra = det.reference_step(a, norm, 1.1, 1.0, 0.01)
-            assert magnetic_step(b, norm, 1.1, 1.0, 0.01, *det.params()) == ra
+            assert magnetic_step(b, norm, 1.1, 1.0, 0.01, *det.step_params()) == ra
             np.testing.assert_allclose(a, b, atol=1e-12)
             if i == 2 and back is None and ra != 1:  # (1: MAG_DISTURBED)
                 back = k * 0.01
@@ -120,7 +120,7 @@ def _relearned_at_rest(det, follow_field, k_follow_field):
         codes = []
         for _ in range(n):
             codes.append(det.reference_step(a, norm, 1.1, rate, 0.01))
-            assert magnetic_step(b, norm, 1.1, rate, 0.01, *det.params()) == codes[-1]
+            assert magnetic_step(b, norm, 1.1, rate, 0.01, *det.step_params()) == codes[-1]
             np.testing.assert_allclose(a, b, atol=1e-12)
         if norm == 75.0:
             assert all(c == 1 for c in codes)  # 5 s at rest, then 0.5 s turning: under the 1 s it needs
@@ -140,3 +140,33 @@ def test_pipeline_withholds_the_disturbed_magnetometer(rec):
 
     assert head(guarded) < 0.3 * head(plain), (head(guarded), head(plain))
     assert (guarded.flags[810:1600] & fk.Flag.MAG_DISTURBED).all()
+
+
+def _steps(det, pattern, rate=0.0):
+    """Field B (norm 60) for 1 s (the reference), then ``pattern`` (norms) repeated for 90 s at ``rate``, both
+    paths step for step (states equal to 1e-12); the codes after the first second."""
+    a, b = np.zeros(MAG_SIZE), np.zeros(MAG_SIZE)
+    norms = [60.0] * 100 + [pattern[k % len(pattern)] for k in range(9000)]
+    codes = []
+    for k, norm in enumerate(norms):
+        ra = det.reference_step(a, norm, 1.1, rate, 0.01)
+        assert magnetic_step(b, norm, 1.1, rate, 0.01, *det.step_params()) == ra
+        np.testing.assert_allclose(a, b, atol=1e-12)
+        codes.append(ra)
+    return np.array(codes[100:]), a
+
+
+def test_a_reference_that_describes_nothing_is_learned_again():
+    """``max_rejection`` (60 s, VQF's magMaxRejectionTime): a reference learned on a field that then never comes
+    back (learned inside a disturbance, or against a vertical still wrong at a start in motion) while the sensor
+    does not turn enough for the new-field test is learned again after 60 s of rejection; without it, never. A
+    sample the reference describes pays back twice its time (VQF's magRejectionFactor): rejected two samples in
+    three, it is kept."""
+    codes, s = _steps(MagneticDetector(), [50.0])
+    assert (codes[:6000] == 1).all() and (codes[6000:6100] == 2).all() and (codes[6100:] == 0).all()
+    # (1: disturbed; 2: learning, 1 s; 0: used)
+    assert abs(s[0] - 50.0) < 1e-6  # the field it learned again
+    codes, _ = _steps(MagneticDetector(max_rejection=None), [50.0])
+    assert (codes == 1).all()
+    codes, _ = _steps(MagneticDetector(), [50.0, 50.0, 60.0])
+    assert not (codes == 2).any()  # (2: learning) never learned again

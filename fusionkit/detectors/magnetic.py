@@ -22,7 +22,17 @@ Recovery:
   new consistent field replaces it once it has been consistent while turning for as long as the
   relearned reference was learned (``init_time``) and then used while turning, at least the
   candidate's own 1 s and at most ``new_time``: two homogeneous fields, and the one seen longer is
-  taken for the earth's. A reference learned at the start keeps ``new_time``.
+  taken for the earth's. A reference learned at the start keeps ``new_time``;
+- a reference that describes no sample for ``max_rejection`` s (60 s, VQF's ``magMaxRejectionTime``)
+  is learned again from the next samples, as at the start (and yields as a relearned one does). Its
+  clock counts each rejected sample's time and takes off twice the time of each sample it describes
+  (VQF's ``magRejectionFactor``), so a field rejected two samples in three never trips it. It catches
+  what the new-field test cannot: a reference learned inside a disturbance or against a vertical still
+  wrong at a start in motion (BROAD cut to start in motion, a helicopter starting in a banked turn:
+  every later sample rejected for minutes), where the sensor then turns slower than ``new_min_rate`` or
+  the field's dip wanders enough to restart the candidate. It assumes no disturbance lasts that long
+  with the reference never describing a sample; one that does (a sensor left for minutes beside a
+  magnet) becomes the reference, and the earth's field after it is a new field again.
 
 The core, :func:`magnetic_step`, works on scalars: the ``mag-heading`` corrector and the ``ekf`` filter call
 it with the norm and dip of the field seen in their own levelled frame (the dip needs a vertical;
@@ -44,16 +54,18 @@ from ..config import PluginConfig, param
 from ..protocols import Detector, DetectorKernel, Sample
 from ..types import Flag
 
-__all__ = ["MagneticDetector", "MagneticConfig", "magnetic_step", "MAG_SIZE", "MAG_COUNT", "MAG_TIME", "MAG_USE",
-           "MAG_DISTURBED", "MAG_LEARNING", "field_norm_dip", "follow_field", "k_follow_field"]
+__all__ = ["MagneticDetector", "MagneticConfig", "magnetic_step", "MAG_SIZE", "MAG_COUNT", "MAG_TIME", "MAG_REJECTED",
+           "MAG_USE", "MAG_DISTURBED", "MAG_LEARNING", "field_norm_dip", "follow_field", "k_follow_field"]
 
 # state: reference norm, reference dip, samples learned, seconds learned, candidate norm, candidate dip,
 # seconds the candidate has been consistent while turning; for a reference learned again (follow_field with
-# relearn_evidence), 1 + the seconds it has been used while turning (0: a reference learned at the start)
-_RN, _RD, _N, _T, _CN, _CD, _CT, _EV = 0, 1, 2, 3, 4, 5, 6, 7
-MAG_SIZE = 8
+# relearn_evidence, or after max_rejection), 1 + the seconds it has been used while turning (0: a reference learned
+# at the start); the seconds since the reference last described a sample (max_rejection)
+_RN, _RD, _N, _T, _CN, _CD, _CT, _EV, _RJ = 0, 1, 2, 3, 4, 5, 6, 7, 8
+MAG_SIZE = 9
 MAG_COUNT = _N  #: index of the number of samples the reference was learned from
 MAG_TIME = _T  #: index of the seconds it was learned over
+MAG_REJECTED = _RJ  #: index of the seconds since the reference last described a sample
 #: what :func:`magnetic_step` says of a sample
 MAG_USE, MAG_DISTURBED, MAG_LEARNING = 0, 1, 2
 
@@ -70,6 +82,12 @@ class MagneticConfig(PluginConfig):
         20.0, unit="s", description="a new consistent field becomes the reference after this long while turning", gt=0)
     new_min_rate: float = param(
         math.radians(20.0), unit="rad/s", description="turning rate that counts towards new_time", ge=0)
+    max_rejection: float | None = param(
+        60.0, unit="s", description="a reference that has described no sample for this long is learned again from the "
+        "next samples (as at a recalibration, with relearn_evidence): it was learned in a disturbance, or against a "
+        "vertical still wrong at a start in motion, and the new-field test cannot replace it where the sensor turns "
+        "slowly or its field's dip wanders. VQF's magMaxRejectionTime. None: kept however long (the detector before)",
+        gt=0)
     relearn_evidence: bool = param(
         True, unit="-", description="a reference learned again (mag-heading's, where a recalibration moved the "
         "field) is replaced by a new field consistent while turning for as long as it was itself learned (init_time) "
@@ -79,9 +97,11 @@ class MagneticConfig(PluginConfig):
 
 
 @njit
-def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, new_min_rate, ref_tau):
+def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, new_min_rate, ref_tau, max_rej):
     """The kernel of :meth:`MagneticDetector.reference_step` (same arguments and arithmetic, with
-    the parameters as scalars)."""
+    the parameters as scalars; ``max_rej``: ``max_rejection``, 0 for None)."""
+    if max_rej > 0.0 and s[_RJ] + 0.5 * dt >= max_rej:  # described nothing for max_rejection s: learned again
+        s[_N], s[_T], s[_CT], s[_RJ], s[_EV] = 0.0, 0.0, 0.0, 0.0, 1.0
     if s[_N] == 0.0 or s[_T] + 0.5 * dt < init_time:
         s[_N] += 1.0
         s[_T] += dt
@@ -96,6 +116,7 @@ def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, 
         s[_RD] += k * (dip - s[_RD])
         if s[_EV] > 0.0 and rate >= new_min_rate:  # a relearned reference's time in use while turning
             s[_EV] += dt
+        s[_RJ] = max(s[_RJ] - 2.0 * dt, 0.0)
         return MAG_USE
     # disturbed: is it a new homogeneous field (consistent while the sensor turns)?
     if abs(norm - s[_CN]) < norm_th * s[_CN] and abs(dip - s[_CD]) < dip_th:
@@ -112,6 +133,9 @@ def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, 
         if s[_EV] > 0.0:  # the new reference's time consistent while turning, against the next one
             s[_EV] = 1.0 + s[_CT]
         s[_RN], s[_RD], s[_CT] = s[_CN], s[_CD], 0.0
+        s[_RJ] = 0.0
+    else:
+        s[_RJ] += dt
     return MAG_DISTURBED
 
 
@@ -130,6 +154,7 @@ def follow_field(s, norm, dip, norm_th, dip_th, evidence) -> bool:
     s[_N] = 0.0
     s[_T] = 0.0
     s[_CT] = 0.0
+    s[_RJ] = 0.0
     s[_EV] = 1.0 if evidence else 0.0
     return True
 
@@ -154,7 +179,7 @@ def _magnetic_kernel(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
     na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     dip = math.asin(max(-1.0, min(1.0, (m0 * a0 + m1 * a1 + m2 * a2) / (nm * na))))
     rate = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
-    code = magnetic_step(s, nm, dip, rate, dt, p[0], p[1], p[2], p[3], p[4], p[5])
+    code = magnetic_step(s, nm, dip, rate, dt, p[0], p[1], p[2], p[3], p[4], p[5], p[6])
     return 1 if code == MAG_DISTURBED else 0
 
 
@@ -176,6 +201,10 @@ class MagneticDetector(Detector):
         c = self.config
         return c.init_time, c.norm_threshold, c.dip_threshold, c.new_time, c.new_min_rate, c.ref_tau
 
+    def step_params(self) -> tuple[float, ...]:
+        """:meth:`params` and ``max_rejection`` (0 for None): :func:`magnetic_step`'s arguments after ``dt``."""
+        return (*self.params(), self.config.max_rejection or 0.0)
+
     def reference_step(self, s: np.ndarray, norm: float, dip: float, rate: float, dt: float) -> int:
         """One magnetometer sample with field ``norm`` (any unit), ``dip`` (rad, any sign
         convention used consistently) and turning ``rate`` (rad/s): updates the state ``s`` and
@@ -184,6 +213,9 @@ class MagneticDetector(Detector):
         equals one run)."""
         c = self.config
         ref = s[_RN:_RD + 1]  # norm, dip
+        if c.max_rejection is not None and s[_RJ] + 0.5 * dt >= c.max_rejection:  # described nothing for so long:
+            s[_N] = s[_T] = s[_CT] = s[_RJ] = 0.0  # learned again, as at a recalibration (relearn_evidence)
+            s[_EV] = 1.0
         if s[_N] == 0.0 or s[_T] + 0.5 * dt < c.init_time:  # learning: the running mean
             s[_N] += 1.0
             s[_T] += dt
@@ -193,6 +225,7 @@ class MagneticDetector(Detector):
             ref += (1.0 - math.exp(-dt / c.ref_tau)) * (np.array([norm, dip]) - ref)  # follow slowly
             if s[_EV] > 0.0 and rate >= c.new_min_rate:  # a relearned reference's time in use while turning
                 s[_EV] += dt
+            s[_RJ] = max(s[_RJ] - 2.0 * dt, 0.0)  # (VQF's magRejectionFactor)
             return MAG_USE
         cand = s[_CN:_CD + 1]
         if abs(norm - cand[0]) < c.norm_threshold * cand[0] and abs(dip - cand[1]) < c.dip_threshold:
@@ -207,6 +240,9 @@ class MagneticDetector(Detector):
             if s[_EV] > 0.0:
                 s[_EV] = 1.0 + s[_CT]
             ref[:], s[_CT] = cand, 0.0
+            s[_RJ] = 0.0
+        else:
+            s[_RJ] += dt
         return MAG_DISTURBED
 
     def step(self, state: np.ndarray, sample: Sample) -> int:
@@ -219,4 +255,4 @@ class MagneticDetector(Detector):
         return 1 if self.reference_step(state, norm, dip, rate, sample.dt) == MAG_DISTURBED else 0
 
     def kernel(self) -> DetectorKernel:
-        return DetectorKernel(_magnetic_kernel, np.array(self.params()))
+        return DetectorKernel(_magnetic_kernel, np.array(self.step_params()))

@@ -170,7 +170,7 @@ class EkfFilter(StepFilter):
             c.gate if c.gate is not None else math.inf, c.gravity, c.initial_tilt_std, c.initial_heading_std,
             c.initial_bias_std, c.gyr_range if c.gyr_range is not None else math.inf,
             c.acc_range if c.acc_range is not None else math.inf, *self.magnetic.params(),
-            *change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "NUE", "ENU"),
+            *change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "NUE", "ENU"), c.magnetic.max_rejection or 0.0,
         ])
 
     def run(self, rec, *, backend: str = "auto", progress: bool | None = None, state=None, record: bool = False):
@@ -519,7 +519,8 @@ def _ekf_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             norm = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
             dip = math.asin(max(-1.0, min(1.0, e2 / norm)))
             rate = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2) if gyr_ok else 0.0
-            code = magnetic_step(ms, norm, dip, rate, h, m_init, m_nth, m_dth, m_new_t, m_new_rate, m_ref_tau)
+            code = magnetic_step(ms, norm, dip, rate, h, m_init, m_nth, m_dth, m_new_t, m_new_rate, m_ref_tau,
+                                 p[26])
             if code == MAG_DISTURBED and mag_rej:
                 flags |= 256
                 mag_ok = False
