@@ -134,8 +134,11 @@ def build(cond: dict):
     """The recording of a condition (from ``cond["cut"]`` s after its initial rest, where it has one)."""
     rec = perturbed(cond["family"], initial_rest=cond["initial_rest"], errors=cond["errors"],
                     noise=Noise(**cond["noise"]), rate=cond["rate"], seed=cond["seed"], **cond["params"])
-    if cond.get("cut") is not None:
-        rec = rec.slice(int(round((cond["initial_rest"] + cond["cut"]) * cond["rate"])), None)
+    if cond.get("cut") is not None:  # by time: a recording with dropped samples (lossy) has fewer rows per second
+        start = int(np.searchsorted(rec.time, cond["initial_rest"] + cond["cut"]))
+        if start >= len(rec) - 1:
+            raise SystemExit(f"--cut {cond['cut']:g}: past the end of {describe(cond)}")
+        rec = rec.slice(start, None)
     return rec
 
 
@@ -193,7 +196,9 @@ def buckets(cond: dict) -> dict:
     if cond["family"] in ("late-gyro", "late-mag"):
         delay = max(delay, 0.005 * rate)  # their default delay
     bias = max(abs(b) for b in cond["noise"]["gyr_bias"]) / _DEG
-    return {"initial rest": "< 2 s" if cond["initial_rest"] < 2 else "2-10 s" if cond["initial_rest"] < 10 else ">= 10 s",
+    rest = "none (cut in motion)" if cond.get("cut") is not None else \
+        "< 2 s" if cond["initial_rest"] < 2 else "2-10 s" if cond["initial_rest"] < 10 else ">= 10 s"
+    return {"initial rest": rest,
             "turn-on gyro bias (max axis)": "< 0.25 deg/s" if bias < 0.25 else ">= 0.25 deg/s",
             "rate": "100-200 Hz" if rate <= 200 else "400-1000 Hz",
             "magnetic disturbance": "yes" if e.get("patches") or cond["family"] == "magnet-nearby" else "no",
@@ -369,6 +374,8 @@ def main() -> None:
             ap.error(f"--param {key}: the script sets it itself (6D / 9D, offline, the diagnosis's calibration off)")
         if not any(key in f and "use_mag" in f for f in fields):
             ap.error(f"--param {key}: no fusionkit filter among {filters} has it")
+    if args.cut is not None and not args.cut >= 0.0:
+        ap.error(f"--cut must be >= 0 s, got {args.cut}")
     draws = args.draws or (2 if args.quick else 20)
     rows = run(families, draws, args.seed, filters, args.quick, iron=args.iron, cut=args.cut)
     print(f"# generalisation: {filters[0]} vs {filters[1]}, {len(rows)} conditions "

@@ -58,6 +58,9 @@ def main() -> None:
         for frac in [0.0] + fractions:
             sub = rec.slice(int(frac * n), n)
             mask = sub.movement if sub.movement is not None else np.ones(len(sub), bool)
+            if not mask.any():
+                print(f"{rec.name} from {frac:.0%}: no movement left, skipped", file=sys.stderr, flush=True)
+                continue
             ours = rms_errors(fk.make("recommended", **params).run(sub), sub, mask)["total"]
             vqf = rms_errors(fk.make("vqf").run(sub), sub, mask)["total"]
             rows.append({"recording": rec.name, "from": frac, "recommended": ours, "vqf": vqf})

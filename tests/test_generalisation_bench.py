@@ -115,3 +115,16 @@ def test_param_refuses_what_the_script_sets_itself(monkeypatch, capsys, key):
     with pytest.raises(SystemExit):
         gen.main()
     assert f"--param {key}" in capsys.readouterr().err
+
+
+def test_cut_starts_the_recording_in_motion():
+    """``--cut S``: the condition's recording from ``S`` s after its initial rest ends, by time (a lossy recording has
+    fewer rows per second than its rate), its truth and movement cut alike; the tables bucket it apart."""
+    c = gen.draw("lossy", 2, quick=True, cut=2.0)
+    full, cut = gen.build({k: v for k, v in c.items() if k != "cut"}), gen.build(c)
+    start = c["initial_rest"] + 2.0
+    assert len(full) - len(cut) == int(np.sum(full.time < start))
+    np.testing.assert_array_equal(cut.gyr, full.gyr[len(full) - len(cut):])
+    np.testing.assert_array_equal(cut.truth, full.truth[len(full) - len(cut):])
+    assert cut.movement[:100].all() and not full.movement[:100].any()  # in motion from the first second, not at rest
+    assert gen.buckets(c)["initial rest"] == "none (cut in motion)" and "from 2 s into the motion" in gen.describe(c)

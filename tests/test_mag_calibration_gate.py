@@ -811,9 +811,9 @@ def _wrong_start(rate=100.0, turns=30):
 
 def test_a_reference_learned_in_a_disturbance_is_learned_again_after_max_rejection():
     """The reference learned on an earth-fixed field that ends after 2 s describes no later sample, and turning at
-    10 deg/s the new-field test never replaces it: without ``max_rejection`` the heading coasts on the gyro from the
-    disturbed field's (59 deg off) to the end; with it (60 s, the default) the reference and the heading are learned
-    again after 60 s of rejection. Compiled equals reference, with the valve at 5 s."""
+    10 deg/s the new-field test never replaces it: without ``max_rejection`` (the default) the heading coasts on the
+    gyro from the disturbed field's (59 deg off) to the end; with it at 60 s the reference and the heading are learned
+    again after 60 s of rejection. Compiled equals reference, with the clock at 5 s, in ``recommended`` and ``ekf``."""
     from fusionkit.benchmarking.metrics import truth_errors
 
     rec = _wrong_start()

@@ -882,7 +882,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
     mag_bias, motion_bias_tau, bias_max, *magnetic params (6), mag_hold, mag_delay_estimate, delay_max_std,
     delay_forget_time, follow_calibration, kalman (1) or fixed (0), gyro_noise^2, bias_sigma^2, scale_sigma^2,
     mag_noise^2, field_error^2, field_error_time, inclination_noise, reexpress, a calibrated sample's variance
-    (2 mag_noise^2 + field_error^2), measure_interval (0: every sample))``; ``ch`` the pipeline's channel; the
+    (2 mag_noise^2 + field_error^2), measure_interval (0: every sample), relearn_evidence, max_rejection (0: None))``;
+    ``ch`` the pipeline's channel; the
     compile-time options (``static``, :meth:`MagHeading.kernel`): the Kalman gain, mag_delay_estimate,
     measure_interval > 0, scale_sigma > 0, inclination_noise, reexpress and mag_bias, which ``p`` holds too."""
     if s[_DT] != dt:

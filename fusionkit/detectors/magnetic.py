@@ -23,16 +23,19 @@ Recovery:
   relearned reference was learned (``init_time``) and then used while turning, at least the
   candidate's own 1 s and at most ``new_time``: two homogeneous fields, and the one seen longer is
   taken for the earth's. A reference learned at the start keeps ``new_time``;
-- a reference that describes no sample for ``max_rejection`` s (60 s, VQF's ``magMaxRejectionTime``)
-  is learned again from the next samples, as at the start (and yields as a relearned one does). Its
-  clock counts each rejected sample's time and takes off twice the time of each sample it describes
-  (VQF's ``magRejectionFactor``), so a field rejected two samples in three never trips it. It catches
-  what the new-field test cannot: a reference learned inside a disturbance or against a vertical still
-  wrong at a start in motion (BROAD cut to start in motion, a helicopter starting in a banked turn:
-  every later sample rejected for minutes), where the sensor then turns slower than ``new_min_rate`` or
-  the field's dip wanders enough to restart the candidate. It assumes no disturbance lasts that long
-  with the reference never describing a sample; one that does (a sensor left for minutes beside a
-  magnet) becomes the reference, and the earth's field after it is a new field again.
+- ``max_rejection`` (an option, off by default): a reference that describes no sample for that long
+  (60 s, say) is learned again from the next samples, as at the start. Its clock counts each rejected
+  sample's time and takes off twice the time of each sample it describes (the pay-back of VQF's
+  ``magRejectionFactor``), so a field rejected two samples in three never trips it. It catches what the
+  new-field test cannot: a reference learned inside a disturbance or against a vertical still wrong at
+  a start in motion (BROAD cut to start in motion, a helicopter starting in a banked turn: every later
+  sample rejected for minutes), where the sensor then turns slower than ``new_min_rate`` or the
+  field's dip wanders enough to restart the candidate. Its cost, and why it is not the default: a real
+  disturbance that outlasts it while the sensor turns slowly becomes the reference (the heading jumps
+  to it), and the earth's field after it is then a new field, rejected until the new-field test or
+  the clock accepts it (a 90 s earth-fixed field at 10 deg/s: heading 32 / 24 deg off in and after
+  it, against 4 / 0.6 without). VQF's ``magMaxRejectionTime`` (60 s, on by default) differs: after it,
+  VQF uses the disturbed samples at half its gain and keeps its reference.
 
 The core, :func:`magnetic_step`, works on scalars: the ``mag-heading`` corrector and the ``ekf`` filter call
 it with the norm and dip of the field seen in their own levelled frame (the dip needs a vertical;
@@ -59,8 +62,9 @@ __all__ = ["MagneticDetector", "MagneticConfig", "magnetic_step", "MAG_SIZE", "M
 
 # state: reference norm, reference dip, samples learned, seconds learned, candidate norm, candidate dip,
 # seconds the candidate has been consistent while turning; for a reference learned again (follow_field with
-# relearn_evidence, or after max_rejection), 1 + the seconds it has been used while turning (0: a reference learned
-# at the start); the seconds since the reference last described a sample (max_rejection)
+# relearn_evidence), 1 + the seconds it has been used while turning (0: a reference learned at the start, or again after
+# max_rejection); the seconds since the reference last described a sample, each described one paying back twice its
+# time (max_rejection)
 _RN, _RD, _N, _T, _CN, _CD, _CT, _EV, _RJ = 0, 1, 2, 3, 4, 5, 6, 7, 8
 MAG_SIZE = 9
 MAG_COUNT = _N  #: index of the number of samples the reference was learned from
@@ -83,10 +87,11 @@ class MagneticConfig(PluginConfig):
     new_min_rate: float = param(
         math.radians(20.0), unit="rad/s", description="turning rate that counts towards new_time", ge=0)
     max_rejection: float | None = param(
-        60.0, unit="s", description="a reference that has described no sample for this long is learned again from the "
-        "next samples (as at a recalibration, with relearn_evidence): it was learned in a disturbance, or against a "
-        "vertical still wrong at a start in motion, and the new-field test cannot replace it where the sensor turns "
-        "slowly or its field's dip wanders. VQF's magMaxRejectionTime. None: kept however long (the detector before)",
+        None, unit="s", description="a reference that has described no sample for this long (each described sample "
+        "paying back twice its time) is learned again from the next samples, as at the start: for a reference learned "
+        "in a disturbance or against a vertical still wrong at a start in motion, which the new-field test cannot "
+        "replace where the sensor turns slowly or its field's dip wanders. Its cost: a real disturbance that lasts "
+        "longer becomes the reference. None: kept however long (the default)",
         gt=0)
     relearn_evidence: bool = param(
         True, unit="-", description="a reference learned again (mag-heading's, where a recalibration moved the "
@@ -100,8 +105,8 @@ class MagneticConfig(PluginConfig):
 def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, new_min_rate, ref_tau, max_rej):
     """The kernel of :meth:`MagneticDetector.reference_step` (same arguments and arithmetic, with
     the parameters as scalars; ``max_rej``: ``max_rejection``, 0 for None)."""
-    if max_rej > 0.0 and s[_RJ] + 0.5 * dt >= max_rej:  # described nothing for max_rejection s: learned again
-        s[_N], s[_T], s[_CT], s[_RJ], s[_EV] = 0.0, 0.0, 0.0, 0.0, 1.0
+    if max_rej > 0.0 and s[_RJ] + 0.5 * dt >= max_rej:  # described nothing for max_rejection s: learned again,
+        s[_N], s[_T], s[_CT], s[_RJ], s[_EV] = 0.0, 0.0, 0.0, 0.0, 0.0  # as at the start
     if s[_N] == 0.0 or s[_T] + 0.5 * dt < init_time:
         s[_N] += 1.0
         s[_T] += dt
@@ -214,8 +219,7 @@ class MagneticDetector(Detector):
         c = self.config
         ref = s[_RN:_RD + 1]  # norm, dip
         if c.max_rejection is not None and s[_RJ] + 0.5 * dt >= c.max_rejection:  # described nothing for so long:
-            s[_N] = s[_T] = s[_CT] = s[_RJ] = 0.0  # learned again, as at a recalibration (relearn_evidence)
-            s[_EV] = 1.0
+            s[_N] = s[_T] = s[_CT] = s[_RJ] = s[_EV] = 0.0  # learned again, as at the start
         if s[_N] == 0.0 or s[_T] + 0.5 * dt < c.init_time:  # learning: the running mean
             s[_N] += 1.0
             s[_T] += dt
