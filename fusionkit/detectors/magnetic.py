@@ -33,9 +33,9 @@ Recovery:
   field's dip wanders enough to restart the candidate. Its cost, and why it is not the default: a real
   disturbance that outlasts it while the sensor turns slowly becomes the reference (the heading jumps
   to it), and the earth's field after it is then a new field, rejected until the new-field test or
-  the clock accepts it (a 90 s earth-fixed field at 10 deg/s: heading 32 / 24 deg off in and after
-  it, against 4 / 0.6 without). VQF's ``magMaxRejectionTime`` (60 s, on by default) differs: after it,
-  VQF uses the disturbed samples at half its gain and keeps its reference.
+  the clock accepts it (measured both ways: docs/generalisation.md, "Stop 30"). VQF's
+  ``magMaxRejectionTime`` (60 s, on by default) differs: after it, VQF uses the disturbed samples at
+  half its gain and keeps its reference.
 
 The core, :func:`magnetic_step`, works on scalars: the ``mag-heading`` corrector and the ``ekf`` filter call
 it with the norm and dip of the field seen in their own levelled frame (the dip needs a vertical;
