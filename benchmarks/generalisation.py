@@ -10,7 +10,7 @@ tune anything: the point is to find the conditions where ``recommended`` loses.
 
     python benchmarks/generalisation.py [--quick] [--draws N] [--seed S] [--families A,B]
                                         [--filters recommended,vqf,imufusion] [--diagnose]
-                                        [--param KEY=VALUE ...] [--cut S]
+                                        [--param KEY=VALUE ...] [--cut S] [--gyr-bias B]
     python benchmarks/generalisation.py --quick --filters recommended+offline,vqf-offline
 
 Scores: 6D inclination RMSE and 9D total RMSE (deg) over the moving samples
@@ -57,7 +57,7 @@ _DEG = math.pi / 180.0
 RANGES = {
     "rate": "one of 100, 200, 400, 1000 Hz",
     "initial_rest": "0.5-30 s, log-uniform",
-    "gyr_bias": "+-0.5 deg/s per axis (turn-on bias)",
+    "gyr_bias": "+-0.5 deg/s per axis (turn-on bias; --gyr-bias B: +-B)",
     "gyr_bias_rw": "1e-5 - 2e-4 rad/s/sqrt(s), log-uniform",
     "gyr_noise": "0.004-0.02 deg/s/sqrt(Hz) density",
     "gyr_scale": "+-1.5 % per axis, misalignment +-1 % off-diagonal",
@@ -93,16 +93,19 @@ def _skew_free(rng, size: float) -> np.ndarray:
     return m
 
 
-def draw(family: str, seed: int, quick: bool = False, iron: float = 2.0, cut: float | None = None) -> dict:
+def draw(family: str, seed: int, quick: bool = False, iron: float = 2.0, cut: float | None = None,
+         gyr_bias: float = 0.5) -> dict:
     """One condition: the family, its seed and the physics drawn from :data:`RANGES` (a plain
     dict, so a condition can be printed, changed and rebuilt with :func:`build`); ``iron`` (uT)
     bounds the residual hard iron per axis, and in % the soft iron's; ``cut`` (s): the recording
-    starts this long after its initial rest ends (in motion), the samples before it cut off."""
+    starts this long after its initial rest ends (in motion), the samples before it cut off; ``gyr_bias``
+    (deg/s) bounds the gyro's turn-on bias per axis (the same draws scaled: the rest of the physics is the
+    same)."""
     rng = np.random.default_rng([seed, sorted(SCENARIOS).index(family)])
     rate = float(rng.choice([100.0, 200.0, 400.0, 1000.0]))
     rest = float(np.exp(rng.uniform(math.log(0.5), math.log(30.0))))
     noise = {"gyr_noise": rng.uniform(0.004, 0.02) * _DEG * math.sqrt(rate),
-             "gyr_bias": tuple(rng.uniform(-0.5, 0.5, 3) * _DEG),
+             "gyr_bias": tuple(rng.uniform(-gyr_bias, gyr_bias, 3) * _DEG),
              "acc_noise": rng.uniform(80e-6, 300e-6) * 9.81 * math.sqrt(rate),
              "acc_bias": tuple(rng.uniform(-0.15, 0.15, 3)),
              "mag_noise": rng.uniform(0.1, 0.5)}
@@ -320,13 +323,13 @@ def diagnose(cond: dict, dims: str, filters) -> list[tuple[str, float, float, fl
 
 
 def run(families, draws: int, seed: int, filters, quick: bool = False, progress: bool = True,
-        iron: float = 2.0, cut: float | None = None) -> list[dict]:
+        iron: float = 2.0, cut: float | None = None, gyr_bias: float = 0.5) -> list[dict]:
     """Draw and evaluate ``draws`` conditions per family: rows of ``{"cond", "rmse"}``."""
     rows = []
     t0 = time.time()
     for i in range(draws):
         for fam in families:
-            cond = draw(fam, seed * 1000 + i, quick, iron, cut)
+            cond = draw(fam, seed * 1000 + i, quick, iron, cut, gyr_bias)
             rows.append({"cond": cond, "rmse": evaluate(cond, filters)})
             if progress:
                 r = rows[-1]["rmse"]
@@ -350,6 +353,8 @@ def main() -> None:
     ap.add_argument("--json", default="", help="write each condition's description and RMSEs here")
     ap.add_argument("--iron", type=float, default=2.0,
                     help="residual hard iron bound, uT per axis (and soft iron, %%; default 2: after a calibration)")
+    ap.add_argument("--gyr-bias", type=float, default=0.5, metavar="B",
+                    help="the gyro's turn-on bias bound per axis, deg/s (default 0.5: a calibrated consumer gyro)")
     ap.add_argument("--cut", type=float, default=None, metavar="S",
                     help="start each recording S s after its initial rest ends (in motion: no rest to learn from)")
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
@@ -377,10 +382,11 @@ def main() -> None:
     if args.cut is not None and not args.cut >= 0.0:
         ap.error(f"--cut must be >= 0 s, got {args.cut}")
     draws = args.draws or (2 if args.quick else 20)
-    rows = run(families, draws, args.seed, filters, args.quick, iron=args.iron, cut=args.cut)
+    rows = run(families, draws, args.seed, filters, args.quick, iron=args.iron, cut=args.cut, gyr_bias=args.gyr_bias)
     print(f"# generalisation: {filters[0]} vs {filters[1]}, {len(rows)} conditions "
           f"(seed {args.seed}, {draws} draws per family, iron {args.iron:g}{', quick' if args.quick else ''}"
-          f"{'' if args.cut is None else f', from {args.cut:g} s into the motion'})"
+          f"{'' if args.cut is None else f', from {args.cut:g} s into the motion'}"
+          f"{'' if args.gyr_bias == 0.5 else f', gyro bias +-{args.gyr_bias:g} deg/s'})"
           + "".join(f", {k}={json.dumps(v)}" for k, v in PARAMS.items()))
     print(tables(rows, filters))
     lost = losses(rows, filters)

@@ -62,6 +62,13 @@ from ..correctors.tilt import RATE_KAPPA2 as TILT_KAPPA2
 from ..correctors.tilt import InertialTiltConfig, lowpass_coefficients, slow_interval_bound
 from ..detectors.magnetic import MagneticConfig
 from ..detectors.rest import RestConfig
+
+#: the largest gyro bias ``recommended`` expects (norm, rad/s): a consumer MEMS gyro's turn-on offset (zero-rate
+#: offset on the data sheets: about +-1 deg/s calibrated or of the newest parts, +-3 deg/s per axis for others, so
+#: about 5 deg/s as a norm), the bound of both the rest detector's ``max_rate`` and the bias learned in motion.
+#: 2 deg/s until stop 30: a gyro 1 deg/s off per axis then showed no rest at all (docs/algorithms/recommended.md,
+#: "The largest gyro bias")
+GYRO_BIAS_MAX = math.radians(5.0)
 from ..pipeline import Pipeline
 
 __all__ = ["RecommendedFilter", "RecommendedConfig", "lowpass_coefficients"]
@@ -147,7 +154,9 @@ class RecommendedConfig(FilterConfig):
     fast_start: bool = param(
         True, unit="-", description="running means instead of the low-passes at the start (first tau_acc s, "
         "magnetic.init_time s)")
-    rest: RestConfig = param(RestConfig(), unit="-", description="the rest detector")
+    rest: RestConfig = param(
+        RestConfig(max_rate=GYRO_BIAS_MAX), unit="-", description="the rest detector (its max_rate: the largest gyro "
+        "bias expected, as bias_max)")
     rest_bias: bool = param(True, unit="-", description="re-estimate the gyro bias at rest")
     rest_bias_tau: float = param(1.0, unit="s", description="time constant of the bias at rest", gt=0)
     rest_bias_gain: Literal["fixed", "kalman"] = param(
@@ -157,7 +166,9 @@ class RecommendedConfig(FilterConfig):
         "before issue 14's stop 18)")
     motion_bias_tau: float | None = param(
         100.0, unit="s", description="time constant of the bias estimation in motion; None: off", gt=0)
-    bias_max: float = param(math.radians(2.0), unit="rad/s", description="largest bias estimated in motion", gt=0)
+    bias_max: float = param(
+        GYRO_BIAS_MAX, unit="rad/s", description="largest bias estimated in motion (norm; the largest gyro bias "
+        "expected: a consumer MEMS gyro's turn-on offset, up to about 3 deg/s per axis uncalibrated)", gt=0)
     bias_filter: Literal["kalman", "lowpass"] = param(
         "kalman", unit="-", description="how the inclination correction teaches the bias in motion (inertial-tilt's "
         "bias_filter): kalman, VQF's model (the correction measures the low-passed earth-frame bias error, weighed "
