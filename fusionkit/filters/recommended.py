@@ -63,12 +63,14 @@ from ..correctors.tilt import InertialTiltConfig, lowpass_coefficients, slow_int
 from ..detectors.magnetic import MagneticConfig
 from ..detectors.rest import RestConfig
 
-#: the largest gyro bias ``recommended`` expects (norm, rad/s): a consumer MEMS gyro's turn-on offset (zero-rate
-#: offset on the data sheets: about +-1 deg/s calibrated or of the newest parts, +-3 deg/s per axis for others, so
-#: about 5 deg/s as a norm), the bound of both the rest detector's ``max_rate`` and the bias learned in motion.
-#: 2 deg/s until stop 30: a gyro 1 deg/s off per axis then showed no rest at all (docs/algorithms/recommended.md,
-#: "The largest gyro bias")
+#: the largest gyro bias ``recommended`` learns in motion (norm, rad/s): a consumer MEMS gyro's turn-on offset (zero-rate
+#: offset on the data sheets: about +-1 deg/s calibrated or of the newest parts, up to +-3 deg/s per axis for others).
+#: 2 deg/s until stop 30 (docs/algorithms/recommended.md, "The largest gyro bias")
 GYRO_BIAS_MAX = math.radians(5.0)
+#: the rest detector's ``max_rate`` in ``recommended``, on each axis (VQF's ``biasClip``): a low-passed gyro above it
+#: on an axis is a slow rotation, not a bias. On the norm until stop 30, where a gyro 1 deg/s off per axis showed no
+#: rest; not raised to 5 deg/s, where slow coordinated turns (a helicopter's, under 5 deg/s) became rests
+REST_MAX_RATE = math.radians(2.0)
 from ..pipeline import Pipeline
 
 __all__ = ["RecommendedFilter", "RecommendedConfig", "lowpass_coefficients"]
@@ -155,8 +157,8 @@ class RecommendedConfig(FilterConfig):
         True, unit="-", description="running means instead of the low-passes at the start (first tau_acc s, "
         "magnetic.init_time s)")
     rest: RestConfig = param(
-        RestConfig(max_rate=GYRO_BIAS_MAX), unit="-", description="the rest detector (its max_rate: the largest gyro "
-        "bias expected, as bias_max)")
+        RestConfig(max_rate=REST_MAX_RATE), unit="-", description="the rest detector (its max_rate, on each axis: "
+        "the largest gyro bias taken for one at rest)")
     rest_bias: bool = param(True, unit="-", description="re-estimate the gyro bias at rest")
     rest_bias_tau: float = param(1.0, unit="s", description="time constant of the bias at rest", gt=0)
     rest_bias_gain: Literal["fixed", "kalman"] = param(
