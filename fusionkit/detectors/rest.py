@@ -5,8 +5,9 @@ Both sensors are low-passed (first order, ``tau``); the sensor is at rest when, 
 gyroscope and within ``acc_threshold`` of the low-passed accelerometer, and the low-passed
 gyroscope itself is below ``max_rate`` on each axis (the largest gyro bias to expect, an offset each
 axis has of its own, as VQF's ``biasClip``: a slow, steady rotation is otherwise "quiet" too; on the
-norm until stop 30, where a gyro 1 deg/s off on each axis, 1.7 as a norm, showed no rest). While at rest, the low-passed gyroscope output is the gyro bias
-(the ``rest-bias-lowpass`` corrector keeps the same low-pass and learns the bias from it).
+norm until stop 30, where a gyro 1 deg/s off on each axis, 1.7 as a norm, showed no rest). While at
+rest, the low-passed gyroscope output is the gyro bias (the ``rest-bias-lowpass`` corrector keeps the
+same low-pass and learns the bias from it).
 
 Deviations from a low-pass rather than absolute levels: a gyro bias or a tilted accelerometer
 must not look like motion. Criterion bit 0 (``rest``) fires on rest samples; the pipeline sets

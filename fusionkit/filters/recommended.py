@@ -62,18 +62,19 @@ from ..correctors.tilt import RATE_KAPPA2 as TILT_KAPPA2
 from ..correctors.tilt import InertialTiltConfig, lowpass_coefficients, slow_interval_bound
 from ..detectors.magnetic import MagneticConfig
 from ..detectors.rest import RestConfig
+from ..pipeline import Pipeline
 
-#: the largest gyro bias ``recommended`` learns in motion (norm, rad/s): a consumer MEMS gyro's turn-on offset (zero-rate
-#: offset on the data sheets: about +-1 deg/s calibrated or of the newest parts, up to +-3 deg/s per axis for others).
+__all__ = ["RecommendedFilter", "RecommendedConfig", "lowpass_coefficients"]
+
+#: the largest gyro bias ``recommended`` learns in motion (norm, rad/s): a consumer MEMS gyro's turn-on offset
+#: (zero-rate offset on the data sheets: about +-1 deg/s calibrated or of the newest parts, up to +-3 deg/s per axis
+#: for others).
 #: 2 deg/s until stop 30 (docs/algorithms/recommended.md, "The largest gyro bias")
 GYRO_BIAS_MAX = math.radians(5.0)
 #: the rest detector's ``max_rate`` in ``recommended``, on each axis (VQF's ``biasClip``): a low-passed gyro above it
 #: on an axis is a slow rotation, not a bias. On the norm until stop 30, where a gyro 1 deg/s off per axis showed no
 #: rest; not raised to 5 deg/s, where slow coordinated turns (a helicopter's, under 5 deg/s) became rests
 REST_MAX_RATE = math.radians(2.0)
-from ..pipeline import Pipeline
-
-__all__ = ["RecommendedFilter", "RecommendedConfig", "lowpass_coefficients"]
 
 #: the acceleration detector as the gate (``acc_gate``): every sample judged on its own, no recovery
 _NO_RECOVERY = 1e9
