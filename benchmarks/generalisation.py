@@ -379,6 +379,8 @@ def main() -> None:
             ap.error(f"--param {key}: the script sets it itself (6D / 9D, offline, the diagnosis's calibration off)")
         if not any(key in f and "use_mag" in f for f in fields):
             ap.error(f"--param {key}: no fusionkit filter among {filters} has it")
+    if not (math.isfinite(args.gyr_bias) and args.gyr_bias >= 0.0):
+        ap.error(f"--gyr-bias must be a finite number >= 0 deg/s, got {args.gyr_bias}")
     if args.cut is not None and not args.cut >= 0.0:
         ap.error(f"--cut must be >= 0 s, got {args.cut}")
     draws = args.draws or (2 if args.quick else 20)

@@ -41,7 +41,8 @@ class RestConfig(PluginConfig):
     acc_threshold: float = param(0.5, unit="m/s^2", description="largest |acc - lowpass(acc)| at rest", gt=0)
     max_rate: float = param(
         math.radians(2.0), unit="rad/s", description="largest lowpass(gyr) at rest on each axis (the largest gyro "
-        "bias expected)", gt=0)
+        "bias expected; per axis since stop 30, on the norm before, unlike the alignment's max_rate, still a norm)",
+        gt=0)
     min_time: float = param(1.5, unit="s", description="quiet this long before rest is declared", ge=0)
 
 

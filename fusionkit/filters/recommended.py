@@ -66,10 +66,11 @@ from ..pipeline import Pipeline
 
 __all__ = ["RecommendedFilter", "RecommendedConfig", "lowpass_coefficients"]
 
-#: the largest gyro bias ``recommended`` learns in motion (norm, rad/s): a consumer MEMS gyro's turn-on offset
-#: (zero-rate offset on the data sheets: about +-1 deg/s calibrated or of the newest parts, up to +-3 deg/s per axis
-#: for others).
-#: 2 deg/s until stop 30 (docs/algorithms/recommended.md, "The largest gyro bias")
+#: the largest gyro bias ``recommended`` learns in motion (norm, rad/s). At least sqrt(3) times the rest detector's
+#: ``max_rate`` (judged per axis: a rest can teach up to 3.5 deg/s as a norm), so that a bias a rest learned is not
+#: clipped at the first motion; a consumer MEMS gyro's turn-on offset is about +-1 deg/s calibrated or for recent
+#: parts, up to +-3 deg/s per axis for some. 2 deg/s until stop 30 (docs/algorithms/recommended.md, "The largest gyro
+#: bias")
 GYRO_BIAS_MAX = math.radians(5.0)
 #: the rest detector's ``max_rate`` in ``recommended``, on each axis (VQF's ``biasClip``): a low-passed gyro above it
 #: on an axis is a slow rotation, not a bias. On the norm until stop 30, where a gyro 1 deg/s off per axis showed no
@@ -170,8 +171,8 @@ class RecommendedConfig(FilterConfig):
     motion_bias_tau: float | None = param(
         100.0, unit="s", description="time constant of the bias estimation in motion; None: off", gt=0)
     bias_max: float = param(
-        GYRO_BIAS_MAX, unit="rad/s", description="largest bias estimated in motion (norm; the largest gyro bias "
-        "expected: a consumer MEMS gyro's turn-on offset, up to about 3 deg/s per axis uncalibrated)", gt=0)
+        GYRO_BIAS_MAX, unit="rad/s", description="largest bias estimated in motion (norm); keep it at least sqrt(3) "
+        "times rest.max_rate (per axis), or a bias a rest learned is clipped at the first motion", gt=0)
     bias_filter: Literal["kalman", "lowpass"] = param(
         "kalman", unit="-", description="how the inclination correction teaches the bias in motion (inertial-tilt's "
         "bias_filter): kalman, VQF's model (the correction measures the low-passed earth-frame bias error, weighed "
