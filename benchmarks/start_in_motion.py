@@ -10,7 +10,7 @@ sample of the flights). Nothing was tuned on these runs (docs/generalisation.md,
                                          [--param KEY=VALUE ...] [--json FILE]
 
 ``--param`` (repeatable, the value JSON) sets a parameter of ``recommended`` (``--param
-'magnetic={"max_rejection": null}'``: the detector before stop 30).
+'magnetic={"max_rejection": 60}'``: the detector's clock, an option since stop 30).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import argparse
 import json
 import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 from _common import data_dir, machine
@@ -43,8 +44,6 @@ def main() -> None:
     args = ap.parse_args()
     params = {k: _value(v) for k, v in (p.split("=", 1) for p in args.param)}
     fractions = [float(f) for f in args.fractions.split(",")]
-    from pathlib import Path
-
     root = Path(args.data)
     files = sorted((root / "broad").glob("*.hdf5")) + sorted((root / "gnss").glob("*/*.h5"))
     if not files:

@@ -164,6 +164,7 @@ def test_broad_target(broad_dir):
     {"heading_jacobian": "vertical", "dynamic": "norm", "dynamic_tau": 0.0},
     {"use_mag": False, "frame": "NED"},
     {"magnetic": {"norm_threshold": 0.02}, "mag_rejection": True},
+    {"magnetic": {"max_rejection": 0.3}},  # the detector's clock fires inside the 0.6 s disturbance: learned again
 ])
 def test_compiled_path_equals_filterpy(params):
     """run()'s compiled loop does filterpy's predict and update arithmetic: the same quaternions,
