@@ -15,6 +15,16 @@ def data_dir() -> Path:
     return Path(env) if env else REPO.parent / "shared" / "data"
 
 
+def param_value(text: str):
+    """A ``--param KEY=VALUE``'s value: JSON where it parses (numbers, booleans, null, objects), else the text."""
+    import json
+
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
 def machine() -> str:
     import numba
     import numpy

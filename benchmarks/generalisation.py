@@ -35,7 +35,7 @@ import time
 import warnings
 
 import numpy as np
-from _common import REPO
+from _common import REPO, param_value
 
 import fusionkit as fk
 from fusionkit.benchmarking.metrics import rms_errors
@@ -369,10 +369,7 @@ def main() -> None:
         key, eq, raw = item.partition("=")
         if not eq:
             ap.error(f"--param takes KEY=VALUE, got {item!r}")
-        try:
-            PARAMS[key] = json.loads(raw)
-        except json.JSONDecodeError:
-            PARAMS[key] = raw
+        PARAMS[key] = param_value(raw)
     fields = [fk.get(f.partition("+")[0], "filter").Config.model_fields for f in filters]
     for key in PARAMS:
         if key in _SET_HERE:

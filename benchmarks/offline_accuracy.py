@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 import fusionkit as fk
-from _common import data_dir, machine
+from _common import data_dir, machine, param_value
 from fusionkit.benchmarking.metrics import rms_errors
 from fusionkit.conventions import change_frame
 from fusionkit.offline import LEVER_BAND, OfflineFilter, _lever_fit, gyro_delay_lever
@@ -59,13 +59,6 @@ from fusionkit.rotations import quat_to_matrix
 #: the frequency bands (Hz) of ``--bands``: the offsets and drift, the time constants' range
 #: (0.5-4 s), a hand's movements, and above
 BANDS = ((0.0, 0.05), (0.05, 0.2), (0.2, 0.5), (0.5, 1.0), (1.0, 3.0), (3.0, None))
-
-
-def _value(text: str):
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        return text
 
 
 class _EqualWeights(OfflineFilter):
@@ -254,7 +247,7 @@ def main() -> None:
     if not files:
         raise SystemExit(f"no BROAD trials in {args.data}")
     params = dict(p.split("=", 1) for p in args.param)
-    params = {k: _value(v) for k, v in params.items()}
+    params = {k: param_value(v) for k, v in params.items()}
     recs = [fk.load(f) for f in files]
     print(f"machine: {machine()}; recommended params: {params or 'defaults'}")
     if args.lever_blocks:

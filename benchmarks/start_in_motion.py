@@ -22,17 +22,10 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from _common import data_dir, machine
+from _common import data_dir, machine, param_value
 
 import fusionkit as fk
 from fusionkit.benchmarking.metrics import rms_errors
-
-
-def _value(text: str):
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        return text
 
 
 def main() -> None:
@@ -42,7 +35,7 @@ def main() -> None:
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--json", default="", help="write each run's RMSEs here")
     args = ap.parse_args()
-    params = {k: _value(v) for k, v in (p.split("=", 1) for p in args.param)}
+    params = {k: param_value(v) for k, v in (p.split("=", 1) for p in args.param)}
     fractions = [float(f) for f in args.fractions.split(",")]
     root = Path(args.data)
     files = sorted((root / "broad").glob("*.hdf5")) + sorted((root / "gnss").glob("*/*.h5"))
