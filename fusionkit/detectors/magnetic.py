@@ -57,8 +57,8 @@ from ..config import PluginConfig, param
 from ..protocols import Detector, DetectorKernel, Sample
 from ..types import Flag
 
-__all__ = ["MagneticDetector", "MagneticConfig", "magnetic_step", "MAG_SIZE", "MAG_COUNT", "MAG_TIME", "MAG_REJECTED",
-           "MAG_USE", "MAG_DISTURBED", "MAG_LEARNING", "field_norm_dip", "follow_field", "k_follow_field"]
+__all__ = ["MagneticDetector", "MagneticConfig", "magnetic_step", "MAG_SIZE", "MAG_COUNT", "MAG_TIME", "MAG_USE",
+           "MAG_DISTURBED", "MAG_LEARNING", "field_norm_dip", "follow_field", "k_follow_field"]
 
 # state: reference norm, reference dip, samples learned, seconds learned, candidate norm, candidate dip,
 # seconds the candidate has been consistent while turning; for a reference learned again (follow_field with
@@ -69,7 +69,6 @@ _RN, _RD, _N, _T, _CN, _CD, _CT, _EV, _RJ = 0, 1, 2, 3, 4, 5, 6, 7, 8
 MAG_SIZE = 9
 MAG_COUNT = _N  #: index of the number of samples the reference was learned from
 MAG_TIME = _T  #: index of the seconds it was learned over
-MAG_REJECTED = _RJ  #: index of the seconds since the reference last described a sample
 #: what :func:`magnetic_step` says of a sample
 MAG_USE, MAG_DISTURBED, MAG_LEARNING = 0, 1, 2
 
