@@ -509,7 +509,7 @@ class MagHeading(FactorCorrector):
                       c.scale_sigma ** 2, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time,
                       float(c.inclination_noise), float(c.reexpress), 2.0 * c.mag_noise ** 2 + c.field_error ** 2,
                       c.measure_interval, float(self.magnetic.config.relearn_evidence),
-                      self.magnetic.config.max_rejection or 0.0])
+                      self.magnetic.config.max_rejection or 0.0, float(self.magnetic.config.start_evidence)])
         static = (c.gain == "kalman", c.mag_delay_estimate, c.measure_interval > 0.0, c.scale_sigma ** 2 > 0.0,
                   c.inclination_noise, c.reexpress, c.mag_bias)  # (p[18], p[14], p[28], p[21], p[25], p[26], p[4])
         return CorrectorKernel(mag_heading_kernel, p, mode="factor", static=static)
@@ -882,7 +882,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
     mag_bias, motion_bias_tau, bias_max, *magnetic params (6), mag_hold, mag_delay_estimate, delay_max_std,
     delay_forget_time, follow_calibration, kalman (1) or fixed (0), gyro_noise^2, bias_sigma^2, scale_sigma^2,
     mag_noise^2, field_error^2, field_error_time, inclination_noise, reexpress, a calibrated sample's variance
-    (2 mag_noise^2 + field_error^2), measure_interval (0: every sample), relearn_evidence, max_rejection (0: None))``;
+    (2 mag_noise^2 + field_error^2), measure_interval (0: every sample), relearn_evidence, max_rejection (0: None),
+    start_evidence)``;
     ``ch`` the pipeline's channel; the
     compile-time options (``static``, :meth:`MagHeading.kernel`): the Kalman gain, mag_delay_estimate,
     measure_interval > 0, scale_sigma > 0, inclination_noise, reexpress and mag_bias, which ``p`` holds too."""
@@ -977,7 +978,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             ln = ch[_CH_LET] * s[ax + 3] + ch[_CH_LET + 1] * s[ax + 4] + ch[_CH_LET + 2] * s[ax + 5]
             incl = _k_inclination_noise(ch, me, mn, le, ln)
         rn, rd = _k_kf_noise(s, norm, dip, dm, p[22], p[23], p[24], 1.0 - sd * sd, incl) if kalman else (0.0, 1.0)
-        code = magnetic_step(s, norm, dip, rate, dm, p[7], p[8], p[9], p[10], p[11], p[12], p[30])
+        code = magnetic_step(s, norm, dip, rate, dm, p[7], p[8], p[9], p[10], p[11], p[12], p[30], p[31])
         s[_MDIS] = 1.0 if code == MAG_DISTURBED else 0.0
         if code != MAG_LEARNING:
             s[_RELEARN] = 0.0

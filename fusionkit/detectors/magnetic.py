@@ -22,7 +22,13 @@ Recovery:
   new consistent field replaces it once it has been consistent while turning for as long as the
   relearned reference was learned (``init_time``) and then used while turning, at least the
   candidate's own 1 s and at most ``new_time``: two homogeneous fields, and the one seen longer is
-  taken for the earth's. A reference learned at the start keeps ``new_time``;
+  taken for the earth's. A reference learned at the start keeps ``new_time``, unless
+- its learning began while the sensor turned (``start_evidence``, the default): a recording that
+  starts in motion measures the dip against the accelerometer's first guess of the vertical, which
+  may be off by that second's linear acceleration, while the norm does not depend on the vertical. Such
+  a reference is provisional: a new field consistent while turning with its norm (within
+  ``norm_threshold``) and another dip replaces it by the rule above, once; a field of another norm
+  still needs ``new_time``;
 - ``max_rejection`` (an option, off by default): a reference that describes no sample for that long
   (60 s, say) is learned again from the next samples, as at the start. Its clock counts each rejected
   sample's time and takes off twice the time of each sample it describes (the pay-back of VQF's
@@ -64,9 +70,10 @@ __all__ = ["MagneticDetector", "MagneticConfig", "magnetic_step", "MAG_SIZE", "M
 # seconds the candidate has been consistent while turning; for a reference learned again (follow_field with
 # relearn_evidence), 1 + the seconds it has been used while turning (0: a reference learned at the start, or again after
 # max_rejection); the seconds since the reference last described a sample, each described one paying back twice its
-# time (max_rejection)
-_RN, _RD, _N, _T, _CN, _CD, _CT, _EV, _RJ = 0, 1, 2, 3, 4, 5, 6, 7, 8
-MAG_SIZE = 9
+# time (max_rejection); 1 while the reference is provisional (start_evidence: its learning began while the sensor
+# turned; _EV then counts its evidence as for a relearned one), else 0
+_RN, _RD, _N, _T, _CN, _CD, _CT, _EV, _RJ, _PV = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
+MAG_SIZE = 10
 MAG_COUNT = _N  #: index of the number of samples the reference was learned from
 MAG_TIME = _T  #: index of the seconds it was learned over
 #: what :func:`magnetic_step` says of a sample
@@ -97,16 +104,29 @@ class MagneticConfig(PluginConfig):
         "field) is replaced by a new field consistent while turning for as long as it was itself learned (init_time) "
         "and then used while turning (at least 1 s, at most new_time): the second it was learned over may lie in a "
         "disturbance. False: new_time for every reference (the detector before). A reference learned at the start "
-        "keeps new_time")
+        "keeps new_time, unless start_evidence")
+    start_evidence: bool = param(
+        True, unit="-", description="a reference learned at the start (or again after max_rejection) whose learning "
+        "begins while the sensor turns (at least new_min_rate: a recording that starts in motion, where the vertical "
+        "its dip is measured against is the accelerometer's first guess) is provisional: a new field consistent while turning with the reference's norm (within "
+        "norm_threshold) and another dip replaces it after as long as the reference was learned (init_time) and then "
+        "used while turning (at least 1 s, at most new_time), and the field it took is then kept as one learned at "
+        "rest (new_time). The norm does not depend on the vertical, the dip does. False: a reference learned at the "
+        "start keeps new_time however it began (the detector before stop 31)")
 
 
 @njit
-def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, new_min_rate, ref_tau, max_rej):
+def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, new_min_rate, ref_tau, max_rej,
+                  start_ev):
     """The kernel of :meth:`MagneticDetector.reference_step` (same arguments and arithmetic, with
-    the parameters as scalars; ``max_rej``: ``max_rejection``, 0 for None)."""
+    the parameters as scalars; ``max_rej``: ``max_rejection``, 0 for None; ``start_ev``: ``start_evidence``,
+    1 or 0)."""
     if max_rej > 0.0 and s[_RJ] + 0.5 * dt >= max_rej:  # described nothing for max_rejection s: learned again,
-        s[_N], s[_T], s[_CT], s[_RJ], s[_EV] = 0.0, 0.0, 0.0, 0.0, 0.0  # as at the start
+        s[_RN], s[_RD], s[_N], s[_T], s[_CT], s[_RJ], s[_EV], s[_PV] = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0  # as
+        # at the start
     if s[_N] == 0.0 or s[_T] + 0.5 * dt < init_time:
+        if s[_N] == 0.0 and s[_RN] == 0.0 and start_ev != 0.0 and rate >= new_min_rate:  # the first reference (not
+            s[_EV], s[_PV] = 1.0, 1.0  # one learned again at a recalibration) learned in motion: provisional
         s[_N] += 1.0
         s[_T] += dt
         s[_RN] += (norm - s[_RN]) / s[_N]
@@ -118,7 +138,7 @@ def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, 
             else 1.0 - math.exp(-x)
         s[_RN] += k * (norm - s[_RN])
         s[_RD] += k * (dip - s[_RD])
-        if s[_EV] > 0.0 and rate >= new_min_rate:  # a relearned reference's time in use while turning
+        if s[_EV] > 0.0 and rate >= new_min_rate:  # a relearned (provisional) reference's time in use while turning
             s[_EV] += dt
         s[_RJ] = max(s[_RJ] - 2.0 * dt, 0.0)
         return MAG_USE
@@ -131,10 +151,15 @@ def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, 
         s[_CD] += k * (dip - s[_CD])
     else:
         s[_CN], s[_CD], s[_CT] = norm, dip, 0.0
-    # a relearned reference's evidence: the init_time it was learned over and its time in use while turning (s[_EV]
-    # - 1); a candidate needs as much time consistent while turning, and at least its own low-pass's 1 s
-    if s[_CT] >= new_time or (s[_EV] > 0.0 and s[_CT] >= max(s[_EV] - 1.0 + init_time, 1.0)):
-        if s[_EV] > 0.0:  # the new reference's time consistent while turning, against the next one
+    # a relearned (or provisional) reference's evidence: the init_time it was learned over and its time in use while
+    # turning (s[_EV] - 1); a candidate needs as much time consistent while turning, and at least its own low-pass's
+    # 1 s; a provisional one yields only to a field of its own norm (its dip was measured against a vertical not
+    # yet known)
+    if s[_CT] >= new_time or (s[_EV] > 0.0 and s[_CT] >= max(s[_EV] - 1.0 + init_time, 1.0) and (
+            s[_PV] == 0.0 or abs(s[_CN] - s[_RN]) <= norm_th * s[_RN])):
+        if s[_PV] != 0.0:  # the field seen with the vertical known: kept as one learned at rest
+            s[_EV], s[_PV] = 0.0, 0.0
+        elif s[_EV] > 0.0:  # the new reference's time consistent while turning, against the next one
             s[_EV] = 1.0 + s[_CT]
         s[_RN], s[_RD], s[_CT] = s[_CN], s[_CD], 0.0
         s[_RJ] = 0.0
@@ -160,6 +185,7 @@ def follow_field(s, norm, dip, norm_th, dip_th, evidence) -> bool:
     s[_CT] = 0.0
     s[_RJ] = 0.0
     s[_EV] = 1.0 if evidence else 0.0
+    s[_PV] = 0.0
     return True
 
 
@@ -183,7 +209,7 @@ def _magnetic_kernel(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
     na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     dip = math.asin(max(-1.0, min(1.0, (m0 * a0 + m1 * a1 + m2 * a2) / (nm * na))))
     rate = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
-    code = magnetic_step(s, nm, dip, rate, dt, p[0], p[1], p[2], p[3], p[4], p[5], p[6])
+    code = magnetic_step(s, nm, dip, rate, dt, p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7])
     return 1 if code == MAG_DISTURBED else 0
 
 
@@ -206,8 +232,9 @@ class MagneticDetector(Detector):
         return c.init_time, c.norm_threshold, c.dip_threshold, c.new_time, c.new_min_rate, c.ref_tau
 
     def step_params(self) -> tuple[float, ...]:
-        """:meth:`params` and ``max_rejection`` (0 for None): :func:`magnetic_step`'s arguments after ``dt``."""
-        return (*self.params(), self.config.max_rejection or 0.0)
+        """:meth:`params`, ``max_rejection`` (0 for None) and ``start_evidence`` (1 or 0): :func:`magnetic_step`'s
+        arguments after ``dt``."""
+        return (*self.params(), self.config.max_rejection or 0.0, float(self.config.start_evidence))
 
     def reference_step(self, s: np.ndarray, norm: float, dip: float, rate: float, dt: float) -> int:
         """One magnetometer sample with field ``norm`` (any unit), ``dip`` (rad, any sign
@@ -218,15 +245,18 @@ class MagneticDetector(Detector):
         c = self.config
         ref = s[_RN:_RD + 1]  # norm, dip
         if c.max_rejection is not None and s[_RJ] + 0.5 * dt >= c.max_rejection:  # described nothing for so long:
-            s[_N] = s[_T] = s[_CT] = s[_RJ] = s[_EV] = 0.0  # learned again, as at the start
+            s[_RN] = s[_RD] = s[_N] = s[_T] = s[_CT] = s[_RJ] = s[_EV] = s[_PV] = 0.0  # learned again, as at the
+            # start
         if s[_N] == 0.0 or s[_T] + 0.5 * dt < c.init_time:  # learning: the running mean
+            if s[_N] == 0.0 and ref[0] == 0.0 and c.start_evidence and rate >= c.new_min_rate:  # the first reference
+                s[_EV] = s[_PV] = 1.0  # learned in motion: provisional (start_evidence)
             s[_N] += 1.0
             s[_T] += dt
             ref += (np.array([norm, dip]) - ref) / s[_N]
             return MAG_LEARNING
         if abs(norm - ref[0]) <= c.norm_threshold * ref[0] and abs(dip - ref[1]) <= c.dip_threshold:
             ref += (1.0 - math.exp(-dt / c.ref_tau)) * (np.array([norm, dip]) - ref)  # follow slowly
-            if s[_EV] > 0.0 and rate >= c.new_min_rate:  # a relearned reference's time in use while turning
+            if s[_EV] > 0.0 and rate >= c.new_min_rate:  # a relearned (provisional) reference's time in use while turning
                 s[_EV] += dt
             s[_RJ] = max(s[_RJ] - 2.0 * dt, 0.0)  # (VQF's magRejectionFactor)
             return MAG_USE
@@ -238,9 +268,12 @@ class MagneticDetector(Detector):
         else:  # a different field: a new candidate
             cand[:], s[_CT] = (norm, dip), 0.0
         # replaced after new_time, or a relearned reference after as long as it was learned and used while turning
-        # (relearn_evidence)
-        if s[_CT] >= c.new_time or (s[_EV] > 0.0 and s[_CT] >= max(s[_EV] - 1.0 + c.init_time, 1.0)):
-            if s[_EV] > 0.0:
+        # (relearn_evidence), or a provisional one so by a field of its norm (start_evidence)
+        if s[_CT] >= c.new_time or (s[_EV] > 0.0 and s[_CT] >= max(s[_EV] - 1.0 + c.init_time, 1.0) and (
+                s[_PV] == 0.0 or abs(cand[0] - ref[0]) <= c.norm_threshold * ref[0])):
+            if s[_PV] != 0.0:
+                s[_EV] = s[_PV] = 0.0
+            elif s[_EV] > 0.0:
                 s[_EV] = 1.0 + s[_CT]
             ref[:], s[_CT] = cand, 0.0
             s[_RJ] = 0.0

@@ -171,6 +171,7 @@ class EkfFilter(StepFilter):
             c.initial_bias_std, c.gyr_range if c.gyr_range is not None else math.inf,
             c.acc_range if c.acc_range is not None else math.inf, *self.magnetic.params(),
             *change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "NUE", "ENU"), c.magnetic.max_rejection or 0.0,
+            float(c.magnetic.start_evidence),
         ])
 
     def run(self, rec, *, backend: str = "auto", progress: bool | None = None, state=None, record: bool = False):
@@ -520,7 +521,7 @@ def _ekf_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             dip = math.asin(max(-1.0, min(1.0, e2 / norm)))
             rate = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2) if gyr_ok else 0.0
             code = magnetic_step(ms, norm, dip, rate, h, m_init, m_nth, m_dth, m_new_t, m_new_rate, m_ref_tau,
-                                 p[26])
+                                 p[26], p[27])
             if code == MAG_DISTURBED and mag_rej:
                 flags |= 256
                 mag_ok = False
