@@ -9,7 +9,6 @@ import numpy as np
 import fusionkit as fk
 import fusionkit._numba as fn
 from fusionkit import sim
-from fusionkit.offline import OfflineFilter
 
 DEG = np.pi / 180
 
@@ -27,22 +26,19 @@ def recording() -> fk.Recording:
     return r
 
 
-def _run(name, params, rec, inline, monkeypatch, offline=None):
+def _run(name, params, rec, inline, monkeypatch):
     monkeypatch.setattr(fn, "LOOP_INLINE", inline)
     f = fk.make(name, nan_policy="skip", **params)
-    if offline is not None:
-        f = OfflineFilter(f, **offline)
     res = f.run(rec, backend="numba")
     assert res.diagnostics["backend"] == "numba"
     return res
 
 
-def assert_inlined_equals_called(name, params, rec, monkeypatch, offline=None):
+def assert_inlined_equals_called(name, params, rec, monkeypatch):
     """Preset ``name`` with ``params`` run through its called loop and its inlined loop: the same
-    quaternions, flags and (where the filter reports one) final state, to the bit. ``offline``: the
-    keywords of :class:`~fusionkit.offline.OfflineFilter` to run the preset in the offline mode."""
-    called = _run(name, params, rec, False, monkeypatch, offline)
-    inlined = _run(name, params, rec, True, monkeypatch, offline)
+    quaternions, flags and (where the filter reports one) final state, to the bit."""
+    called = _run(name, params, rec, False, monkeypatch)
+    inlined = _run(name, params, rec, True, monkeypatch)
     np.testing.assert_array_equal(inlined.quat, called.quat)
     np.testing.assert_array_equal(inlined.flags, called.flags)
     st_c, st_i = called.diagnostics.get("state"), inlined.diagnostics.get("state")

@@ -3,7 +3,7 @@ tests/conftest.py, for a tenth of the compile time per composition). Here the re
 presets' compositions are compiled both ways and give the same numbers to the last bit, so what
 the rest of the suite checks on the called loops holds for the inlined ones: every kernel of the
 presets inlined at least once (see the list below), ``recommended``'s compile (the suite's
-longest, online and offline) in test_inlined_loops_recommended.py, so that ``-n 2 --dist
+longest) in test_inlined_loops_recommended.py, so that ``-n 2 --dist
 loadfile`` runs the two files on both workers at once."""
 
 import numpy as np
@@ -23,7 +23,7 @@ def rec():
     return recording()
 
 
-# recommended (online and offline): test_inlined_loops_recommended.py, on the other xdist worker.
+# recommended: test_inlined_loops_recommended.py, on the other xdist worker.
 # gst's and poisson's compositions are not compiled a third time here: gst's corrector kernel is
 # gst-gnss's step (``_gst_step``) with its GNSS input off, poisson's composition is gst's without
 # a corrector, and the loop template without a GNSS column is gradient-descent's and channel-dcm's,
