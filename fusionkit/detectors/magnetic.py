@@ -23,12 +23,14 @@ Recovery:
   relearned reference was learned (``init_time``) and then used while turning, at least the
   candidate's own 1 s and at most ``new_time``: two homogeneous fields, and the one seen longer is
   taken for the earth's. A reference learned at the start keeps ``new_time``, unless
-- its learning began while the sensor turned (``start_evidence``, the default): a recording that
-  starts in motion measures the dip against the accelerometer's first guess of the vertical, which
-  may be off by that second's linear acceleration, while the norm does not depend on the vertical. Such
-  a reference is provisional: a new field consistent while turning with its norm (within
-  ``norm_threshold``) and another dip replaces it by the rule above, once; a field of another norm
-  still needs ``new_time``;
+- its learning began while the sensor turned and ``start_evidence`` (an option, off by default) is
+  set: a recording that starts in motion measures the dip against the accelerometer's first guess of
+  the vertical, which may be off by that second's linear acceleration, while the norm does not depend
+  on the vertical. Such a reference is provisional: a new field consistent while turning with its norm
+  (within ``norm_threshold``) and another dip replaces it by the rule above, once; a field of another
+  norm still needs ``new_time``. Not the default: an earth-fixed disturbance of about the earth's norm
+  met while the reference is provisional is taken in as quickly, and the earth's field after it then
+  needs ``new_time`` (measured: docs/algorithms/models.md);
 - ``max_rejection`` (an option, off by default): a reference that describes no sample for that long
   (60 s, say) is learned again from the next samples, as at the start. Its clock counts each rejected
   sample's time and takes off twice the time of each sample it describes (the pay-back of VQF's
@@ -106,13 +108,16 @@ class MagneticConfig(PluginConfig):
         "disturbance. False: new_time for every reference (the detector before). A reference learned at the start "
         "keeps new_time, unless start_evidence")
     start_evidence: bool = param(
-        True, unit="-", description="a reference learned at the start (or again after max_rejection) whose learning "
+        False, unit="-", description="a reference learned at the start (or again after max_rejection) whose learning "
         "begins while the sensor turns (at least new_min_rate: a recording that starts in motion, where the vertical "
-        "its dip is measured against is the accelerometer's first guess) is provisional: a new field consistent while turning with the reference's norm (within "
-        "norm_threshold) and another dip replaces it after as long as the reference was learned (init_time) and then "
-        "used while turning (at least 1 s, at most new_time), and the field it took is then kept as one learned at "
-        "rest (new_time). The norm does not depend on the vertical, the dip does. False: a reference learned at the "
-        "start keeps new_time however it began (the detector before stop 31)")
+        "its dip is measured against is the accelerometer's first guess) is provisional: a new field consistent while "
+        "turning with the reference's norm (within norm_threshold) and another dip replaces it after as long as the "
+        "reference was learned (init_time) and then used while turning (at least 1 s, at most new_time), and the "
+        "field it took is then kept as one learned at rest (new_time). The norm does not depend on the vertical, the "
+        "dip does. Its cost, and why it is not the default: an earth-fixed disturbance of about the earth's norm met "
+        "while the reference is provisional is taken in as quickly, and the earth's field after it then needs "
+        "new_time (docs/algorithms/models.md). False (the default): a reference learned at the start keeps new_time "
+        "however it began")
 
 
 @njit
