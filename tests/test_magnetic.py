@@ -203,12 +203,12 @@ def _start_in_motion(det, rate_first, second):
 
 
 def test_a_reference_learned_while_turning_yields_to_its_own_norm_at_another_dip():
-    """``start_evidence`` (an option, off by default): a recording that starts in motion learns its first reference while the
-    accelerometer's vertical is still a guess, so its dip may be wrong and its norm is not. Such a reference (its
-    learning began turning at new_min_rate or more) is replaced by a field of its own norm consistent while turning
-    for as long as it was learned and used while turning (here its 1 s of learning, then none): about 1 s, against
-    new_time (20 s) with the option off. A field of another norm (a disturbance) still needs new_time, and so does
-    the same dip change after a start at rest, where the vertical is the accelerometer's."""
+    """``start_evidence`` (an option, off by default): a recording that starts in motion learns its first reference
+    while the accelerometer's vertical is still a guess, so its dip may be wrong and its norm is not. Such a
+    reference (its learning began turning at new_min_rate or more) is replaced by a field of its own norm consistent
+    while turning for as long as it was learned and used while turning (here its 1 s of learning, then none): about
+    1 s, against new_time (20 s) with the option off. A field of another norm (a disturbance) still needs new_time,
+    and so does the same dip change after a start at rest, where the vertical is the accelerometer's."""
     det = MagneticDetector(start_evidence=True)
     assert abs(_start_in_motion(det, 1.0, (50.0, 1.1)) - 1.0) < 0.05
     assert abs(_start_in_motion(MagneticDetector(), 1.0, (50.0, 1.1)) - 20.0) < 0.05  # (the default: off)
@@ -274,7 +274,9 @@ def test_a_disturbance_of_the_earths_norm_after_a_start_in_motion_is_why_start_e
     mag[650:1850] = other.mag[650:1850]
     rec = dataclasses.replace(rec, mag=mag).slice(250, None)
     t = np.arange(len(rec)) / 100.0
-    rms = {ev: np.sqrt(np.mean(truth_errors(fk.make("recommended", magnetic={"start_evidence": ev}).run(rec).quat, "ENU",
-                                            rec)["total"][t > 5.0] ** 2)) for ev in (True, False)}
+    rms = {}
+    for ev in (True, False):
+        res = fk.make("recommended", magnetic={"start_evidence": ev}).run(rec)
+        rms[ev] = np.sqrt(np.mean(truth_errors(res.quat, "ENU", rec)["total"][t > 5.0] ** 2))
     assert rms[False] < 1.5 < 10.0 < rms[True], rms  # (0.59 against 32.2 deg)
 

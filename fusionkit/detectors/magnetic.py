@@ -261,7 +261,7 @@ class MagneticDetector(Detector):
             return MAG_LEARNING
         if abs(norm - ref[0]) <= c.norm_threshold * ref[0] and abs(dip - ref[1]) <= c.dip_threshold:
             ref += (1.0 - math.exp(-dt / c.ref_tau)) * (np.array([norm, dip]) - ref)  # follow slowly
-            if s[_EV] > 0.0 and rate >= c.new_min_rate:  # a relearned (provisional) reference's time in use while turning
+            if s[_EV] > 0.0 and rate >= c.new_min_rate:  # a relearned (provisional) reference's time in use, turning
                 s[_EV] += dt
             s[_RJ] = max(s[_RJ] - 2.0 * dt, 0.0)  # (VQF's magRejectionFactor)
             return MAG_USE
