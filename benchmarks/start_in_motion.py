@@ -10,7 +10,8 @@ sample of the flights). Nothing was tuned on these runs (docs/generalisation.md,
                                          [--param KEY=VALUE ...] [--json FILE]
 
 ``--param`` (repeatable, the value JSON) sets a parameter of ``recommended`` (``--param
-'magnetic={"max_rejection": 60}'``: the detector's clock, an option since stop 30).
+'magnetic={"max_rejection": 60}'``: the detector's clock, an option since stop 30; ``--param
+'magnetic={"start_evidence": true}'``: a first reference learned in motion provisional, an option since stop 31).
 """
 
 from __future__ import annotations
