@@ -76,11 +76,6 @@ GYRO_BIAS_MAX = math.radians(5.0)
 #: on an axis is a slow rotation, not a bias. On the norm until stop 30, where a gyro 1 deg/s off per axis showed no
 #: rest; not raised to 5 deg/s, where slow coordinated turns (a helicopter's, under 5 deg/s) became rests
 REST_MAX_RATE = math.radians(2.0)
-#: the standard deviation of a gyro bias not yet measured (``bias_sigma_init``, rad/s): a consumer MEMS gyro's turn-on
-#: offset, about +-1 deg/s on recent parts' data sheets. VQF's biasSigmaInit, 0.5 deg/s, until stop 31: a bias of a
-#: few deg/s was then learned in motion only as fast as that prior let it (docs/algorithms/recommended.md, "The gyro
-#: bias's prior")
-GYRO_BIAS_SIGMA_INIT = math.radians(1.0)
 
 #: the acceleration detector as the gate (``acc_gate``): every sample judged on its own, no recovery
 _NO_RECOVERY = 1e9
@@ -184,10 +179,9 @@ class RecommendedConfig(FilterConfig):
         "by the bias's covariance, which the rests shrink); lowpass: mapped with the sample's own rotation at the "
         "fixed rate 1/motion_bias_tau (the behaviour before issue 14's stop 17)")
     bias_sigma_init: float = param(
-        GYRO_BIAS_SIGMA_INIT, unit="rad/s", description="the standard deviation of a bias not yet measured (a "
-        "consumer MEMS gyro's turn-on bias, about +-1 deg/s; set it to your gyro's data sheet offset; VQF's "
-        "biasSigmaInit is 0.5 deg/s, this default until stop 31): the variance the bias at rest (rest_bias_gain kalman) "
-        "and the bias in motion (bias_filter kalman) start from and grow back to", gt=0)
+        math.radians(0.5), unit="rad/s", description="the standard deviation of a bias not yet measured (a MEMS "
+        "gyro's turn-on bias; VQF's biasSigmaInit): the variance the bias at rest (rest_bias_gain kalman) and the "
+        "bias in motion (bias_filter kalman) start from and grow back to", gt=0)
     bias_sigma_motion: float = param(
         math.radians(0.1), unit="rad/s", description="kalman: the steady-state standard deviation of a bias learned "
         "in motion (VQF's biasSigmaMotion)", gt=0)
