@@ -502,3 +502,24 @@ def test_a_turn_on_gyro_bias_of_a_few_deg_per_s_is_learned():
     assert rms_errors(clipped, rec)["inclination"] > 0.8
     blind = fk.make("recommended", use_mag=False, rest={"max_rate": math.radians(1.4)}).run(rec)
     assert not (blind.flags & Flag.REST).any() and rms_errors(blind, rec)["inclination"] > 3.0
+
+
+def test_a_turn_on_bias_over_the_rest_bound_is_learned_as_fast_as_its_prior_lets_it():
+    """A gyro 3, -2.5, 3 deg/s off (over the rest detector's 2 deg/s on each axis: no rest can show it) and a minute
+    of turns: only the bias in motion learns it, as fast as its prior (``bias_sigma_init``) lets it. The default
+    (0.5 deg/s, VQF's) leaves 6D inclination 6.9 deg; set to such a gyro's turn-on offset (1 deg/s), 4.9 (VQF
+    itself 4.7 on the development machine). Not the default: docs/algorithms/recommended.md, "The largest gyro
+    bias", what a wider prior costs a calibrated gyro."""
+    import math
+
+    segs = [sim.Rest(2.0)] + [sim.Rotate((0.3, -0.5, 1.0) if i % 2 else (1.0, 0.4, -0.2), math.radians(90) * (-1) ** i,
+                                         2.0) for i in range(30)]
+    bias = tuple(np.radians([3.0, -2.5, 3.0]))
+    rec = sim.simulate(segs, rate=100.0, noise=sim.Noise(gyr_noise=0.003, acc_noise=0.03, mag_noise=0.2,
+                                                         gyr_bias=bias), seed=4, gnss_rate=None)
+    default = fk.make("recommended", use_mag=False).run(rec)
+    wide = fk.make("recommended", use_mag=False, bias_sigma_init=math.radians(1.0)).run(rec)
+    assert not (default.flags & Flag.REST).any()
+    assert rms_errors(wide, rec)["inclination"] < 0.8 * rms_errors(default, rec)["inclination"]  # (4.94, 6.94)
+    err = np.linalg.norm(wide.diagnostics["bias"] - bias)
+    assert err < 0.7 * np.linalg.norm(default.diagnostics["bias"] - bias)  # the bias learned further
