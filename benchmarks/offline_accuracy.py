@@ -75,14 +75,22 @@ class _EqualWeights(OfflineFilter):
             off._weights = saved
 
 
+def _membership(path: Path, recs, always: tuple[str, ...] = ()) -> tuple[list[set], list[str]]:
+    """Each trial's BROAD groups (``trials.json``'s ``groups``; none where the file or the trial is not
+    there), each with the groups of ``always`` added, and every group met, ``all_trials`` first."""
+    trials = json.loads(path.read_text())["trials"] if path.exists() else {}
+    member = [set(trials.get(r.name, {}).get("groups", list(always))) for r in recs]
+    if always:
+        member = [m | set(always) for m in member]
+    return member, sorted(dict.fromkeys(g for m in member for g in m), key=lambda g: g != "all_trials")
+
+
 def _groups(path: Path, recs, err: dict, key: str) -> None:
     """The mean of every column per BROAD group (``trials.json``'s ``groups`` of each trial)."""
     if not path.exists():
         print(f"(no {path}: no groups)")
         return
-    trials = json.loads(path.read_text())["trials"]
-    member = [set(trials.get(r.name, {}).get("groups", [])) for r in recs]
-    groups = sorted(dict.fromkeys(g for m in member for g in m), key=lambda g: g != "all_trials")  # all first
+    member, groups = _membership(path, recs)
     names = list(err)
     print(f"\nper group: mean {key} RMSE [deg]\n| group (trials) | " + " | ".join(names) + " |")
     print("|---|" + "---:|" * len(names))
@@ -385,9 +393,7 @@ def _targets(path: Path, recs, targets: dict) -> None:
     against its target and its peer, the mean per BROAD group with the lower of each pair in bold
     (and the groups where the peer's is lower named), and each pair's means without the trial where
     fusionkit's lead over the peer is largest (does the lead hold without it?)."""
-    trials = json.loads(path.read_text())["trials"] if path.exists() else {}
-    member = [set(trials.get(r.name, {}).get("groups", ["all_trials"])) | {"all_trials"} for r in recs]
-    groups = sorted(dict.fromkeys(g for m in member for g in m), key=lambda g: g != "all_trials")
+    member, groups = _membership(path, recs, ("all_trials",))
     cols = [(mode, ours, peer) for mode in targets for ours, peer in PEERS]
     print("\nissue 14's targets: the mean over the trials against the target and the peer in the same run (deg; "
           "6D inclination, 9D total)\n| mode | filter | mean | target | peer | peer's mean | met |")
