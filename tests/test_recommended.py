@@ -482,6 +482,21 @@ def test_broad_targets(broad_dir):
     assert broad_mean(broad_dir, "recommended", "inclination", six_d=True) <= 0.67
 
 
+def _biased_turns(bias_deg, first_rest: float, turns: int, last_rest: float = 0.0):
+    """A gyro ``bias_deg`` (deg/s, per axis) off, ``first_rest`` s at rest, then ``turns`` 90 deg turns of 2 s about
+    two alternating tilted axes (and ``last_rest`` s at rest), 100 Hz."""
+    import math
+
+    segs = [sim.Rest(first_rest)] + [sim.Rotate((0.3, -0.5, 1.0) if i % 2 else (1.0, 0.4, -0.2),
+                                                math.radians(90) * (-1) ** i, 2.0) for i in range(turns)]
+    if last_rest:
+        segs.append(sim.Rest(last_rest))
+    bias = tuple(np.radians(bias_deg))
+    rec = sim.simulate(segs, rate=100.0, noise=sim.Noise(gyr_noise=0.003, acc_noise=0.03, mag_noise=0.2,
+                                                         gyr_bias=bias), seed=4, gnss_rate=None)
+    return rec, bias
+
+
 def test_a_turn_on_gyro_bias_of_a_few_deg_per_s_is_learned():
     """A gyro 1.5 deg/s off on each axis (2.6 as a norm): the rest detector's ``max_rate`` (2 deg/s) is judged per
     axis, so the bias is learned at the first rest, and ``bias_max`` (5 deg/s) keeps it in motion: 6D inclination
@@ -490,11 +505,7 @@ def test_a_turn_on_gyro_bias_of_a_few_deg_per_s_is_learned():
     was to this one, leaves the bias to motion alone (4.5 deg)."""
     import math
 
-    segs = [sim.Rest(5.0)] + [sim.Rotate((0.3, -0.5, 1.0) if i % 2 else (1.0, 0.4, -0.2), math.radians(90) * (-1) ** i,
-                                         2.0) for i in range(16)] + [sim.Rest(5.0)]
-    bias = tuple(np.radians([1.5, -1.5, 1.5]))
-    rec = sim.simulate(segs, rate=100.0, noise=sim.Noise(gyr_noise=0.003, acc_noise=0.03, mag_noise=0.2,
-                                                         gyr_bias=bias), seed=4, gnss_rate=None)
+    rec, bias = _biased_turns([1.5, -1.5, 1.5], 5.0, 16, 5.0)
     res = fk.make("recommended", use_mag=False).run(rec)
     assert (res.flags & Flag.REST).any() and rms_errors(res, rec)["inclination"] < 0.5
     np.testing.assert_allclose(res.diagnostics["bias"], bias, atol=math.radians(0.1))
@@ -512,11 +523,7 @@ def test_a_turn_on_bias_over_the_rest_bound_is_learned_as_fast_as_its_prior_lets
     bias", what a wider prior costs a calibrated gyro."""
     import math
 
-    segs = [sim.Rest(2.0)] + [sim.Rotate((0.3, -0.5, 1.0) if i % 2 else (1.0, 0.4, -0.2), math.radians(90) * (-1) ** i,
-                                         2.0) for i in range(30)]
-    bias = tuple(np.radians([3.0, -2.5, 3.0]))
-    rec = sim.simulate(segs, rate=100.0, noise=sim.Noise(gyr_noise=0.003, acc_noise=0.03, mag_noise=0.2,
-                                                         gyr_bias=bias), seed=4, gnss_rate=None)
+    rec, bias = _biased_turns([3.0, -2.5, 3.0], 2.0, 30)
     default = fk.make("recommended", use_mag=False).run(rec)
     wide = fk.make("recommended", use_mag=False, bias_sigma_init=math.radians(1.0)).run(rec)
     assert not (default.flags & Flag.REST).any()
