@@ -147,3 +147,33 @@ def test_a_filter_whose_source_cannot_be_found_is_never_cached(data, tmp_path, m
     for _ in range(2):
         assert not bench(["typed-in"], data, cache_dir=tmp_path).records[0]["cached"]
     assert fk.make("typed-in").name == "typed-in"
+
+
+def test_a_cached_result_takes_the_label_and_params_asked_for(data, tmp_path):
+    """Specs with the same full config share a cache entry (``step`` first-order is poisson's
+    default); a hit kept the label and params of the run that saved it, so the second of two
+    specs came back named like the first and a sweep found no value for its set (nan)."""
+    specs = ["poisson", ("poisson", {"step": "first-order"})]
+    fresh = bench(specs, data, cache=False)
+    want = [(r["filter"], r["params"]) for r in fresh.records]
+    assert want == [("poisson", {}), ("poisson[step=first-order]", {"step": "first-order"})]
+    bench(specs, data, cache_dir=tmp_path)
+    again = bench(specs, data, cache_dir=tmp_path)
+    assert [(r["filter"], r["params"], r["cached"]) for r in again.records] == [(*w, True) for w in want]
+    assert [r["metrics"] for r in again.records] == [r["metrics"] for r in fresh.records]
+
+    from fusionkit.benchmarking.sweep import sweep  # the new-user probe: bench, then a sweep over the default
+    grid = {"step": ["exact", "first-order"]}
+    bench(["poisson"], data, cache_dir=tmp_path / "sweep")
+    swept = sweep("poisson", grid, data, cache_dir=tmp_path / "sweep")
+    assert all(r["cached"] == (r["filter"] == "poisson[step=first-order]") for r in swept.result.records)
+    assert swept.mean_by_combo() == sweep("poisson", grid, data, cache=False).mean_by_combo()
+
+
+def test_different_parameters_never_share_a_cache_entry(data, tmp_path):
+    from fusionkit.benchmarking.runner import FilterSpec, _spec_key
+
+    keys = {_spec_key(FilterSpec.of(("poisson", {"step": s}))) for s in ("exact", "first-order")}
+    assert len(keys) == 2 and "" not in keys
+    bench([("poisson", {"step": "exact"})], data, cache_dir=tmp_path)
+    assert not bench([("poisson", {"step": "first-order"})], data, cache_dir=tmp_path).records[0]["cached"]

@@ -14,7 +14,9 @@ that runs) in ``bench/`` under ``$FUSIONKIT_CACHE``, else ``$FUSIONKIT_CACHE_DIR
 ``$XDG_CACHE_HOME/fusionkit`` or ``~/.cache/fusionkit``), so a re-run is instant. The
 code is fusionkit's own source files and, for a third-party plugin (the filter, or a plugin a
 pipeline composes), its distribution, version and source files (``versions["plugins"]``): fixing
-a plugin re-runs it. A record read from the cache has ``cached`` True, and tables mark it ``*``.
+a plugin re-runs it. A record read from the cache has ``cached`` True, and tables mark it ``*``;
+it takes the label and params of the filter asked for, not of the run that saved it (specs with
+the same full config share an entry: ``vqf`` and ``vqf[tau_acc=3.0]``, 3 being the default).
 A filter that raises on one trial gives a record with ``error`` set; the others continue.
 """
 
@@ -276,8 +278,10 @@ def bench(filters: Iterable[Any], data: Any, *, trials: list[str] | None = None,
             keys[i] = _key(spec_keys[s], t)
             if keys[i]:
                 hit = cdir / f"{keys[i]}.json"
-                if hit.is_file():
-                    records[i] = {**json.loads(hit.read_text()), "cached": True}
+                if hit.is_file():  # another spec with this config may have saved it: its label and
+                    # params were kept, and a sweep found no value under its own label
+                    records[i] = {**json.loads(hit.read_text()), "filter": s.label, "name": s.name,
+                                  "params": s.kwargs, "cached": True}
                     continue
         todo.append(i)
     bar = _bar(len(todo), progress, cached=len(tasks) - len(todo))
