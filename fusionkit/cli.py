@@ -219,8 +219,9 @@ def cmd_bench(args) -> int:
     if cached:  # on stderr: the table (or JSON) on stdout stays as it was
         print(f"fusionkit: {cached} of {len(res.records)} results from the cache (same code, config and file); "
               f"--no-cache recomputes them", file=sys.stderr)
-    if args.format in ("table", "markdown"):
-        text += "\n\nby group:\n\n" + res.group_table(format="markdown")
+    groups = res.group_table(format="markdown") if args.format in ("table", "markdown") else ""
+    if groups:  # (none when every run failed: it printed an empty "by group:")
+        text += "\n\nby group:\n\n" + groups
     if args.output:
         Path(args.output).write_text(text + "\n")
         print(f"wrote {args.output}")

@@ -94,6 +94,38 @@ def test_a_failing_filter_is_reported_and_the_rest_continue(data, tmp_path):
     assert all(not r["error"] for r in res.records if r["filter"] == "poisson")
 
 
+def test_a_refused_value_is_one_error_before_any_trial_runs(data, capsys):
+    """A value the filter refuses was an error record per trial, its reason cut to "invalid
+    configuration for filter 'poisson':", under an empty "by group:"; now bench raises it once,
+    whole, and the CLI prints it on one line as ``fusionkit run`` does."""
+    with pytest.raises(ConfigError, match=r"invalid configuration for filter 'poisson':\n  step: Input should be"):
+        bench(["poisson"], data, params={"step": "abc"}, cache=False)
+    assert main(["bench", "--data", str(data), "--filters", "poisson", "--param", "step=abc", "--no-cache"]) == 2
+    out = capsys.readouterr()
+    assert out.out == "" and out.err.count("\n") == 1
+    assert out.err.startswith("fusionkit: error: invalid configuration for filter 'poisson': step: Input should be "
+                              "'first-order' or 'exact' (got 'abc')")
+
+
+def test_when_every_run_fails_only_the_errors_are_printed(data, capsys, monkeypatch):
+    from fusionkit import registry
+
+    class Broken(PoissonFilter):
+        name = "broken-test"
+
+        def run(self, rec, **kw):
+            raise RuntimeError("no run today:\n  the first reason\n  the second reason")
+
+    reg = registry.Registry()
+    reg.register(Broken)
+    monkeypatch.setattr(registry, "_DEFAULT", reg)
+    assert main(["bench", "--data", str(data), "--filters", "broken-test", "--trials", "trial0,trial1",
+                 "--no-cache"]) == 1
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out == [f"error: broken-test on {t}: RuntimeError: no run today: the first reason; the second reason"
+                   for t in ("trial0", "trial1")]  # no empty speed or "by group:" section, the whole reason
+
+
 def test_a_magnetometer_without_a_finite_sample_is_judged_6d(tmp_path):
     """With nan_policy='skip' a filter runs an all-NaN magnetometer as none (the same
     quaternions): it is judged as 6D (inclination; no total or heading), not on a 9D total of the

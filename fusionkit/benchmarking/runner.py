@@ -39,7 +39,7 @@ import numpy as np
 
 from .._sources import fusionkit_hash, source_hash
 from ..config import set_dotted
-from ..errors import ConfigError
+from ..errors import ConfigError, FusionkitError
 from .datasets import Trial, discover
 from .metrics import trial_metrics
 from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, aiding, dimension, metric_label, not_applicable
@@ -200,7 +200,8 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
         for k in rec_out["not_applicable"]:  # a number it cannot have (e.g. a 96 deg "total") is not reported
             rec_out["metrics"][k] = None
     except Exception as exc:  # a filter failing on one trial must not stop the bench
-        rec_out["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0]
+        lines = [line.strip() for line in f"{type(exc).__name__}: {exc}".splitlines() if line.strip()]
+        rec_out["error"] = f"{lines[0]} {'; '.join(lines[1:])}".rstrip()  # one line, the whole reason (as the CLI)
         rec_out["traceback"] = traceback.format_exc(limit=4)
     return _jsonable(rec_out)
 
@@ -266,6 +267,7 @@ def bench(filters: Iterable[Any], data: Any, *, trials: list[str] | None = None,
         raise ConfigError("no filters to run: name at least one (e.g. filters=['recommended'])")
     for s in specs:
         get(s.name, "filter")  # unknown names fail now, with close matches
+        _validate(s)
     trial_list = list(data) if isinstance(data, (list, tuple)) else discover(data, trials)
     tasks = [(s, t) for s in specs for t in trial_list]
     records: list[dict | None] = [None] * len(tasks)
@@ -295,6 +297,19 @@ def bench(filters: Iterable[Any], data: Any, *, trials: list[str] | None = None,
     if bar is not None:
         bar.close()
     return BenchResult([r for r in records if r is not None])
+
+
+def _validate(spec: FilterSpec) -> None:
+    """Build ``spec`` once before any trial runs: a configuration it refuses (a value, a
+    composition) is one error with its whole reason, as ``fusionkit run`` gives it. It was an error
+    record per trial, cut to its first line ("invalid configuration for filter 'x':"). Any other
+    exception (a plugin's own bug) is left to each trial's record."""
+    try:
+        spec.build()
+    except FusionkitError:
+        raise
+    except Exception:
+        pass
 
 
 def _apply_params(specs: list[FilterSpec], params: Mapping[str, Any]) -> list[FilterSpec]:
@@ -469,7 +484,8 @@ class BenchResult:
 
     def sections(self, metrics: list[str] | None = None) -> list[tuple[str, list[str], list[list[str]], str]]:
         """``(title, header, rows, note)`` per metric (6D inclination and 9D total apart), then one
-        for speed. A filter that cannot have a metric is left out of its section; ``note`` says why."""
+        for speed (none when every run failed: the errors are all there is). A filter that cannot
+        have a metric is left out of its section; ``note`` says why."""
         out = []
         for m in self.metrics() if metrics is None else metrics:
             na = self.not_applicable(m)
@@ -483,6 +499,8 @@ class BenchResult:
             note = "; ".join(f"{f}: n/a ({why})" for f, why in na.items())
             out.append((metric_label(m), ["trial"] + filters, rows, note))
         summ = self.summary()
+        if self.records and all(r["error"] for r in self.records):  # every run failed: no speed to show
+            return out
         rows = [["samples/s"] + [f"{s['samples_per_s']:,.0f}" if np.isfinite(s["samples_per_s"]) else "n/a"
                                  for s in summ],
                 ["aiding"] + [s["aiding"] or "-" for s in summ]]
