@@ -57,7 +57,7 @@ def test_bench_records_and_tables(data, tmp_path):
     assert md.startswith("**inclination RMSE") and "| trial | poisson | poisson[step=exact] |" in md
     recs = json.loads(res.table("json"))
     assert {r["trial"] for r in recs} == {"noref", "trial0", "trial1"}
-    assert res.table("csv").splitlines()[0] == "filter,trial,aiding,inclination,samples_per_s,error"
+    assert res.table("csv").splitlines()[0] == "filter,trial,aiding,inclination,samples_per_s,cached,error"
     assert set(res.by_group()["poisson"]) == {"csv"}
     with pytest.raises(ConfigError, match="format"):
         res.table("xml")

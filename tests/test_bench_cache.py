@@ -177,3 +177,22 @@ def test_different_parameters_never_share_a_cache_entry(data, tmp_path):
     assert len(keys) == 2 and "" not in keys
     bench([("poisson", {"step": "exact"})], data, cache_dir=tmp_path)
     assert not bench([("poisson", {"step": "first-order"})], data, cache_dir=tmp_path).records[0]["cached"]
+
+
+def test_csv_has_full_precision_numbers_and_a_cached_column(data, tmp_path):
+    """CSV is for programs: the metrics were rounded to 2 decimals with the cache's ``*`` glued
+    on ("0.60*"), which no CSV reader takes as a number."""
+    import csv
+
+    bench(["poisson", "gradient-descent"], data, cache_dir=tmp_path)
+    res = bench(["poisson", "gradient-descent"], data, cache_dir=tmp_path)
+    assert all(r["cached"] for r in res.records)
+    rows = list(csv.DictReader(res.table("csv").splitlines()))
+    assert list(rows[0]) == ["filter", "trial", "aiding", "inclination", "total", "samples_per_s", "cached", "error"]
+    for row, r in zip(rows, res.records):
+        assert row["cached"] == "true" and float(row["samples_per_s"]) == r["samples_per_s"]
+        for m in ("inclination", "total"):
+            assert row[m] == ("" if r["metrics"][m] is None else repr(r["metrics"][m]))
+    assert rows[1]["filter"] == "gradient-descent" and float(rows[1]["total"]) == res.records[1]["metrics"]["total"]
+    assert [r["cached"] for r in csv.DictReader(bench(["poisson"], data, cache=False).table("csv").splitlines())] \
+        == ["false"]

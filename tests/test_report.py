@@ -57,7 +57,7 @@ def test_tables_keep_6d_inclination_and_9d_total_apart(data, tmp_path):
     md = res.table("markdown")
     assert md.count("| mean over trials |") == 2
     csv = res.table("csv").splitlines()
-    assert csv[0] == "filter,trial,aiding,inclination,total,samples_per_s,error"
+    assert csv[0] == "filter,trial,aiding,inclination,total,samples_per_s,cached,error"
     assert csv[1].startswith("poisson,trial0,gyro-only,") and ",," in csv[1]  # no total for it
     groups = res.group_table()
     assert groups.count("mean per group") == 2

@@ -482,6 +482,14 @@ class BenchResult:
         v = r["metrics"].get(metric)
         return "-" if v is None else f"{v:.2f}" + ("*" if r.get("cached") else "")
 
+    def _number(self, r: dict, metric: str) -> str:
+        """``metric`` of record ``r`` for CSV: the number at full precision, or "" where the table
+        says n/a, - or error."""
+        if r.get("skipped") or r["error"] or (r.get("not_applicable") or {}).get(metric):
+            return ""
+        v = r["metrics"].get(metric)
+        return "" if v is None else repr(float(v))
+
     def sections(self, metrics: list[str] | None = None) -> list[tuple[str, list[str], list[list[str]], str]]:
         """``(title, header, rows, note)`` per metric (6D inclination and 9D total apart), then one
         for speed (none when every run failed: the errors are all there is). A filter that cannot
@@ -510,21 +518,22 @@ class BenchResult:
         return out
 
     def table(self, format: str = "table", metric: str | None = None) -> str:
-        """``table`` (aligned text), ``markdown``, ``csv`` (one row per record) or ``json`` (all
-        records). One section per metric (``metric``: only that one), then speed; the mean row
-        says over how many trials."""
+        """``table`` (aligned text), ``markdown``, ``csv`` (one row per record, numbers at full
+        precision, a ``cached`` column true/false) or ``json`` (all records). One section per
+        metric (``metric``: only that one), then speed; the mean row says over how many trials."""
         if format == "json":
             return json.dumps(self.records, indent=1)
         if format not in ("table", "markdown", "csv"):
             raise ConfigError(f"format must be table, markdown, csv or json, got {format!r}")
         metrics = self.metrics() if metric is None else [metric]
-        if format == "csv":
-            head = ["filter", "trial", "aiding"] + metrics + ["samples_per_s", "error"]
+        if format == "csv":  # for programs: full precision, plain numbers ("0.60*" was rounded and marked)
+            head = ["filter", "trial", "aiding"] + metrics + ["samples_per_s", "cached", "error"]
             lines = [",".join(head)]
             for r in self.records:
                 cells = [r["filter"], r["trial"], r.get("aiding") or r["dimension"] or ""]
-                cells += [c if c not in ("n/a", "-", "error", "") else "" for c in (self._cell(r, m) for m in metrics)]
-                cells += ["" if not r["samples_per_s"] else f"{r['samples_per_s']:.0f}", r["error"] or r.get("skipped") or ""]
+                cells += [self._number(r, m) for m in metrics]
+                cells += ["" if not r["samples_per_s"] else repr(float(r["samples_per_s"])),
+                          "true" if r.get("cached") else "false", r["error"] or r.get("skipped") or ""]
                 lines.append(",".join(c.replace(",", ";") for c in cells))
             return "\n".join(lines)
         blocks = [_render(title, head, rows, note, format) for title, head, rows, note in self.sections(metrics)]
