@@ -219,7 +219,7 @@ def cmd_bench(args) -> int:
     if cached:  # on stderr: the table (or JSON) on stdout stays as it was
         print(f"fusionkit: {cached} of {len(res.records)} results from the cache (same code, config and file); "
               f"--no-cache recomputes them", file=sys.stderr)
-    groups = res.group_table(format="markdown") if args.format in ("table", "markdown") else ""
+    groups = res.group_table(format=args.format) if args.format in ("table", "markdown") else ""
     if groups:  # (none when every run failed: it printed an empty "by group:")
         text += "\n\nby group:\n\n" + groups
     if args.output:

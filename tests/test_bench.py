@@ -221,6 +221,26 @@ def test_cli_bench_and_sweep(data, tmp_path, capsys):
     assert re.search(r"TAGP \(best common parameters\): \{'step': '(first-order|exact)'\}", capsys.readouterr().out)
 
 
+def test_group_tables_follow_the_chosen_format(data, capsys):
+    """``bench --format table`` printed its per-trial tables as text and its group tables in
+    markdown (and ``group_table`` gave csv for any format but markdown)."""
+    argv = ["bench", "--data", str(data), "--filters", "poisson", "--trials", "trial0", "--no-cache"]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    groups = text[text.index("by group:"):]
+    assert "|" not in text and "**" not in text
+    assert groups.splitlines()[2:4] == ["inclination RMSE (deg, the error's tilt part; every filter, 6D and 9D), "
+                                        "mean per group", "group  poisson"]
+    assert main(argv + ["--format", "markdown"]) == 0
+    groups = capsys.readouterr().out.split("by group:")[1]
+    assert "**inclination RMSE" in groups and "| group | poisson |" in groups
+    res = bench(["poisson"], data, trials=["trial0"], cache=False)
+    assert res.group_table().splitlines()[1] == "group  poisson"  # as table(): aligned text by default
+    assert res.group_table(format="csv").splitlines()[1:] == ["group,poisson", f"csv,{res.by_group()['poisson']['csv']:.2f}"]
+    with pytest.raises(ConfigError, match="format must be table, markdown or csv"):
+        res.group_table(format="json")
+
+
 def test_loaders_on_the_shared_data(broad_dir):
     root = broad_dir.parent
     trials = discover(root)

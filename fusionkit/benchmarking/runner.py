@@ -544,8 +544,12 @@ class BenchResult:
                           "code, config and file; --no-cache (cache=False) recomputes")
         return "\n\n".join(blocks + (["\n".join(errors)] if errors else []))
 
-    def group_table(self, metric: str | None = None, format: str = "markdown") -> str:
-        """Mean per filter (columns) and group (rows), one table per metric (or only ``metric``)."""
+    def group_table(self, metric: str | None = None, format: str = "table") -> str:
+        """Mean per filter (columns) and group (rows), one table per metric (or only ``metric``), in
+        ``format`` as :meth:`table` (``table``, ``markdown`` or ``csv``). Anything but markdown
+        came out as csv, and ``fusionkit bench --format table`` printed them in markdown."""
+        if format not in ("table", "markdown", "csv"):
+            raise ConfigError(f"format must be table, markdown or csv, got {format!r}")
         groups = list(dict.fromkeys(g for r in self.records for g in (r["groups"] or ["all"])))
         blocks = []
         for m in self.metrics() if metric is None else [metric]:
@@ -554,7 +558,7 @@ class BenchResult:
             rows = [[g] + [f"{bg.get(f, {}).get(g, float('nan')):.2f}" for f in filters] for g in groups]
             if filters:
                 blocks.append(_render(metric_label(m) + ", mean per group", ["group"] + filters, rows,
-                                      "; ".join(f"{f}: n/a" for f in na), "markdown" if format == "markdown" else "csv"))
+                                      "; ".join(f"{f}: n/a" for f in na), format))
         return "\n\n".join(blocks)
 
 
