@@ -167,6 +167,7 @@ class PeerFilter(Filter):
         if self.peer_frame != self.config.frame:  # (the same frame: no product with the identity, a pass less)
             q = change_frame(q, self.peer_frame, self.config.frame)
         mark_gaps(flags, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.config.max_gap))
+        diag["aiding"] = self.aiding(rec)
         return Result(q, flags, self.config.frame, diag)
 
     def _peer_mag(self, mag, valid, flags) -> None:
