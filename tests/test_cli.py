@@ -297,3 +297,14 @@ def test_run_names_a_reference_that_is_not_a_truth(tmp_path, capsys, monkeypatch
     rec.meta["truth_kind"] = "ground truth (simulator)"  # a SITL log's truth is one
     assert main(["run", "poisson", "sim:slow-rotation", "-o", str(tmp_path / "o.csv")]) == 0
     assert "RMS error vs truth" in capsys.readouterr().out
+
+
+def test_demo_with_filters_says_which(capsys, monkeypatch):
+    """``demo --filters`` said it ran "every registered filter"."""
+    import fusionkit.demo
+
+    whole = fusionkit.demo.demo_recordings
+    monkeypatch.setattr(fusionkit.demo, "demo_recordings", lambda: [r.slice(0, 600) for r in whole()])
+    assert fusionkit.demo.run_demo(plot=None, filters=["poisson"]) == 0
+    out = capsys.readouterr().out
+    assert "fusionkit demo: 1 filter (--filters) on simulated" in out and "every registered" not in out
