@@ -156,7 +156,9 @@ def cmd_run(args) -> int:
         e = rms_errors(res, rec)
         over = "the movement samples" if rec.movement is not None else "all samples"
         none = f"no finite reference sample among {over}"  # (NaN rows: samples without one; it printed "nan deg")
-        print(f"RMS error vs truth over {over} ({kind} filter; heading = the error's rotation about the vertical): "
+        ref = rec.meta.get("truth_kind", "ground truth")  # (a PX4 log's reference may be the autopilot's estimate)
+        against = "error vs truth" if ref.startswith("ground truth") else f"difference from the recording's {ref} (not a truth)"
+        print(f"RMS {against} over {over} ({kind} filter; heading = the error's rotation about the vertical): "
               + ", ".join(f"{k} n/a ({na[k]})" if k in na else f"{k} {v:.3f} deg" if math.isfinite(v) else
                           f"{k} n/a ({none})" for k, v in e.items()))
     return 0

@@ -163,7 +163,9 @@ def _moving_rms(e, t, window: float = 1.0):
 def run_demo(plot: str | None = "fusionkit-demo.png", filters=None) -> int:
     """Print the side-by-side table; write the error plot to ``plot`` (None or '' for none)."""
     rows, curves = evaluate(filters)
-    print("fusionkit demo: every registered filter on simulated MEMS recordings (200 Hz, noise and gyro bias)")
+    n = len({r["filter"] for r in rows})
+    which = "every registered filter" if not filters else f"{n} filter{'s' if n != 1 else ''} (--filters)"
+    print(f"fusionkit demo: {which} on simulated MEMS recordings (200 Hz, noise and gyro bias)")
     print(format_table(rows))
     if plot:
         if plot_errors(curves, plot, rows):

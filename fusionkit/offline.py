@@ -775,7 +775,8 @@ class OfflineFilter(Filter):
         diag.update({"filter": self.name, "fusion_backend": used, "offline": True, "config": self.config.model_dump(),
                      "backward_weight": {"inclination": w_i, "heading": w_h}, "mag_disturbed": disturbed,
                      "mag_calibration": choice, "mag_timing": timing, "gyro_timing": gyro_timing,
-                     "backward_diagnostics": {k: v for k, v in bwd.diagnostics.items() if k != "config"}})
+                     "backward_diagnostics": {k: v for k, v in bwd.diagnostics.items() if k != "config"},
+                     "aiding": self.aiding(rec)})
         return Result(q, flags, frame, diag)
 
     def _calibrated(self, rec, model, config, used, model_state):

@@ -446,6 +446,7 @@ class Pipeline(Filter):
             diag["inclination_model_at"] = None if not models or models[0] is None else np.array(models)
         report_disturbed(st["align"], st["dt"], self.spec.alignment.duration)
         mark_gaps(out_f, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.spec.max_gap))
+        diag["aiding"] = self.aiding(rec)
         return Result(out_q, out_f, self.spec.frame, diag)
 
     def _inclination_model(self, st) -> np.ndarray | None:

@@ -417,6 +417,21 @@ class Filter(Plugin, ABC):
         which error a benchmark judges it on: total for 9D, inclination for 6D)."""
         return "6D"
 
+    def aiding(self, rec) -> str:
+        """What corrects a run of this filter on ``rec``, so what its heading means: ``"9D"`` (the
+        magnetometer: a heading from north), ``"6D"`` (the accelerometer only, or GNSS: without GNSS
+        the heading is the gyro's, from an arbitrary start) or ``"gyro-only"`` (a composition
+        without correctors: nothing corrects the integration). A filter that can use a
+        magnetometer runs 6D on a recording without one, or whose magnetometer has not one finite
+        sample (``nan_policy="skip"`` then runs without it). Every run records it in
+        ``Result.diagnostics["aiding"]``."""
+        if getattr(self, "correctors", None) == []:
+            return "gyro-only"
+        mag = getattr(rec, "mag", None)
+        if mag is not None and not np.isfinite(mag).any():
+            return "6D"
+        return self.dimension(rec)
+
     @abstractmethod
     def run(self, rec, *, backend: str = "auto", progress: bool | None = None):
         """Process a whole recording; returns a :class:`~fusionkit.types.Result`."""

@@ -492,7 +492,8 @@ class Result:
         """A one-line summary (samples, frame, flagged samples, diagnostics' keys), never the arrays."""
         flagged = int(np.count_nonzero(self.flags))
         keys = ", ".join(sorted(self.diagnostics))
-        return (f"Result({len(self)} samples, body -> {self.frame}, {flagged} flagged; "
+        aiding = self.diagnostics.get("aiding")  # (what corrected the run: a 6D or gyro-only heading is arbitrary)
+        return (f"Result({len(self)} samples, body -> {self.frame}, {aiding + ', ' if aiding else ''}{flagged} flagged; "
                 f"backend {self.diagnostics.get('backend', '?')}; diagnostics: {keys})")
 
     def euler(self, frame: str | None = None) -> np.ndarray:

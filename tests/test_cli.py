@@ -279,3 +279,32 @@ def test_cli_mistakes_are_named_before_any_run(tmp_path, capsys):
         assert main(argv) == code, argv
         cap = capsys.readouterr()
         assert re.search(match, cap.err + cap.out), (argv, cap.err + cap.out)
+
+
+def test_run_names_a_reference_that_is_not_a_truth(tmp_path, capsys, monkeypatch):
+    """A PX4 log without a simulator's truth carries the autopilot's own estimate as its reference
+    (``meta["truth_kind"]``): ``run`` printed the agreement with it as "RMS error vs truth"."""
+    import fusionkit.cli as cli
+    from fusionkit import sim
+
+    rec = sim.demo_recordings()[0].slice(0, 400)
+    rec.meta["truth_kind"] = "autopilot estimate"
+    monkeypatch.setattr(cli, "_load_input", lambda *a, **k: rec)
+    assert main(["run", "poisson", "sim:slow-rotation", "-o", str(tmp_path / "o.csv")]) == 0
+    text = capsys.readouterr().out
+    assert "RMS difference from the recording's autopilot estimate (not a truth)" in text
+    assert "error vs truth" not in text
+    rec.meta["truth_kind"] = "ground truth (simulator)"  # a SITL log's truth is one
+    assert main(["run", "poisson", "sim:slow-rotation", "-o", str(tmp_path / "o.csv")]) == 0
+    assert "RMS error vs truth" in capsys.readouterr().out
+
+
+def test_demo_with_filters_says_which(capsys, monkeypatch):
+    """``demo --filters`` said it ran "every registered filter"."""
+    import fusionkit.demo
+
+    whole = fusionkit.demo.demo_recordings
+    monkeypatch.setattr(fusionkit.demo, "demo_recordings", lambda: [r.slice(0, 600) for r in whole()])
+    assert fusionkit.demo.run_demo(plot=None, filters=["poisson"]) == 0
+    out = capsys.readouterr().out
+    assert "fusionkit demo: 1 filter (--filters) on simulated" in out and "every registered" not in out

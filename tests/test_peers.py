@@ -1,5 +1,7 @@
 """Peer adapters give the peers' own numbers, in fusionkit's conventions."""
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -134,3 +136,28 @@ def test_vqf_reproduces_its_published_broad_number(broad_dir):
     e = rms_errors(fk.make("vqf").run(r), r)
     assert e["total"] == pytest.approx(1.99, abs=0.005)
     assert e["inclination"] == pytest.approx(0.60, abs=0.005)
+
+
+@pytest.mark.parametrize("name", ["vqf", "imufusion"])
+def test_a_fixed_rate_peer_warns_once_when_a_stream_changes_its_interval(name):
+    """vqf and imufusion integrate every sample over one sample time (a stream's first dt): a later
+    dt was accepted and ignored without a word, so a stream on uneven timestamps silently differed
+    from run()."""
+    pytest.importorskip(name)
+    from fusionkit.errors import PluginWarning
+
+    f = fk.make(name)
+    g, a = np.array([0.01, 0.0, 0.0]), np.array([0.0, 0.0, 9.81])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        f.update(g, a, dt=0.005)
+        f.update(g, a, dt=0.005 * (1 + 1e-5))  # the intervals' rounding: no warning
+    with pytest.warns(PluginWarning, match=r"fixed sample time.*0\.005 s.*0\.01 s"):
+        f.update(g, a, dt=0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        f.update(g, a, dt=0.02)  # once per stream
+    f.reset()
+    with pytest.warns(PluginWarning):  # a new stream warns again
+        f.update(g, a, dt=0.005)
+        f.update(g, a, dt=0.0075)

@@ -59,6 +59,8 @@ def dimension(f, rec) -> str:
 def aiding(f, rec) -> str:
     """``"9D"`` (magnetometer used), ``"6D"`` (accelerometer only, or GNSS), or ``"gyro-only"``
     (a pipeline without correctors: integration from the alignment, nothing corrects it)."""
+    if hasattr(f, "aiding"):
+        return f.aiding(rec)
     if getattr(f, "correctors", None) == []:
         return "gyro-only"
     return dimension(f, rec)

@@ -127,6 +127,7 @@ class StepFilter(Filter):
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "state": x,
                 **self._diagnostics(x)}
         mark_gaps(flags, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.config.max_gap))
+        diag["aiding"] = self.aiding(rec)
         return Result(q, flags, self.config.frame, diag)
 
     def _checked_state(self, x) -> np.ndarray:

@@ -694,7 +694,7 @@ class InsGnssFilter(Filter):
                 "alignment_end_index": None if st["align"][17] < 0 else int(st["align"][17]),
                 "relevel_tilt": x[_PHI0:_PHI0 + 3].copy() if x[_LEVEL] == 1.0 else None,
                 "time_offset": ext[:, 27].copy(), "time_offset_std": ext[:, 28].copy(),
-                **{nm: ext[:, 3 * i:3 * i + 3] for i, nm in enumerate(names)}}
+                **{nm: ext[:, 3 * i:3 * i + 3] for i, nm in enumerate(names)}, "aiding": self.aiding(rec)}
         return Result(q, flags, self.config.frame, diag)
 
     def _check_state(self, state) -> None:

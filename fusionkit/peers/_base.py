@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import copy
 import importlib
+import warnings
 from typing import Any, ClassVar, Literal
 
 import numpy as np
 
 from ..config import FilterConfig, param
 from ..conventions import change_frame
-from ..errors import InputError, PluginError
+from ..errors import InputError, PluginError, PluginWarning
 from ..protocols import Filter
 from .._kernels import validity_all
 from ..types import (HUGE, TINY, Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps,
@@ -42,6 +43,9 @@ class PeerFilter(Filter):
     #: whether :meth:`_save` copies the peer's object (imufusion's cannot be copied: its snapshot is
     #: the live object, so a stream's ``state`` would keep changing with the stream)
     copyable: ClassVar[bool] = True
+    #: whether the peer's library integrates every sample over one fixed sample time (``vqf*``,
+    #: ``imufusion``: a stream's first ``dt``), not over each sample's own interval
+    fixed_rate: ClassVar[bool] = False
 
     def __init__(self, config=None, **params: Any) -> None:
         super().__init__(config, **params)
@@ -167,6 +171,7 @@ class PeerFilter(Filter):
         if self.peer_frame != self.config.frame:  # (the same frame: no product with the identity, a pass less)
             q = change_frame(q, self.peer_frame, self.config.frame)
         mark_gaps(flags, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.config.max_gap))
+        diag["aiding"] = self.aiding(rec)
         return Result(q, flags, self.config.frame, diag)
 
     def _peer_mag(self, mag, valid, flags) -> None:
@@ -228,6 +233,14 @@ class PeerFilter(Filter):
             self._stream = {"obj": self._new(1.0 / dt, use_mag), "q": np.array([1.0, 0.0, 0.0, 0.0]), "dt": dt,
                             "use_mag": use_mag}
         g, dt, gap = stream_gap(g, dt, self._stream["dt"], c.max_gap)
+        if self.fixed_rate and not gap and abs(dt - self._stream["dt"]) > 0.01 * self._stream["dt"] \
+                and not self._stream.get("warned"):  # (1 %: far above the intervals' rounding, 4e-5)
+            self._stream["warned"] = True
+            warnings.warn(PluginWarning(
+                f"{self.name} integrates every sample over one fixed sample time, the stream's first dt "
+                f"({self._stream['dt']:g} s), as its library does; this sample's dt ({dt:g} s) is not used, so the "
+                "stream and run() differ on uneven timestamps (docs/reliability.md; warned once per stream)"),
+                stacklevel=2)
         gyr_ok, acc_ok, mag_ok, flags = sample_validity(g, a, m, c.gyr_range, c.acc_range)
         if mag_ok:
             valid, f = np.array([[True, True, True]]), np.zeros(1, np.uint32)

@@ -22,6 +22,7 @@ class ImufusionConfig(PeerConfig):
 
 class ImufusionFilter(PeerFilter):
     """x-io's Fusion AHRS (imufusion) with its recommended settings."""
+    fixed_rate: ClassVar[bool] = True  #: one fixed sample time (the library's)
 
     name: ClassVar[str] = "imufusion"
     package: ClassVar[str] = "imufusion"

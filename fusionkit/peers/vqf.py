@@ -25,6 +25,7 @@ def _vqf_params(c) -> dict:
 
 class VqfFilter(PeerFilter):
     """VQF (Laidig and Seel, Information Fusion 2023, doi:10.1016/j.inffus.2022.10.014), C++ online."""
+    fixed_rate: ClassVar[bool] = True  #: one fixed sample time (the library's)
 
     name: ClassVar[str] = "vqf"
     package: ClassVar[str] = "vqf"
