@@ -328,3 +328,29 @@ def test_metrics_of_a_nue_result_split_about_the_vertical():
         got = rms_errors(res, rec)
         assert got == pytest.approx(want, rel=1e-9), frame
         assert trial_metrics(res, rec, "9D")["inclination"] == pytest.approx(want["inclination"], rel=1e-9), frame
+
+
+def test_a_reference_that_is_not_a_truth_is_left_out_of_the_means():
+    """A PX4 log without a simulator's truth carries the autopilot's own estimate as its reference:
+    bench averaged the agreement with it into the mean over trials with the real errors, unmarked."""
+    import copy
+
+    from fusionkit.benchmarking.datasets import Trial
+
+    base = sim.demo_recordings()[0]
+    px4 = copy.copy(base.slice(0, 3200))
+    px4.meta = {**px4.meta, "truth_kind": "autopilot estimate"}
+    recs = {"truth": base.slice(0, 4400), "px4": px4}  # (12 s of rest first)
+
+    class Mem(Trial):
+        def load(self):
+            return recs[self.name]
+
+    res = bench(["gst"], [Mem("truth", "csv", ""), Mem("px4", "csv", "")], cache=False, progress=False)
+    s = res.summary("inclination")[0]
+    assert s["trials"] == 1 and s["mean"] == pytest.approx(res.value("gst", "truth", "inclination"))
+    assert res.value("gst", "px4", "inclination") != pytest.approx(s["mean"])  # (it was in the mean: 2 trials)
+    text = res.table("table", metric="inclination")
+    assert "px4 (vs autopilot estimate)" in text and "not in the mean: px4" in text
+    assert set(res.by_group("inclination")["gst"]) == {"all"} and res.by_group("inclination")["gst"]["all"] == \
+        pytest.approx(s["mean"])

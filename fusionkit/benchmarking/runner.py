@@ -299,6 +299,15 @@ def bench(filters: Iterable[Any], data: Any, *, trials: list[str] | None = None,
     return BenchResult([r for r in records if r is not None])
 
 
+def _against_truth(record: dict) -> bool:
+    """Whether ``record``'s errors are against a truth: its reference is one ("ground truth", a
+    simulator's "ground truth (simulator)") or it has none (then it has no errors either). A PX4 log
+    without a simulator's truth carries the autopilot's own estimate: the agreement with another
+    filter, not an error, and it was averaged with the real trials' errors."""
+    ref = record.get("reference")
+    return ref is None or str(ref).startswith("ground truth")
+
+
 def _validate(spec: FilterSpec) -> None:
     """Build ``spec`` once before any trial runs: a configuration it refuses (a value, a
     composition) is one error with its whole reason, as ``fusionkit run`` gives it. It was an error
@@ -423,11 +432,12 @@ class BenchResult:
         return float("nan")
 
     def by_group(self, metric: str = "score") -> dict[str, dict[str, float]]:
-        """``{filter: {group: mean of metric over the group's trials}}`` (errors excluded)."""
+        """``{filter: {group: mean of metric over the group's trials}}`` (errors excluded, and the
+        trials whose reference is not a truth: :func:`_against_truth`)."""
         out: dict[str, dict[str, list[float]]] = {}
         for r in self.records:
             v = r["metrics"].get(metric)
-            if r["error"] or v is None:
+            if r["error"] or v is None or not _against_truth(r):
                 continue
             for g in r["groups"] or ["all"]:
                 out.setdefault(r["filter"], {}).setdefault(g, []).append(v)
@@ -435,11 +445,14 @@ class BenchResult:
 
     def summary(self, metric: str = "score") -> list[dict[str, Any]]:
         """Per filter: mean metric over its trials, trials run, failures, median samples/s, and how
-        it was judged (``dimension``: 6D/9D; ``aiding``: 9D, 6D or gyro-only)."""
+        it was judged (``dimension``: 6D/9D; ``aiding``: 9D, 6D or gyro-only). The mean leaves out the
+        trials whose reference is not a truth (:func:`_against_truth`: a PX4 log's autopilot estimate);
+        their rows in the tables say what they were compared with."""
         rows = []
         for f in self.filters:
             rs = [r for r in self.records if r["filter"] == f]
-            vals = [r["metrics"].get(metric) for r in rs if not r["error"] and r["metrics"].get(metric) is not None]
+            vals = [r["metrics"].get(metric) for r in rs
+                    if not r["error"] and r["metrics"].get(metric) is not None and _against_truth(r)]
             sps = [r["samples_per_s"] for r in rs if r["samples_per_s"]]
             dims = sorted({r["dimension"] for r in rs if r["dimension"]})
             aid = sorted({r.get("aiding") or r["dimension"] for r in rs if r["dimension"]})
@@ -448,6 +461,10 @@ class BenchResult:
                          "trials": len(vals), "failed": sum(bool(r["error"]) for r in rs),
                          "samples_per_s": float(np.median(sps)) if sps else float("nan")})
         return rows
+
+    def _other_references(self) -> dict[str, str]:
+        """``{trial: its reference}`` for the trials whose reference is not a truth."""
+        return {r["trial"]: r["reference"] for r in self.records if not _against_truth(r)}
 
     def metrics(self) -> list[str]:
         """The metrics the records have, in the tables' order (``report.METRIC_LABELS`` first,
@@ -500,11 +517,14 @@ class BenchResult:
             filters = [f for f in self.filters if f not in na]
             if not filters:
                 continue
-            rows = [[t] + [self._cell(self._record(f, t), m) for f in filters] for t in self.trials]
+            other = self._other_references()
+            rows = [[t + (f" (vs {other[t]})" if t in other else "")] + [self._cell(self._record(f, t), m)
+                                                                          for f in filters] for t in self.trials]
             summ = {s["filter"]: s for s in self.summary(m)}
             rows.append(["mean over trials"] + [f"{summ[f]['mean']:.2f} ({summ[f]['trials']})" if summ[f]["trials"]
                                                  else "n/a" for f in filters])
-            note = "; ".join(f"{f}: n/a ({why})" for f, why in na.items())
+            note = "; ".join([f"{f}: n/a ({why})" for f, why in na.items()] + (
+                [f"not in the mean: {', '.join(other)} (a reference that is not a truth)"] if other else []))
             out.append((metric_label(m), ["trial"] + filters, rows, note))
         summ = self.summary()
         if self.records and all(r["error"] for r in self.records):  # every run failed: no speed to show
