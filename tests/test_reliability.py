@@ -215,6 +215,26 @@ def test_no_false_alarm_when_the_specific_force_does_not_follow_gravity():
     fk.Recording(gyr=gyr, acc=acc, rate=100.0, gyr_unit="deg/s")  # (nothing turns the acc: no unit is told)
 
 
+@pytest.mark.parametrize("name", ["poisson", "gst"])
+def test_a_filter_does_not_refuse_a_sensor_it_does_not_read(moving, name):
+    """poisson (gyro-only) and gst (6D) raised "mag[300] is not finite" with the default nan_policy,
+    for a magnetometer they never read; a 9D filter still refuses it, in run() and update()."""
+    mag = moving.mag.copy()
+    mag[300] = np.nan
+    rec = dataclasses.replace(moving, mag=mag)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AlignmentWarning)
+        res = fk.make(name).run(rec)
+        ref = fk.make(name).run(moving)
+    np.testing.assert_allclose(res.quat, ref.quat, atol=1e-12)
+    f = fk.make(name)
+    f.update(rec.gyr[0], rec.acc[0], mag[300], dt=0.01)
+    with pytest.raises(fk.InputError, match=r"mag\[300\] is not finite"):
+        fk.make("recommended").run(rec)
+    with pytest.raises(fk.InputError, match="mag is not finite"):
+        fk.make("recommended").update(rec.gyr[0], rec.acc[0], mag[300], dt=0.01)
+
+
 @pytest.mark.parametrize("field", ["gyr", "acc", "mag"])
 def test_boolean_sensor_arrays_are_rejected(field):
     arrays = {"gyr": np.zeros((10, 3)), "acc": np.tile([0.0, 0.0, 9.81], (10, 1)), "mag": np.ones((10, 3))}
