@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import enum
 import math
+import operator
 import warnings
 from dataclasses import dataclass, field
 from typing import Any
@@ -511,7 +512,15 @@ class Result:
         return to_scipy(self.quat)
 
     def flag_names(self, i: int) -> list[str]:
-        return flag_names(int(self.flags[i]))
+        """Names of the :class:`Flag` bits of sample ``i`` (negative: from the end, as indexing)."""
+        n = len(self)
+        try:
+            k = operator.index(i)
+        except TypeError:
+            raise InputError(f"i must be a sample index (an integer), got {i!r:.80}") from None
+        if not -n <= k < n:  # (numpy's IndexError named no argument)
+            raise InputError(f"i is {k}, but the result has {n} samples: give an index from 0 to {n - 1}")
+        return flag_names(int(self.flags[k]))
 
     def to_csv(self, path, time: np.ndarray | None = None) -> None:
         """Write ``t`` (if given), ``qw, qx, qy, qz``, yaw/pitch/roll (deg) and ``flags``. The yaw
@@ -529,4 +538,7 @@ class Result:
             cols.insert(0, time.astype(float)[:, None])
             names.insert(0, "t")
         fmt = ["%.9g"] * (len(names) - 1) + ["%d"]
-        np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt=fmt)
+        try:
+            np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt=fmt)
+        except OSError as exc:  # (numpy's FileNotFoundError named no argument: a missing folder, no permission)
+            raise InputError(f"path: cannot write {str(path)!r}: {exc.strerror or exc}") from None
