@@ -14,6 +14,7 @@ from pathlib import Path
 
 from .config import set_dotted
 from .errors import FusionkitError
+from .validation import ACC_UNITS, GYR_UNITS
 
 
 def _parse_params(items: list[str]) -> dict:
@@ -70,20 +71,17 @@ def _merge(base, over: dict, where: str = ""):
     return base
 
 
-def _load_input(spec: str, rate: float | None = None):
-    from . import load, sim
+def _load_input(spec: str, rate: float | None = None, gyr_unit: str | None = None, acc_unit: str | None = None):
+    """``spec``'s recording (a file or ``sim:NAME``, as :func:`fusionkit.load` reads it); ``--rate``,
+    ``--gyr-unit`` and ``--acc-unit`` apply to a CSV only."""
+    from . import load
 
-    if spec.startswith("sim:"):
-        name = spec[4:]
-        if name in sim.SCENARIOS:
-            return sim.scenario(name)
-        recs = {r.name: r for r in sim.demo_recordings()}
-        if name not in recs:
-            raise FusionkitError(f"unknown simulated recording {name!r}; choose from {sorted(recs) + sorted(sim.SCENARIOS)}")
-        return recs[name]
-    if rate is not None and Path(spec).suffix.lower() != ".csv":
-        raise FusionkitError(f"--rate is for a CSV without a 't' column; {spec} carries its own clock")
-    return load(spec) if rate is None else load(spec, rate=rate)
+    options = {"rate": rate, "gyr_unit": gyr_unit, "acc_unit": acc_unit}
+    given = [f"--{k.replace('_', '-')}" for k, v in options.items() if v is not None]
+    if given and (spec.startswith("sim:") or Path(spec).suffix.lower() != ".csv"):
+        raise FusionkitError(f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} for a CSV file (--rate: one "
+                             f"without a 't' column); {spec} carries its own clock and units")
+    return load(spec, **{k: v for k, v in options.items() if v is not None})
 
 
 def cmd_list(args) -> int:
@@ -111,12 +109,16 @@ def cmd_describe(args) -> int:
     if args.toml or args.json:
         cfg = info.config()
         if cfg is None:
-            raise FusionkitError(f"{args.name!r} is a {info.kind}: only filters print a runnable config "
+            raise FusionkitError(f"{args.name!r} is {_article(info.kind)} {info.kind}: only filters print a runnable config "
                                  "(use it inside a pipeline config, see docs/configuration.md)")
         print(json.dumps(cfg, indent=2) if args.json else to_toml(cfg), end="\n" if args.json else "")
         return 0
     print(info)
     return 0
+
+
+def _article(word: str) -> str:
+    return "an" if word[:1] in "aeiou" else "a"
 
 
 def _check_output(path: str) -> None:
@@ -134,10 +136,19 @@ def _check_output(path: str) -> None:
         raise FusionkitError(f"cannot write {path}: folder {parent} is not writable")
 
 
+#: what a recording takes, not a filter: ``--param acc_unit=g`` named no option that works
+_INPUT_OPTIONS = {"rate": "--rate", "gyr_unit": "--gyr-unit", "acc_unit": "--acc-unit"}
+
+
 def cmd_run(args) -> int:
     _check_output(args.output)
-    f = _build_filter(args.filter, _parse_params(args.param))
-    rec = _load_input(args.input, rate=args.rate)
+    params = _parse_params(args.param)
+    for key, option in _INPUT_OPTIONS.items():
+        if key in params:
+            raise FusionkitError(f"--param {key}: {key} belongs to the recording, not the filter: pass {option} "
+                                 f"{params[key]} (a CSV; or a '# {key}=...' line in it)")
+    f = _build_filter(args.filter, params)
+    rec = _load_input(args.input, rate=args.rate, gyr_unit=args.gyr_unit, acc_unit=args.acc_unit)
     warm = _warm_up(f, rec, args.backend)
     t0 = time.perf_counter()
     res = f.run(rec, backend=args.backend, progress=True if args.progress else None)
@@ -405,7 +416,8 @@ def main(argv: list[str] | None = None) -> int:
     d.set_defaults(func=cmd_describe)
     r = _sub(sub, "run", "run a filter (by name or a TOML/JSON pipeline config) on a recording",
              "fusionkit run poisson trial.hdf5 -o out.csv --param step=exact\n"
-             "  fusionkit run recommended imu.csv --rate 200 -o out.csv",
+             "  fusionkit run recommended imu.csv --rate 200 -o out.csv\n"
+             "  fusionkit run recommended imu_deg_g.csv --gyr-unit deg/s --acc-unit g -o out.csv",
              "prints samples/s (samples per second of the run) and, with a reference, "
              + _ERRORS + ".\nThe CSV: t (s), qw..qz, yaw_<frame>_deg (ENU: body x from East counter-clockwise, "
              "so x to North is 90), pitch_deg, roll_deg, flags")
@@ -413,6 +425,10 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("input", help="a .hdf5 (BROAD) or .csv recording, or sim:NAME for a built-in one")
     r.add_argument("-o", "--output", required=True, help="output CSV (its folder must exist)")
     r.add_argument("--rate", type=float, default=None, help="sampling rate in Hz, for a CSV without a 't' column")
+    r.add_argument("--gyr-unit", default=None, choices=list(GYR_UNITS),
+                   help="the CSV's gyro unit, converted to rad/s (default: its '# gyr_unit=' line, else rad/s)")
+    r.add_argument("--acc-unit", default=None, choices=list(ACC_UNITS),
+                   help="the CSV's accelerometer unit, converted to m/s^2 (default: its '# acc_unit=' line, else m/s^2)")
     r.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="a filter parameter")
     r.add_argument("--backend", default="auto", choices=["auto", "numba", "reference"],
                    help="numba: the compiled loop, reference: the readable Python path (the same numbers to 1e-9), "

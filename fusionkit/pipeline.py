@@ -62,6 +62,7 @@ import math
 import sys
 import warnings
 from typing import Any, ClassVar
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -387,7 +388,9 @@ class Pipeline(Filter):
         biases: list[np.ndarray] = []
         models: list[np.ndarray | None] = []  # the inclination's model at the same samples (:meth:`_inclination_model`)
         self._set_body(self.body_axes(rec))
-        inputs = {"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}
+        # the sensors it reads: a magnetometer it does not use (a 6D or gyro-only filter) is not judged, nor
+        # a non-finite sample of it refused (nan_policy="raise" named mag[k] of a sensor it never read)
+        inputs = {"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag if self.dimension(rec) == "9D" else None}
         if self.models:  # a sensor model may change a sample before it is judged: the input first
             check_finite_all(inputs, self.spec.nan_policy)
         has_mag = rec.mag is not None
@@ -515,7 +518,9 @@ class Pipeline(Filter):
         a = as_vector("acc", acc)
         has_mag = mag is not None
         m = as_vector("mag", mag) if has_mag else np.zeros(3)
-        check_sample_finite(self.spec.nan_policy, gyr=g, acc=a, mag=m)
+        # a magnetometer it does not read (dimension 6D with one) is not refused for a non-finite sample
+        reads_mag = has_mag and self.dimension(SimpleNamespace(mag=m)) == "9D"
+        check_sample_finite(self.spec.nan_policy, gyr=g, acc=a, mag=m if reads_mag else None)
         self.check_stream_units(g, a)
         if self._stream is None:
             self._stream = self.new_state(dt)

@@ -215,7 +215,8 @@ class Registry:
         where = f"{kind} " if kind else ""
         if not any(entries.values()):
             hint += " (no plugins are registered at all: is fusionkit installed, e.g. `pip install -e .`?)"
-        raise PluginError(f"unknown {where}plugin {name!r}{hint} Known: {', '.join(sorted(set(pool))) or 'none'}")
+        end = "" if close else "."  # (without a suggestion it read "unknown plugin 'nosuch' Known: ...")
+        raise PluginError(f"unknown {where}plugin {name!r}{hint}{end} Known: {', '.join(sorted(set(pool))) or 'none'}")
 
     def _load(self, entry: _Entry) -> type[Plugin]:
         if entry.cls is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import enum
 import math
+import operator
 import warnings
 from dataclasses import dataclass, field
 from typing import Any
@@ -14,8 +15,8 @@ import numpy as np
 from .conventions import DEFAULT_FRAME, change_frame, check_body, check_frame, quat_to_euler, to_scipy
 from .errors import InputError
 from ._numba import HAVE_NUMBA
-from .validation import (MAX_INTERVAL, SCAN_MIN_SAMPLES, as_mask, as_vectors, check_acc_in_g, check_positive,
-                         check_time, check_units, unit_rows_off)
+from .validation import (ACC_UNITS, GYR_UNITS, MAX_INTERVAL, SCAN_MIN_SAMPLES, as_mask, as_vectors, check_acc_declared,
+                         check_positive, check_time, check_units, unit_rows_off)
 
 
 class Flag(enum.IntFlag):
@@ -80,8 +81,7 @@ def flag_names(value: int) -> list[str]:
     return [f.name for f in Flag if f.value and (int(value) & f.value)]
 
 
-_GYR_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0}
-_ACC_UNITS = {"m/s^2": 1.0, "g": 9.80665}
+_GYR_UNITS, _ACC_UNITS = GYR_UNITS, ACC_UNITS  # (validation's: its unit checks name them)
 
 
 #: A gyroscope axis beyond this (rad/s, about 1600 turns per second: no gyroscope measures that
@@ -251,8 +251,8 @@ class Recording:
 
     Parameters
     ----------
-    gyr : (N, 3) angular rate, rad/s (or ``gyr_unit="deg/s"``).
-    acc : (N, 3) specific force, m/s^2 (or ``acc_unit="g"``); about +g on "up" at rest.
+    gyr : (N, 3) angular rate, rad/s (or ``gyr_unit="deg/s"``, ``"mrad/s"``, ``"mdeg/s"``).
+    acc : (N, 3) specific force, m/s^2 (or ``acc_unit="g"``, ``"mg"``); about +g on "up" at rest.
     mag : (N, 3) magnetic field in any unit, optional.
     rate : sampling rate in Hz, or
     t : (N,) timestamps in s, strictly increasing (one of the two is required).
@@ -267,8 +267,11 @@ class Recording:
         The GNSS velocity's earth frame is ``gnss.frame``.
 
     Values are converted to the library's units on construction; a unit mistake that is
-    obvious from the data (an accelerometer reading in g, a gyroscope in deg/s) raises
-    :class:`InputError` naming the argument to pass. Non-finite samples are kept: each filter
+    obvious from the data raises :class:`InputError` naming the argument to pass: an
+    accelerometer whose median norm is about 1 (g) or 1000 (mg), or far from gravity in every
+    unit; a gyroscope in deg/s (median |component| above 2 pi rad/s, or the accelerometer and
+    magnetometer turning 57 times slower than it says), or one turning faster than any gyroscope
+    measures in rad/s (mrad/s, mdeg/s, raw counts). A declared unit the data contradict too. Non-finite samples are kept: each filter
     handles them by its ``nan_policy``. C-contiguous float64 arrays already in rad/s and m/s^2
     are kept as given, not copied (the recording shares their memory: change them and it changes), as is
     a boolean ``movement`` mask.
@@ -303,11 +306,11 @@ class Recording:
             raise InputError(f"acc_unit must be one of {list(_ACC_UNITS)}, got {self.acc_unit!r}")
         # converted only when the unit asks for it: C-contiguous float64 input in the library's
         # units is kept, not copied (the Recording shares its memory)
-        declared = self.gyr_unit  # (the turning check asks whether a gyro declared deg/s was in rad/s)
+        declared = self.gyr_unit  # (the turning check asks whether a gyro declared in another unit was in rad/s)
         if _GYR_UNITS[self.gyr_unit] != 1.0:
             self.gyr = self.gyr * _GYR_UNITS[self.gyr_unit]
         if _ACC_UNITS[self.acc_unit] != 1.0:
-            check_acc_in_g(self.gyr, self.acc, self.acc_unit)
+            check_acc_declared(self.gyr, self.acc, self.acc_unit)
             self.acc = self.acc * _ACC_UNITS[self.acc_unit]
         self.gyr_unit, self.acc_unit = "rad/s", "m/s^2"
         if (self.rate is None) == (self.t is None):
@@ -510,7 +513,15 @@ class Result:
         return to_scipy(self.quat)
 
     def flag_names(self, i: int) -> list[str]:
-        return flag_names(int(self.flags[i]))
+        """Names of the :class:`Flag` bits of sample ``i`` (negative: from the end, as indexing)."""
+        n = len(self)
+        try:
+            k = operator.index(i)
+        except TypeError:
+            raise InputError(f"i must be a sample index (an integer), got {i!r:.80}") from None
+        if not -n <= k < n:  # (numpy's IndexError named no argument)
+            raise InputError(f"i is {k}, but the result has {n} samples: give an index from 0 to {n - 1}")
+        return flag_names(int(self.flags[k]))
 
     def to_csv(self, path, time: np.ndarray | None = None) -> None:
         """Write ``t`` (if given), ``qw, qx, qy, qz``, yaw/pitch/roll (deg) and ``flags``. The yaw
@@ -528,4 +539,7 @@ class Result:
             cols.insert(0, time.astype(float)[:, None])
             names.insert(0, "t")
         fmt = ["%.9g"] * (len(names) - 1) + ["%d"]
-        np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt=fmt)
+        try:
+            np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt=fmt)
+        except OSError as exc:  # (numpy's FileNotFoundError named no argument: a missing folder, no permission)
+            raise InputError(f"path: cannot write {str(path)!r}: {exc.strerror or exc}") from None

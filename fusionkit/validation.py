@@ -450,38 +450,127 @@ def _gyr_abs(gyr):
     return np.abs(gyr[np.isfinite(gyr).all(axis=1)])
 
 
-def check_acc_in_g(gyr: np.ndarray, acc: np.ndarray, unit: str) -> None:
-    """Refuse ``acc_unit="g"`` on data already in m/s^2: in g the median norm is about 1 (below
-    3); above, the conversion would make it ~96 m/s^2, which the check after the conversion
-    (data in g) does not look for."""
-    step = max(1, acc.shape[0] // 65536)  # (a coarse verdict, medians ten times apart: 65536 evenly spaced rows,
-    # copied contiguous: the scan's compiled specialisation for C arrays, not a second one for strided views)
-    if _unit_medians(np.ascontiguousarray(gyr[::step]), np.ascontiguousarray(acc[::step]))[1] == 1:
-        raise InputError(f"acc looks like it is in m/s^2 already (median norm {np.median(_acc_norms(acc)):.3g} > 3), "
-                         f"but acc_unit={unit!r} would multiply it by 9.81: leave acc_unit out")
+#: the unit a median accelerometer norm (as given) points to: gravity, about 1 g, read in g, m/s^2
+#: or mg, within the factor of about 3 the in-g window allows on either side (a recording's median
+#: specific force stays near 1 g). Above the mg window (3000) no unit fusionkit converts fits: raw
+#: counts (2048 to 16384 per g on common parts) or a wrong sensitivity. Below 0.3 nothing is said: a
+#: free fall reads about 0 in every unit.
+ACC_MG_WINDOW = (300.0, 3000.0)
+#: the units a Recording converts from, to rad/s and m/s^2 (mrad/s, mdeg/s and mg: what some
+#: drivers report, e.g. ST's mdps and mg)
+GYR_UNITS = {"rad/s": 1.0, "deg/s": np.pi / 180.0, "mrad/s": 1e-3, "mdeg/s": np.pi / 180e3}
+ACC_UNITS = {"m/s^2": 1.0, "g": 9.80665, "mg": 9.80665e-3}
+#: rad/s: a gyroscope's 99th percentile of |component| beyond this is not a rate in rad/s. Consumer
+#: and tactical gyros measure at most a few thousand deg/s (2000 deg/s = 35 rad/s, the widest ranges
+#: 4000 deg/s = 70 rad/s); a gyro in mrad/s or mdeg/s (ST's mdps) reads thousands where it turns.
+#: Nor, above 5730 rad/s (this bound's deg/s), is it in deg/s.
+GYR_RATE_BOUND = 100.0
+#: rows of the coarse statistics below (evenly spaced: the windows are factors of 3 to 100 apart)
+_COARSE_ROWS = 8192
+
+
+def _coarse_rows(x: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(x[:: max(1, x.shape[0] // _COARSE_ROWS)])
+
+
+def _coarse_acc_median(acc: np.ndarray) -> float | None:
+    """The median norm of the finite, nonzero rows of about 8192 evenly spaced rows of ``acc``."""
+    norm = _acc_norms(_coarse_rows(acc))
+    return float(np.median(norm)) if norm.size else None
+
+
+def acc_unit_of(median: float | None) -> str | None:
+    """The unit whose window (:data:`ACC_G_WINDOW`, :data:`ACC_MG_WINDOW`, m/s^2 between them) holds
+    an accelerometer's median norm; None below the g window, "far" above the mg window."""
+    if median is None or median <= ACC_G_WINDOW[0]:
+        return None
+    if median < ACC_G_WINDOW[1]:
+        return "g"
+    if median <= ACC_MG_WINDOW[0]:
+        return "m/s^2"
+    return "mg" if median < ACC_MG_WINDOW[1] else "far"
+
+
+def _acc_far(median: float) -> str:
+    return (f"acc's median norm is {median:.3g}, far from gravity in every unit fusionkit converts (about 9.8 in "
+            "m/s^2, 1 in g, 1000 in mg): raw counts or a wrong sensitivity? Divide by the sensitivity (counts per "
+            "g) and pass acc_unit='g'")
+
+
+def check_acc_declared(gyr: np.ndarray, acc: np.ndarray, unit: str) -> None:
+    """Refuse a declared ``acc_unit`` (``"g"``, ``"mg"``) that the data, as given, contradicts:
+    its median norm in another unit's window (:func:`acc_unit_of`: data in m/s^2 declared g would
+    become ~96 m/s^2, data in mg declared g ~9800, which the checks after the conversion do not all
+    look for), or far above every window. A median below the g window (a free fall) says nothing."""
+    median = _coarse_acc_median(acc)
+    seen = acc_unit_of(median)
+    if seen is None or seen == unit:
+        return
+    if seen == "far":
+        raise InputError(_acc_far(median) + f" (acc_unit={unit!r} was given)")
+    exact = float(np.median(_acc_norms(acc)))
+    if seen == "m/s^2":
+        raise InputError(f"acc looks like it is in m/s^2 already (median norm {exact:.3g} > "
+                         f"{ACC_G_WINDOW[1]:g}), but acc_unit={unit!r} would multiply it by "
+                         f"{ACC_UNITS[unit]:.3g}: leave acc_unit out")
+    raise InputError(f"acc looks like it is in {seen} (median norm {exact:.3g}), not {unit}: pass acc_unit={seen!r}")
+
+
+def _gyr_fast_share(gyr: np.ndarray) -> tuple[float, float]:
+    """``(share, p99)`` of about 8192 evenly spaced finite rows of ``gyr``: the share of their
+    components beyond :data:`GYR_RATE_BOUND` and the 99th percentile of |component|."""
+    w = _gyr_abs(_coarse_rows(gyr))
+    if not w.size:
+        return 0.0, 0.0
+    return float(np.count_nonzero(w > GYR_RATE_BOUND)) / w.size, float(np.percentile(w, 99))
 
 
 def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,
                 dt: np.ndarray | float | None = None, t: np.ndarray | None = None, gyr_unit: str = "rad/s") -> None:
-    """Refuse an accelerometer in g and a gyroscope in deg/s (see above), naming the argument
-    that converts them; the medians are computed for the message only when one is refused. With
-    the clock (``dt``: the (N,) intervals or one constant interval; or ``t``: the timestamps),
-    also a gyroscope whose turning the magnetometer and accelerometer contradict
+    """Refuse an accelerometer in g or mg, or far from gravity in every unit (:func:`acc_unit_of`), a
+    gyroscope in deg/s (see above) and one whose rates no gyroscope measures in rad/s (more than 1 %
+    of the components beyond :data:`GYR_RATE_BOUND`: mrad/s, mdeg/s, raw counts), naming the
+    argument that converts them; the medians are computed for the message only when one is
+    refused. With the clock (``dt``: the (N,) intervals or one constant interval; or ``t``: the
+    timestamps), also a gyroscope whose turning the magnetometer and accelerometer contradict
     (:func:`check_turning`: a deg/s gyro on a recording that never turns a turn per second, or
-    ``gyr``, converted from the declared ``gyr_unit="deg/s"``, that was in rad/s already)."""
+    ``gyr``, converted from the declared ``gyr_unit="deg/s"``, that was in rad/s already).
+    ``gyr_unit`` is the unit ``gyr`` was declared in (the messages say what it was converted from)."""
     acc_lo, acc_hi, gyr_hi = _unit_medians(gyr, acc)
     if acc_lo is not None and acc_lo > 0 and acc_hi < 0:
         raise InputError(
             f"acc looks like it is in g (median norm {np.median(_acc_norms(acc)):.3g}); fusionkit expects "
             "m/s^2: pass acc_unit='g' to convert"
         )
-    if gyr_hi is not None and gyr_hi > 0:
+    if acc_hi is not None and acc_hi > 0:  # (in m/s^2, as nearly all data are: one coarse median more)
+        median = _coarse_acc_median(acc)
+        seen = acc_unit_of(median)
+        if seen == "mg":
+            raise InputError(
+                f"acc looks like it is in mg (median norm {np.median(_acc_norms(acc)):.3g}); fusionkit expects "
+                "m/s^2: pass acc_unit='mg' to convert (or divide it by 1000 and pass acc_unit='g')")
+        if seen == "far":
+            raise InputError(_acc_far(median))
+    share, p99 = _gyr_fast_share(gyr)
+    fast = share > 0.01  # more than 1 % of the components beyond any gyro's range in rad/s
+    converted = "" if gyr_unit == "rad/s" else f", converted from gyr_unit={gyr_unit!r},"
+    if gyr_hi is not None and gyr_hi > 0 and not p99 * DEG > GYR_RATE_BOUND:
         raise InputError(
-            f"gyr looks like it is in deg/s (median |component| {np.median(_gyr_abs(gyr)):.3g} > 2 pi rad/s); "
-            "fusionkit expects rad/s: pass gyr_unit='deg/s' to convert"
+            f"gyr{converted} looks like it is in deg/s (median |component| {np.median(_gyr_abs(gyr)):.3g} > 2 pi "
+            "rad/s); fusionkit expects rad/s: pass gyr_unit='deg/s' to convert"
+            + (f" (or gyr_unit='mrad/s' if it is in mrad/s: its 99th percentile of |component|, {p99:.3g}, is beyond "
+               "the 35-70 rad/s of the widest gyro ranges)" if fast else "")
         )
-    if dt is not None or t is not None:
+    if dt is not None or t is not None:  # (a deg/s gyro told by its turning before the range says "mrad/s")
         check_turning(gyr, acc, mag, dt, t=t, gyr_unit=gyr_unit)
+    if fast:
+        raise InputError(
+            f"gyr{converted} turns faster than a gyroscope measures in rad/s (99th percentile of |component| "
+            f"{p99:.3g} rad/s; the widest ranges are 35-70 rad/s, 2000-4000 deg/s): if it is in mrad/s pass "
+            "gyr_unit='mrad/s', in mdeg/s (mdps) gyr_unit='mdeg/s'"
+            + (", in deg/s gyr_unit='deg/s'" if not p99 * DEG > GYR_RATE_BOUND and gyr_unit == "rad/s" else "")
+            + "; raw counts: divide by the sensitivity")
+
 
 DEG = np.pi / 180.0
 
@@ -492,13 +581,13 @@ def check_turning(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, dt: 
     gyroscope scaled by pi/180 predicts, not as given: a gyro in deg/s that never exceeds the
     magnitude bound of :func:`check_units` (:func:`turning_scale`). With ``gyr_unit="deg/s"``
     (``gyr`` already converted from it), also when they turn as the gyro read before the
-    conversion predicts: a gyro in rad/s declared deg/s (:func:`_check_declared_deg`). The clock
+    conversion predicts: a gyro in rad/s declared deg/s, mrad/s or mdeg/s (:func:`_check_declared`). The clock
     is ``dt`` (the (N,) intervals, or one constant interval) or ``t`` (the timestamps)."""
     if gyr.shape[0] < 4:
         return
     turns = window_turns(gyr, dt, t=t)
-    if gyr_unit == "deg/s":
-        _check_declared_deg(turns, acc, mag)
+    if gyr_unit != "rad/s":
+        _check_declared(turns, acc, mag, gyr_unit)
     for name, vec in (("mag", mag), ("acc", acc)):
         if vec is None:
             continue
@@ -517,27 +606,30 @@ def check_turning(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None, dt: 
             "to convert")
 
 
-def _check_declared_deg(turns, acc: np.ndarray, mag: np.ndarray | None) -> None:
-    """:class:`InputError` when a gyro converted from deg/s was in rad/s already: the vectors
-    turn 180/pi times faster than the converted gyro says. The fit of :func:`turning_scale` on
-    the gyro as given (the converted windows times 180/pi), whose two hypotheses are then 1 (it
-    was in rad/s) and pi/180 (deg/s was right). Silent where nothing turns enough to tell them
-    apart (a recording at rest, a turn about gravity seen by the accelerometer alone), and where
-    the vector does not follow the gyro at all (a fit near 0: a specific force that stays on the
-    thrust axis, a gyro bias scaled by 180/pi on a still sensor)."""
+def _check_declared(turns, acc: np.ndarray, mag: np.ndarray | None, unit: str) -> None:
+    """:class:`InputError` when a gyro converted from ``unit`` (deg/s, mrad/s, mdeg/s) was in rad/s
+    already: the vectors turn 1 / factor times faster than the converted gyro says (180/pi for
+    deg/s). The fit of :func:`turning_scale` on the gyro as given (the converted windows divided by
+    the factor), whose two hypotheses are then 1 (it was in rad/s) and the factor (the unit was
+    right; turning_scale's own second hypothesis is pi/180, as far from 1 as a milli unit's for
+    this decision). Silent where nothing turns enough to tell them apart (a recording at rest, a
+    turn about gravity seen by the accelerometer alone), and where the vector does not follow the
+    gyro at all (a fit near 0: a specific force that stays on the thrust axis, a gyro bias scaled
+    by 180/pi on a still sensor)."""
+    factor = GYR_UNITS[unit]
     i0, i1, th, duration = turns
-    given = (i0, i1, th / DEG, duration)
+    given = (i0, i1, th / factor, duration)
     for name, vec in (("mag", mag), ("acc", acc)):
         if vec is None:
             continue
         scale = turning_scale(given, vec, quasi_static=name == "acc")
-        # the geometric middle of the two hypotheses, mirroring check_turning's bounds
+        # the geometric middle of rad/s and deg/s, mirroring check_turning's bounds
         if scale is None or not np.sqrt(DEG) <= scale < 4.0:
             continue
         raise InputError(
-            f"gyr looks like it is in rad/s already: the {name} turns {scale / DEG:.3g} times as fast as the gyro "
-            f"converted from deg/s predicts (a gyro in rad/s would give {1 / DEG:.3g}, a right unit 1), but "
-            "gyr_unit='deg/s' multiplies it by pi/180: leave gyr_unit out")
+            f"gyr looks like it is in rad/s already: the {name} turns {scale / factor:.3g} times as fast as the gyro "
+            f"converted from {unit} predicts (a gyro in rad/s would give {1 / factor:.3g}, a right unit 1), but "
+            f"gyr_unit={unit!r} multiplies it by {'pi/180' if unit == 'deg/s' else f'{factor:.3g}'}: leave gyr_unit out")
 
 
 def _fast_turn_rare(gyr: np.ndarray) -> bool:

@@ -308,3 +308,47 @@ def test_demo_with_filters_says_which(capsys, monkeypatch):
     assert fusionkit.demo.run_demo(plot=None, filters=["poisson"]) == 0
     out = capsys.readouterr().out
     assert "fusionkit demo: 1 filter (--filters) on simulated" in out and "every registered" not in out
+
+
+def test_run_takes_the_units_of_a_csv(tmp_path, capsys):
+    """A CSV in deg/s and g had no way in from the command line (``--param acc_unit=g``: "unknown
+    parameter"): ``--gyr-unit`` and ``--acc-unit``, which the refusal names."""
+    from fusionkit import Recording, sim
+    from fusionkit.io.loaders import write_csv
+
+    rec = sim.demo_recordings()[1].slice(2400, 4000)
+    path = tmp_path / "deg_g.csv"
+    write_csv(Recording(gyr=rec.gyr, acc=rec.acc, rate=200.0), path)
+    data = np.loadtxt(path, delimiter=",", skiprows=1)
+    data[:, 1:4] = np.degrees(data[:, 1:4])
+    data[:, 4:7] /= 9.80665
+    np.savetxt(path, data, delimiter=",", header=path.read_text().splitlines()[0], comments="", fmt="%.10g")
+    out = str(tmp_path / "o.csv")
+    assert main(["run", "poisson", str(path), "-o", out]) == 2
+    assert "--acc-unit UNIT on the command line" in capsys.readouterr().err
+    assert main(["run", "poisson", str(path), "-o", out, "--param", "acc_unit=g"]) == 2
+    assert "pass --acc-unit g" in capsys.readouterr().err
+    assert main(["run", "poisson", str(path), "-o", out, "--gyr-unit", "deg/s", "--acc-unit", "g"]) == 0
+    assert main(["run", "poisson", "sim:slow-rotation", "-o", out, "--gyr-unit", "deg/s"]) == 2
+    assert "--gyr-unit is for a CSV file" in capsys.readouterr().err
+
+
+def test_cli_messages_name_the_cli_options_and_read_well(tmp_path, capsys):
+    """A CSV without time said "pass rate=" (a Python argument) to the command line; "'poisson-quat'
+    is a estimator"; "unknown plugin 'nosuch' Known: ..." lacked its full stop."""
+    from fusionkit import Recording, sim
+    from fusionkit.io.loaders import write_csv
+
+    rec = sim.demo_recordings()[0].slice(0, 400)
+    path = tmp_path / "no_t.csv"
+    write_csv(Recording(gyr=rec.gyr, acc=rec.acc, rate=200.0), path)
+    rows = [ln.split(",", 1)[1] for ln in path.read_text().splitlines()]
+    path.write_text("\n".join(rows) + "\n")
+    assert main(["run", "poisson", str(path), "-o", str(tmp_path / "o.csv")]) == 2
+    assert "--rate on the command line" in capsys.readouterr().err
+    assert main(["describe", "poisson-quat", "--toml"]) == 2
+    assert "'poisson-quat' is an estimator" in capsys.readouterr().err
+    assert main(["describe", "nosuch"]) == 2
+    assert "unknown plugin 'nosuch'. Known: " in capsys.readouterr().err
+    assert main(["describe", "poisso"]) == 2
+    assert "did you mean 'poisson'" in capsys.readouterr().err

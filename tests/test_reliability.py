@@ -164,6 +164,45 @@ def test_a_gyro_in_rad_s_declared_deg_s_is_found_from_the_turning(mostly_still, 
                              gyr_unit="deg/s")
 
 
+def test_a_gyro_in_mrad_s_and_an_accelerometer_in_mg_are_refused(mostly_still):
+    """A gyro in mrad/s (below 2 pi where still, so not "deg/s") and an accelerometer in mg (median
+    norm ~1000) were accepted: filters flagged every sample or turned 1000 times too fast, unsaid.
+    Each is refused naming the unit to pass, and the named unit converts them; a declared unit the
+    data contradict is refused too."""
+    rec = mostly_still
+    with pytest.raises(fk.InputError, match=r"gyr turns faster than a gyroscope measures in rad/s .* "
+                                            r"gyr_unit='mrad/s'"):
+        fk.Recording(gyr=rec.gyr * 1000, acc=rec.acc, mag=rec.mag, rate=100.0)
+    with pytest.raises(fk.InputError, match=r"gyr_unit='mdeg/s'"):
+        fk.Recording(gyr=np.degrees(rec.gyr) * 1000, acc=rec.acc, mag=rec.mag, rate=100.0)
+    with pytest.raises(fk.InputError, match=r"acc looks like it is in mg \(median norm 1e\+03\).* "
+                                            r"pass acc_unit='mg'"):
+        fk.Recording(gyr=rec.gyr, acc=rec.acc / 9.80665 * 1000, mag=rec.mag, rate=100.0)
+    with pytest.raises(fk.InputError, match=r"far from gravity in every unit"):  # raw counts, 4096 per g
+        fk.Recording(gyr=rec.gyr, acc=rec.acc / 9.80665 * 4096, mag=rec.mag, rate=100.0)
+    r = fk.Recording(gyr=rec.gyr * 1000, acc=rec.acc / 9.80665 * 1000, mag=rec.mag, rate=100.0,
+                     gyr_unit="mrad/s", acc_unit="mg")
+    np.testing.assert_allclose(r.gyr, rec.gyr, atol=1e-12)
+    np.testing.assert_allclose(r.acc, rec.acc, atol=1e-12)
+    r = fk.Recording(gyr=np.degrees(rec.gyr) * 1000, acc=rec.acc, rate=100.0, gyr_unit="mdeg/s")
+    np.testing.assert_allclose(r.gyr, rec.gyr, atol=1e-12)
+    with pytest.raises(fk.InputError, match=r"acc looks like it is in mg .*, not g: pass acc_unit='mg'"):
+        fk.Recording(gyr=rec.gyr, acc=rec.acc / 9.80665 * 1000, rate=100.0, acc_unit="g")
+    with pytest.raises(fk.InputError, match=r"m/s\^2 already .* leave acc_unit out"):
+        fk.Recording(gyr=rec.gyr, acc=rec.acc, rate=100.0, acc_unit="mg")
+    with pytest.raises(fk.InputError, match=r"rad/s already: the mag turns .* from mrad/s .* leave gyr_unit out"):
+        fk.Recording(gyr=rec.gyr, acc=rec.acc, mag=rec.mag, rate=100.0, gyr_unit="mrad/s")
+
+
+def test_fast_turns_within_a_gyros_range_are_accepted():
+    """Turns at 40 rad/s (2300 deg/s, in the 4000 deg/s range of the widest consumer gyros) on
+    more than 1 % of the samples are rates, not a unit mistake."""
+    segs = [sim.Rest(5)] + [sim.Rotate(ax, 8 * np.pi, 0.63) for ax in ((1, 0, 0), (0, 1, 0), (0, 0, 1))] + [sim.Rest(5)]
+    spins = sim.simulate(segs, rate=400.0, noise=sim.Noise.mems(), seed=3, gnss_rate=None)
+    assert np.percentile(np.abs(spins.gyr), 99) > 30.0
+    fk.Recording(gyr=spins.gyr, acc=spins.acc, mag=spins.mag, rate=400.0)
+
+
 def test_no_false_alarm_when_the_specific_force_does_not_follow_gravity():
     """A multicopter's thrust stays on its z axis while it tilts: the accelerometer does not turn
     with the gyro, and a rad/s gyro below a turn per second must still be accepted."""
@@ -174,6 +213,26 @@ def test_no_false_alarm_when_the_specific_force_does_not_follow_gravity():
     fk.Recording(gyr=gyr, acc=acc, rate=100.0)
     fk.Recording(gyr=np.degrees(gyr), acc=acc, rate=100.0, gyr_unit="deg/s")  # nor a deg/s one declared so
     fk.Recording(gyr=gyr, acc=acc, rate=100.0, gyr_unit="deg/s")  # (nothing turns the acc: no unit is told)
+
+
+@pytest.mark.parametrize("name", ["poisson", "gst"])
+def test_a_filter_does_not_refuse_a_sensor_it_does_not_read(moving, name):
+    """poisson (gyro-only) and gst (6D) raised "mag[300] is not finite" with the default nan_policy,
+    for a magnetometer they never read; a 9D filter still refuses it, in run() and update()."""
+    mag = moving.mag.copy()
+    mag[300] = np.nan
+    rec = dataclasses.replace(moving, mag=mag)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AlignmentWarning)
+        res = fk.make(name).run(rec)
+        ref = fk.make(name).run(moving)
+    np.testing.assert_allclose(res.quat, ref.quat, atol=1e-12)
+    f = fk.make(name)
+    f.update(rec.gyr[0], rec.acc[0], mag[300], dt=0.01)
+    with pytest.raises(fk.InputError, match=r"mag\[300\] is not finite"):
+        fk.make("recommended").run(rec)
+    with pytest.raises(fk.InputError, match="mag is not finite"):
+        fk.make("recommended").update(rec.gyr[0], rec.acc[0], mag[300], dt=0.01)
 
 
 @pytest.mark.parametrize("field", ["gyr", "acc", "mag"])

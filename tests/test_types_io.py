@@ -332,3 +332,72 @@ def test_gnss_stream_checks():
     assert rec.gnss.t.max() <= rec.time[-1]
     with pytest.raises(InputError, match="gnss must be a fusionkit.Gnss"):
         fk.Recording(gyr=r.gyr, acc=r.acc, rate=50.0, gnss={"t": 1})
+
+
+def _csv_in(tmp_path, name, gyr_scale=1.0, acc_scale=1.0, comments=""):
+    """8 s of the demo's fast rotations as a CSV, its gyro and accelerometer columns multiplied."""
+    r = sim.demo_recordings()[1].slice(2400, 4000)
+    path = tmp_path / name
+    write_csv(fk.Recording(gyr=r.gyr, acc=r.acc, mag=r.mag, rate=200.0), path)
+    data = np.loadtxt(path, delimiter=",", skiprows=1)
+    data[:, 1:4] *= gyr_scale
+    data[:, 4:7] *= acc_scale
+    header = path.read_text().splitlines()[0]
+    np.savetxt(path, data, delimiter=",", header=comments + header, comments="", fmt="%.10g")
+    return r, path
+
+
+def test_a_csv_in_deg_s_and_g_loads_with_the_unit_its_message_names(tmp_path):
+    """``load("deg.csv")`` said "pass gyr_unit='deg/s'", and ``load("deg.csv", gyr_unit="deg/s")``
+    failed (load_csv took no unit): the units are load()'s arguments and the CSV's comment lines,
+    and the message names both (and the command line's option)."""
+    r, path = _csv_in(tmp_path, "deg.csv", gyr_scale=180 / np.pi, acc_scale=1 / 9.80665)
+    with pytest.raises(InputError, match=r"deg\.csv: .*acc_unit='g'.*'# acc_unit=UNIT' line.*--acc-unit UNIT"):
+        fk.load(path)
+    with pytest.raises(InputError, match=r"gyr_unit='deg/s'.*--gyr-unit UNIT"):
+        fk.load(path, acc_unit="g")
+    rec = fk.load(path, gyr_unit="deg/s", acc_unit="g")
+    np.testing.assert_allclose(rec.gyr, r.gyr, atol=1e-8)
+    np.testing.assert_allclose(rec.acc, r.acc, atol=1e-8)
+    _, commented = _csv_in(tmp_path, "commented.csv", gyr_scale=180 / np.pi, acc_scale=1000 / 9.80665,
+                           comments="# gyr_unit=deg/s\n# acc_unit=mg\n")
+    rec = fk.load(commented)
+    np.testing.assert_allclose(rec.gyr, r.gyr, atol=1e-8)
+    np.testing.assert_allclose(rec.acc, r.acc, atol=1e-8)
+    assert fk.load(commented, acc_unit="mg").acc[0] == pytest.approx(rec.acc[0])  # the argument overrides
+    with pytest.raises(InputError, match=r"gyr_unit= applies to a \.csv file only; .* clock, body axes and units"):
+        fk.load(_hdf5(tmp_path), gyr_unit="deg/s")
+
+
+def _hdf5(tmp_path):
+    h5py = pytest.importorskip("h5py")
+    path = tmp_path / "trial.hdf5"
+    with h5py.File(path, "w") as f:
+        f["imu_gyr"] = np.zeros((10, 3))
+        f["imu_acc"] = np.tile([0, 0, 9.81], (10, 1))
+        f.attrs["sampling_rate"] = 100.0
+    return path
+
+
+def test_load_reads_a_simulated_recording_as_the_cli_does():
+    """``fk.load("sim:slow-rotation")`` said "no such file", though every command reads ``sim:NAME``."""
+    rec = fk.load("sim:slow-rotation")
+    assert rec.name == "slow-rotation" and rec.truth is not None
+    assert fk.load("sim:late-gyro").name == sim.scenario("late-gyro").name
+    with pytest.raises(InputError, match=r"unknown simulated recording 'nosuch'; choose from \['fast-rotation'"):
+        fk.load("sim:nosuch")
+    with pytest.raises(InputError, match="rate= applies to a .csv file only"):
+        fk.load("sim:slow-rotation", rate=100.0)
+
+
+def test_result_output_mistakes_are_input_errors_naming_the_argument(tmp_path):
+    """``to_csv`` into a missing folder raised numpy's FileNotFoundError, ``flag_names`` past the end
+    a bare IndexError."""
+    res = fk.make("poisson").run(sim.demo_recordings()[0].slice(0, 2400))
+    with pytest.raises(InputError, match=r"path: cannot write '.*nonexist.*r\.csv'"):
+        res.to_csv(tmp_path / "nonexist" / "r.csv")
+    with pytest.raises(InputError, match=r"i is 1000000, but the result has 2400 samples: give an index from 0 to 2399"):
+        res.flag_names(10**6)
+    with pytest.raises(InputError, match="i must be a sample index"):
+        res.flag_names(1.5)
+    assert res.flag_names(-1) == res.flag_names(2399)

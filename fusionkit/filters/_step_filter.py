@@ -95,7 +95,9 @@ class StepFilter(Filter):
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         self.body_axes(rec)  # checked: these filters need no forward axis, the output is in the recording's axes
-        check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}, self.config.nan_policy)
+        # a magnetometer it does not read (use_mag=False) is not refused for a non-finite sample
+        check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag if self._uses_mag(rec) else None},
+                         self.config.nan_policy)
         loop = self._kernel()
         used = resolve_backend(backend, loop is not None)
         n = len(rec)

@@ -633,7 +633,9 @@ class InsGnssFilter(Filter):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
         if rec.gnss is None:
             raise InputError(f"{self.name} needs a GNSS stream (Recording(gnss=...))")
-        check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag}, self.config.nan_policy)
+        # a magnetometer it does not read (heading="course") is not refused for a non-finite sample
+        check_finite_all({"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag if self._use_mag(rec) else None},
+                         self.config.nan_policy)
         # the recording's body axes (or body=; a contradiction raises); not known: FRD
         self.M = body_matrix(self.body_axes(rec) or "FRD", "FRD")
         used = resolve_backend(backend, True)

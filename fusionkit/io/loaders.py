@@ -6,16 +6,20 @@ CSV layout (comma separated, one header line, ``#`` comment lines allowed before
 column             meaning
 =================  ==========================================================
 ``t``              time in s (optional if ``rate=`` is given to :func:`load`)
-``gyr_x..gyr_z``   angular rate, rad/s
-``acc_x..acc_z``   specific force, m/s^2
+``gyr_x..gyr_z``   angular rate, rad/s (or the ``gyr_unit``)
+``acc_x..acc_z``   specific force, m/s^2 (or the ``acc_unit``)
 ``mag_x..mag_z``   magnetic field, any unit (optional)
 ``qw,qx,qy,qz``    reference orientation body->ENU (optional)
 =================  ==========================================================
 
 A comment line ``# rate=285.7`` gives the rate when there is no ``t`` column, ``# body=FRD``
-the sensors' body axes (``Recording.body``; without it they are not known). With a ``t`` column a
+the sensors' body axes (``Recording.body``; without it they are not known), ``# gyr_unit=deg/s`` and
+``# acc_unit=g`` the units of the columns (:class:`~fusionkit.types.Recording`'s ``gyr_unit`` and
+``acc_unit``: deg/s, mrad/s, mdeg/s; g, mg), converted on loading. With a ``t`` column a
 rate (``rate=`` or the comment) must match its typical interval within 1 %, and ``t`` is the clock.
-A magnetometer or a reference is all its columns or none.
+A magnetometer or a reference is all its columns or none. Arguments of :func:`load` (``rate=``,
+``body=``, ``gyr_unit=``, ``acc_unit=``; ``fusionkit run``'s ``--rate``, ``--gyr-unit``,
+``--acc-unit``) override the comments.
 """
 
 from __future__ import annotations
@@ -53,15 +57,26 @@ def check_path(path) -> Path:
 
 
 def load(path, **kwargs) -> Recording:
-    """Read a recording: a BROAD trial or GNSS scenario (``.hdf5``/``.h5``), a PX4 log (``.ulg``)
-    or ``.csv`` (see module doc)."""
+    """Read a recording: a BROAD trial or GNSS scenario (``.hdf5``/``.h5``), a PX4 log (``.ulg``),
+    ``.csv`` (see module doc; ``rate``, ``body``, ``gyr_unit``, ``acc_unit`` as for
+    :func:`load_csv`), or ``sim:NAME``, a built-in simulated recording (as every ``fusionkit``
+    command reads it: a scenario of :data:`fusionkit.sim.SCENARIOS` or a demo recording)."""
+    if isinstance(path, str) and path.startswith("sim:"):
+        from ..sim import load_sim
+
+        given = sorted(k for k, v in kwargs.items() if v is not None)
+        if given:
+            raise InputError(f"{path}: {', '.join(f'{k}=' for k in given)} "
+                             f"{'applies' if len(given) == 1 else 'apply'} to a .csv file only; a simulated recording "
+                             "carries its own clock, body axes and units")
+        return load_sim(path[4:])
     p = check_path(path)
     suffix = p.suffix.lower()
     given = sorted(k for k, v in kwargs.items() if v is not None)  # (None: not given, as a caller passes it on)
     if given and suffix != ".csv":  # (a .ulg or GNSS scenario ignored them, a BROAD trial failed to "read")
         raise InputError(f"{p.name}: {', '.join(f'{k}=' for k in given)} "
                          f"{'applies' if len(given) == 1 else 'apply'} to a .csv file only; this file carries its "
-                         "own clock and body axes")
+                         "own clock, body axes and units")
     if suffix != ".csv":
         kwargs = {}
     if suffix in (".hdf5", ".h5"):
@@ -99,11 +114,14 @@ def load_broad(path) -> Recording:
 
 
 @file_errors("CSV")
-def load_csv(path, rate: float | None = None, body: str | None = None) -> Recording:
-    """A CSV file in the layout of the module doc; ``rate`` and ``body`` override the comments
-    (a rate with a ``t`` column only confirms it: an InputError where they disagree)."""
+def load_csv(path, rate: float | None = None, body: str | None = None, gyr_unit: str | None = None,
+             acc_unit: str | None = None) -> Recording:
+    """A CSV file in the layout of the module doc; ``rate``, ``body``, ``gyr_unit`` and ``acc_unit``
+    override the comments (a rate with a ``t`` column only confirms it: an InputError where they
+    disagree). A unit mistake the Recording refuses says how to give the unit for a CSV."""
     p = Path(path)
     header, comment_rate, comment_body, skip = None, None, None, 0
+    units = {"gyr_unit": None, "acc_unit": None}  # from '# gyr_unit=deg/s' / '# acc_unit=g' lines
     with open(p, encoding="utf-8-sig") as fh:  # a byte-order mark is not part of the first name
         for line in fh:
             skip += 1
@@ -117,6 +135,8 @@ def load_csv(path, rate: float | None = None, body: str | None = None) -> Record
                         raise InputError(f"{p.name}: line {skip}: {s!r} is not a rate in Hz") from None
                 elif text.startswith("body="):
                     comment_body = text.split("=", 1)[1].strip()
+                elif text.split("=", 1)[0].strip() in units and "=" in text:
+                    units[text.split("=", 1)[0].strip()] = text.split("=", 1)[1].strip()
                 continue
             header = [c.strip() for c in s.split(",")]
             break
@@ -152,17 +172,29 @@ def load_csv(path, rate: float | None = None, body: str | None = None) -> Record
     given = "the rate argument" if rate is not None else "its '# rate=' line"
     rate = rate if rate is not None else comment_rate
     if t is None and rate is None:
-        raise InputError(f"{p.name}: no 't' column and no rate: pass rate= or add '# rate=...'")
+        raise InputError(f"{p.name}: no 't' column and no rate: add a '# rate=...' line (Hz) before the header, "
+                         "or give the rate: load(..., rate=...) in Python, --rate on the command line")
     if t is not None and rate is not None:
         _check_rate_against_t(p.name, given, check_positive("rate", rate), t)
         rate = None  # the 't' column is the clock (its gaps included); the rate only confirmed it
-    return Recording(
-        gyr=pick(_VEC["gyr"]), acc=pick(_VEC["acc"]),
-        mag=pick(_VEC["mag"]) if all(c in col for c in _VEC["mag"]) else None,
-        t=t, rate=rate,
-        truth=pick(_QUAT) if all(c in col for c in _QUAT) else None,
-        name=p.stem, meta={"path": str(p)}, body=body if body is not None else comment_body,
-    )
+    gyr_unit = gyr_unit if gyr_unit is not None else units["gyr_unit"]
+    acc_unit = acc_unit if acc_unit is not None else units["acc_unit"]
+    try:
+        return Recording(
+            gyr=pick(_VEC["gyr"]), acc=pick(_VEC["acc"]),
+            mag=pick(_VEC["mag"]) if all(c in col for c in _VEC["mag"]) else None,
+            t=t, rate=rate,
+            truth=pick(_QUAT) if all(c in col for c in _QUAT) else None,
+            name=p.stem, meta={"path": str(p)}, body=body if body is not None else comment_body,
+            gyr_unit=gyr_unit or "rad/s", acc_unit=acc_unit or "m/s^2",
+        )
+    except InputError as exc:  # "pass gyr_unit='deg/s'": how a CSV's reader takes it
+        named = [k for k in units if f"{k}=" in str(exc) or f"{k} " in str(exc)]
+        if not named:
+            raise
+        how = "; ".join(f"a '# {k}=UNIT' line before the header, load(..., {k}='UNIT') in Python, or "
+                        f"--{k.replace('_', '-')} UNIT on the command line" for k in named)
+        raise InputError(f"{p.name}: {exc} (for a CSV: {how})") from None
 
 
 def _check_rate_against_t(name: str, given: str, rate: float, t: np.ndarray) -> None:

@@ -31,9 +31,9 @@ from . import scenarios
 from .errors import FieldPatch, MagneticDipole, SensorErrors, Tap, Vibration, lowpass_delay
 from .motion import Rest, Rotate, Translate
 from .noise import Noise
-from .scenarios import SCENARIOS, demo_recordings, scenario
+from .scenarios import SCENARIOS, demo_recordings, load_sim, scenario
 from .sensors import KYIV_FIELD_ENU, simulate
 
 __all__ = ["Rest", "Rotate", "Translate", "Noise", "simulate", "demo_recordings", "KYIV_FIELD_ENU",
            "SensorErrors", "MagneticDipole", "FieldPatch", "Vibration", "Tap", "lowpass_delay", "scenarios",
-           "SCENARIOS", "scenario"]
+           "SCENARIOS", "scenario", "load_sim"]

@@ -245,3 +245,14 @@ def scenario(name: str, **params) -> Recording:
     if name not in SCENARIOS:
         raise InputError(f"unknown scenario {name!r}; choose from {sorted(SCENARIOS)}")
     return SCENARIOS[name](**params)
+
+
+def load_sim(name: str) -> Recording:
+    """The built-in recording ``name`` that ``sim:NAME`` names (:func:`fusionkit.load`, every
+    ``fusionkit`` command): a scenario of :data:`SCENARIOS` or one of :func:`demo_recordings`."""
+    if name in SCENARIOS:
+        return scenario(name)
+    recs = {r.name: r for r in demo_recordings()}
+    if name not in recs:
+        raise InputError(f"unknown simulated recording {name!r}; choose from {sorted(recs) + sorted(SCENARIOS)}")
+    return recs[name]
