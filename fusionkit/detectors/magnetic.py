@@ -43,7 +43,11 @@ Recovery:
   to it), and the earth's field after it is then a new field, rejected until the new-field test or
   the clock accepts it (measured both ways: docs/generalisation.md, "Stop 30"). VQF's
   ``magMaxRejectionTime`` (60 s, on by default) differs: after it, VQF uses the disturbed samples at
-  half its gain and keeps its reference.
+  half its gain and keeps its reference. ``max_rejection_mode="soft"`` (an option) does that: the
+  reference is kept, the clock starts full when a reference starts being learned (it earns twice the
+  time of each sample it describes), and beyond it a disturbed sample of a field consistent while
+  turning for 1 s is MAG_SOFT: ``mag-heading`` uses it with the variance its departure gives it
+  (docs/algorithms/models.md).
 
 The core, :func:`magnetic_step`, works on scalars: the ``mag-heading`` corrector and the ``ekf`` filter call
 it with the norm and dip of the field seen in their own levelled frame (the dip needs a vertical;
@@ -105,7 +109,9 @@ class MagneticConfig(PluginConfig):
     max_rejection_mode: Literal["relearn", "soft"] = param(
         "relearn", unit="-", description="what max_rejection does. relearn: the reference is learned again from the "
         "next samples. soft (VQF's magMaxRejectionTime): the reference is kept, and a disturbed sample beyond the "
-        "clock is used with the weight its departure from the reference gives it (mag-heading's Kalman variance "
+        "clock, of a field consistent while turning (new_min_rate) for at least 1 s (fixed in the earth frame, not "
+        "a magnet carried along), is used with the weight its departure from the reference gives it (mag-heading's "
+        "Kalman variance "
         "counts the norm's and dip's departure as the field's error; the fixed gain is halved, VQF's "
         "magRejectionFactor); the clock starts full when a reference starts being learned (at the start, or again "
         "at a recalibration): a reference that has described nothing yet may not reject, it earns twice the time "
