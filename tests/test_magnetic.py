@@ -280,3 +280,58 @@ def test_a_disturbance_of_the_earths_norm_after_a_start_in_motion_is_why_start_e
         rms[ev] = np.sqrt(np.mean(truth_errors(res.quat, "ENU", rec)["total"][t > 5.0] ** 2))
     assert rms[False] < 1.5 < 10.0 < rms[True], rms  # (0.59 against 32.2 deg)
 
+
+
+def test_soft_rejection_uses_a_consistent_field_once_the_clock_has_run_out():
+    """``max_rejection_mode="soft"`` (an option; VQF's magMaxRejectionTime): the reference is never learned again;
+    a disturbed field consistent while turning for 1 s is used (MAG_SOFT, 3), weighed by its departure, once the
+    reference has rejected for max_rejection. The clock starts full when a reference starts being learned (one that
+    has described nothing may not reject) and each sample it describes earns twice its time. Both paths step for
+    step."""
+    soft = MagneticDetector(max_rejection=5.0, max_rejection_mode="soft")
+    codes, s = _steps(soft, [50.0], rate=1.0)  # the reference (60) never describes the field (50)
+    assert not (codes == 2).any()  # (2: learning) never learned again
+    assert (codes[:100] == 1).all() and (codes[100:1999] == 3).all()  # the candidate's first 1 s, then used
+    assert (codes[2001:] == 0).all() and abs(s[0] - 50.0) < 1e-6  # after new_time (20 s turning) the new field
+    codes, _ = _steps(soft, [50.0], rate=0.0)  # not turning: never consistent evidence, never used
+    assert (codes == 1).all()
+    # a reference that first describes its field for 10 s has earned 20 s - 5 s... capped: it rejects for 5 s
+    det = MagneticDetector(max_rejection=5.0, max_rejection_mode="soft")
+    a, b = np.zeros(MAG_SIZE), np.zeros(MAG_SIZE)
+    out = []
+    for k in range(1100 + 1000):
+        norm = 60.0 if k < 1100 else 50.0
+        ra = det.reference_step(a, norm, 1.1, 1.0, 0.01)
+        assert magnetic_step(b, norm, 1.1, 1.0, 0.01, *det.step_params()) == ra
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+        out.append(ra)
+    out = np.array(out[1100:])
+    assert (out[:500] == 1).all() and (out[500:] == 3).all()  # rejected for max_rejection (5 s), then used
+    relearn = MagneticDetector(max_rejection=5.0)  # the default mode: learned again at the clock
+    codes, _ = _steps(relearn, [50.0], rate=1.0)
+    assert (codes == 2).any() and not (codes == 3).any()
+
+
+def test_soft_rejection_in_mag_heading_and_the_ekf():
+    """``recommended`` with the soft mode: a field fixed in the earth frame over 2-40 s, turning at 90 deg/s (the
+    reference learned at rest before it), max_rejection 5 s: the disturbed samples are flagged MAG_DISTURBED, and
+    after the clock those consistent for 1 s are used (the heading moves towards the disturbed field's, weighed by
+    its departure); compiled equals reference. The ekf keeps such a sample out: its result is the one without the
+    clock."""
+    from fusionkit.sim import FieldPatch, SensorErrors
+
+    segs = [sim.Rest(2.0)] + [sim.Rotate((0.1, 0.2, 1.0), 90 * DEG * (-1) ** i, 1.0) for i in range(12)]
+    rec = sim.simulate(segs, rate=100.0, noise=sim.Noise(gyr_noise=0.002, acc_noise=0.02, mag_noise=0.2), seed=1,
+                       gnss_rate=None, errors=SensorErrors(patches=(FieldPatch((20.0, 20.0, 0.0), 2.0, 40.0),)))
+    soft = {"max_rejection": 5.0, "max_rejection_mode": "soft"}
+    f = fk.make("recommended", magnetic=soft)
+    ref, fast = (f.run(rec, backend=b) for b in ("reference", "numba"))
+    assert np.abs(fast.quat - ref.quat).max() < 1e-9
+    np.testing.assert_array_equal(fast.flags, ref.flags)
+    hard = fk.make("recommended", magnetic={"max_rejection": None}).run(rec)
+    dist = (ref.flags & fk.Flag.MAG_DISTURBED) != 0
+    assert dist[300:1300].mean() > 0.95 and (hard.flags[300:1300] & fk.Flag.MAG_DISTURBED).all()
+    moved = np.abs(fast.quat[1300] - hard.quat[1300]).max()
+    assert moved > 1e-3, moved  # the soft samples moved the heading
+    e_soft, e_none = (fk.make("ekf", magnetic=m).run(rec).quat for m in (soft, {"max_rejection": None}))
+    np.testing.assert_array_equal(e_soft, e_none)

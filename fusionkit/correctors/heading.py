@@ -118,8 +118,8 @@ from pydantic import model_validator
 
 from .._numba import njit
 from ..config import PluginConfig, param
-from ..detectors.magnetic import (MAG_COUNT, MAG_DISTURBED, MAG_LEARNING, MAG_SIZE, MAG_TIME, MAG_USE, MagneticConfig,
-                                  MagneticDetector, field_norm_dip, follow_field, k_follow_field,
+from ..detectors.magnetic import (MAG_COUNT, MAG_DISTURBED, MAG_LEARNING, MAG_SIZE, MAG_SOFT, MAG_TIME, MAG_USE,
+                                  MagneticConfig, MagneticDetector, field_norm_dip, follow_field, k_follow_field,
                                   magnetic_step)
 from ..models.time_offset import _ANC, _DQ, _GA, _LINK, _NORM, _T, _U, CONF, EST, OFFSET, _enter, _k_enter
 from ..models.time_offset import _BLOCK as _EST_SIZE
@@ -399,7 +399,7 @@ class MagHeading(FactorCorrector):
                 incl = _inclination_noise(channel, float(ml @ ax[0:3]), float(ml @ ax[3:6]), float(channel[
                     _CH_LET:_CH_LET + 3] @ ax[0:3]), float(channel[_CH_LET:_CH_LET + 3] @ ax[3:6]))
             out, code = self._heading(x, ml, quat, bias, dm, bool(flags & _REST), recalibrated, incl, qm)
-            x[_MDIS] = float(code == MAG_DISTURBED)
+            x[_MDIS] = float(code == MAG_DISTURBED or code == MAG_SOFT)
             if c.mag_delay_estimate and fresh:
                 self._estimate(x, qc, m, g - bias, dt, code == MAG_USE and rate_ok)
         x[_PMOK] = float(sample.mag is not None)
@@ -489,16 +489,19 @@ class MagHeading(FactorCorrector):
             return 0, code
         if code == MAG_DISTURBED and c.rejection:
             return _MAG_DISTURBED, code
+        soft = code == MAG_SOFT  # (magnetic.max_rejection_mode "soft": rejected long enough, used weighed by its
+        # departure, which the Kalman variance counts; the fixed gain halved, VQF's magRejectionFactor)
         # (fixed: the gain for the time the measurement stands for, measure_interval's dt > the sample's)
-        k = _kf_gain(x, rn, rd) if kalman else x[_KM] if dt == x[_DT] else 1.0 - math.exp(-dt / c.tau)
+        k = _kf_gain(x, rn, rd) if kalman else (x[_KM] if dt == x[_DT] else 1.0 - math.exp(-dt / c.tau)) * (
+            0.5 if soft else 1.0)
         step = k * err
         _turn(x, step)
         if c.reexpress:  # delta's sensitivity to the calibration: this sample's field, R^T g
             g = rm.T @ ((mn * east - me * north) / max(me * me + mn * mn, 1e-300))
             _trace(x, k, g[0], g[1], g[2])
-        if c.mag_bias and not rest:  # the correction as a rate about the vertical: the gyro's vertical drift
-            bias_step(bias, up * (step / dt), q6, dt, c.motion_bias_tau, c.bias_max)
-        return 0, code
+        if c.mag_bias and not rest and not soft:  # the correction as a rate about the vertical: the gyro's vertical
+            bias_step(bias, up * (step / dt), q6, dt, c.motion_bias_tau, c.bias_max)  # drift
+        return (_MAG_DISTURBED if soft else 0), code
 
     def kernel(self, estimator) -> CorrectorKernel:
         c = self.config
@@ -509,7 +512,8 @@ class MagHeading(FactorCorrector):
                       c.scale_sigma ** 2, c.mag_noise ** 2, c.field_error ** 2, c.field_error_time,
                       float(c.inclination_noise), float(c.reexpress), 2.0 * c.mag_noise ** 2 + c.field_error ** 2,
                       c.measure_interval, float(self.magnetic.config.relearn_evidence),
-                      self.magnetic.config.max_rejection or 0.0, float(self.magnetic.config.start_evidence)])
+                      self.magnetic.config.max_rejection or 0.0, float(self.magnetic.config.start_evidence),
+                      float(self.magnetic.config.max_rejection_mode == "soft")])
         static = (c.gain == "kalman", c.mag_delay_estimate, c.measure_interval > 0.0, c.scale_sigma ** 2 > 0.0,
                   c.inclination_noise, c.reexpress, c.mag_bias)  # (p[18], p[14], p[28], p[21], p[25], p[26], p[4])
         return CorrectorKernel(mag_heading_kernel, p, mode="factor", static=static)
@@ -883,7 +887,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
     delay_forget_time, follow_calibration, kalman (1) or fixed (0), gyro_noise^2, bias_sigma^2, scale_sigma^2,
     mag_noise^2, field_error^2, field_error_time, inclination_noise, reexpress, a calibrated sample's variance
     (2 mag_noise^2 + field_error^2), measure_interval (0: every sample), relearn_evidence, max_rejection (0: None),
-    start_evidence)``;
+    start_evidence, max_rejection_mode "soft" (1 or 0))``;
     ``ch`` the pipeline's channel; the
     compile-time options (``static``, :meth:`MagHeading.kernel`): the Kalman gain, mag_delay_estimate,
     measure_interval > 0, scale_sigma > 0, inclination_noise, reexpress and mag_bias, which ``p`` holds too."""
@@ -978,8 +982,8 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
             ln = ch[_CH_LET] * s[ax + 3] + ch[_CH_LET + 1] * s[ax + 4] + ch[_CH_LET + 2] * s[ax + 5]
             incl = _k_inclination_noise(ch, me, mn, le, ln)
         rn, rd = _k_kf_noise(s, norm, dip, dm, p[22], p[23], p[24], 1.0 - sd * sd, incl) if kalman else (0.0, 1.0)
-        code = magnetic_step(s, norm, dip, rate, dm, p[7], p[8], p[9], p[10], p[11], p[12], p[30], p[31])
-        s[_MDIS] = 1.0 if code == MAG_DISTURBED else 0.0
+        code = magnetic_step(s, norm, dip, rate, dm, p[7], p[8], p[9], p[10], p[11], p[12], p[30], p[31], p[32])
+        s[_MDIS] = 1.0 if code == MAG_DISTURBED or code == MAG_SOFT else 0.0
         if code != MAG_LEARNING:
             s[_RELEARN] = 0.0
         if code == MAG_LEARNING and s[_RELEARN] == 0.0:
@@ -992,7 +996,11 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         elif code == MAG_DISTURBED and p[1] != 0.0:
             out = _MAG_DISTURBED
         else:
-            k = _k_kf_gain(s, rn, rd) if kalman else s[_KM] if dm == dt else 1.0 - math.exp(-dm / p[0])
+            soft = code == MAG_SOFT
+            k = _k_kf_gain(s, rn, rd) if kalman else (s[_KM] if dm == dt else 1.0 - math.exp(-dm / p[0])) * (
+                0.5 if soft else 1.0)
+            if soft:
+                out = _MAG_DISTURBED
             step = k * err
             _k_turn(s, step)
             if reexpress:  # reexpress: delta's sensitivity to the calibration, R^T g
@@ -1000,7 +1008,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
                 u0, u1, u2 = k_rot(p0, -p1, -p2, -p3, (mn * s[ax] - me * s[ax + 3]) / hh,
                                    (mn * s[ax + 1] - me * s[ax + 4]) / hh, (mn * s[ax + 2] - me * s[ax + 5]) / hh)
                 _k_trace(s, k, u0, u1, u2)
-            if mag_bias and (flags & _REST) == 0:
+            if mag_bias and (flags & _REST) == 0 and not soft:
                 r = step / dm
                 k_bias_step(b, q[0], q[1], q[2], q[3], s[ax + 6] * r, s[ax + 7] * r, s[ax + 8] * r, dm / p[5], p[6])
         if estimate and fresh:

@@ -43,7 +43,11 @@ Recovery:
   to it), and the earth's field after it is then a new field, rejected until the new-field test or
   the clock accepts it (measured both ways: docs/generalisation.md, "Stop 30"). VQF's
   ``magMaxRejectionTime`` (60 s, on by default) differs: after it, VQF uses the disturbed samples at
-  half its gain and keeps its reference.
+  half its gain and keeps its reference. ``max_rejection_mode="soft"`` (an option) does that: the
+  reference is kept, the clock starts full when a reference starts being learned (it earns twice the
+  time of each sample it describes), and beyond it a disturbed sample of a field consistent while
+  turning for 1 s is MAG_SOFT: ``mag-heading`` uses it with the variance its departure gives it
+  (docs/algorithms/models.md).
 
 The core, :func:`magnetic_step`, works on scalars: the ``mag-heading`` corrector and the ``ekf`` filter call
 it with the norm and dip of the field seen in their own levelled frame (the dip needs a vertical;
@@ -56,7 +60,7 @@ withholds that sample's magnetometer from its correctors.
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -66,7 +70,7 @@ from ..protocols import Detector, DetectorKernel, Sample
 from ..types import Flag
 
 __all__ = ["MagneticDetector", "MagneticConfig", "magnetic_step", "MAG_SIZE", "MAG_COUNT", "MAG_TIME", "MAG_USE",
-           "MAG_DISTURBED", "MAG_LEARNING", "field_norm_dip", "follow_field", "k_follow_field"]
+           "MAG_DISTURBED", "MAG_LEARNING", "MAG_SOFT", "field_norm_dip", "follow_field", "k_follow_field"]
 
 # state: reference norm, reference dip, samples learned, seconds learned, candidate norm, candidate dip,
 # seconds the candidate has been consistent while turning; for a reference learned again (follow_field with
@@ -78,8 +82,9 @@ _RN, _RD, _N, _T, _CN, _CD, _CT, _EV, _RJ, _PV = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
 MAG_SIZE = 10
 MAG_COUNT = _N  #: index of the number of samples the reference was learned from
 MAG_TIME = _T  #: index of the seconds it was learned over
-#: what :func:`magnetic_step` says of a sample
-MAG_USE, MAG_DISTURBED, MAG_LEARNING = 0, 1, 2
+#: what :func:`magnetic_step` says of a sample (MAG_SOFT: disturbed, but the reference has rejected for
+#: max_rejection already, max_rejection_mode "soft": used with the weight its departure gives it)
+MAG_USE, MAG_DISTURBED, MAG_LEARNING, MAG_SOFT = 0, 1, 2, 3
 
 
 class MagneticConfig(PluginConfig):
@@ -101,6 +106,16 @@ class MagneticConfig(PluginConfig):
         "replace where the sensor turns slowly or its field's dip wanders. Its cost: a real disturbance that lasts "
         "longer becomes the reference. None: kept however long (the default)",
         gt=0)
+    max_rejection_mode: Literal["relearn", "soft"] = param(
+        "relearn", unit="-", description="what max_rejection does. relearn: the reference is learned again from the "
+        "next samples. soft (VQF's magMaxRejectionTime): the reference is kept, and a disturbed sample beyond the "
+        "clock, of a field consistent while turning (new_min_rate) for at least 1 s (fixed in the earth frame, not "
+        "a magnet carried along), is used with the weight its departure from the reference gives it (mag-heading's "
+        "Kalman variance "
+        "counts the norm's and dip's departure as the field's error; the fixed gain is halved, VQF's "
+        "magRejectionFactor); the clock starts full when a reference starts being learned (at the start, or again "
+        "at a recalibration): a reference that has described nothing yet may not reject, it earns twice the time "
+        "of each sample it describes. The ekf and the detector plugin keep such a sample out (flagged)")
     relearn_evidence: bool = param(
         True, unit="-", description="a reference learned again (mag-heading's, where a recalibration moved the "
         "field) is replaced by a new field consistent while turning for as long as it was itself learned (init_time) "
@@ -122,16 +137,18 @@ class MagneticConfig(PluginConfig):
 
 @njit
 def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, new_min_rate, ref_tau, max_rej,
-                  start_ev):
+                  start_ev, soft):
     """The kernel of :meth:`MagneticDetector.reference_step` (same arguments and arithmetic, with
     the parameters as scalars; ``max_rej``: ``max_rejection``, 0 for None; ``start_ev``: ``start_evidence``,
-    1 or 0)."""
-    if max_rej > 0.0 and s[_RJ] + 0.5 * dt >= max_rej:  # described nothing for max_rejection s: learned again,
-        s[_RN], s[_RD], s[_N], s[_T], s[_CT], s[_RJ], s[_EV], s[_PV] = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0  # as
-        # at the start
+    1 or 0; ``soft``: ``max_rejection_mode`` "soft", 1 or 0)."""
+    if soft == 0.0 and max_rej > 0.0 and s[_RJ] + 0.5 * dt >= max_rej:  # described nothing for max_rejection s:
+        # learned again, as at the start
+        s[_RN], s[_RD], s[_N], s[_T], s[_CT], s[_RJ], s[_EV], s[_PV] = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     if s[_N] == 0.0 or s[_T] + 0.5 * dt < init_time:
         if s[_N] == 0.0 and s[_RN] == 0.0 and start_ev != 0.0 and rate >= new_min_rate:  # the first reference (not
             s[_EV], s[_PV] = 1.0, 1.0  # one learned again at a recalibration) learned in motion: provisional
+        if s[_N] == 0.0 and soft != 0.0 and max_rej > 0.0:  # soft: a reference that has described nothing yet may
+            s[_RJ] = max_rej  # not reject (the clock starts full)
         s[_N] += 1.0
         s[_T] += dt
         s[_RN] += (norm - s[_RN]) / s[_N]
@@ -168,6 +185,8 @@ def magnetic_step(s, norm, dip, rate, dt, init_time, norm_th, dip_th, new_time, 
             s[_EV] = 1.0 + s[_CT]
         s[_RN], s[_RD], s[_CT] = s[_CN], s[_CD], 0.0
         s[_RJ] = 0.0
+    elif soft != 0.0 and max_rej > 0.0 and s[_RJ] + 0.5 * dt >= max_rej and s[_CT] >= 1.0:  # rejected for
+        return MAG_SOFT  # max_rejection, a field consistent while turning for 1 s: used, weighed
     else:
         s[_RJ] += dt
     return MAG_DISTURBED
@@ -214,8 +233,8 @@ def _magnetic_kernel(s, g0, g1, g2, a0, a1, a2, m0, m1, m2, dt, p):
     na = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
     dip = math.asin(max(-1.0, min(1.0, (m0 * a0 + m1 * a1 + m2 * a2) / (nm * na))))
     rate = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
-    code = magnetic_step(s, nm, dip, rate, dt, p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7])
-    return 1 if code == MAG_DISTURBED else 0
+    code = magnetic_step(s, nm, dip, rate, dt, p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8])
+    return 1 if code == MAG_DISTURBED or code == MAG_SOFT else 0
 
 
 class MagneticDetector(Detector):
@@ -237,24 +256,29 @@ class MagneticDetector(Detector):
         return c.init_time, c.norm_threshold, c.dip_threshold, c.new_time, c.new_min_rate, c.ref_tau
 
     def step_params(self) -> tuple[float, ...]:
-        """:meth:`params`, ``max_rejection`` (0 for None) and ``start_evidence`` (1 or 0): :func:`magnetic_step`'s
-        arguments after ``dt``."""
-        return (*self.params(), self.config.max_rejection or 0.0, float(self.config.start_evidence))
+        """:meth:`params`, ``max_rejection`` (0 for None), ``start_evidence`` (1 or 0) and ``max_rejection_mode``
+        "soft" (1 or 0): :func:`magnetic_step`'s arguments after ``dt``."""
+        return (*self.params(), self.config.max_rejection or 0.0, float(self.config.start_evidence),
+                float(self.config.max_rejection_mode == "soft"))
 
     def reference_step(self, s: np.ndarray, norm: float, dip: float, rate: float, dt: float) -> int:
         """One magnetometer sample with field ``norm`` (any unit), ``dip`` (rad, any sign
         convention used consistently) and turning ``rate`` (rad/s): updates the state ``s`` and
-        returns MAG_LEARNING (the reference is being learned; use the sample), MAG_USE or
-        MAG_DISTURBED. Elapsed times are compared with half a sample of margin (a split run
-        equals one run)."""
+        returns MAG_LEARNING (the reference is being learned; use the sample), MAG_USE,
+        MAG_DISTURBED or MAG_SOFT (``max_rejection_mode`` "soft": disturbed, rejected for
+        ``max_rejection`` already; use it with the weight its departure gives it). Elapsed times
+        are compared with half a sample of margin (a split run equals one run)."""
         c = self.config
         ref = s[_RN:_RD + 1]  # norm, dip
-        if c.max_rejection is not None and s[_RJ] + 0.5 * dt >= c.max_rejection:  # described nothing for so long:
+        soft = c.max_rejection is not None and c.max_rejection_mode == "soft"
+        if c.max_rejection is not None and not soft and s[_RJ] + 0.5 * dt >= c.max_rejection:  # described nothing:
             s[_RN] = s[_RD] = s[_N] = s[_T] = s[_CT] = s[_RJ] = s[_EV] = s[_PV] = 0.0  # learned again, as at the
             # start
         if s[_N] == 0.0 or s[_T] + 0.5 * dt < c.init_time:  # learning: the running mean
             if s[_N] == 0.0 and ref[0] == 0.0 and c.start_evidence and rate >= c.new_min_rate:  # the first reference
                 s[_EV] = s[_PV] = 1.0  # learned in motion: provisional (start_evidence)
+            if s[_N] == 0.0 and soft:  # nothing described yet: it may not reject (the clock starts full)
+                s[_RJ] = c.max_rejection
             s[_N] += 1.0
             s[_T] += dt
             ref += (np.array([norm, dip]) - ref) / s[_N]
@@ -282,6 +306,8 @@ class MagneticDetector(Detector):
                 s[_EV] = 1.0 + s[_CT]
             ref[:], s[_CT] = cand, 0.0
             s[_RJ] = 0.0
+        elif soft and s[_RJ] + 0.5 * dt >= c.max_rejection and s[_CT] >= 1.0:  # rejected for max_rejection, a field
+            return MAG_SOFT  # consistent while turning for 1 s: used, weighed (VQF's)
         else:
             s[_RJ] += dt
         return MAG_DISTURBED
@@ -293,7 +319,7 @@ class MagneticDetector(Detector):
             return 0
         norm, dip = field_norm_dip(sample.mag, sample.acc / np.linalg.norm(sample.acc))
         rate = float(np.linalg.norm(sample.gyr))
-        return 1 if self.reference_step(state, norm, dip, rate, sample.dt) == MAG_DISTURBED else 0
+        return 1 if self.reference_step(state, norm, dip, rate, sample.dt) in (MAG_DISTURBED, MAG_SOFT) else 0
 
     def kernel(self) -> DetectorKernel:
         return DetectorKernel(_magnetic_kernel, np.array(self.step_params()))

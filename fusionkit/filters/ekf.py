@@ -71,8 +71,8 @@ from .._kernels import qmul_into, quat_to_dcm, rodrigues_into, rotvec_quat, vali
 from .._numba import njit
 from ..config import FilterConfig, param
 from ..conventions import change_frame
-from ..detectors.magnetic import (MAG_DISTURBED, MAG_SIZE, MagneticConfig, MagneticDetector, field_norm_dip,
-                                  magnetic_step)
+from ..detectors.magnetic import (MAG_DISTURBED, MAG_SIZE, MAG_SOFT, MagneticConfig, MagneticDetector,
+                                  field_norm_dip, magnetic_step)
 from ..errors import ConfigError, PluginError
 from ..navigation.alignment import alignment_quat
 from ..rotations import quat_to_matrix, wrap_angle as _wrap
@@ -171,7 +171,7 @@ class EkfFilter(StepFilter):
             c.initial_bias_std, c.gyr_range if c.gyr_range is not None else math.inf,
             c.acc_range if c.acc_range is not None else math.inf, *self.magnetic.params(),
             *change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "NUE", "ENU"), c.magnetic.max_rejection or 0.0,
-            float(c.magnetic.start_evidence),
+            float(c.magnetic.start_evidence), float(c.magnetic.max_rejection_mode == "soft"),
         ])
 
     def run(self, rec, *, backend: str = "auto", progress: bool | None = None, state=None, record: bool = False):
@@ -285,8 +285,8 @@ class EkfFilter(StepFilter):
             m_e = r @ mag
             norm, dip = field_norm_dip(m_e, _UP)
             rate = math.sqrt(gyr @ gyr) if gyr_ok else 0.0
-            mag_ok = not (self.magnetic.reference_step(x[_MAG:_MAG + MAG_SIZE], norm, dip, rate, dt) == MAG_DISTURBED
-                          and c.mag_rejection)
+            mag_ok = not (self.magnetic.reference_step(x[_MAG:_MAG + MAG_SIZE], norm, dip, rate, dt) in (
+                MAG_DISTURBED, MAG_SOFT) and c.mag_rejection)  # (soft: kept out here too)
             if not mag_ok:
                 flags |= Flag.MAG_DISTURBED
             elif m_e[0] ** 2 + m_e[1] ** 2 < 1e-12 * norm ** 2:  # a vertical field: no heading in it
@@ -521,8 +521,8 @@ def _ekf_loop(gyr, acc, mag, dt, has_mag, x, p, qf, out_q, out_f):
             dip = math.asin(max(-1.0, min(1.0, e2 / norm)))
             rate = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2) if gyr_ok else 0.0
             code = magnetic_step(ms, norm, dip, rate, h, m_init, m_nth, m_dth, m_new_t, m_new_rate, m_ref_tau,
-                                 p[26], p[27])
-            if code == MAG_DISTURBED and mag_rej:
+                                 p[26], p[27], p[28])
+            if (code == MAG_DISTURBED or code == MAG_SOFT) and mag_rej:
                 flags |= 256
                 mag_ok = False
             elif e0 * e0 + e1 * e1 < 1e-12 * norm * norm:
