@@ -370,3 +370,20 @@ def test_recommended_with_a_third_party_part(example_plugin_installed, tmp_path)
     assert np.abs(res.quat - fk.make("recommended").run(rec).quat).max() > 1e-3  # a different inclination
     no_mag = mine.run(dataclasses.replace(rec, mag=None))
     np.testing.assert_allclose(up(res.quat), up(no_mag.quat), atol=1e-12)
+
+
+def test_every_registered_plugin_is_in_the_readmes_table():
+    """The README's "What is in it" table names every plugin fusionkit registers (the `lever-arm` model was
+    missing from it)."""
+    import re
+
+    from fusionkit.registry import default_registry
+
+    text = (REPO / "README.md").read_text()
+    table = text[text.index("## What is in it"):]
+    table = table[:table.index("\n\n", table.index("|"))]
+    listed = {n for row in table.splitlines() if row.startswith("| `")
+              for n in re.findall(r"`([^`]+)`", row.split("|")[1])}
+    ours = {e.name for k, es in default_registry()._discover().items() for e in es.values()
+            if e.distribution in (None, "fusionkit")}
+    assert ours - listed == set(), ours - listed
