@@ -288,11 +288,15 @@ class Recording:
     movement: np.ndarray | None = None
     name: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
-    gyr_unit: str = "rad/s"
+    gyr_unit: str | None = None  # None: rad/s, range-checked (below); "rad/s" given: a gyro that does turn that fast
     acc_unit: str = "m/s^2"
     body: str | None = None
 
     def __post_init__(self) -> None:
+        # a gyro in rad/s beyond any consumer range (GYR_RATE_BOUND) is taken for mrad/s unless rad/s was said
+        trust_range = self.gyr_unit == "rad/s"
+        if self.gyr_unit is None:
+            self.gyr_unit = "rad/s"
         self.gyr = as_vectors("gyr", self.gyr)
         n = self.gyr.shape[0]
         if n == 0:
@@ -322,7 +326,7 @@ class Recording:
         self._check_interval()
         if self.body is not None:
             self.body = check_body(self.body, "body", InputError)
-        self._check_units(declared)
+        self._check_units(declared, check_range=not trust_range)
         if self.truth is not None:
             self.truth = as_vectors("truth", self.truth, n, width=4)
             # a zero quaternion (a NaN row is a sample without a reference: the metrics skip it, and
@@ -378,14 +382,15 @@ class Recording:
             self.gnss = Gnss(t=g.t[inside], vel=g.vel[inside], valid=g.valid[inside], frame=g.frame,
                              pos=None if g.pos is None else g.pos[inside])
 
-    def _check_units(self, gyr_unit: str = "rad/s") -> None:
+    def _check_units(self, gyr_unit: str = "rad/s", check_range: bool = True) -> None:
         """Refuse data in g or deg/s (:func:`fusionkit.validation.check_units`: the medians in one
         pass, and whether the gyroscope explains the magnetometer's and accelerometer's turning;
-        ``gyr_unit`` is the unit ``gyr`` was declared in, before its conversion)."""
+        ``gyr_unit`` is the unit ``gyr`` was declared in, before its conversion; ``check_range``:
+        also refuse rates beyond any consumer gyro's range, unless rad/s was given explicitly)."""
         if self.rate is not None:  # a constant interval: no (N,) array of it
-            check_units(self.gyr, self.acc, self.mag, dt=1.0 / self.rate, gyr_unit=gyr_unit)
+            check_units(self.gyr, self.acc, self.mag, dt=1.0 / self.rate, gyr_unit=gyr_unit, check_range=check_range)
         else:
-            check_units(self.gyr, self.acc, self.mag, t=self.t, gyr_unit=gyr_unit)
+            check_units(self.gyr, self.acc, self.mag, t=self.t, gyr_unit=gyr_unit, check_range=check_range)
 
     def __len__(self) -> int:
         return self.gyr.shape[0]

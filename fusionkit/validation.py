@@ -518,15 +518,25 @@ def check_acc_declared(gyr: np.ndarray, acc: np.ndarray, unit: str) -> None:
 
 def _gyr_fast_share(gyr: np.ndarray) -> tuple[float, float]:
     """``(share, p99)`` of about 8192 evenly spaced finite rows of ``gyr``: the share of their
-    components beyond :data:`GYR_RATE_BOUND` and the 99th percentile of |component|."""
-    w = _gyr_abs(_coarse_rows(gyr))
+    components beyond :data:`GYR_RATE_BOUND` in this row and the next (a rate in another unit is
+    so on consecutive samples; a glitch, one sample the filters flag GYR_INVALID, is not) and the
+    99th percentile of |component|."""
+    n = gyr.shape[0]
+    if n < 2:
+        return 0.0, 0.0
+    idx = np.arange(0, n - 1, max(1, (n - 1) // _COARSE_ROWS))
+    a, b = gyr[idx], gyr[idx + 1]
+    ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+    a, b = np.abs(a[ok]), np.abs(b[ok])
+    w = a
     if not w.size:
         return 0.0, 0.0
-    return float(np.count_nonzero(w > GYR_RATE_BOUND)) / w.size, float(np.percentile(w, 99))
+    return float(np.count_nonzero((a > GYR_RATE_BOUND) & (b > GYR_RATE_BOUND))) / w.size, float(np.percentile(w, 99))
 
 
 def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,
-                dt: np.ndarray | float | None = None, t: np.ndarray | None = None, gyr_unit: str = "rad/s") -> None:
+                dt: np.ndarray | float | None = None, t: np.ndarray | None = None, gyr_unit: str = "rad/s",
+                check_range: bool = True) -> None:
     """Refuse an accelerometer in g or mg, or far from gravity in every unit (:func:`acc_unit_of`), a
     gyroscope in deg/s (see above) and one whose rates no gyroscope measures in rad/s (more than 1 %
     of the components beyond :data:`GYR_RATE_BOUND`: mrad/s, mdeg/s, raw counts), naming the
@@ -535,7 +545,9 @@ def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,
     timestamps), also a gyroscope whose turning the magnetometer and accelerometer contradict
     (:func:`check_turning`: a deg/s gyro on a recording that never turns a turn per second, or
     ``gyr``, converted from the declared ``gyr_unit="deg/s"``, that was in rad/s already).
-    ``gyr_unit`` is the unit ``gyr`` was declared in (the messages say what it was converted from)."""
+    ``gyr_unit`` is the unit ``gyr`` was declared in (the messages say what it was converted from).
+    ``check_range=False``: not the range test (a stream's first samples, too few for a share; a
+    Recording given ``gyr_unit="rad/s"`` explicitly: a gyro that does turn that fast)."""
     acc_lo, acc_hi, gyr_hi = _unit_medians(gyr, acc)
     if acc_lo is not None and acc_lo > 0 and acc_hi < 0:
         raise InputError(
@@ -551,7 +563,7 @@ def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,
                 "m/s^2: pass acc_unit='mg' to convert (or divide it by 1000 and pass acc_unit='g')")
         if seen == "far":
             raise InputError(_acc_far(median))
-    share, p99 = _gyr_fast_share(gyr)
+    share, p99 = _gyr_fast_share(gyr) if check_range else (0.0, 0.0)
     fast = share > 0.01  # more than 1 % of the components beyond any gyro's range in rad/s
     converted = "" if gyr_unit == "rad/s" else f", converted from gyr_unit={gyr_unit!r},"
     if gyr_hi is not None and gyr_hi > 0 and not p99 * DEG > GYR_RATE_BOUND:
@@ -569,7 +581,8 @@ def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,
             f"{p99:.3g} rad/s; the widest ranges are 35-70 rad/s, 2000-4000 deg/s): if it is in mrad/s pass "
             "gyr_unit='mrad/s', in mdeg/s (mdps) gyr_unit='mdeg/s'"
             + (", in deg/s gyr_unit='deg/s'" if not p99 * DEG > GYR_RATE_BOUND and gyr_unit == "rad/s" else "")
-            + "; raw counts: divide by the sensitivity")
+            + "; raw counts: divide by the sensitivity; a gyroscope that does measure this fast: pass "
+            "gyr_unit='rad/s' explicitly")
 
 
 DEG = np.pi / 180.0

@@ -354,3 +354,34 @@ def test_a_reference_that_is_not_a_truth_is_left_out_of_the_means():
     assert "px4 (vs autopilot estimate)" in text and "not in the mean: px4" in text
     assert set(res.by_group("inclination")["gst"]) == {"all"} and res.by_group("inclination")["gst"]["all"] == \
         pytest.approx(s["mean"])
+
+
+def test_a_sweep_chooses_by_the_trials_scored_against_a_truth_and_a_cached_hit_keeps_json_params(tmp_path):
+    """Review rev32: the sweep's means (TAGP, per-trial minimum) still averaged a PX4 log's autopilot estimate in;
+    and a cache hit took the spec's params as given (a numpy bool), which the JSON table could not write."""
+    import copy
+
+    from fusionkit.benchmarking.datasets import Trial
+
+    base = sim.demo_recordings()[0]
+    px4 = copy.copy(base.slice(0, 3200))
+    px4.meta = {**px4.meta, "truth_kind": "autopilot estimate"}
+    recs = {"truth": base.slice(0, 4400), "px4": px4}
+
+    class Mem(Trial):
+        def load(self):
+            return recs[self.name]
+
+        @property
+        def fingerprint(self):
+            return self.name
+
+    trials = [Mem("truth", "csv", ""), Mem("px4", "csv", "")]
+    res = sweep("gst", {"tau_auto": [10.0, 50.0]}, trials, metric="inclination", cache=False, progress=False)
+    for combo, mean in res.mean_by_combo():
+        assert mean == pytest.approx(res.result.value(res._label(combo), "truth", "inclination"))
+    assert set(res.per_trial_minimum()) == {"truth"} and "not in the means: px4" in res.report()
+    spec = [("gst", {"combined": np.bool_(False)})]
+    for _ in range(2):  # the second from the cache
+        out = bench(spec, trials[:1], cache_dir=tmp_path, progress=False)
+    assert out.records[0]["cached"] and json.loads(out.table("json"))[0]["params"] == {"combined": False}

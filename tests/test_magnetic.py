@@ -335,3 +335,25 @@ def test_soft_rejection_in_mag_heading_and_the_ekf():
     assert moved > 1e-3, moved  # the soft samples moved the heading
     e_soft, e_none = (fk.make("ekf", magnetic=m).run(rec).quat for m in (soft, {"max_rejection": None}))
     np.testing.assert_array_equal(e_soft, e_none)
+
+
+def test_the_soft_mode_needs_a_clock_and_follows_rejection():
+    """Review rev32: ``max_rejection_mode="soft"`` without ``max_rejection`` was accepted and did nothing; and
+    with mag-heading's ``rejection=False`` (disturbed samples used as any other) a soft sample was flagged and
+    halved, weighed below a disturbed one. Now the first is a ConfigError and the second a sample like any other."""
+    from fusionkit.errors import ConfigError
+    from fusionkit.sim import FieldPatch, SensorErrors
+
+    with pytest.raises(ConfigError, match="max_rejection_mode 'soft' needs max_rejection"):
+        fk.make("recommended", magnetic={"max_rejection_mode": "soft"})
+    segs = [sim.Rest(2.0)] + [sim.Rotate((0.1, 0.2, 1.0), 90 * DEG * (-1) ** i, 1.0) for i in range(8)]
+    rec = sim.simulate(segs, rate=100.0, noise=sim.Noise(gyr_noise=0.002, acc_noise=0.02, mag_noise=0.2), seed=1,
+                       gnss_rate=None, errors=SensorErrors(patches=(FieldPatch((20.0, 20.0, 0.0), 2.0, 9.0),)))
+    for gain in ("kalman", "fixed"):
+        runs = [fk.make("recommended", mag_rejection=False, heading_gain=gain, magnetic=m).run(rec, backend=b)
+                for m in ({"max_rejection": 2.0, "max_rejection_mode": "soft"}, {"max_rejection": None})
+                for b in ("reference", "numba")]
+        for r in runs[1:]:
+            assert np.abs(r.quat - runs[0].quat).max() < 1e-9
+            np.testing.assert_array_equal(r.flags, runs[0].flags)
+        assert not (runs[0].flags & fk.Flag.MAG_DISTURBED).any()

@@ -395,3 +395,22 @@ def test_validity_reference_and_kernel_agree():
             ref = sample_validity(g, a, m, gr, ar)
             fast = validity_flags(*g, *a, *m, True, gr or np.inf, ar or np.inf)
             assert tuple(map(int, ref)) == tuple(map(int, fast)), (g, a, m, gr, ar)
+
+
+def test_the_range_check_spares_glitches_streams_and_a_gyro_declared_rad_s(mostly_still):
+    """Review rev32 of the range check above: a glitch beyond GYR_LIMIT (a sample the filters flag GYR_INVALID)
+    counted as a unit; a stream's first sample at 200 rad/s was refused on one sample; and a gyro that does turn
+    faster than 100 rad/s had no way in. Now glitches are left to the flags, streams are not range-checked, and
+    gyr_unit="rad/s" said explicitly trusts the range (left out, rad/s is still the unit, range-checked)."""
+    rec = mostly_still
+    g = rec.gyr.copy()
+    g[::50] = 1e5  # glitches, 2 % of the rows
+    r = fk.Recording(gyr=g, acc=rec.acc, mag=rec.mag, rate=100.0)
+    res = fk.make("recommended", nan_policy="skip").run(r)
+    assert (res.flags[::50] & fk.Flag.GYR_INVALID).all()
+    fk.make("recommended").update([200.0, 0.0, 0.0], [0.0, 0.0, 9.81], None, dt=0.01)
+    spin = rec.gyr + np.array([0.0, 0.0, 120.0])  # a 120 rad/s spin: a +-20000 deg/s part
+    with pytest.raises(fk.InputError, match=r"pass gyr_unit='rad/s' explicitly"):
+        fk.Recording(gyr=spin, acc=rec.acc, rate=100.0)
+    r = fk.Recording(gyr=spin, acc=rec.acc, rate=100.0, gyr_unit="rad/s")
+    np.testing.assert_array_equal(r.gyr, spin)

@@ -283,7 +283,7 @@ def bench(filters: Iterable[Any], data: Any, *, trials: list[str] | None = None,
                 if hit.is_file():  # another spec with this config may have saved it: its label and
                     # params were kept, and a sweep found no value under its own label
                     records[i] = {**json.loads(hit.read_text()), "filter": s.label, "name": s.name,
-                                  "params": s.kwargs, "cached": True}
+                                  "params": _jsonable(s.kwargs), "cached": True}
                     continue
         todo.append(i)
     bar = _bar(len(todo), progress, cached=len(tasks) - len(todo))
@@ -465,6 +465,13 @@ class BenchResult:
     def _other_references(self) -> dict[str, str]:
         """``{trial: its reference}`` for the trials whose reference is not a truth."""
         return {r["trial"]: r["reference"] for r in self.records if not _against_truth(r)}
+
+    @property
+    def scored_trials(self) -> list[str]:
+        """The trials whose errors are against a truth (:func:`_against_truth`): what means and sweeps
+        average over."""
+        other = self._other_references()
+        return [t for t in self.trials if t not in other]
 
     def metrics(self) -> list[str]:
         """The metrics the records have, in the tables' order (``report.METRIC_LABELS`` first,

@@ -43,7 +43,9 @@ class SweepResult:
         return flat
 
     def mean_by_combo(self) -> list[tuple[dict[str, Any], float]]:
-        trials = self.result.trials
+        """Each parameter set's mean over the trials scored against a truth (a PX4 log's autopilot
+        estimate is left out: the agreement with another filter would choose the parameters)."""
+        trials = self.result.scored_trials
         out = []
         for c in self.combos:
             vals = [self.result.value(self._label(c), t, self.metric) for t in trials]
@@ -60,7 +62,7 @@ class SweepResult:
 
     def per_trial_minimum(self) -> dict[str, tuple[dict[str, Any], float]]:
         out = {}
-        for t in self.result.trials:
+        for t in self.result.scored_trials:
             vals = [(c, self.result.value(self._label(c), t, self.metric)) for c in self.combos]
             vals = [(c, v) for c, v in vals if np.isfinite(v)]
             if vals:
@@ -82,6 +84,9 @@ class SweepResult:
                   f"per-trial minimum (mean of each trial's best): {np.mean([v for _, v in ptm.values()]):.3f} {u}", "",
                   f"| trial | best parameters | error ({u}) |", "|---|---|---:|"]
         lines += [f"| {t} | {self._show(c)} | {v:.3f} |" for t, (c, v) in ptm.items()]
+        other = self.result._other_references()
+        if other:
+            lines += ["", "not in the means: " + ", ".join(f"{t} (vs {ref}, not a truth)" for t, ref in other.items())]
         return "\n".join(lines)
 
 

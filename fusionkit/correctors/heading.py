@@ -489,8 +489,9 @@ class MagHeading(FactorCorrector):
             return 0, code
         if code == MAG_DISTURBED and c.rejection:
             return _MAG_DISTURBED, code
-        soft = code == MAG_SOFT  # (magnetic.max_rejection_mode "soft": rejected long enough, used weighed by its
-        # departure, which the Kalman variance counts; the fixed gain halved, VQF's magRejectionFactor)
+        soft = code == MAG_SOFT and c.rejection  # (magnetic.max_rejection_mode "soft": rejected long enough, used
+        # weighed by its departure, which the Kalman variance counts; the fixed gain halved, VQF's magRejectionFactor;
+        # without rejection a disturbed sample is used as any other, and so is this one)
         # (fixed: the gain for the time the measurement stands for, measure_interval's dt > the sample's)
         k = _kf_gain(x, rn, rd) if kalman else (x[_KM] if dt == x[_DT] else 1.0 - math.exp(-dt / c.tau)) * (
             0.5 if soft else 1.0)
@@ -996,7 +997,7 @@ def mag_heading_kernel(q, s, b, g0, g1, g2, h0, h1, h2, h3, a0, a1, a2, m0, m1, 
         elif code == MAG_DISTURBED and p[1] != 0.0:
             out = _MAG_DISTURBED
         else:
-            soft = code == MAG_SOFT
+            soft = code == MAG_SOFT and p[1] != 0.0
             k = _k_kf_gain(s, rn, rd) if kalman else (s[_KM] if dm == dt else 1.0 - math.exp(-dm / p[0])) * (
                 0.5 if soft else 1.0)
             if soft:

@@ -62,6 +62,8 @@ from __future__ import annotations
 import math
 from typing import ClassVar, Literal
 
+from pydantic import model_validator
+
 import numpy as np
 
 from .._numba import njit
@@ -133,6 +135,14 @@ class MagneticConfig(PluginConfig):
         "while the reference is provisional is taken in as quickly, and the earth's field after it then needs "
         "new_time (docs/algorithms/models.md). False (the default): a reference learned at the start keeps new_time "
         "however it began")
+
+    @model_validator(mode="after")
+    def _soft_needs_a_clock(self):
+        """``max_rejection_mode="soft"`` without ``max_rejection`` would do nothing, silently."""
+        if self.max_rejection_mode == "soft" and self.max_rejection is None:
+            raise ValueError("max_rejection_mode 'soft' needs max_rejection, the seconds of rejection after which a "
+                             "consistent field is used (VQF's magMaxRejectionTime: 60)")
+        return self
 
 
 @njit

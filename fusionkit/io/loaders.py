@@ -186,7 +186,7 @@ def load_csv(path, rate: float | None = None, body: str | None = None, gyr_unit:
             t=t, rate=rate,
             truth=pick(_QUAT) if all(c in col for c in _QUAT) else None,
             name=p.stem, meta={"path": str(p)}, body=body if body is not None else comment_body,
-            gyr_unit=gyr_unit or "rad/s", acc_unit=acc_unit or "m/s^2",
+            gyr_unit=gyr_unit, acc_unit=acc_unit or "m/s^2",  # (None: rad/s, range-checked)
         )
     except InputError as exc:  # "pass gyr_unit='deg/s'": how a CSV's reader takes it
         named = [k for k in units if f"{k}=" in str(exc) or f"{k} " in str(exc)]
