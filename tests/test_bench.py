@@ -281,7 +281,10 @@ def test_a_sweep_report_gives_its_metrics_unit():
     from fusionkit.benchmarking.sweep import SweepResult
 
     class Fake:  # a bench result: position error 1 / 3 m on two trials, + 0.5 m with max age 2
-        trials = ["a", "b"]
+        trials = scored_trials = ["a", "b"]
+
+        def _other_references(self):
+            return {}
 
         def value(self, label, trial, metric):
             return {"a": 1.0, "b": 3.0}[trial] + (0.5 if "=2" in label else 0.0)

@@ -408,7 +408,8 @@ def test_the_range_check_spares_glitches_streams_and_a_gyro_declared_rad_s(mostl
     r = fk.Recording(gyr=g, acc=rec.acc, mag=rec.mag, rate=100.0)
     res = fk.make("recommended", nan_policy="skip").run(r)
     assert (res.flags[::50] & fk.Flag.GYR_INVALID).all()
-    fk.make("recommended").update([200.0, 0.0, 0.0], [0.0, 0.0, 9.81], None, dt=0.01)
+    # update()'s unit check on a stream's first sample (called as update() calls it: no one-sample step compiled)
+    fk.make("recommended").check_stream_units(np.array([200.0, 0.0, 0.0]), np.array([0.0, 0.0, 9.81]))
     spin = rec.gyr + np.array([0.0, 0.0, 120.0])  # a 120 rad/s spin: a +-20000 deg/s part
     with pytest.raises(fk.InputError, match=r"pass gyr_unit='rad/s' explicitly"):
         fk.Recording(gyr=spin, acc=rec.acc, rate=100.0)

@@ -62,9 +62,8 @@ from __future__ import annotations
 import math
 from typing import ClassVar, Literal
 
-from pydantic import model_validator
-
 import numpy as np
+from pydantic import model_validator
 
 from .._numba import njit
 from ..config import PluginConfig, param
