@@ -566,6 +566,13 @@ def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,
     share, p99 = _gyr_fast_share(gyr) if check_range else (0.0, 0.0)
     fast = share > 0.01  # more than 1 % of the components beyond any gyro's range in rad/s
     converted = "" if gyr_unit == "rad/s" else f", converted from gyr_unit={gyr_unit!r},"
+    if gyr_unit != "rad/s" and ((gyr_hi is not None and gyr_hi > 0) or fast):  # still too fast once converted: the
+        smaller = {"deg/s": "mdeg/s", "rad/s": "mrad/s"}.get(gyr_unit)  # data's unit is smaller than the one said
+        raise InputError(
+            f"gyr{converted} is still faster than a gyroscope turns (median |component| "
+            f"{np.median(_gyr_abs(gyr)):.3g} rad/s, 99th percentile {p99:.3g}): its unit is smaller than "
+            f"{gyr_unit}" + (f": if it is in {smaller}, pass gyr_unit={smaller!r}" if smaller else "")
+            + "; raw counts: divide by the sensitivity")
     if gyr_hi is not None and gyr_hi > 0 and not p99 * DEG > GYR_RATE_BOUND:
         raise InputError(
             f"gyr{converted} looks like it is in deg/s (median |component| {np.median(_gyr_abs(gyr)):.3g} > 2 pi "

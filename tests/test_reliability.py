@@ -415,3 +415,14 @@ def test_the_range_check_spares_glitches_streams_and_a_gyro_declared_rad_s(mostl
         fk.Recording(gyr=spin, acc=rec.acc, rate=100.0)
     r = fk.Recording(gyr=spin, acc=rec.acc, rate=100.0, gyr_unit="rad/s")
     np.testing.assert_array_equal(r.gyr, spin)
+
+
+def test_a_declared_gyro_unit_too_large_for_the_data_names_a_smaller_one(mostly_still):
+    """Review rev32: mdeg/s data declared "deg/s" were told to "pass gyr_unit='deg/s'", the unit given."""
+    rec = mostly_still
+    with pytest.raises(fk.InputError, match=r"converted from gyr_unit='deg/s', is still faster than a gyroscope "
+                                            r"turns .* smaller than deg/s: if it is in mdeg/s, pass gyr_unit='mdeg/s'"):
+        fk.Recording(gyr=np.degrees(rec.gyr) * 1000, acc=rec.acc, mag=rec.mag, rate=100.0, gyr_unit="deg/s")
+    with pytest.raises(fk.InputError, match=r"converted from gyr_unit='mrad/s', is still faster .* smaller than "
+                                            r"mrad/s"):
+        fk.Recording(gyr=np.degrees(rec.gyr) * 1e6, acc=rec.acc, mag=rec.mag, rate=100.0, gyr_unit="mrad/s")
