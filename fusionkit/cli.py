@@ -109,7 +109,8 @@ def cmd_describe(args) -> int:
     if args.toml or args.json:
         cfg = info.config()
         if cfg is None:
-            raise FusionkitError(f"{args.name!r} is {_article(info.kind)} {info.kind}: only filters print a runnable config "
+            raise FusionkitError(f"{args.name!r} is {_article(info.kind)} {info.kind}: only filters print a runnable "
+                                 "config "
                                  "(use it inside a pipeline config, see docs/configuration.md)")
         print(json.dumps(cfg, indent=2) if args.json else to_toml(cfg), end="\n" if args.json else "")
         return 0
@@ -168,7 +169,8 @@ def cmd_run(args) -> int:
         over = "the movement samples" if rec.movement is not None else "all samples"
         none = f"no finite reference sample among {over}"  # (NaN rows: samples without one; it printed "nan deg")
         ref = rec.meta.get("truth_kind", "ground truth")  # (a PX4 log's reference may be the autopilot's estimate)
-        against = "error vs truth" if ref.startswith("ground truth") else f"difference from the recording's {ref} (not a truth)"
+        against = ("error vs truth" if ref.startswith("ground truth")
+                   else f"difference from the recording's {ref} (not a truth)")
         print(f"RMS {against} over {over} ({kind} filter; heading = the error's rotation about the vertical): "
               + ", ".join(f"{k} n/a ({na[k]})" if k in na else f"{k} {v:.3f} deg" if math.isfinite(v) else
                           f"{k} n/a ({none})" for k, v in e.items()))
@@ -428,7 +430,8 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--gyr-unit", default=None, choices=list(GYR_UNITS),
                    help="the CSV's gyro unit, converted to rad/s (default: its '# gyr_unit=' line, else rad/s)")
     r.add_argument("--acc-unit", default=None, choices=list(ACC_UNITS),
-                   help="the CSV's accelerometer unit, converted to m/s^2 (default: its '# acc_unit=' line, else m/s^2)")
+                   help="the CSV's accelerometer unit, converted to m/s^2 (default: its '# acc_unit=' line, "
+                   "else m/s^2)")
     r.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="a filter parameter")
     r.add_argument("--backend", default="auto", choices=["auto", "numba", "reference"],
                    help="numba: the compiled loop, reference: the readable Python path (the same numbers to 1e-9), "

@@ -271,8 +271,9 @@ class Recording:
     accelerometer whose median norm is about 1 (g) or 1000 (mg), or far from gravity in every
     unit; a gyroscope in deg/s (median |component| above 2 pi rad/s, or the accelerometer and
     magnetometer turning 57 times slower than it says), or one turning faster than any gyroscope
-    measures in rad/s (mrad/s, mdeg/s, raw counts). A declared unit the data contradict too. Non-finite samples are kept: each filter
-    handles them by its ``nan_policy``. C-contiguous float64 arrays already in rad/s and m/s^2
+    measures in rad/s (mrad/s, mdeg/s, raw counts; ``gyr_unit="rad/s"`` said explicitly: a gyro that
+    does turn that fast). A declared unit the data contradict too. Non-finite samples are kept: each
+    filter handles them by its ``nan_policy``. C-contiguous float64 arrays already in rad/s and m/s^2
     are kept as given, not copied (the recording shares their memory: change them and it changes), as is
     a boolean ``movement`` mask.
     """
@@ -501,7 +502,8 @@ class Result:
         flagged = int(np.count_nonzero(self.flags))
         keys = ", ".join(sorted(self.diagnostics))
         aiding = self.diagnostics.get("aiding")  # (what corrected the run: a 6D or gyro-only heading is arbitrary)
-        return (f"Result({len(self)} samples, body -> {self.frame}, {aiding + ', ' if aiding else ''}{flagged} flagged; "
+        return (f"Result({len(self)} samples, body -> {self.frame}, {aiding + ', ' if aiding else ''}"
+                f"{flagged} flagged; "
                 f"backend {self.diagnostics.get('backend', '?')}; diagnostics: {keys})")
 
     def euler(self, frame: str | None = None) -> np.ndarray:
