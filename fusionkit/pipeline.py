@@ -71,7 +71,7 @@ from ._numba import HAVE_NUMBA, resolve_backend
 from .config import PipelineConfig
 from .detectors._run import run_detector
 from .detectors.gnss_gap import NO_GNSS, gnss_sample_rows
-from .errors import ConfigError, InputError
+from .errors import ConfigError, InputError, PluginError
 from .navigation.alignment import (
     ALIGN_SIZE,
     ALIGNED_BEFORE,
@@ -162,6 +162,13 @@ class Pipeline(Filter):
     def pipeline_config(self) -> PipelineConfig:
         """The composition this filter runs (presets override this)."""
         return self.config
+
+    @property
+    def requires_gnss(self) -> bool:  # (a preset may say so as a class attribute; a composition, by its correctors)
+        """Whether a corrector of this composition reads the GNSS stream (``uses_gnss``): it then
+        cannot run without one (a composed ``gst-gnss`` ran flagging every sample a GNSS gap, and was
+        scored as a 6D filter, its track-angle heading "n/a")."""
+        return any(getattr(c, "uses_gnss", False) for c in self.correctors)
 
     def dimension(self, rec) -> str:
         uses = self.spec.alignment.heading == "magnetometer" or any(
@@ -383,6 +390,10 @@ class Pipeline(Filter):
         ``inclination_model(state)``, e.g. ``inertial-tilt``'s; None where no corrector has one)."""
         if not isinstance(rec, Recording):
             raise InputError(f"rec must be a fusionkit.Recording, got {type(rec).__name__}")
+        if self.requires_gnss and rec.gnss is None:
+            reads = [c.name for c in self.correctors if getattr(c, "uses_gnss", False)]
+            raise InputError(f"{self.name} needs a GNSS stream (Recording(gnss=...)): its {', '.join(reads)} "
+                             "corrector reads it")
         n = len(rec)
         probe_ends = _probe_ends(bias_at, n)
         biases: list[np.ndarray] = []
@@ -450,7 +461,22 @@ class Pipeline(Filter):
         report_disturbed(st["align"], st["dt"], self.spec.alignment.duration)
         mark_gaps(out_f, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.spec.max_gap))
         diag["aiding"] = self.aiding(rec)
+        self._check_finite_output(out_q)
         return Result(out_q, out_f, self.spec.frame, diag)
+
+    def _check_finite_output(self, q: np.ndarray) -> None:
+        """A non-finite orientation is no answer: the built-in plugins never make one (a non-finite
+        sample is flagged and the state held), so one comes from a plugin that returned a
+        non-finite correction or state; it was passed on silently to every later sample. Checked in
+        blocks of 4096 rows (no mask the size of the output)."""
+        for k in range(0, len(q), 4096):
+            ok = np.isfinite(q[k:k + 4096]).all(axis=1)
+            if not ok.all():
+                first = k + int(np.argmin(ok))
+                names = [self.spec.estimator.name] + [c.name for c in self.spec.correctors]
+                raise PluginError(f"{self.name}: the orientation is not finite from sample {first} on: a plugin of "
+                                  f"this composition ({', '.join(names)}) returned a non-finite correction or state "
+                                  "there (fusionkit.testing.check_plugin(NAME) on each finds which)")
 
     def _inclination_model(self, st) -> np.ndarray | None:
         """What the first corrector with an ``inclination_model(state)`` (``inertial-tilt``'s: the

@@ -219,6 +219,7 @@ class Corrector(Plugin, ABC):
     kind: ClassVar[str] = "corrector"
     mode: ClassVar[Literal["rate", "state", "factor", "bias"]] = "rate"
     uses_mag: ClassVar[bool] = False  #: True for magnetometer correctors (makes a pipeline 9D)
+    uses_gnss: ClassVar[bool] = False  #: True for correctors that read the GNSS stream (a pipeline then needs one)
     #: a flag some detector of the pipeline must set (the pipeline refuses the composition otherwise)
     requires_flag: ClassVar[Flag] = Flag.NONE
     #: a state-mode corrector that reads and writes the estimator's state itself (not through its

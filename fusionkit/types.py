@@ -372,9 +372,18 @@ class Recording:
                          f"IMU recording needs at least {1.0 / MAX_INTERVAL:g} Hz")
 
     def _clip_gnss(self) -> None:
-        """GNSS epochs outside the IMU's time span are dropped, with a warning."""
+        """GNSS epochs outside the IMU's time span are dropped, with a warning; where none is left the
+        recording has no GNSS stream (``gnss`` None: a filter that needs one says so; an empty stream
+        ran them without it, silently, and crashed the metrics)."""
         t = self.time
         inside = (self.gnss.t >= t[0]) & (self.gnss.t <= t[-1])
+        if not inside.any():
+            warnings.warn(
+                f"all {inside.size} GNSS epochs lie outside the IMU time [{t[0]:.3f}, {t[-1]:.3f}] s (GNSS "
+                f"{self.gnss.t[0]:.3f} to {self.gnss.t[-1]:.3f} s: another time base?): the recording has no GNSS "
+                "stream", stacklevel=3)
+            self.gnss = None
+            return
         if not inside.all():
             warnings.warn(
                 f"{int((~inside).sum())} GNSS epochs lie outside the IMU time [{t[0]:.3f}, {t[-1]:.3f}] s and "

@@ -239,7 +239,8 @@ def test_gst_corrector_kernels_match_reference(name, params):
 def test_gnss_gap_detector_and_gst_gnss_compile_together():
     """The ``gnss-gap`` detector's kernel takes the GNSS row too: a pipeline with it and
     ``gst-gnss`` compiles and equals the reference (criteria included); without a GNSS stream
-    every sample is a gap in both."""
+    the composition is refused as the preset is (its corrector reads GNSS: it ran flagging every sample a
+    gap), and with the autonomous ``gst`` every sample is a gap in both paths."""
     rec = _with_gap(north_run(accel_s=30.0, v=20.0))
     p = fk.compose({"estimator": "poisson-quat", "detectors": ["gnss-gap", "motion"], "correctors": ["gst-gnss"],
                     "alignment": {"mode": "fixed", "duration": 5.0}})
@@ -251,6 +252,10 @@ def test_gnss_gap_detector_and_gst_gnss_compile_together():
     assert (crit[(rec.time > 20.6) & (rec.time < 30.0)] == 1).all() and (crit[rec.time < 11.0] == 2).all()
     assert (crit[(rec.time > 18.0) & (rec.time < 20.0)] == 0).all()  # above 5 m/s
     bare = fk.Recording(gyr=rec.gyr[:1500], acc=rec.acc[:1500], rate=100.0)  # the alignment, then 10 s of gaps
+    with pytest.raises(fk.InputError, match="needs a GNSS stream"):
+        p.run(bare)
+    p = fk.compose({"estimator": "poisson-quat", "detectors": ["gnss-gap", "motion"], "correctors": ["gst"],
+                    "alignment": {"mode": "fixed", "duration": 5.0}})
     c, d = p.run(bare, backend="numba"), p.run(bare, backend="reference")
     assert np.abs(c.quat - d.quat).max() < 1e-9 and np.array_equal(c.flags, d.flags)
     assert (c.diagnostics["criteria"] == 1).all()

@@ -85,6 +85,9 @@ def _rms(v: np.ndarray) -> float:
 def gnss_masks(rec) -> tuple[np.ndarray, np.ndarray]:
     """Per IMU sample: GNSS available (the latest epoch at or before it is valid) and in a gap."""
     g = rec.gnss
+    if g.t.size == 0:  # (no epoch: no sample has GNSS; the index below was out of bounds)
+        none = np.zeros(len(rec), bool)
+        return none, ~none
     idx = np.searchsorted(g.t, rec.time, side="right") - 1
     ok = (idx >= 0) & g.valid[np.clip(idx, 0, None)]
     return ok, ~ok

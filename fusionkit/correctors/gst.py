@@ -268,6 +268,7 @@ class GstGnssCorrector(GstCorrector):
     name: ClassVar[str] = "gst-gnss"
     Config = GstGnssCorrectorConfig
     combined: ClassVar[bool] = True
+    uses_gnss: ClassVar[bool] = True
     source: ClassVar[str] = "001 (GST), GNSS correction and combined algorithm"
     summary: ClassVar[str] = "level by GNSS-compensated specific force, heading towards the track angle, autonomous in gaps"
 

@@ -1,0 +1,64 @@
+"""A second new user's probe (stop 32): a plugin that returns NaN, a GNSS stream with no epoch in the IMU's
+time, and a composed pipeline that reads GNSS: each was run without a word."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import fusionkit as fk
+from fusionkit import sim
+from fusionkit.errors import InputError, PluginError
+from fusionkit.pipeline import Pipeline
+from fusionkit.protocols import Correction, Corrector
+from fusionkit.registry import Registry
+
+
+def test_a_plugin_that_returns_nan_is_named_not_passed_on():
+    """A rate corrector returning a NaN correction made every later quaternion NaN, unflagged."""
+
+    class Nany(Corrector):
+        name = "test-nany"
+        mode = "rate"
+
+        def correct(self, estimator, est_state, state, sample, flags, channel=None):
+            return Correction(np.array([np.nan, 0.0, 0.0]), 0)
+
+    reg = Registry()
+    reg.register(Nany)
+    p = Pipeline({"estimator": "poisson-quat", "correctors": ["test-nany"], "alignment": {"mode": "none"}},
+                 registry=reg)
+    rec = sim.demo_recordings()[0].slice(0, 200)
+    with pytest.raises(PluginError, match=r"not finite from sample 1 on: a plugin of this composition "
+                                          r"\(poisson-quat, test-nany\)"):
+        p.run(rec)
+
+
+def test_a_gnss_stream_wholly_outside_the_imu_time_is_no_stream():
+    """GNSS stamped in another time base (all epochs outside the IMU's): the epochs were dropped with a warning
+    and ins-gnss / gst-gnss ran as if there were a stream (a free INS 5 km off after 480 s, no word), and the
+    bench's metrics failed on the empty stream. Now the recording has no GNSS stream and they say they need one."""
+    base = sim.simulate([sim.Rest(2.0), sim.Rotate((0, 0, 1), 1.0, 3.0)], rate=100.0, gnss_rate=10.0)
+    g = base.gnss
+    shifted = fk.Gnss(t=g.t + 1000.0, vel=g.vel, valid=g.valid, frame=g.frame, pos=g.pos)
+    with pytest.warns(UserWarning, match=r"all \d+ GNSS epochs lie outside the IMU time .* no GNSS stream"):
+        rec = fk.Recording(gyr=base.gyr, acc=base.acc, mag=base.mag, t=base.time, gnss=shifted, truth=base.truth)
+    assert rec.gnss is None
+    for name in ("gst-gnss", "ins-gnss"):
+        with pytest.raises(InputError, match="needs a GNSS stream"):
+            fk.make(name).run(rec)
+
+
+def test_a_composed_pipeline_that_reads_gnss_needs_it():
+    """``fusionkit describe gst-gnss --toml`` then ``fusionkit run`` on it: the composed pipeline lacked the
+    preset's requires_gnss, ran without GNSS flagging every sample a gap, and was scored 6D (heading n/a)."""
+    cfg = fk.make("gst-gnss").pipeline_config().model_dump()
+    p = Pipeline(cfg)
+    assert p.requires_gnss and not Pipeline(fk.make("gst").pipeline_config().model_dump()).requires_gnss
+    r = sim.demo_recordings()[0].slice(0, 500)
+    rec = fk.Recording(gyr=r.gyr, acc=r.acc, mag=r.mag, t=r.time)  # (the simulator's carry a GNSS stream)
+    with pytest.raises(InputError, match=r"needs a GNSS stream .*: its gst-gnss corrector reads it"):
+        p.run(rec)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fk.make("gst").run(rec)  # the autonomous one needs none
