@@ -84,7 +84,7 @@ from .navigation.alignment import (
     Aligner,
     report_disturbed,
 )
-from .protocols import Filter, Sample
+from .protocols import Correction, Filter, Sample
 from .registry import Registry, default_registry
 from .types import (CHANNEL_SIZE, Channel, Flag, Recording, Result, gap_flags, gap_threshold, hold_gaps, mark_gaps,
                     sample_validity, stream_gap)
@@ -106,6 +106,16 @@ _INVALID = int(Flag.GYR_INVALID | Flag.ACC_INVALID | Flag.MAG_INVALID)
 #: corrector (measured in docs/robustness.md); beyond this a composition is more likely a mistake,
 #: and the reference path needs no compile and gives the same numbers
 MAX_COMPILED_CORRECTORS = 64
+
+
+def _bad_correction(cor, out) -> None:
+    """A corrector's ``correct`` returned something else than a :class:`Correction` with a rate of
+    shape (3,) (or None): a PluginError naming it (numpy's broadcast error, or ``|=`` on an
+    array's ``.flags``, named neither the plugin nor what it should return)."""
+    what = (f"a Correction whose rate has shape {np.shape(out.rate)}" if type(out) is Correction
+            else f"{type(out).__name__}")
+    raise PluginError(f"corrector {cor.name!r}: correct() returned {what}; it must return "
+                      "Correction(rate, flags), rate an array of shape (3,) in rad/s or None")
 
 
 class Pipeline(Filter):
@@ -293,6 +303,8 @@ class Pipeline(Filter):
                 elif cor.mode != "bias":
                     out = cor.correct(self.estimator, st["x"], st["cor"][i], sample, flags,
                                       **(chan if cor.uses_channel else {}))
+                    if type(out) is not Correction or (out.rate is not None and np.shape(out.rate) != (3,)):
+                        _bad_correction(cor, out)  # (a plugin's mistake, named: numpy's broadcast error was not)
                     flags |= out.flags
                     if out.rate is not None:
                         rate += out.rate

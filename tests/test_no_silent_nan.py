@@ -62,3 +62,25 @@ def test_a_composed_pipeline_that_reads_gnss_needs_it():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         fk.make("gst").run(rec)  # the autonomous one needs none
+
+
+@pytest.mark.parametrize("returned, what", [(Correction(np.zeros(2), 0), r"a Correction whose rate has shape \(2,\)"),
+                                            (np.zeros(3), "ndarray")])
+def test_a_corrector_that_returns_the_wrong_thing_is_named(returned, what):
+    """A rate corrector returning a rate of shape (2,) gave numpy's broadcast error, and a bare array numpy's
+    '|=' on its .flags: neither named the plugin nor what it must return."""
+
+    class Wrong(Corrector):
+        name = "test-wrong"
+        mode = "rate"
+
+        def correct(self, estimator, est_state, state, sample, flags, channel=None):
+            return returned
+
+    reg = Registry()
+    reg.register(Wrong)
+    p = Pipeline({"estimator": "poisson-quat", "correctors": ["test-wrong"], "alignment": {"mode": "none"}},
+                 registry=reg)
+    with pytest.raises(PluginError, match=rf"corrector 'test-wrong': correct\(\) returned {what}; it must return "
+                                          r"Correction\(rate, flags\)"):
+        p.run(sim.demo_recordings()[0].slice(0, 50))
