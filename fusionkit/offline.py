@@ -128,6 +128,7 @@ from __future__ import annotations
 import copy
 import math
 import numbers
+import warnings
 from typing import ClassVar
 
 import numpy as np
@@ -141,7 +142,7 @@ from .models.mag_calibration import mag_calibration_apply
 from .models.time_offset import ACC, EST, MAG, NSEG, STD, TimeOffsetModel, time_offset_apply
 from .protocols import Filter
 from .rotations import quat_conj, quat_from_rotvec, quat_mul, quat_to_matrix, quat_to_rotvec, skew
-from .types import Flag, Recording, Result, hold_gaps, sample_validity
+from .types import Flag, GapWarning, Recording, Result, hold_gaps, sample_validity
 from .correctors._factor import k_qmul, k_rot
 from .correctors.tilt import _FORGET, _Y as _T_Y, _NST as _T_NST, _TAU as _T_TAU
 from .correctors.tilt import _k_adapt_step, _k_lowpass_vertical, _k_set_tau, _lp_coeffs
@@ -673,6 +674,23 @@ class OfflineFilter(Filter):
 
     def run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
             state: np.ndarray | None = None) -> Result:
+        """:meth:`_run`, its passes' warnings of the recording's gaps said once: the first, the forward
+        pass's, at the recording's own sample index (each pass warned, the backward ones at their index in
+        the reversed recording: a 5 s gap gave three, "first before sample 2000" for a gap at 3000)."""
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            res = self._run(rec, backend=backend, progress=progress, state=state)
+        said = False
+        for w in caught:
+            if issubclass(w.category, GapWarning):
+                if said:
+                    continue
+                said = True
+            warnings.warn(w.message, w.category, stacklevel=2)
+        return res
+
+    def _run(self, rec: Recording, *, backend: str = "auto", progress: bool | None = None,
+             state: np.ndarray | None = None) -> Result:
         """Forward pass (from ``state`` when given: an earlier run's ``diagnostics["state"]``),
         backward pass, fusion. How far a given state had converged is not known from it (an earlier
         run that started in motion hands on a poor bias), so the forward pass's information

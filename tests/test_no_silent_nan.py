@@ -84,3 +84,18 @@ def test_a_corrector_that_returns_the_wrong_thing_is_named(returned, what):
     with pytest.raises(PluginError, match=rf"corrector 'test-wrong': correct\(\) returned {what}; it must return "
                                           r"Correction\(rate, flags\)"):
         p.run(sim.demo_recordings()[0].slice(0, 50))
+
+
+def test_the_offline_mode_warns_of_a_gap_once_at_the_recordings_index():
+    """A 5 s gap gave six GapWarnings from the offline passes, half naming the reversed pass's sample index."""
+    from fusionkit.types import GapWarning
+
+    r = sim.demo_recordings()[1]
+    t = r.time.copy()
+    t[3000:] += 5.0
+    rec = fk.Recording(gyr=r.gyr, acc=r.acc, mag=r.mag, t=t)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fk.make("recommended", offline=True).run(rec)
+    gaps = [str(w.message) for w in caught if issubclass(w.category, GapWarning)]
+    assert len(gaps) == 1 and "3000" in gaps[0], gaps
