@@ -108,6 +108,11 @@ def cmd_describe(args) -> int:
     info = describe(args.name, args.kind)
     if args.toml or args.json:
         cfg = info.config()
+        if info.kind == "filter" and info.name == "pipeline":  # (its estimator is the user's to name: the
+            # config printed "(required)" there, which `fusionkit run` then refused as an unknown estimator)
+            raise FusionkitError("'pipeline' is the composition itself, with no estimator of its own: print a "
+                                 "preset's config to start from (fusionkit describe recommended --toml) or write "
+                                 "one (docs/configuration.md)")
         if cfg is None:
             raise FusionkitError(f"{args.name!r} is {_article(info.kind)} {info.kind}: only filters print a runnable "
                                  "config "

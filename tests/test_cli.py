@@ -352,3 +352,20 @@ def test_cli_messages_name_the_cli_options_and_read_well(tmp_path, capsys):
     assert "unknown plugin 'nosuch'. Known: " in capsys.readouterr().err
     assert main(["describe", "poisso"]) == 2
     assert "did you mean 'poisson'" in capsys.readouterr().err
+
+
+def test_describe_pipeline_toml_points_to_a_preset(capsys):
+    """``describe pipeline --toml`` printed estimator = "(required)", which ``fusionkit run`` then refused as an
+    unknown estimator plugin."""
+    assert main(["describe", "pipeline", "--toml"]) == 2
+    err = capsys.readouterr().err
+    assert "'pipeline' is the composition itself" in err and "describe recommended --toml" in err
+
+
+def test_a_strapdown_result_prints_a_summary():
+    import numpy as np
+
+    from fusionkit.navigation.strapdown import StrapdownResult
+
+    r = StrapdownResult(np.zeros((5, 3)), np.ones((5, 3)), np.zeros((5, 4)), "NED", np.array([0, 1, 0, 0, 1]))
+    assert repr(r).startswith("StrapdownResult(5 samples, NED, 2 GNSS resets; final velocity") and "array" not in repr(r)

@@ -120,6 +120,14 @@ class StrapdownResult:
     reset: np.ndarray
     diagnostics: dict = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        """A one-line summary (samples, frame, GNSS resets, the final velocity and position), never the arrays."""
+        n = len(self.vel)
+        last = (f"; final velocity {np.round(self.vel[-1], 3).tolist()} m/s, position "
+                f"{np.round(self.pos[-1], 2).tolist()} m" if n else "")
+        return (f"StrapdownResult({n} samples, {self.frame}, {int(np.count_nonzero(self.reset))} GNSS resets{last}; "
+                f"diagnostics: {', '.join(sorted(self.diagnostics))})")
+
 
 def strapdown(gyr, acc, dt, *, quat0=None, attitude=None, vel0=(0.0, 0.0, 0.0), pos0=(0.0, 0.0, 0.0),
               gravity: float = 9.81, frame: str = "ENU", fixes=None, backend: str = "auto") -> StrapdownResult:
