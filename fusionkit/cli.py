@@ -162,8 +162,10 @@ def cmd_run(args) -> int:
     res.to_csv(args.output, time=rec.time)
     print(f"{f.name}: {len(rec)} samples in {elapsed:.3f} s ({len(rec) / elapsed:,.0f} samples/s, "
           f"backend {res.diagnostics['backend']}; compile and warm-up {warm:.3f} s, not counted) -> {args.output}")
+    nav = (", vel_*_mps and pos_*_m (velocity in m/s and position in m, in the frame's axes)"
+           if getattr(res.diagnostics.get("velocity"), "shape", None) == (len(res), 3) else "")
     print(f"columns: t (s), qw..qz (body -> {res.frame}), {_yaw_definition(res.frame)}, pitch_deg, roll_deg, "
-          "flags (bits: fusionkit.Flag)")
+          f"flags (bits: fusionkit.Flag){nav}")
     if rec.truth is not None:
         from .benchmarking.metrics import rms_errors
         from .benchmarking.report import aiding, not_applicable

@@ -540,9 +540,12 @@ class Result:
         return flag_names(int(self.flags[k]))
 
     def to_csv(self, path, time: np.ndarray | None = None) -> None:
-        """Write ``t`` (if given), ``qw, qx, qy, qz``, yaw/pitch/roll (deg) and ``flags``. The yaw
-        column is named for the frame (``yaw_enu_deg``: from East, counter-clockwise, so body x
-        to North is 90; ``yaw_ned_deg`` is a compass heading). ``time``: (N,) s, one per sample."""
+        """Write ``t`` (if given), ``qw, qx, qy, qz``, yaw/pitch/roll (deg) and ``flags``, and, for a
+        result that carries them (``ins-gnss``: ``diagnostics["velocity"]``, ``["position"]``, (N, 3)
+        in the frame's axes), the velocity (m/s) and position (m) after them, each column named for its
+        axis (``vel_e_mps``, ``pos_n_m`` in ENU; ``vel_d_mps`` in NED). The yaw column is named for the
+        frame (``yaw_enu_deg``: from East, counter-clockwise, so body x to North is 90; ``yaw_ned_deg`` is
+        a compass heading). ``time``: (N,) s, one per sample."""
         if time is not None:
             time = np.asarray(time)
             if time.shape != (len(self),):  # (numpy's own error came from deep in hstack)
@@ -555,6 +558,13 @@ class Result:
             cols.insert(0, time.astype(float)[:, None])
             names.insert(0, "t")
         fmt = ["%.9g"] * (len(names) - 1) + ["%d"]
+        axes = [a.lower() for a in self.frame]  # (ENU: e, n, u; NED: n, e, d; NWU: n, w, u)
+        for key, unit in (("velocity", "mps"), ("position", "m")):  # a navigation result's (ins-gnss): it wrote
+            v = self.diagnostics.get(key)  # the attitude alone, its velocity and position only in diagnostics
+            if isinstance(v, np.ndarray) and v.shape == (len(self), 3) and len(axes) == 3:
+                cols.append(v.astype(float))
+                names += [f"{key[:3]}_{a}_{unit}" for a in axes]
+                fmt += ["%.9g"] * 3
         try:
             np.savetxt(path, np.hstack(cols), delimiter=",", header=",".join(names), comments="", fmt=fmt)
         except OSError as exc:  # (numpy's FileNotFoundError named no argument: a missing folder, no permission)

@@ -369,3 +369,22 @@ def test_a_strapdown_result_prints_a_summary():
 
     r = StrapdownResult(np.zeros((5, 3)), np.ones((5, 3)), np.zeros((5, 4)), "NED", np.array([0, 1, 0, 0, 1]))
     assert repr(r).startswith("StrapdownResult(5 samples, NED, 2 GNSS resets; final velocity") and "array" not in repr(r)
+
+
+def test_a_navigation_results_csv_has_its_velocity_and_position(tmp_path):
+    """``fusionkit run ins-gnss ... -o out.csv`` (Result.to_csv) wrote the attitude alone; its velocity and
+    position were only in the Result's diagnostics. Their columns are named for the frame's axes."""
+    from fusionkit.types import Result
+
+    n = 5
+    for frame, axes in (("ENU", "enu"), ("NED", "ned")):
+        r = Result(np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), np.zeros(n, np.uint32), frame,
+                   {"velocity": np.arange(3 * n, dtype=float).reshape(n, 3), "position": np.ones((n, 3))})
+        r.to_csv(tmp_path / "nav.csv", time=np.arange(n) * 0.1)
+        head = (tmp_path / "nav.csv").read_text().splitlines()[0].split(",")
+        assert head[-6:] == [f"vel_{a}_mps" for a in axes] + [f"pos_{a}_m" for a in axes]
+        data = np.loadtxt(tmp_path / "nav.csv", delimiter=",", skiprows=1)
+        np.testing.assert_array_equal(data[:, -6:-3], r.diagnostics["velocity"])
+    plain = Result(np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), np.zeros(n, np.uint32), "ENU", {})
+    plain.to_csv(tmp_path / "att.csv")
+    assert (tmp_path / "att.csv").read_text().splitlines()[0].endswith(",flags")
