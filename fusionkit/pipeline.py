@@ -591,6 +591,8 @@ class Pipeline(Filter):
         gn = None if gnss is None else as_vector("gnss", gnss, width=6, allow_bool=True)
         q, f, _ = self._step(self._stream, g, a, m, dt, has_mag, gn)
         self.last_flags = gap_flags(f, gap)
+        if not (math.isfinite(q[0]) and math.isfinite(q[1]) and math.isfinite(q[2]) and math.isfinite(q[3])):
+            self._check_finite_output(q[None])  # (the stream's sample, as run() names it: sample 0 of this call)
         return q
 
     def _stream_kernel(self):

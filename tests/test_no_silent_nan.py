@@ -99,3 +99,23 @@ def test_the_offline_mode_warns_of_a_gap_once_at_the_recordings_index():
         fk.make("recommended", offline=True).run(rec)
     gaps = [str(w.message) for w in caught if issubclass(w.category, GapWarning)]
     assert len(gaps) == 1 and "3000" in gaps[0], gaps
+
+
+def test_a_stream_through_a_plugin_that_returns_nan_is_refused_too():
+    """update() (the readable step, which a plugin without a kernel runs) passed the NaN on as run() did."""
+
+    class Nany(Corrector):
+        name = "test-nany-stream"
+        mode = "rate"
+
+        def correct(self, estimator, est_state, state, sample, flags, channel=None):
+            return Correction(np.array([np.nan, 0.0, 0.0]), 0)
+
+    reg = Registry()
+    reg.register(Nany)
+    p = Pipeline({"estimator": "poisson-quat", "correctors": ["test-nany-stream"], "alignment": {"mode": "none"}},
+                 registry=reg)
+    g, a = np.array([0.01, 0.0, 0.0]), np.array([0.0, 0.0, 9.81])
+    p.update(g, a, dt=0.01)  # the first sample: the correction enters the next propagation
+    with pytest.raises(PluginError, match=r"not finite .* \(poisson-quat, test-nany-stream\)"):
+        p.update(g, a, dt=0.01)
