@@ -349,14 +349,14 @@ def test_a_reference_that_is_not_a_truth_is_left_out_of_the_means():
         def load(self):
             return recs[self.name]
 
-    res = bench(["gst"], [Mem("truth", "csv", ""), Mem("px4", "csv", "")], cache=False, progress=False)
+    res = bench(["poisson"], [Mem("truth", "csv", ""), Mem("px4", "csv", "")], cache=False, progress=False)
     s = res.summary("inclination")[0]
-    assert s["trials"] == 1 and s["mean"] == pytest.approx(res.value("gst", "truth", "inclination"))
-    assert res.value("gst", "px4", "inclination") != pytest.approx(s["mean"])  # (it was in the mean: 2 trials)
+    assert s["trials"] == 1 and s["mean"] == pytest.approx(res.value("poisson", "truth", "inclination"))
+    assert res.value("poisson", "px4", "inclination") != pytest.approx(s["mean"])  # (it was in the mean: 2 trials)
     text = res.table("table", metric="inclination")
     assert "px4 (vs autopilot estimate)" in text and "not in the mean: px4" in text
-    assert set(res.by_group("inclination")["gst"]) == {"all"} and res.by_group("inclination")["gst"]["all"] == \
-        pytest.approx(s["mean"])
+    groups = res.by_group("inclination")["poisson"]
+    assert set(groups) == {"all"} and groups["all"] == pytest.approx(s["mean"])
 
 
 def test_a_sweep_chooses_by_the_trials_scored_against_a_truth_and_a_cached_hit_keeps_json_params(tmp_path):
@@ -380,11 +380,12 @@ def test_a_sweep_chooses_by_the_trials_scored_against_a_truth_and_a_cached_hit_k
             return self.name
 
     trials = [Mem("truth", "csv", ""), Mem("px4", "csv", "")]
-    res = sweep("gst", {"tau_auto": [10.0, 50.0]}, trials, metric="inclination", cache=False, progress=False)
+    res = sweep("poisson", {"step": ["exact", "first-order"]}, trials, metric="inclination", cache=False,
+                progress=False)
     for combo, mean in res.mean_by_combo():
         assert mean == pytest.approx(res.result.value(res._label(combo), "truth", "inclination"))
     assert set(res.per_trial_minimum()) == {"truth"} and "not in the means: px4" in res.report()
-    spec = [("gst", {"combined": np.bool_(False)})]
+    spec = [("poisson", {"early_motion": np.bool_(False)})]
     for _ in range(2):  # the second from the cache
         out = bench(spec, trials[:1], cache_dir=tmp_path, progress=False)
-    assert out.records[0]["cached"] and json.loads(out.table("json"))[0]["params"] == {"combined": False}
+    assert out.records[0]["cached"] and json.loads(out.table("json"))[0]["params"] == {"early_motion": False}
