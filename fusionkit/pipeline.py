@@ -62,7 +62,6 @@ import math
 import sys
 import warnings
 from typing import Any, ClassVar
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -90,7 +89,7 @@ from .types import (CHANNEL_SIZE, Channel, Flag, Recording, Result, gap_flags, g
                     sample_validity, stream_gap)
 from .filters._step_filter import _after_saturation
 from .validation import (as_vector, check_finite_all, check_finite_flagged, check_dt, check_sample_finite,
-                         finite_sample)
+                         finite_rows, finite_sample)
 
 __all__ = ["Pipeline", "run_detector"]
 
@@ -180,10 +179,14 @@ class Pipeline(Filter):
         scored as a 6D filter, its track-angle heading "n/a")."""
         return any(getattr(c, "uses_gnss", False) for c in self.correctors)
 
-    def dimension(self, rec) -> str:
-        uses = self.spec.alignment.heading == "magnetometer" or any(
+    def _uses_mag(self) -> bool:
+        """Whether the composition reads a magnetometer where the recording has one (its alignment's
+        heading, or a magnetometer corrector): what :meth:`dimension` and the input checks ask."""
+        return self.spec.alignment.heading == "magnetometer" or any(
             c.uses_mag and getattr(c.config, "use_mag", True) for c in self.correctors)
-        return "9D" if uses and rec.mag is not None else "6D"
+
+    def dimension(self, rec) -> str:
+        return "9D" if self._uses_mag() and rec.mag is not None else "6D"
 
     # -- state -----------------------------------------------------------------------------
     def aligner(self, dt: float) -> Aligner:
@@ -413,7 +416,7 @@ class Pipeline(Filter):
         self._set_body(self.body_axes(rec))
         # the sensors it reads: a magnetometer it does not use (a 6D or gyro-only filter) is not judged, nor
         # a non-finite sample of it refused (nan_policy="raise" named mag[k] of a sensor it never read)
-        inputs = {"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag if self.dimension(rec) == "9D" else None}
+        inputs = {"gyr": rec.gyr, "acc": rec.acc, "mag": rec.mag if self._uses_mag() else None}
         if self.models:  # a sensor model may change a sample before it is judged: the input first
             check_finite_all(inputs, self.spec.nan_policy)
         has_mag = rec.mag is not None
@@ -480,18 +483,15 @@ class Pipeline(Filter):
         """A non-finite orientation is no answer: the built-in plugins never make one (a non-finite
         sample is flagged and the state held), so one comes from a plugin that returned a
         non-finite correction or state; it was passed on silently to every later sample. One sum
-        decides (a quaternion's entries are bounded by 1: the sum is finite exactly when they all are);
-        only then blocks of 4096 rows find the first (no mask the size of the output)."""
+        decides (a quaternion's entries are bounded by 1: the sum is finite exactly when they all are),
+        with no mask the size of the output; :func:`~fusionkit.validation.finite_rows` finds the first."""
         if math.isfinite(float(q.sum())):
             return
-        for k in range(0, len(q), 4096):
-            ok = np.isfinite(q[k:k + 4096]).all(axis=1)
-            if not ok.all():
-                first = k + int(np.argmin(ok))
-                names = [self.spec.estimator.name] + [c.name for c in self.spec.correctors]
-                raise PluginError(f"{self.name}: the orientation is not finite from sample {first} on: a plugin of "
-                                  f"this composition ({', '.join(names)}) returned a non-finite correction or state "
-                                  "there (fusionkit.testing.check_plugin(NAME) on each finds which)")
+        first = int(np.argmin(finite_rows(q)))
+        names = [self.spec.estimator.name] + [c.name for c in self.spec.correctors]
+        raise PluginError(f"{self.name}: the orientation is not finite from sample {first} on: a plugin of this "
+                          f"composition ({', '.join(names)}) returned a non-finite correction or state there "
+                          "(fusionkit.testing.check_plugin(NAME) on each finds which)")
 
     def _inclination_model(self, st) -> np.ndarray | None:
         """What the first corrector with an ``inclination_model(state)`` (``inertial-tilt``'s: the
@@ -560,8 +560,7 @@ class Pipeline(Filter):
         has_mag = mag is not None
         m = as_vector("mag", mag) if has_mag else np.zeros(3)
         # a magnetometer it does not read (dimension 6D with one) is not refused for a non-finite sample
-        reads_mag = has_mag and self.dimension(SimpleNamespace(mag=m)) == "9D"
-        check_sample_finite(self.spec.nan_policy, gyr=g, acc=a, mag=m if reads_mag else None)
+        check_sample_finite(self.spec.nan_policy, gyr=g, acc=a, mag=m if has_mag and self._uses_mag() else None)
         self.check_stream_units(g, a)
         if self._stream is None:
             self._stream = self.new_state(dt)

@@ -426,12 +426,12 @@ class Filter(Plugin, ABC):
         magnetometer runs 6D on a recording without one, or whose magnetometer has not one finite
         sample (``nan_policy="skip"`` then runs without it). Every run records it in
         ``Result.diagnostics["aiding"]``."""
+        from .validation import has_finite
+
         if getattr(self, "correctors", None) == []:
             return "gyro-only"
         mag = getattr(rec, "mag", None)
-        if mag is not None and not any(np.isfinite(mag[k:k + 4096]).any() for k in range(0, len(mag), 4096)):
-            return "6D"  # (in blocks: a mask the size of the input was most of a run's allocation; the first
-        return self.dimension(rec)  # block nearly always decides)
+        return "6D" if mag is not None and not has_finite(mag) else self.dimension(rec)
 
     @abstractmethod
     def run(self, rec, *, backend: str = "auto", progress: bool | None = None):

@@ -173,6 +173,12 @@ def finite_rows(x: np.ndarray) -> np.ndarray:
     return np.isfinite(x).all(axis=1)
 
 
+def has_finite(x: np.ndarray) -> bool:
+    """Whether ``x`` has one finite entry, read in blocks of 4096 rows (no mask the size of the
+    input; the first block nearly always decides): a magnetometer without one is no magnetometer."""
+    return any(np.isfinite(x[k:k + 4096]).any() for k in range(0, len(x), 4096))
+
+
 def check_finite(name: str, x: np.ndarray, policy: str) -> np.ndarray:
     """Mask of usable rows; with ``policy="raise"`` a non-finite row raises naming its index."""
     if policy not in NAN_POLICIES:
@@ -528,10 +534,9 @@ def _gyr_fast_share(gyr: np.ndarray) -> tuple[float, float]:
     a, b = gyr[idx], gyr[idx + 1]
     ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
     a, b = np.abs(a[ok]), np.abs(b[ok])
-    w = a
-    if not w.size:
+    if not a.size:
         return 0.0, 0.0
-    return float(np.count_nonzero((a > GYR_RATE_BOUND) & (b > GYR_RATE_BOUND))) / w.size, float(np.percentile(w, 99))
+    return float(np.count_nonzero((a > GYR_RATE_BOUND) & (b > GYR_RATE_BOUND))) / a.size, float(np.percentile(a, 99))
 
 
 def check_units(gyr: np.ndarray, acc: np.ndarray, mag: np.ndarray | None = None,

@@ -13,21 +13,28 @@ from fusionkit.pipeline import Pipeline
 from fusionkit.protocols import Correction, Corrector
 from fusionkit.registry import Registry
 
+NAN_RATE = Correction(np.array([np.nan, 0.0, 0.0]), 0)
 
-def test_a_plugin_that_returns_nan_is_named_not_passed_on():
-    """A rate corrector returning a NaN correction made every later quaternion NaN, unflagged."""
 
-    class Nany(Corrector):
-        name = "test-nany"
+def _with_corrector(name, returned):
+    """A poisson-quat pipeline with one rate corrector ``name`` (registered for it alone) whose
+    ``correct()`` returns ``returned`` on every sample."""
+
+    class Returns(Corrector):
         mode = "rate"
 
         def correct(self, estimator, est_state, state, sample, flags, channel=None):
-            return Correction(np.array([np.nan, 0.0, 0.0]), 0)
+            return returned
 
+    Returns.name = name
     reg = Registry()
-    reg.register(Nany)
-    p = Pipeline({"estimator": "poisson-quat", "correctors": ["test-nany"], "alignment": {"mode": "none"}},
-                 registry=reg)
+    reg.register(Returns)
+    return Pipeline({"estimator": "poisson-quat", "correctors": [name], "alignment": {"mode": "none"}}, registry=reg)
+
+
+def test_a_plugin_that_returns_nan_is_named_not_passed_on():
+    """A rate corrector returning a NaN correction made every later quaternion NaN, unflagged."""
+    p = _with_corrector("test-nany", NAN_RATE)
     rec = sim.demo_recordings()[0].slice(0, 200)
     with pytest.raises(PluginError, match=r"not finite from sample 1 on: a plugin of this composition "
                                           r"\(poisson-quat, test-nany\)"):
@@ -69,18 +76,7 @@ def test_a_composed_pipeline_that_reads_gnss_needs_it():
 def test_a_corrector_that_returns_the_wrong_thing_is_named(returned, what):
     """A rate corrector returning a rate of shape (2,) gave numpy's broadcast error, and a bare array numpy's
     '|=' on its .flags: neither named the plugin nor what it must return."""
-
-    class Wrong(Corrector):
-        name = "test-wrong"
-        mode = "rate"
-
-        def correct(self, estimator, est_state, state, sample, flags, channel=None):
-            return returned
-
-    reg = Registry()
-    reg.register(Wrong)
-    p = Pipeline({"estimator": "poisson-quat", "correctors": ["test-wrong"], "alignment": {"mode": "none"}},
-                 registry=reg)
+    p = _with_corrector("test-wrong", returned)
     with pytest.raises(PluginError, match=rf"corrector 'test-wrong': correct\(\) returned {what}; it must return "
                                           r"Correction\(rate, flags\)"):
         p.run(sim.demo_recordings()[0].slice(0, 50))
@@ -103,18 +99,7 @@ def test_the_offline_mode_warns_of_a_gap_once_at_the_recordings_index():
 
 def test_a_stream_through_a_plugin_that_returns_nan_is_refused_too():
     """update() (the readable step, which a plugin without a kernel runs) passed the NaN on as run() did."""
-
-    class Nany(Corrector):
-        name = "test-nany-stream"
-        mode = "rate"
-
-        def correct(self, estimator, est_state, state, sample, flags, channel=None):
-            return Correction(np.array([np.nan, 0.0, 0.0]), 0)
-
-    reg = Registry()
-    reg.register(Nany)
-    p = Pipeline({"estimator": "poisson-quat", "correctors": ["test-nany-stream"], "alignment": {"mode": "none"}},
-                 registry=reg)
+    p = _with_corrector("test-nany-stream", NAN_RATE)
     g, a = np.array([0.01, 0.0, 0.0]), np.array([0.0, 0.0, 9.81])
     p.update(g, a, dt=0.01)  # the first sample: the correction enters the next propagation
     with pytest.raises(PluginError, match=r"not finite .* \(poisson-quat, test-nany-stream\)"):

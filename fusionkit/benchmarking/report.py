@@ -10,7 +10,7 @@ number. Tables keep 6D inclination and 9D total apart: they are different quanti
 
 from __future__ import annotations
 
-import numpy as np
+from ..validation import has_finite
 
 __all__ = ["METRIC_LABELS", "HEADING_DEFINITION", "aiding", "not_applicable", "metric_label"]
 
@@ -51,19 +51,14 @@ def dimension(f, rec) -> str:
     but "6D" when ``rec``'s magnetometer has not one finite sample: with ``nan_policy="skip"`` the
     filter runs without it (the quaternions of a run without ``mag``, its heading the gyro's), and
     its arbitrary heading was scored as a 9D filter's total and heading error."""
-    if rec.mag is not None and not np.isfinite(rec.mag).any():
-        return "6D"
-    return f.dimension(rec)
+    return "6D" if rec.mag is not None and not has_finite(rec.mag) else f.dimension(rec)
 
 
 def aiding(f, rec) -> str:
     """``"9D"`` (magnetometer used), ``"6D"`` (accelerometer only, or GNSS), or ``"gyro-only"``
-    (a pipeline without correctors: integration from the alignment, nothing corrects it)."""
-    if hasattr(f, "aiding"):
-        return f.aiding(rec)
-    if getattr(f, "correctors", None) == []:
-        return "gyro-only"
-    return dimension(f, rec)
+    (a pipeline without correctors: integration from the alignment, nothing corrects it):
+    :meth:`fusionkit.protocols.Filter.aiding`, what every run records."""
+    return f.aiding(rec)
 
 
 def not_applicable(kind: str, gnss_heading: bool = False) -> dict[str, str]:

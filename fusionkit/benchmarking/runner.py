@@ -519,12 +519,12 @@ class BenchResult:
         for speed (none when every run failed: the errors are all there is). A filter that cannot
         have a metric is left out of its section; ``note`` says why."""
         out = []
+        other = self._other_references()  # (the trials', the same for every metric)
         for m in self.metrics() if metrics is None else metrics:
             na = self.not_applicable(m)
             filters = [f for f in self.filters if f not in na]
             if not filters:
                 continue
-            other = self._other_references()
             rows = [[t + (f" (vs {other[t]})" if t in other else "")] + [self._cell(self._record(f, t), m)
                                                                           for f in filters] for t in self.trials]
             summ = {s["filter"]: s for s in self.summary(m)}

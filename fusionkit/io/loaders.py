@@ -135,8 +135,8 @@ def load_csv(path, rate: float | None = None, body: str | None = None, gyr_unit:
                         raise InputError(f"{p.name}: line {skip}: {s!r} is not a rate in Hz") from None
                 elif text.startswith("body="):
                     comment_body = text.split("=", 1)[1].strip()
-                elif text.split("=", 1)[0].strip() in units and "=" in text:
-                    units[text.split("=", 1)[0].strip()] = text.split("=", 1)[1].strip()
+                elif "=" in text and (key := text.partition("=")[0].strip()) in units:
+                    units[key] = text.partition("=")[2].strip()
                 continue
             header = [c.strip() for c in s.split(",")]
             break
