@@ -173,7 +173,7 @@ def _body(lay: Layout, names: dict[int, str], ind: str) -> list[str]:
     # 3. alignment
     L += ["done = False",
           f"if al[{PHASE}] == 0.0:",
-          f"    status = align_step(al, ap, {_SAMPLE}, gyr_ok, acc_ok, mag_ok, (flags & motion) != 0, q)",
+          f"    status = align_step(al, ap, {_SAMPLE}, gyr_ok, acc_ok, mag_ok, (flags & motion) != 0, h, q)",
           f"    if status == {ALIGNED_NOW} or status == {ALIGNED_BEFORE}:",
           "        e_from_quat(q, x)",
           f"    if status == {ALIGNING} or status == {ALIGNED_NOW}:",

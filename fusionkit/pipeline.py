@@ -189,16 +189,15 @@ class Pipeline(Filter):
         return "9D" if self._uses_mag() and rec.mag is not None else "6D"
 
     # -- state -----------------------------------------------------------------------------
-    def aligner(self, dt: float) -> Aligner:
-        """The alignment state machine for nominal interval ``dt`` (made once per dt)."""
-        cache = self.__dict__.setdefault("_aligners", {})
-        if dt not in cache:
-            cache[dt] = Aligner(self.spec.alignment, self.spec.frame, dt)
-        return cache[dt]
+    def aligner(self) -> Aligner:
+        """The alignment state machine (made once)."""
+        if "_aligner" not in self.__dict__:
+            self.__dict__["_aligner"] = Aligner(self.spec.alignment, self.spec.frame)
+        return self.__dict__["_aligner"]
 
     def new_state(self, dt: float) -> dict[str, Any]:
         """A fresh run state for nominal sample interval ``dt``."""
-        al = self.aligner(dt).new_state(_STATE_SIZE)
+        al = self.aligner().new_state(_STATE_SIZE)
         q0 = np.array(self.spec.alignment.initial_quat)
         al[_QPREV:_QPREV + 4] = q0
         return {
@@ -272,7 +271,7 @@ class Pipeline(Filter):
                 if bits:
                     flags |= det.flag
         # 3. alignment
-        status, q = self.aligner(st["dt"]).step(al, gyr, acc, mag, gyr_ok, acc_ok, mag_ok, bool(flags & Flag.MOTION))
+        status, q = self.aligner().step(al, gyr, acc, mag, gyr_ok, acc_ok, mag_ok, bool(flags & Flag.MOTION), dt)
         if status in (ALIGNED_NOW, ALIGNED_BEFORE):
             st["x"] = self.estimator.initial_state(q)
         if status in (ALIGNING, ALIGNED_NOW):
@@ -354,7 +353,7 @@ class Pipeline(Filter):
         states = [st["x"], *st["mod"], *[st["det"][i] for i in dets], *st["cor"], st["align"]]
         params = [ek.params, *[_loopgen.static_params(k.params, tuple(k.static)) for k in mks],
                   *[dks[i].params for i in dets], *[_loopgen.static_params(k.params, tuple(k.static)) for k in cks],
-                  self.aligner(st["dt"]).params(), self._loop_params()]
+                  self.aligner().params(), self._loop_params()]
         S, P, O = _loopgen.pack(states, params)
         return _loopgen.get_compiled(lay), S, P, O, states
 
@@ -473,7 +472,7 @@ class Pipeline(Filter):
         if bias_at is not None:
             diag["bias_at"] = np.array(biases).reshape(len(probe_ends), 3)
             diag["inclination_model_at"] = None if not models or models[0] is None else np.array(models)
-        report_disturbed(st["align"], st["dt"], self.spec.alignment.duration)
+        report_disturbed(st["align"], self.spec.alignment.duration)
         mark_gaps(out_f, gaps, rec.gyr, diag, gap_threshold(rec.nominal_dt, self.spec.max_gap))
         diag["aiding"] = self.aiding(rec)
         self._check_finite_output(out_q)

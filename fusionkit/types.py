@@ -428,7 +428,9 @@ class Recording:
 
     @property
     def dt(self) -> np.ndarray:
-        """(N,) sample intervals in s: ``dt[k] = t[k] - t[k-1]`` (``dt[0] = dt[1]``).
+        """(N,) sample intervals in s: ``dt[k] = t[k] - t[k-1]`` (``dt[0] = dt[1]``; in a
+        :meth:`slice` that does not start at the first sample, the interval before its first
+        sample in the recording it was cut from, so that a run split in two equals one run).
 
         Sample ``k``'s rate is held over the interval that ends at ``t[k]``, the way a
         streaming filter sees it.
@@ -436,10 +438,11 @@ class Recording:
         n = len(self)
         if self.rate is not None:
             return np.full(n, 1.0 / self.rate)
+        before = self.__dict__.get("_dt_before")
         if n == 1:
-            return np.array([0.01])
+            return np.array([0.01 if before is None else before])
         d = np.diff(self.t)
-        return np.concatenate([d[:1], d])
+        return np.concatenate([d[:1] if before is None else [before], d])
 
     @property
     def nominal_dt(self) -> float:
@@ -480,6 +483,12 @@ class Recording:
             movement=None if self.movement is None else self.movement[s], name=self.name,
             meta=meta, body=self.body,
         )
+        idx = range(n)[s]
+        if idx and out.t is not None:  # a clock of its own: the interval before its first sample kept (dt)
+            i = idx.start
+            before = float(self.time[i] - self.time[i - 1]) if i > 0 else self.__dict__.get("_dt_before")
+            if before is not None:
+                out.__dict__["_dt_before"] = before
         if keep_clock:  # the epoch current at the first sample, and those up to the last one
             g, t = self.gnss, out.time
             first = max(0, int(np.searchsorted(g.t, t[0], side="right")) - 1)

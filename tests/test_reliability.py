@@ -87,6 +87,43 @@ def test_gap_streaming_equals_run(moving):
     assert f.last_flags == res.flags[-1]
 
 
+def _jittered(rec, seed=1):
+    """``rec`` with its timestamps jittered by up to a fifth of an interval (the clock of a real
+    logger), the samples the same."""
+    n, dt = len(rec), 1.0 / rec.rate
+    t = np.cumsum(np.r_[0.0, dt + np.random.default_rng(seed).uniform(-0.2 * dt, 0.2 * dt, n - 1)])
+    return fk.Recording(gyr=rec.gyr, acc=rec.acc, mag=rec.mag, t=t, truth=rec.truth)
+
+
+def test_a_stream_over_jittered_timestamps_equals_the_run(moving):
+    """The mandatory alignment is a time (the sum of the averaged samples' intervals). It was a
+    count of samples from a nominal interval: the run's (the median) and the stream's (the first
+    interval it met) differed on a jittered clock, and gradient-descent's stream left its run by
+    0.2 deg from the alignment's end on."""
+    rec = _jittered(moving)
+    for name in ("gradient-descent", "recommended"):
+        res = fk.make(name).run(rec, backend="reference")
+        f = fk.make(name)
+        f.update_backend = "reference"
+        q = np.array([f.update(rec.gyr[k], rec.acc[k], rec.mag[k], dt=rec.dt[k]) for k in range(len(rec))])
+        assert np.max(quat_angle(q, res.quat)) < 1e-9, name
+    # a fixed rate: source 000's count of samples, round(duration / dt)
+    f = fk.make("gradient-descent")
+    res = f.run(moving, backend="reference")
+    assert res.diagnostics["alignment_end_index"] == round(f.spec.alignment.duration * moving.rate) == 300
+
+
+def test_a_run_split_in_two_equals_one_run_on_a_jittered_clock(moving):
+    """A slice keeps the interval before its first sample (it was its second interval, copied)."""
+    rec = _jittered(moving)
+    assert rec.slice(700).dt[0] == rec.t[700] - rec.t[699] and rec.slice(700).slice(0, 5).dt[0] == rec.dt[700]
+    f = fk.make("gradient-descent")
+    one = f.run(rec, backend="reference")
+    a = f.run(rec.slice(0, 1300), backend="reference")
+    b = f.run(rec.slice(1300), backend="reference", state=a.diagnostics["state"])
+    assert np.max(quat_angle(np.vstack([a.quat, b.quat]), one.quat)) < 1e-12
+
+
 def test_gap_handling_can_be_turned_off(moving):
     rec = drop(moving, 1300, 1500)
     with warnings.catch_warnings():

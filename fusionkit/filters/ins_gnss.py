@@ -268,7 +268,7 @@ class InsGnssFilter(Filter):
         if "arm_after" not in motion.model_fields_set:
             motion = motion.model_copy(update={"arm_after": c.alignment_duration})
         self.detector = MotionDetector(motion)
-        self._aligners: dict[tuple, Aligner] = {}
+        self._aligners: dict[bool, Aligner] = {}
         self.M = body_matrix(c.body or "FRD", "FRD")  # sensor -> FRD (update(): the config's axes)
         self.F = frame_matrix("NED", c.frame)  # NED -> output frame
         self._stream: dict | None = None
@@ -282,13 +282,13 @@ class InsGnssFilter(Filter):
         h = self.config.heading
         return rec is not None and rec.mag is not None and h in ("auto", "magnetometer")
 
-    def aligner(self, dt: float, use_mag: bool) -> Aligner:
-        key = (dt, use_mag)
+    def aligner(self, use_mag: bool) -> Aligner:
+        key = use_mag
         if key not in self._aligners:
             c = self.config
             cfg = AlignmentConfig(mode=c.alignment, duration=c.alignment_duration,
                                   heading="magnetometer" if use_mag else "zero")
-            self._aligners[key] = Aligner(cfg, "NED", dt)
+            self._aligners[key] = Aligner(cfg, "NED")
         return self._aligners[key]
 
     def params(self, rec: Recording | None = None) -> np.ndarray:
@@ -325,7 +325,7 @@ class InsGnssFilter(Filter):
         # "M": the body axes the samples are read in (run(): the recording's; update(): the config's), kept with
         # the state so that a stream or run continuing it reads its samples in the same axes
         return {"filter": self.name, "dt": dt, "x": x, "det": self.detector.initial_state(dt), "use_mag": use_mag,
-                "align": self.aligner(dt, use_mag).new_state(), "p": self.params(rec), "M": self.M.copy()}
+                "align": self.aligner(use_mag).new_state(), "p": self.params(rec), "M": self.M.copy()}
 
     # -- the readable reference ----------------------------------------------------------------
     def _step(self, st, gyr, acc, mag, dt, t, gn) -> tuple[np.ndarray, int]:
@@ -343,8 +343,8 @@ class InsGnssFilter(Filter):
         if x[_PHASE] == 0.0:  # source 000's alignment, ended by the motion detector
             if al[PHASE] == 0.0 and gyr_ok and acc_ok and self.detector.step(st["det"], Sample(gyr, acc, None, dt)):
                 flags |= Flag.MOTION
-            status, q = self.aligner(st["dt"], st["use_mag"]).step(
-                al, gyr, acc, mag if mag_ok else None, gyr_ok, acc_ok, mag_ok, bool(flags & Flag.MOTION))
+            status, q = self.aligner(st["use_mag"]).step(
+                al, gyr, acc, mag if mag_ok else None, gyr_ok, acc_ok, mag_ok, bool(flags & Flag.MOTION), dt)
             if status in (ALIGNED_NOW, ALIGNED_BEFORE):
                 self._aligned(x, quat_to_matrix(q) @ self.M.T, al, k + (1.0 if status == ALIGNED_NOW else 0.0), p)
             if status in (ALIGNING, ALIGNED_NOW):  # (with the declination when the magnetometer gives the heading)
@@ -666,7 +666,7 @@ class InsGnssFilter(Filter):
         k0 = st["x"][_K] - nk  # the sample number of the arrays' first row
         if used == "numba":
             _ins_loop(gyr, acc, mag, dt, t, gn, st["use_mag"], self.M, self.F, st["p"], st["x"], st["det"],
-                      self.detector.kernel().params, st["align"], self.aligner(st["dt"], st["use_mag"]).params(),
+                      self.detector.kernel().params, st["align"], self.aligner(st["use_mag"]).params(),
                       q, flags, ext, nk)
         else:
             x = st["x"]
@@ -760,7 +760,7 @@ class InsGnssFilter(Filter):
         if self._stream is None:
             st = self.new_state(dt)
             st["use_mag"] = m is not None and self.config.heading in ("auto", "magnetometer")
-            st["align"] = self.aligner(dt, st["use_mag"]).new_state()
+            st["align"] = self.aligner(st["use_mag"]).new_state()
             st["p"][_HMAG] = float(st["use_mag"])
             st["buffer"] = []
             self._stream = st
@@ -1294,7 +1294,7 @@ def _ins_loop(gyr, acc, mag, dt, t, gn, use_mag, m, fo, p, x, ds, dp, al, ap, ou
                                                                         h, dp) != 0:
                 flags |= 2
             status = align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_ok,
-                                (flags & 2) != 0, q)
+                                (flags & 2) != 0, h, q)
             if status == ALIGNED_NOW or status == ALIGNED_BEFORE:
                 quat_to_dcm(q, t9)  # sensor -> NED; C_align = R M^T
                 for i in range(3):

@@ -56,22 +56,26 @@ def alignment_quat(acc_mean, mag_mean=None, frame: str = "ENU") -> np.ndarray:
 # ---- the alignment as a state machine, shared by the pipeline and monolithic filters ------------
 
 # layout of the alignment state array (a caller may append its own fields after ALIGN_SIZE)
-PHASE, SEEN, NACC, SACC, NGYR, SGYR, NMAG, SMAG, BIAS, END, DISTURBED = 0, 1, 2, 3, 6, 7, 10, 11, 14, 17, 18
-ALIGN_SIZE = 19
+# (ELAPSED: the seconds the alignment has averaged, the sum of its samples' intervals: its mandatory
+# ``duration`` is a time, so a stream that meets its samples one at a time and a run that sees the
+# whole recording end it at the same sample, whatever the intervals' jitter)
+PHASE, SEEN, NACC, SACC, NGYR, SGYR, NMAG, SMAG, BIAS, END, DISTURBED, ELAPSED = \
+    0, 1, 2, 3, 6, 7, 10, 11, 14, 17, 18, 19
+ALIGN_SIZE = 20
 MODES = {"none": 0.0, "fixed": 1.0, "motion": 2.0}
 #: what :meth:`Aligner.step` / :func:`align_step` say about a sample
 NAVIGATING, ALIGNING, ALIGNED_NOW, ALIGNED_BEFORE = 0, 1, 2, 3
 
 
-def report_disturbed(al, dt: float, duration: float) -> None:
-    """Warn when motion ended the alignment inside its mandatory ``duration`` (state ``al``,
-    nominal interval ``dt``): the attitude and bias come from the shorter rest before it."""
+def report_disturbed(al, duration: float) -> None:
+    """Warn when motion ended the alignment inside its mandatory ``duration`` (state ``al``): the
+    attitude and bias come from the shorter rest before it."""
     if al[DISTURBED]:
         import warnings
 
         from ..types import AlignmentWarning
 
-        warnings.warn(f"motion detected {al[END] * dt:.3g} s into the mandatory {duration:.3g} s alignment: the "
+        warnings.warn(f"motion detected {al[ELAPSED]:.3g} s into the mandatory {duration:.3g} s alignment: the "
                       "alignment ended there (the moving samples are not averaged in); attitude and gyro bias come "
                       "from the shorter rest (diagnostics['alignment_disturbed'])", AlignmentWarning, stacklevel=3)
 
@@ -86,12 +90,17 @@ class Aligner:
     :func:`align_step` is the numba twin, driven by :meth:`params`. With the config's
     ``attitude="first"`` only the first sample with a valid accelerometer (and its field) enters
     the attitude, held over the window, while the gyro is averaged as usual (source 002's start).
+
+    The mandatory ``duration`` is counted in time, the sum of the averaged samples' intervals: the
+    alignment ends with the sample that brings that sum within half an interval of ``duration`` (at
+    a fixed rate ``round(duration / dt)`` samples, source 000's count). A count of samples fixed from
+    a nominal interval ended it at another sample in a stream (which knows the intervals it has met)
+    than in a run over the whole recording (which knows their median) wherever timestamps jitter.
     """
 
-    def __init__(self, config, frame: str, dt: float) -> None:
+    def __init__(self, config, frame: str) -> None:
         self.config = config
         self.frame = frame
-        self.n_align = max(1, int(round(config.duration / dt)))
 
     def new_state(self, size: int = ALIGN_SIZE) -> np.ndarray:
         al = np.zeros(size)
@@ -114,8 +123,8 @@ class Aligner:
         al[PHASE] = 1.0
         return self.attitude(al)
 
-    def step(self, al, gyr, acc, mag, gyr_ok: bool, acc_ok: bool, mag_ok: bool, motion: bool):
-        """Returns ``(status, q)``; ``q`` is None while navigating."""
+    def step(self, al, gyr, acc, mag, gyr_ok: bool, acc_ok: bool, mag_ok: bool, motion: bool, dt: float):
+        """Returns ``(status, q)``; ``q`` is None while navigating. ``dt``: the sample's interval (s)."""
         if al[PHASE] != 0.0:
             return NAVIGATING, None
         mode = self.config.mode
@@ -124,7 +133,7 @@ class Aligner:
                 return ALIGNED_BEFORE, self._finish(al)
             gyr_ok = False  # moving from the first sample: its tilt (and heading), no bias
         if mode == "motion" and motion and al[SEEN] > 0:  # never averaged in: the alignment ends before it
-            if al[SEEN] < self.n_align:  # inside the mandatory time: reported (report_disturbed)
+            if al[ELAPSED] + 0.5 * dt < self.config.duration:  # inside the mandatory time: reported
                 al[DISTURBED] = 1.0
             return ALIGNED_BEFORE, self._finish(al)
         if self.config.attitude == "first":  # only the first valid accelerometer sample (and its field) counts
@@ -140,8 +149,9 @@ class Aligner:
             al[NMAG] += 1.0
             al[SMAG:SMAG + 3] += mag
         al[SEEN] += 1.0
+        al[ELAPSED] += dt
         q = self.attitude(al)
-        if mode == "fixed" and al[SEEN] >= self.n_align:
+        if mode == "fixed" and al[ELAPSED] + 0.5 * dt >= self.config.duration:
             self._finish(al)
             return ALIGNED_NOW, q
         return ALIGNING, q
@@ -153,7 +163,7 @@ class Aligner:
         c = self.config
         ap = np.zeros(14)
         ap[0] = MODES[c.mode]
-        ap[1] = self.n_align
+        ap[1] = c.duration
         ap[2] = float(c.heading != "zero")
         ap[3:7] = change_frame(np.array([1.0, 0.0, 0.0, 0.0]), "NUE", self.frame)
         ap[7:11] = c.initial_quat
@@ -187,7 +197,7 @@ def _k_finish(al, ap, q):
 
 
 @njit
-def align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_ok, motion, q):
+def align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_ok, motion, dt, q):
     """numba twin of :meth:`Aligner.step`; writes the attitude into ``q``, returns the status."""
     if al[PHASE] != 0.0:
         return NAVIGATING
@@ -198,7 +208,7 @@ def align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_o
             return ALIGNED_BEFORE
         gyr_ok = False
     if mode == 2.0 and motion and al[SEEN] > 0.0:
-        if al[SEEN] < ap[1]:
+        if al[ELAPSED] + 0.5 * dt < ap[1]:
             al[DISTURBED] = 1.0
         _k_finish(al, ap, q)
         return ALIGNED_BEFORE
@@ -221,8 +231,9 @@ def align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_o
         al[SMAG + 1] += m1
         al[SMAG + 2] += m2
     al[SEEN] += 1.0
+    al[ELAPSED] += dt
     _k_attitude(al, ap, q)
-    if mode == 1.0 and al[SEEN] >= ap[1]:
+    if mode == 1.0 and al[ELAPSED] + 0.5 * dt >= ap[1]:
         _k_finish(al, ap, q)  # the same sums: the same attitude
         return ALIGNED_NOW
     return ALIGNING
