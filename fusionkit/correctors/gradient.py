@@ -33,6 +33,16 @@ disturbances come and go, and iterating on them multiplies the gain by the itera
 (measured on BROAD: 43-58 deg instead of 5.8). ``beta_mode="fixed"`` iterates as the patent
 does, every sample.
 
+**The earth frame.** Source 003's frame is z up (Madgwick's: z up, x towards magnetic north, the field's
+reference ``[b_x, 0, b_z]``). The objective is differentiated in Madgwick's expanded form, with
+``|q| = 1`` put in before differentiating (``1 - 2 (y^2 + z^2)`` on the diagonal, his Jacobian): on the
+unit sphere it is the patent's ``q* (x) d (x) q``, but its gradient has a part along ``q``,
+``-2 q (d . f)``, that depends on the coordinates ``d`` is written in, and the normalised step with it.
+The correction takes the gradient the source's frame gives, turned into the output frame (the
+frame's own gradient plus ``2 q ((d - d_src) . f)``, ``d_src`` the reference in the source's
+coordinates), so ``frame`` changes the output's axes and nothing else (before, an NED run left the
+ENU one by up to 0.05 deg). In ENU 6D and in NWU (the source's) the term is zero: the same numbers.
+
 **Madgwick's filter** is ``iterations=1``, ``beta_scale="rate"``, ``gradient_at="previous"``
 (the gradient at the previous estimate, not the propagated one) and no normalisation between
 propagation and correction (the ``gradient-descent`` filter's ``madgwick=True`` sets all of
@@ -63,8 +73,10 @@ def objective(q, d, s) -> np.ndarray:
     return quat_to_matrix(q).T @ d - s
 
 
-def jacobian_t_times(q, d, f) -> np.ndarray:
-    """``J^T f`` with ``J = d(R(q)^T d)/dq`` (3 x 4), the gradient of ``|f|^2 / 2``."""
+def jacobian_t_times(q, d, f, d_src=None) -> np.ndarray:
+    """``J^T f`` with ``J = d(R(q)^T d)/dq`` (3 x 4), the gradient of ``|f|^2 / 2``. With ``d_src``
+    (``d`` in the source's frame, z up and x north): the gradient that frame gives, turned into the
+    frame of ``q`` and ``d`` (the expanded form's part along ``q`` depends on the frame)."""
     w, x, y, z = q
     dx, dy, dz = d
     j = 2.0 * np.array([
@@ -72,7 +84,12 @@ def jacobian_t_times(q, d, f) -> np.ndarray:
         [-z * dx + x * dz, y * dx - 2 * x * dy + w * dz, x * dx + z * dz, -w * dx - 2 * z * dy + y * dz],
         [y * dx - x * dy, z * dx - w * dy - 2 * x * dz, w * dx + z * dy - 2 * y * dz, x * dx + y * dy],
     ])
-    return j.T @ f
+    g = j.T @ f
+    return g if d_src is None else g + 2.0 * ((np.asarray(d) - np.asarray(d_src)) @ f) * np.asarray(q)
+
+
+#: "up" in the source's frame (z up, x north: Madgwick's), whatever the output frame
+_UP_SRC = np.array([0.0, 0.0, 1.0])
 
 
 class GradientConfig(PluginConfig):
@@ -132,14 +149,15 @@ class GradientCorrector(Corrector):
         stop test and the variable beta."""
         up = state[_UP:_UP + 3]
         f = objective(q, up, acc_dir)
-        grad = jacobian_t_times(q, up, f)
+        grad = jacobian_t_times(q, up, f, _UP_SRC)
         res = math.sqrt(f @ f)
         if mag_dir is not None:
             h = quat_to_matrix(q) @ mag_dir  # the field in the earth frame
             vert = h @ up
-            b = np.linalg.norm(h - vert * up) * state[_N:_N + 3] + vert * up
+            hor = np.linalg.norm(h - vert * up)
+            b = hor * state[_N:_N + 3] + vert * up
             fm = objective(q, b, mag_dir)
-            grad = grad + jacobian_t_times(q, b, fm)
+            grad = grad + jacobian_t_times(q, b, fm, np.array([hor, 0.0, vert]))  # source: [b_x, 0, b_z]
         return grad, res
 
     def correct(self, estimator, est_state, state, sample, flags) -> Correction:
@@ -222,9 +240,9 @@ class GradientCorrector(Corrector):
 # ---- the kernel (GradientCorrector.correct with scalars) --------------------------------------
 
 @njit
-def _jt_f(q0, q1, q2, q3, d0, d1, d2, s0, s1, s2):
+def _jt_f(q0, q1, q2, q3, d0, d1, d2, s0, s1, s2, c0, c1, c2):
     """``(J^T f, |f|^2)`` as five scalars, ``f = R(q)^T d - s`` (:func:`objective`,
-    :func:`jacobian_t_times`)."""
+    :func:`jacobian_t_times`; ``c``: ``d`` in the source's frame)."""
     w, x, y, z = q0, q1, q2, q3
     f0 = (1 - 2 * (y * y + z * z)) * d0 + 2 * (x * y + w * z) * d1 + 2 * (x * z - w * y) * d2 - s0
     f1 = 2 * (x * y - w * z) * d0 + (1 - 2 * (x * x + z * z)) * d1 + 2 * (y * z + w * x) * d2 - s1
@@ -232,8 +250,9 @@ def _jt_f(q0, q1, q2, q3, d0, d1, d2, s0, s1, s2):
     j00, j01, j02, j03 = z * d1 - y * d2, y * d1 + z * d2, -2 * y * d0 + x * d1 - w * d2, -2 * z * d0 + w * d1 + x * d2
     j10, j11, j12, j13 = -z * d0 + x * d2, y * d0 - 2 * x * d1 + w * d2, x * d0 + z * d2, -w * d0 - 2 * z * d1 + y * d2
     j20, j21, j22, j23 = y * d0 - x * d1, z * d0 - w * d1 - 2 * x * d2, w * d0 + z * d1 - 2 * y * d2, x * d0 + y * d1
-    return (2.0 * (j00 * f0 + j10 * f1 + j20 * f2), 2.0 * (j01 * f0 + j11 * f1 + j21 * f2),
-            2.0 * (j02 * f0 + j12 * f1 + j22 * f2), 2.0 * (j03 * f0 + j13 * f1 + j23 * f2),
+    k = 2.0 * ((d0 - c0) * f0 + (d1 - c1) * f1 + (d2 - c2) * f2)  # the source frame's gradient (0: it is this one)
+    return (2.0 * (j00 * f0 + j10 * f1 + j20 * f2) + k * w, 2.0 * (j01 * f0 + j11 * f1 + j21 * f2) + k * x,
+            2.0 * (j02 * f0 + j12 * f1 + j22 * f2) + k * y, 2.0 * (j03 * f0 + j13 * f1 + j23 * f2) + k * z,
             f0 * f0 + f1 * f1 + f2 * f2)
 
 
@@ -241,7 +260,7 @@ def _jt_f(q0, q1, q2, q3, d0, d1, d2, s0, s1, s2):
 def _gradient_at(q0, q1, q2, q3, s, ax, ay, az, has_m, mx, my, mz):
     """:meth:`GradientCorrector.gradient`: ``(grad0..3, accelerometer residual squared)``."""
     u0, u1, u2 = s[_UP], s[_UP + 1], s[_UP + 2]
-    e0, e1, e2, e3, res2 = _jt_f(q0, q1, q2, q3, u0, u1, u2, ax, ay, az)
+    e0, e1, e2, e3, res2 = _jt_f(q0, q1, q2, q3, u0, u1, u2, ax, ay, az, 0.0, 0.0, 1.0)
     if has_m:
         w, x, y, z = q0, q1, q2, q3
         h0 = (1 - 2 * (y * y + z * z)) * mx + 2 * (x * y - w * z) * my + 2 * (x * z + w * y) * mz
@@ -251,7 +270,7 @@ def _gradient_at(q0, q1, q2, q3, s, ax, ay, az, has_m, mx, my, mz):
         v0, v1, v2 = h0 - vert * u0, h1 - vert * u1, h2 - vert * u2
         hor = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
         k0, k1, k2, k3, _ = _jt_f(q0, q1, q2, q3, hor * s[_N] + vert * u0, hor * s[_N + 1] + vert * u1,
-                                  hor * s[_N + 2] + vert * u2, mx, my, mz)
+                                  hor * s[_N + 2] + vert * u2, mx, my, mz, hor, 0.0, vert)
         e0, e1, e2, e3 = e0 + k0, e1 + k1, e2 + k2, e3 + k3
     return e0, e1, e2, e3, res2
 
