@@ -89,18 +89,43 @@ def test_look_alike_filters_get_different_colours_and_lines():
 
 
 def test_throughput_chart_is_linear_coloured_by_library_with_values():
-    from fusionkit.benchmarking.plots import _plt, library, throughput_bars
+    from fusionkit.benchmarking.plots import _figure, library, throughput_bars
 
-    plt = _plt()
-    fig, ax = plt.subplots()
+    ax = _figure().subplots()
     throughput_bars(ax, ["recommended", "vqf", "ekf"], [5e6, 2.5e6, 2e3], ["numba", "peer:vqf 2.1.2", "reference"])
     assert ax.get_xscale() == "linear"
     assert {t.get_text() for t in ax.texts} == {"5,000,000", "2,500,000", "2,000"}
     colours = [tuple(p.get_facecolor()) for p in ax.patches]
     assert len(set(colours)) == 3  # three libraries
     assert [t.get_text() for t in ax.get_legend().get_texts()] == ["fusionkit", "vqf", "fusionkit (Python reference)"]
-    plt.close(fig)
     assert library("peer:ahrs 0.4.0") == "ahrs" and library("numba") == "fusionkit"
+
+
+def test_plots_leave_the_users_matplotlib_backend_alone(tmp_path):
+    """Drawing a plot does not switch matplotlib's backend: ``matplotlib.use("Agg")`` in every plot
+    switched a notebook's (or a GUI's) backend for the rest of the session. The figure is drawn
+    without pyplot, so nothing is left open in pyplot either."""
+    matplotlib = pytest.importorskip("matplotlib")
+    from fusionkit.benchmarking.plots import plot_throughput
+
+    class Result:  # what plot_throughput reads of a BenchResult
+        records = [{"filter": "poisson", "backend": "numba"}, {"filter": "vqf", "backend": "peer:vqf 2.1.2"}]
+
+        def summary(self):
+            return [{"filter": "poisson", "samples_per_s": 2e6}, {"filter": "vqf", "samples_per_s": 1e6}]
+
+    before = matplotlib.get_backend()
+    pyplot = __import__("sys").modules.get("matplotlib.pyplot")
+    open_before = pyplot.get_fignums() if pyplot else []
+    matplotlib.use("svg")  # the user's choice (a non-interactive one: the tests run headless)
+    try:
+        path = plot_throughput(Result(), tmp_path / "t.png")
+        assert matplotlib.get_backend() == "svg"
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the file's format, whatever the backend
+        pyplot = __import__("sys").modules.get("matplotlib.pyplot")
+        assert (pyplot.get_fignums() if pyplot else []) == open_before
+    finally:
+        matplotlib.use(before)
 
 
 def test_readme_streaming_snippet_works_with_timestamps():

@@ -20,15 +20,24 @@ LIBRARY_COLOURS = {"fusionkit": "#1f77b4", "fusionkit (Python reference)": "#aec
                    "imufusion": "#2ca02c", "ahrs": "#ff7f0e"}
 
 
-def _plt():
+def require_matplotlib() -> None:
+    """A ConfigError saying how to install matplotlib when it is missing: called by what draws,
+    and by ``fusionkit bench --plots`` before the benchmark runs (it failed after the whole run)."""
     try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        import matplotlib  # noqa: F401
     except ImportError as exc:
         raise ConfigError("plots need matplotlib: pip install 'fusionkit[plot]'") from exc
-    return plt
+
+
+def _figure(**kwargs):
+    """A new ``matplotlib.figure.Figure``, drawn and saved without pyplot: the user's backend (a
+    notebook's inline or a GUI one) stays as it was (``matplotlib.use("Agg")`` switched it for
+    the whole session), no window opens, and nothing is left in pyplot's figure list to close.
+    ``Figure.savefig`` picks the canvas for the file's format itself, so it works headless."""
+    require_matplotlib()
+    from matplotlib.figure import Figure
+
+    return Figure(**kwargs)
 
 
 def filter_styles(names) -> dict[str, dict]:
@@ -84,9 +93,9 @@ def plot_error_over_time(filters, trial, path, max_points: int = 4000) -> Path:
     from .report import aiding, not_applicable
     from .runner import FilterSpec
 
-    plt = _plt()
+    fig = _figure(figsize=(10, 7))
     rec = trial.load()
-    fig, axes = plt.subplots(2, 1, figsize=(10, 7), sharex=True)
+    axes = fig.subplots(2, 1, sharex=True)
     t = rec.time
     step = max(1, len(t) // max_points)
     specs = [FilterSpec.of(item) for item in filters]
@@ -114,7 +123,6 @@ def plot_error_over_time(filters, trial, path, max_points: int = 4000) -> Path:
     axes[-1].set_xlabel("time [s]")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return Path(path)
 
 
@@ -123,13 +131,12 @@ def plot_by_group(result, path, metric: str | None = None) -> Path:
     table's order (inclination for every filter, total for the 9D ones), never mixed."""
     from .report import metric_label
 
-    plt = _plt()
     metrics = result.metrics() if metric is None else [metric]
     groups = list(dict.fromkeys(g for r in result.records for g in (r["groups"] or ["all"])))
     style = filter_styles(result.filters)
     x = np.arange(len(groups))
-    fig, axes = plt.subplots(len(metrics), 1, figsize=(max(8, len(groups) * 0.9) + 3, 4.2 * len(metrics)),
-                             squeeze=False)
+    fig = _figure(figsize=(max(8, len(groups) * 0.9) + 3, 4.2 * len(metrics)))
+    axes = fig.subplots(len(metrics), 1, squeeze=False)
     for ax, m in zip(axes[:, 0], metrics):
         bg, na = result.by_group(m), result.not_applicable(m)
         filters = [f for f in result.filters if f not in na]
@@ -145,25 +152,23 @@ def plot_by_group(result, path, metric: str | None = None) -> Path:
         ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return Path(path)
 
 
 def plot_throughput(result, path) -> Path:
     """Median samples/s per filter, coloured by library, linear axis with the values written."""
-    plt = _plt()
     rows = result.summary()
     backend = {}
     for r in result.records:
         backend.setdefault(r["filter"], r["backend"])
     rows = sorted((r for r in rows if np.isfinite(r["samples_per_s"])), key=lambda r: -r["samples_per_s"])
-    fig, ax = plt.subplots(figsize=(10, 0.4 * len(rows) + 1.5))
+    fig = _figure(figsize=(10, 0.4 * len(rows) + 1.5))
+    ax = fig.subplots()
     throughput_bars(ax, [r["filter"] for r in rows], [r["samples_per_s"] for r in rows],
                     [backend.get(r["filter"]) for r in rows])
     ax.set_title("samples/s (median over trials, one core, compile excluded)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return Path(path)
 
 
