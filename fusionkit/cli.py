@@ -142,6 +142,26 @@ def _check_output(path: str) -> None:
         raise FusionkitError(f"cannot write {path}: folder {parent} is not writable")
 
 
+def _check_plot_folder(path: str) -> None:
+    """Fail before the benchmark when ``--plots`` cannot be written: matplotlib missing (the whole
+    run ended in an error, the folder empty), ``path`` a file, or a folder that cannot be written
+    (missing folders are made, as :func:`~fusionkit.benchmarking.plots.write_plots` does)."""
+    import os
+
+    from .benchmarking.plots import require_matplotlib
+
+    try:
+        require_matplotlib()
+    except FusionkitError as exc:
+        raise FusionkitError(f"--plots {path}: {exc} (or leave out --plots)") from None
+    folder = Path(path).expanduser().resolve()
+    existing = next(p for p in (folder, *folder.parents) if p.exists())  # missing folders are made
+    if not existing.is_dir():
+        raise FusionkitError(f"cannot write plots into {path}: {existing} is a file; give a folder")
+    if not os.access(existing, os.W_OK):
+        raise FusionkitError(f"cannot write plots into {path}: folder {existing} is not writable")
+
+
 #: what a recording takes, not a filter: ``--param acc_unit=g`` named no option that works
 _INPUT_OPTIONS = {"rate": "--rate", "gyr_unit": "--gyr-unit", "acc_unit": "--acc-unit"}
 
@@ -232,6 +252,8 @@ def cmd_bench(args) -> int:
 
     if args.output:
         _check_output(args.output)
+    if args.plots:
+        _check_plot_folder(args.plots)
     filters = [f for f in args.filters.split(",") if f]
     trials = [t for t in args.trials.split(",") if t] if args.trials else None
     res = bench(filters, args.data, trials=trials, params=_flat_params(args.param), jobs=args.jobs,
