@@ -128,8 +128,10 @@ def plot_error_over_time(filters, trial, path, max_points: int = 4000) -> Path:
 
 def plot_by_group(result, path, metric: str | None = None) -> Path:
     """Bar charts of the mean error per group, one bar per filter: one panel per metric in the
-    table's order (inclination for every filter, total for the 9D ones), never mixed."""
-    from .report import metric_label
+    table's order (inclination for every filter, total for the 9D ones), never mixed. A linear
+    axis from 0 with each value written on its bar, as the throughput chart: on a log axis with
+    an automatic lower limit 1.17 deg looked ten times smaller than 1.74 deg."""
+    from .report import metric_label, metric_unit
 
     metrics = result.metrics() if metric is None else [metric]
     groups = list(dict.fromkeys(g for r in result.records for g in (r["groups"] or ["all"])))
@@ -141,14 +143,20 @@ def plot_by_group(result, path, metric: str | None = None) -> Path:
         bg, na = result.by_group(m), result.not_applicable(m)
         filters = [f for f in result.filters if f not in na]
         w = 0.8 / max(1, len(filters))
+        upright = len(filters) * len(groups) > 12  # narrow bars: the values written upwards
+        top = 0.0
         for i, f in enumerate(filters):
-            ax.bar(x + i * w, [bg.get(f, {}).get(g, np.nan) for g in groups], w, label=f, color=style[f]["color"])
+            values = [bg.get(f, {}).get(g, np.nan) for g in groups]
+            bars = ax.bar(x + i * w, values, w, label=f, color=style[f]["color"])
+            ax.bar_label(bars, labels=[f"{v:.2f}" if np.isfinite(v) else "" for v in values], fontsize=7,
+                         padding=2, rotation=90 if upright else 0)
+            top = max([top] + [v for v in values if np.isfinite(v)])
+        ax.set_ylim(0, (1.3 if upright else 1.15) * top if top > 0 else 1.0)
         ax.set_xticks(x + 0.4 - w / 2)
         ax.set_xticklabels(groups, rotation=35, ha="right")
         ax.set_title(metric_label(m), fontsize=10)
-        ax.set_ylabel("RMSE [deg]")
-        ax.set_yscale("log")  # errors span two decades; a linear axis hides the differences among good filters
-        ax.grid(axis="y", which="both", alpha=0.3)
+        ax.set_ylabel(f"RMSE [{metric_unit(m)}]")
+        ax.grid(axis="y", alpha=0.3)
         ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
