@@ -33,11 +33,15 @@ def _parse_params(items: list[str]) -> dict:
 
 
 def _build_filter(spec: str, params: dict):
+    """The filter ``spec`` names: a registered filter, else a config file (.toml or .json in any
+    case; a name that looks like a file, with a suffix or a folder, but is none of these is an
+    error naming the file: ``GD.TOML`` was "unknown plugin 'GD.TOML'")."""
     from . import compose, make
-    from .config import load_config
+    from .config import config_file, load_config
+    from .registry import default_registry
 
-    p = Path(spec)
-    if p.suffix in (".toml", ".json"):
+    p = None if spec in default_registry().names("filter") else config_file(spec)
+    if p is not None:
         cfg = _merge(load_config(p), params)
         if "filter" in cfg:  # {"filter": "poisson", "params": {...}}: other keys are parameters too
             name, fparams = cfg.pop("filter"), cfg.pop("params", {})

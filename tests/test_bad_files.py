@@ -147,6 +147,37 @@ def test_config_strings_and_names():
         fk.compose({"estimator": "poisson-quat", "name": "x"})
 
 
+def test_a_config_file_name_in_another_case_or_with_another_suffix(tmp_path, monkeypatch, capsys):
+    """A config file's suffix is read in any case (``GD.TOML`` was parsed as TOML text: "Invalid
+    statement"; ``fusionkit run GD.TOML`` said "unknown plugin 'GD.TOML'"), and a name that looks
+    like a file but is missing or not .toml/.json is an error naming it and the suffixes read
+    (``nosuch.yaml`` was "not valid TOML: Expected '='")."""
+    import fusionkit.cli as cli
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "GD.TOML").write_text('[estimator]\nname = "poisson-dcm"\n[alignment]\nmode = "fixed"\n')
+    (tmp_path / "gd.Json").write_text(json.dumps({"estimator": "poisson-dcm", "alignment": {"mode": "fixed"}}))
+    (tmp_path / "gd.yaml").write_text("estimator: poisson-dcm\n")
+    (tmp_path / "gd").write_text('estimator = "poisson-dcm"\n')
+    for src in ("GD.TOML", tmp_path / "GD.TOML", "gd.Json", "./gd.Json"):
+        assert fk.compose(src).config.estimator.name == "poisson-dcm", src
+    assert cli._build_filter("GD.TOML", {}).config.estimator.name == "poisson-dcm"
+    formats = r"fusionkit reads TOML \(\.toml\) and JSON \(\.json\) config files"
+    for src, message in (("nosuch.yaml", rf"config file 'nosuch.yaml' does not exist; {formats}"),
+                         ("nosuch.TOML", r"config file 'nosuch.TOML' does not exist$"),
+                         ("gd.yaml", rf"config file 'gd.yaml' has the suffix '.yaml': {formats}"),
+                         ("gd", rf"config file 'gd' has no suffix: {formats}"),
+                         ("conf/pipeline", r"config file 'conf/pipeline' does not exist"),
+                         (tmp_path, r"is a folder, not a config file")):
+        with pytest.raises(ConfigError, match=message):
+            fk.compose(src)
+        if isinstance(src, str):
+            assert main(["run", src, "sim:slow-rotation", "-o", str(tmp_path / "o.csv")]) == 2
+            err = capsys.readouterr().err
+            assert len(err.strip().splitlines()) == 1 and f"config file '{src}'" in err, err
+    assert load_config('estimator = "poisson.dcm"') == {"estimator": "poisson.dcm"}  # one line of TOML: text
+
+
 def test_too_many_correctors_run_the_reference_path_or_refuse_numba():
     rec = sim.simulate([sim.Rest(0.5)], rate=100.0, seed=2)
     f = fk.compose({"estimator": "poisson-quat", "alignment": {"mode": "fixed", "duration": 0.1},
