@@ -107,6 +107,20 @@ def test_a_detector_has_no_runnable_config(capsys):
     assert "only filters" in capsys.readouterr().err
 
 
+def test_compose_says_a_monolithic_filters_config_is_for_make(tmp_path):
+    """``fk.compose(fk.describe("ekf").config())`` was pydantic's "estimator: Field required ...
+    filter: unknown parameter": now a ConfigError saying what the config is and to use make."""
+    cfg = fk.describe("ekf").config()
+    path = tmp_path / "ekf.json"
+    path.write_text(json.dumps(cfg))
+    for src in (cfg, path):
+        with pytest.raises(fk.ConfigError, match=r"a monolithic filter's config \(\{'filter': 'ekf'.*build this filter "
+                           r"with fk.make\('ekf', \*\*params\)") as exc:
+            fk.compose(src)
+        assert "Field required" not in str(exc.value)
+    assert isinstance(fk.make("ekf", **cfg["params"]), fk.Filter)  # what the message says works
+
+
 def test_toml_writer_round_trips_and_says_where_null_was():
     cfg = {"a": 1, "b": None, "c": {"d": [1.0, float("inf")], "e": "x\"y"}, "f": [{"name": "n", "params": {}}]}
     text = to_toml(cfg)
