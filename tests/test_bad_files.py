@@ -86,6 +86,15 @@ def test_a_bad_recording_is_an_input_error_naming_the_file(case, tmp_path, csv_l
         fk.load(path)
 
 
+def test_load_names_its_argument_when_it_is_no_path():
+    """``fk.load(42)`` and ``fk.load(None)`` were pathlib's TypeError ("expected str, bytes or
+    os.PathLike object")."""
+    for bad, what in ((42, "int 42"), (None, "NoneType None"), (b"x.csv", "bytes b'x.csv'")):
+        with pytest.raises(InputError, match=rf"path must be a file name \(str or pathlib.Path\) or 'sim:NAME', "
+                                             rf"got {what}"):
+            fk.load(bad)
+
+
 def test_a_broken_trials_json_is_an_input_error(tmp_path):
     from fusionkit.benchmarking import discover
 
