@@ -195,7 +195,7 @@ def cmd_run(args) -> int:
         from .benchmarking.report import aiding, not_applicable
 
         kind = aiding(f, rec)
-        na = not_applicable(kind, gnss_heading=bool(getattr(f, "requires_gnss", False)))
+        na = not_applicable(kind, gnss_heading=bool(getattr(f, "requires_gnss", False)), rec=rec)
         e = rms_errors(res, rec)
         over = "the movement samples" if rec.movement is not None else "all samples"
         none = f"no finite reference sample among {over}"  # (NaN rows: samples without one; it printed "nan deg")

@@ -99,7 +99,10 @@ def test_a_preset_with_one_plugin_changed(rec, capsys, tmp_path):
 def test_describe_shows_the_composition(capsys):
     out = _describe(capsys, "gradient-descent")
     assert "composition" in out and "estimator: poisson-quat" in out and "correctors: gradient-descent" in out
+    assert "    alignment: fixed (3.0 s, heading auto)\n" in out
     assert "composition" not in _describe(capsys, "rest", "--kind", "detector")
+    # an alignment that is off has no duration nor heading (it printed "none (10.0 s, heading zero)")
+    assert "    alignment: none\n" in _describe(capsys, "recommended")
 
 
 def test_a_detector_has_no_runnable_config(capsys):

@@ -157,6 +157,26 @@ def test_group_bars_are_linear_from_zero_with_values(tmp_path, monkeypatch):
     assert (tmp_path / "g.png").stat().st_size > 5000
 
 
+def test_a_6d_reason_says_what_is_true_of_the_recording(capsys, tmp_path):
+    """"6D: no magnetometer, heading unobservable" was printed for a 6D filter on a recording that has
+    one: the reason now tells a filter that does not read it from a recording without one."""
+    import dataclasses
+
+    from fusionkit.benchmarking.report import not_applicable
+    from fusionkit.cli import main
+
+    rec = sim.demo_recordings()[0].slice(0, 10)
+    six = fk.make("recommended", use_mag=False)
+    cases = ((rec, "6D: the filter does not read the magnetometer, heading unobservable"),
+             (dataclasses.replace(rec, mag=None), "6D: no magnetometer in the recording, heading unobservable"))
+    for r, why in cases:
+        assert not_applicable(six.aiding(r), rec=r) == {"total": why, "heading": why}
+    assert not_applicable("6D")["total"] == "6D: no magnetometer used, heading unobservable"  # recording unknown
+    assert not_applicable("9D", rec=rec) == {} and "gyro-only" in not_applicable("gyro-only", rec=rec)["total"]
+    assert main(["run", "gst", "sim:slow-rotation", "-o", str(tmp_path / "o.csv"), "--backend", "reference"]) == 0
+    assert "total n/a (6D: the filter does not read the magnetometer" in capsys.readouterr().out
+
+
 def test_readme_streaming_snippet_works_with_timestamps():
     """The README's streaming loop, run as written on a recording with ``t`` (no ``rate``)."""
     text = (REPO / "README.md").read_text()

@@ -105,7 +105,7 @@ def plot_error_over_time(filters, trial, path, max_points: int = 4000) -> Path:
         res = f.run(rec, progress=False)
         e = truth_errors(res.quat, res.frame, rec)
         for ax, m in zip(axes, ("inclination", "total")):
-            if m not in not_applicable(aiding(f, rec), gnss_heading=bool(f.requires_gnss)):
+            if m not in not_applicable(aiding(f, rec), gnss_heading=bool(f.requires_gnss), rec=rec):
                 ax.plot(t[::step], e[m][::step], lw=1, label=spec.label, **style[spec.label])
     for ax, title in zip(axes, ("inclination error (the tilt part), every filter",
                                 "total error (the whole rotation), 9D filters only")):
