@@ -99,6 +99,16 @@ class PluginInfo:
         return "\n".join(lines)
 
 
+#: where a plugin of each kind goes: "unknown corrector plugin 'rest'" did not say that 'rest' is a detector
+_PLACE = {
+    "filter": "{name!r} is a filter, not a part of a composition: build it with make({name!r})",
+    "estimator": "{name!r} is an estimator: give it as a composition's estimator",
+    "corrector": "{name!r} is a corrector: in a composition list it under correctors",
+    "detector": "{name!r} is a detector: in a composition list it under detectors",
+    "model": "{name!r} is a sensor model: in a composition list it under models",
+}
+
+
 def _spec_text(spec: dict[str, Any]) -> str:
     params = ", ".join(f"{k}={v!r}" for k, v in spec.get("params", {}).items())
     return f"{spec['name']}({params})" if params else spec["name"]
@@ -214,6 +224,10 @@ class Registry:
         close = difflib.get_close_matches(name, pool, n=4, cutoff=0.5)
         hint = f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
         where = f"{kind} " if kind else ""
+        if kind is not None:  # a plugin of another kind in the wrong list: say what it is and where it goes
+            other = [_PLACE[k].format(name=name) for k in KINDS if k != kind and name in entries[k]]
+            if other:
+                hint = f" ({'; '.join(other)}){hint}"
         if not any(entries.values()):
             hint += " (no plugins are registered at all: is fusionkit installed, e.g. `pip install -e .`?)"
         end = "" if close else "."  # (without a suggestion it read "unknown plugin 'nosuch' Known: ...")

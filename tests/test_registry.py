@@ -72,6 +72,24 @@ def test_unknown_names_list_close_matches():
         fk.make("moton", kind="detector")
 
 
+def test_a_plugin_in_the_wrong_list_is_named_with_its_kind():
+    """"rest" under correctors said "unknown corrector plugin 'rest'; did you mean 'rest-bias'" without
+    saying that 'rest' is a registered detector (likewise a corrector given as the estimator)."""
+    base = {"estimator": "poisson-quat", "alignment": {"mode": "fixed"}}
+    for cfg, message in (
+            ({**base, "correctors": ["rest"]}, r"unknown corrector plugin 'rest' \('rest' is a detector: in a "
+                                               r"composition list it under detectors\); did you mean 'rest-bias'"),
+            ({**base, "estimator": {"name": "dcm-vertical"}}, r"unknown estimator plugin 'dcm-vertical' \('dcm-vertical'"
+                                                              r" is a corrector: in a composition list it under correctors"),
+            ({**base, "detectors": ["calibration"]}, r"'calibration' is a sensor model: .* list it under models"),
+            ({**base, "estimator": "poisson"}, r"'poisson' is a filter, not a part of a composition: build it with "
+                                               r"make\('poisson'\)")):
+        with pytest.raises(PluginError, match=message):
+            fk.compose(cfg)
+    with pytest.raises(PluginError, match=r"unknown detector plugin 'moton'; did you mean"):  # no kind has it
+        fk.make("moton", kind="detector")
+
+
 def test_a_name_or_kind_that_is_not_a_string_is_named():
     """Before: difflib's TypeError from the close-match hint, and AttributeError ``endswith`` for the
     parameters passed as a dict where the kind goes."""
