@@ -42,6 +42,29 @@ class _Entry:
     error: str | None = None
 
 
+def _same_class(a: _Entry, b: _Entry) -> bool:
+    """Whether two entries of one name, one of them a class registered in code, are the same class:
+    the other names the same ``module:class``, or is an entry point that loads to it. Registering a
+    class that an installed entry point also finds made its name a "duplicate" and unusable; a
+    different class under the name stays an error. Entry points alone are not loaded here."""
+    coded = [e for e in (a, b) if e.cls is not None and e.loader is None and e.error is None]
+    if not coded:
+        return False
+    other = b if coded[0] is a else a
+    if other.error is not None:
+        return False
+    if other.cls is not None:
+        return other.cls is coded[0].cls
+    if other.target == coded[0].target:
+        return True
+    try:
+        return other.loader.load() is coded[0].cls
+    except KeyboardInterrupt:
+        raise
+    except BaseException:  # a module that fails to import is not this class (its error shows when it is used)
+        return False
+
+
 def _where(e: _Entry) -> str:
     """``module:attr from distribution`` (a name clash's entry already names all of its plugins)."""
     return e.target if e.error else f"{e.target} from {e.distribution}"
@@ -153,6 +176,11 @@ class Registry:
             other = entries[e.kind].get(e.name)
             if other is None or (other.target, other.distribution) == (e.target, e.distribution):
                 entries[e.kind][e.name] = e
+                continue
+            if _same_class(other, e):  # a class registered in code that an entry point names too: one plugin
+                keep = e if other.loader is None else other  # the entry point's: it names the distribution
+                keep.cls = keep.cls or other.cls or e.cls
+                entries[e.kind][e.name] = keep
                 continue
             if BUILTIN in (other.distribution, e.distribution) and other.distribution != e.distribution:
                 builtin, shadowed = (other, e) if other.distribution == BUILTIN else (e, other)

@@ -295,6 +295,42 @@ def test_cli_list_reports_a_duplicate_and_a_plugin_that_exits(on_path, capsys):
     assert re.search(r"filter\s+poisson\s+\[fusionkit\]", out)
 
 
+def test_registering_a_class_an_entry_point_also_names_is_one_plugin(on_path):
+    """Registering in code the class an installed entry point names (``module:class``, or an alias
+    that loads to it) made the name a "duplicate corrector name" and unusable, though it is the
+    same class; a different class under the name stays an error."""
+    import importlib
+
+    fake_distribution(on_path, "fake-same", """
+        [fusionkit.correctors]
+        same-cor = fake_same_mod:SameCor
+        alias-cor = fake_same_mod:Alias
+        """, "fake_same_mod", """
+        from fusionkit.protocols import Corrector
+
+        class SameCor(Corrector):
+            name = "same-cor"
+            mode = "rate"
+
+        class Alias(SameCor):
+            name = "alias-cor"
+
+        class Other(SameCor):
+            name = "same-cor"
+        """)
+    mod = importlib.import_module("fake_same_mod")
+    mod.Alias.__module__ = "elsewhere"  # named by another module:class than the entry point's: found by loading it
+    reg = Registry()
+    reg.register(mod.SameCor)
+    reg.register(mod.Alias)
+    assert reg.get("same-cor", "corrector") is mod.SameCor and reg.get("alias-cor", "corrector") is mod.Alias
+    assert ("corrector", "same-cor", "fake-same") in reg.info() and reg.check_all() == {} and not reg.duplicates
+    reg.register(mod.Other)  # another class under the same name: still refused, naming both
+    with pytest.raises(PluginError, match=r"duplicate corrector name 'same-cor': fake_same_mod:SameCor from fake-same "
+                                          r"and fake_same_mod:Other from <registered in code>"):
+        reg.get("same-cor", "corrector")
+
+
 def test_register_in_code():
     from fusionkit.estimators.poisson import PoissonQuat
 
