@@ -87,7 +87,7 @@ def compose(config) -> Filter:
         name = cfg["filter"]
         build = f"fk.make({name!r}, **params)" if isinstance(name, str) else "fk.make(name, **params)"
         raise ConfigError(f"this is a monolithic filter's config ({{'filter': {name!r:.40}, 'params': {{...}}}}, as "
-                          "fk.describe(name).config() gives it for a filter that is not a preset): fk.compose builds a "
-                          f"pipeline from an estimator, correctors and detectors; build this filter with {build}, params "
-                          "being its 'params' (`fusionkit run` takes either layout)")
+                          "fk.describe(name).config() gives it for a filter that is not a preset): fk.compose builds "
+                          "a pipeline from an estimator, correctors and detectors; build this filter with "
+                          f"{build}, params being its 'params' (`fusionkit run` takes either layout)")
     return Pipeline(cfg)

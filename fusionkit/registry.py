@@ -109,8 +109,8 @@ class PluginInfo:
                 if c.get(key):
                     lines.append(f"    {key}: " + ", ".join(_spec_text(x) for x in c[key]))
             al = c.get("alignment", {})  # mode 'none' starts at once, from initial_quat: no duration, no heading
-            lines.append(f"    alignment: {al.get('mode')}" + ("" if al.get("mode") == "none" else
-                                                               f" ({al.get('duration')} s, heading {al.get('heading')})"))
+            timing = "" if al.get("mode") == "none" else f" ({al.get('duration')} s, heading {al.get('heading')})"
+            lines.append(f"    alignment: {al.get('mode')}{timing}")
         if self.parameters:
             lines.append("  parameters:")
             for p in self.parameters:

@@ -79,8 +79,9 @@ def test_a_plugin_in_the_wrong_list_is_named_with_its_kind():
     for cfg, message in (
             ({**base, "correctors": ["rest"]}, r"unknown corrector plugin 'rest' \('rest' is a detector: in a "
                                                r"composition list it under detectors\); did you mean 'rest-bias'"),
-            ({**base, "estimator": {"name": "dcm-vertical"}}, r"unknown estimator plugin 'dcm-vertical' \('dcm-vertical'"
-                                                              r" is a corrector: in a composition list it under correctors"),
+            ({**base, "estimator": {"name": "dcm-vertical"}},
+             r"unknown estimator plugin 'dcm-vertical' \('dcm-vertical' is a corrector: in a composition list it "
+             r"under correctors"),
             ({**base, "detectors": ["calibration"]}, r"'calibration' is a sensor model: .* list it under models"),
             ({**base, "estimator": "poisson"}, r"'poisson' is a filter, not a part of a composition: build it with "
                                                r"make\('poisson'\)")):
