@@ -75,7 +75,19 @@ def bench(filters, data, **kwargs):
 
 
 def compose(config) -> Filter:
-    """Build a :class:`~fusionkit.pipeline.Pipeline` from a dict, a JSON/TOML file or string."""
+    """Build a :class:`~fusionkit.pipeline.Pipeline` from a dict, a JSON/TOML file or string.
+
+    A monolithic filter's config (``{"filter": "ekf", "params": {...}}``, what ``describe("ekf")
+    .config()`` gives) is a ConfigError saying to use :func:`make`: pydantic's "estimator: Field
+    required ... filter: unknown parameter" did not say what the dict was."""
     from .pipeline import Pipeline
 
-    return Pipeline(load_config(config))
+    cfg = load_config(config)
+    if "filter" in cfg:
+        name = cfg["filter"]
+        build = f"fk.make({name!r}, **params)" if isinstance(name, str) else "fk.make(name, **params)"
+        raise ConfigError(f"this is a monolithic filter's config ({{'filter': {name!r:.40}, 'params': {{...}}}}, as "
+                          "fk.describe(name).config() gives it for a filter that is not a preset): fk.compose builds "
+                          "a pipeline from an estimator, correctors and detectors; build this filter with "
+                          f"{build}, params being its 'params' (`fusionkit run` takes either layout)")
+    return Pipeline(cfg)

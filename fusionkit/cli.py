@@ -33,11 +33,15 @@ def _parse_params(items: list[str]) -> dict:
 
 
 def _build_filter(spec: str, params: dict):
+    """The filter ``spec`` names: a registered filter, else a config file (.toml or .json in any
+    case; a name that looks like a file, with a suffix or a folder, but is none of these is an
+    error naming the file: ``GD.TOML`` was "unknown plugin 'GD.TOML'")."""
     from . import compose, make
-    from .config import load_config
+    from .config import config_file, load_config
+    from .registry import default_registry
 
-    p = Path(spec)
-    if p.suffix in (".toml", ".json"):
+    p = None if spec in default_registry().names("filter") else config_file(spec)
+    if p is not None:
         cfg = _merge(load_config(p), params)
         if "filter" in cfg:  # {"filter": "poisson", "params": {...}}: other keys are parameters too
             name, fparams = cfg.pop("filter"), cfg.pop("params", {})
@@ -142,6 +146,26 @@ def _check_output(path: str) -> None:
         raise FusionkitError(f"cannot write {path}: folder {parent} is not writable")
 
 
+def _check_plot_folder(path: str) -> None:
+    """Fail before the benchmark when ``--plots`` cannot be written: matplotlib missing (the whole
+    run ended in an error, the folder empty), ``path`` a file, or a folder that cannot be written
+    (missing folders are made, as :func:`~fusionkit.benchmarking.plots.write_plots` does)."""
+    import os
+
+    from .benchmarking.plots import require_matplotlib
+
+    try:
+        require_matplotlib()
+    except FusionkitError as exc:
+        raise FusionkitError(f"--plots {path}: {exc} (or leave out --plots)") from None
+    folder = Path(path).expanduser().resolve()
+    existing = next(p for p in (folder, *folder.parents) if p.exists())  # missing folders are made
+    if not existing.is_dir():
+        raise FusionkitError(f"cannot write plots into {path}: {existing} is a file; give a folder")
+    if not os.access(existing, os.W_OK):
+        raise FusionkitError(f"cannot write plots into {path}: folder {existing} is not writable")
+
+
 #: what a recording takes, not a filter: ``--param acc_unit=g`` named no option that works
 _INPUT_OPTIONS = {"rate": "--rate", "gyr_unit": "--gyr-unit", "acc_unit": "--acc-unit"}
 
@@ -171,7 +195,7 @@ def cmd_run(args) -> int:
         from .benchmarking.report import aiding, not_applicable
 
         kind = aiding(f, rec)
-        na = not_applicable(kind, gnss_heading=bool(getattr(f, "requires_gnss", False)))
+        na = not_applicable(kind, gnss_heading=bool(getattr(f, "requires_gnss", False)), rec=rec)
         e = rms_errors(res, rec)
         over = "the movement samples" if rec.movement is not None else "all samples"
         none = f"no finite reference sample among {over}"  # (NaN rows: samples without one; it printed "nan deg")
@@ -232,6 +256,8 @@ def cmd_bench(args) -> int:
 
     if args.output:
         _check_output(args.output)
+    if args.plots:
+        _check_plot_folder(args.plots)
     filters = [f for f in args.filters.split(",") if f]
     trials = [t for t in args.trials.split(",") if t] if args.trials else None
     res = bench(filters, args.data, trials=trials, params=_flat_params(args.param), jobs=args.jobs,

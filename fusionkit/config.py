@@ -9,6 +9,7 @@ with pydantic's message (which names the field, the value and the rule).
 from __future__ import annotations
 
 import json
+import os
 import reprlib
 import types
 import typing
@@ -32,6 +33,8 @@ __all__ = [
     "param",
     "build_config",
     "load_config",
+    "config_file",
+    "CONFIG_SUFFIXES",
     "describe_config",
     "set_dotted",
 ]
@@ -260,23 +263,71 @@ def build_config(cls: type[PluginConfig], config: Any = None, params: Mapping[st
 MAX_CONFIG_DEPTH = 32
 
 
+#: the suffixes of the config files :func:`load_config` reads, in any case (``GD.TOML``)
+CONFIG_SUFFIXES = (".toml", ".json")
+
+
+def _looks_like_path(text: str) -> bool:
+    """Whether a string given as a config names a file rather than holding config text: one line,
+    not JSON (``{``, ``[``), a TOML table or comment, nor a ``key = value`` line, and it names an
+    existing file, has a path separator or has a suffix. Such a string can never be a valid config
+    text, so reading it as one only gave "not valid TOML" for a file name."""
+    t = text.strip()
+    if not t or "\n" in text or t[0] in "{[#" or "=" in t:
+        return False
+    p = Path(t)
+    try:
+        if p.expanduser().is_file():
+            return True
+    except (OSError, ValueError):  # a name too long, a NUL byte: not a file
+        return False
+    return bool(p.suffix) or any(sep and sep in t for sep in (os.sep, os.altsep, "/"))
+
+
+def config_file(source: Any) -> Path | None:
+    """The config file ``source`` names (a path, or a string that looks like one), checked: it
+    exists and has a suffix of :data:`CONFIG_SUFFIXES` (any case); None for config text or a
+    mapping. A ConfigError names the file and the suffixes read: ``GD.TOML`` and ``nosuch.yaml``
+    were read as TOML text ("Expected '=' after a key")."""
+    if isinstance(source, os.PathLike):
+        path = Path(source)
+    elif isinstance(source, str) and _looks_like_path(source):
+        path = Path(source.strip())
+    else:
+        return None
+    where = f"config file {str(path)!r}"
+    supported = path.suffix.lower() in CONFIG_SUFFIXES
+    formats = "fusionkit reads TOML (.toml) and JSON (.json) config files, the suffix in any case"
+    try:
+        exists = path.expanduser().exists()
+    except (OSError, ValueError) as exc:  # a name too long, a NUL byte
+        raise ConfigError(f"{where} cannot be read: {exc}") from None
+    if not exists:
+        raise ConfigError(f"{where} does not exist" + ("" if supported else f"; {formats}"))
+    if path.expanduser().is_dir():
+        raise ConfigError(f"{where} is a folder, not a config file")
+    if not supported:
+        what = f"has the suffix {path.suffix!r}" if path.suffix else "has no suffix"
+        raise ConfigError(f"{where} {what}: {formats}")
+    return path.expanduser()
+
+
 def load_config(source: Any) -> dict[str, Any]:
     """Read a config from a dict, a JSON or TOML file path, or a JSON/TOML string.
 
-    Anything that is not a mapping of settings (unreadable or non-UTF-8 file, a syntax error, a
-    JSON list, nesting deeper than :data:`MAX_CONFIG_DEPTH`) is a :class:`ConfigError` naming
-    the file."""
+    A path's suffix says its format (.toml or .json, any case: :func:`config_file`). Anything that
+    is not a mapping of settings (a missing or unreadable file, another suffix, non-UTF-8, a syntax
+    error, a JSON list, nesting deeper than :data:`MAX_CONFIG_DEPTH`) is a :class:`ConfigError`
+    naming the file."""
     if isinstance(source, Mapping):
         return _check_depth(dict(source), "config")
     text: str
     suffix = ""
-    if isinstance(source, Path) or (isinstance(source, str) and "\n" not in source and Path(source).suffix in (".json", ".toml")):
-        path = Path(source)
+    path = config_file(source)
+    if path is not None:
         where = f"config file {str(path)!r}"
-        if not path.is_file():
-            raise ConfigError(f"{where} does not exist")
         try:
-            text, suffix = path.read_bytes().decode("utf-8-sig"), path.suffix
+            text, suffix = path.read_bytes().decode("utf-8-sig"), path.suffix.lower()
         except UnicodeDecodeError as exc:
             raise ConfigError(f"{where} is not UTF-8 text ({exc})") from None
         except OSError as exc:

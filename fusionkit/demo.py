@@ -99,11 +99,11 @@ def plot_errors(curves, path, rows=None) -> list[str] | bool:
     1 s moving RMS), then samples/s coloured by library. Returns the panels' titles (False
     without matplotlib)."""
     try:
-        from .benchmarking.plots import _plt, filter_styles, throughput_bars
+        from .benchmarking.plots import _figure, filter_styles, throughput_bars
     except ImportError:  # pragma: no cover
         return False
     try:
-        plt = _plt()
+        fig = _figure(figsize=(13, 11))
     except FusionkitError:
         return False
     recs = list(dict.fromkeys(r for _, r in curves))
@@ -114,7 +114,6 @@ def plot_errors(curves, path, rows=None) -> list[str] | bool:
               "peers": [n for n in names if str(backend.get(n, "")).startswith("peer")]}
     groups = {g: ns for g, ns in groups.items() if ns}
     style = filter_styles(names)
-    fig = plt.figure(figsize=(13, 11))
     grid = fig.add_gridspec(3, len(groups), height_ratios=[1, 1, 1.1])
     for row, (metric, label) in enumerate((("inclination", "inclination error"), ("heading", "heading error"))):
         for col, (group, ns) in enumerate(groups.items()):
@@ -144,9 +143,7 @@ def plot_errors(curves, path, rows=None) -> list[str] | bool:
         ax.set_title("samples/s (median over the recordings; one core, compile excluded)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    titles = [ax.get_title() for ax in fig.axes]
-    plt.close(fig)
-    return titles
+    return [ax.get_title() for ax in fig.axes]
 
 
 def _moving_rms(e, t, window: float = 1.0):

@@ -68,7 +68,7 @@ import numpy as np
 from . import _loopgen
 from ._numba import HAVE_NUMBA, resolve_backend
 from .config import PipelineConfig
-from .detectors._run import run_detector
+from .detectors._run import checked_bits, run_detector
 from .detectors.gnss_gap import NO_GNSS, gnss_sample_rows
 from .errors import ConfigError, InputError, PluginError
 from .navigation.alignment import (
@@ -265,7 +265,7 @@ class Pipeline(Filter):
         crit0 = 0
         for i, det in enumerate(self.detectors):
             if gyr_ok and acc_ok:
-                bits = det.step(st["det"][i], sample)
+                bits = checked_bits(det, det.step(st["det"][i], sample))  # (a plugin's mistake, named)
                 if i == 0:
                     crit0 = bits
                 if bits:

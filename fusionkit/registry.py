@@ -42,6 +42,29 @@ class _Entry:
     error: str | None = None
 
 
+def _same_class(a: _Entry, b: _Entry) -> bool:
+    """Whether two entries of one name, one of them a class registered in code, are the same class:
+    the other names the same ``module:class``, or is an entry point that loads to it. Registering a
+    class that an installed entry point also finds made its name a "duplicate" and unusable; a
+    different class under the name stays an error. Entry points alone are not loaded here."""
+    coded = [e for e in (a, b) if e.cls is not None and e.loader is None and e.error is None]
+    if not coded:
+        return False
+    other = b if coded[0] is a else a
+    if other.error is not None:
+        return False
+    if other.cls is not None:
+        return other.cls is coded[0].cls
+    if other.target == coded[0].target:
+        return True
+    try:
+        return other.loader.load() is coded[0].cls
+    except KeyboardInterrupt:
+        raise
+    except BaseException:  # a module that fails to import is not this class (its error shows when it is used)
+        return False
+
+
 def _where(e: _Entry) -> str:
     """``module:attr from distribution`` (a name clash's entry already names all of its plugins)."""
     return e.target if e.error else f"{e.target} from {e.distribution}"
@@ -85,8 +108,9 @@ class PluginInfo:
             for key in ("models", "detectors", "correctors"):
                 if c.get(key):
                     lines.append(f"    {key}: " + ", ".join(_spec_text(x) for x in c[key]))
-            al = c.get("alignment", {})
-            lines.append(f"    alignment: {al.get('mode')} ({al.get('duration')} s, heading {al.get('heading')})")
+            al = c.get("alignment", {})  # mode 'none' starts at once, from initial_quat: no duration, no heading
+            timing = "" if al.get("mode") == "none" else f" ({al.get('duration')} s, heading {al.get('heading')})"
+            lines.append(f"    alignment: {al.get('mode')}{timing}")
         if self.parameters:
             lines.append("  parameters:")
             for p in self.parameters:
@@ -96,6 +120,16 @@ class PluginInfo:
                 if p["description"]:
                     lines.append(f"        {p['description']}")
         return "\n".join(lines)
+
+
+#: where a plugin of each kind goes: "unknown corrector plugin 'rest'" did not say that 'rest' is a detector
+_PLACE = {
+    "filter": "{name!r} is a filter, not a part of a composition: build it with make({name!r})",
+    "estimator": "{name!r} is an estimator: give it as a composition's estimator",
+    "corrector": "{name!r} is a corrector: in a composition list it under correctors",
+    "detector": "{name!r} is a detector: in a composition list it under detectors",
+    "model": "{name!r} is a sensor model: in a composition list it under models",
+}
 
 
 def _spec_text(spec: dict[str, Any]) -> str:
@@ -142,6 +176,11 @@ class Registry:
             other = entries[e.kind].get(e.name)
             if other is None or (other.target, other.distribution) == (e.target, e.distribution):
                 entries[e.kind][e.name] = e
+                continue
+            if _same_class(other, e):  # a class registered in code that an entry point names too: one plugin
+                keep = e if other.loader is None else other  # the entry point's: it names the distribution
+                keep.cls = keep.cls or other.cls or e.cls
+                entries[e.kind][e.name] = keep
                 continue
             if BUILTIN in (other.distribution, e.distribution) and other.distribution != e.distribution:
                 builtin, shadowed = (other, e) if other.distribution == BUILTIN else (e, other)
@@ -213,6 +252,10 @@ class Registry:
         close = difflib.get_close_matches(name, pool, n=4, cutoff=0.5)
         hint = f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
         where = f"{kind} " if kind else ""
+        if kind is not None:  # a plugin of another kind in the wrong list: say what it is and where it goes
+            other = [_PLACE[k].format(name=name) for k in KINDS if k != kind and name in entries[k]]
+            if other:
+                hint = f" ({'; '.join(other)}){hint}"
         if not any(entries.values()):
             hint += " (no plugins are registered at all: is fusionkit installed, e.g. `pip install -e .`?)"
         end = "" if close else "."  # (without a suggestion it read "unknown plugin 'nosuch' Known: ...")

@@ -86,6 +86,15 @@ def test_a_bad_recording_is_an_input_error_naming_the_file(case, tmp_path, csv_l
         fk.load(path)
 
 
+def test_load_names_its_argument_when_it_is_no_path():
+    """``fk.load(42)`` and ``fk.load(None)`` were pathlib's TypeError ("expected str, bytes or
+    os.PathLike object")."""
+    for bad, what in ((42, "int 42"), (None, "NoneType None"), (b"x.csv", "bytes b'x.csv'")):
+        with pytest.raises(InputError, match=rf"path must be a file name \(str or pathlib.Path\) or 'sim:NAME', "
+                                             rf"got {what}"):
+            fk.load(bad)
+
+
 def test_a_broken_trials_json_is_an_input_error(tmp_path):
     from fusionkit.benchmarking import discover
 
@@ -145,6 +154,37 @@ def test_config_strings_and_names():
         fk.make("poisson", name="x")
     with pytest.raises(ConfigError, match=r"name: unknown parameter"):
         fk.compose({"estimator": "poisson-quat", "name": "x"})
+
+
+def test_a_config_file_name_in_another_case_or_with_another_suffix(tmp_path, monkeypatch, capsys):
+    """A config file's suffix is read in any case (``GD.TOML`` was parsed as TOML text: "Invalid
+    statement"; ``fusionkit run GD.TOML`` said "unknown plugin 'GD.TOML'"), and a name that looks
+    like a file but is missing or not .toml/.json is an error naming it and the suffixes read
+    (``nosuch.yaml`` was "not valid TOML: Expected '='")."""
+    import fusionkit.cli as cli
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "GD.TOML").write_text('[estimator]\nname = "poisson-dcm"\n[alignment]\nmode = "fixed"\n')
+    (tmp_path / "gd.Json").write_text(json.dumps({"estimator": "poisson-dcm", "alignment": {"mode": "fixed"}}))
+    (tmp_path / "gd.yaml").write_text("estimator: poisson-dcm\n")
+    (tmp_path / "gd").write_text('estimator = "poisson-dcm"\n')
+    for src in ("GD.TOML", tmp_path / "GD.TOML", "gd.Json", "./gd.Json"):
+        assert fk.compose(src).config.estimator.name == "poisson-dcm", src
+    assert cli._build_filter("GD.TOML", {}).config.estimator.name == "poisson-dcm"
+    formats = r"fusionkit reads TOML \(\.toml\) and JSON \(\.json\) config files"
+    for src, message in (("nosuch.yaml", rf"config file 'nosuch.yaml' does not exist; {formats}"),
+                         ("nosuch.TOML", r"config file 'nosuch.TOML' does not exist$"),
+                         ("gd.yaml", rf"config file 'gd.yaml' has the suffix '.yaml': {formats}"),
+                         ("gd", rf"config file 'gd' has no suffix: {formats}"),
+                         ("conf/pipeline", r"config file 'conf/pipeline' does not exist"),
+                         (tmp_path, r"is a folder, not a config file")):
+        with pytest.raises(ConfigError, match=message):
+            fk.compose(src)
+        if isinstance(src, str):
+            assert main(["run", src, "sim:slow-rotation", "-o", str(tmp_path / "o.csv")]) == 2
+            err = capsys.readouterr().err
+            assert len(err.strip().splitlines()) == 1 and f"config file '{src}'" in err, err
+    assert load_config('estimator = "poisson.dcm"') == {"estimator": "poisson.dcm"}  # one line of TOML: text
 
 
 def test_too_many_correctors_run_the_reference_path_or_refuse_numba():

@@ -176,6 +176,28 @@ def test_bench_sweep_and_demo_check_their_output_before_computing(tmp_path, caps
         assert len(err.strip().splitlines()) == 1 and what in err and "png" in err, err
 
 
+def test_bench_checks_its_plots_before_computing(tmp_path, capsys, monkeypatch):
+    """``bench --plots DIR`` without matplotlib ran the whole benchmark, then ended in an error
+    (exit 2, the folder empty); a file given as the folder likewise. Now one error line before
+    anything is computed (the benchmark here would fail: it must not be reached)."""
+    import fusionkit.benchmarking
+
+    def no_compute(*a, **k):
+        raise AssertionError("computed before checking --plots")
+
+    monkeypatch.setattr(fusionkit.benchmarking, "bench", no_compute)
+    (tmp_path / "f.txt").write_text("x")
+    argv = ["bench", "--data", str(tmp_path / "none"), "--filters", "poisson", "--plots"]
+    assert main(argv + [str(tmp_path / "f.txt")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "f.txt is a file; give a folder" in err, err
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib: ImportError
+    assert main(argv + [str(tmp_path / "plots")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "plots need matplotlib: pip install 'fusionkit[plot]'" in err, err
+    assert not (tmp_path / "plots").exists()
+
+
 def test_run_takes_a_rate_for_a_csv_without_time(tmp_path, capsys):
     from fusionkit import Recording, sim
     from fusionkit.io.loaders import write_csv

@@ -99,12 +99,29 @@ def test_a_preset_with_one_plugin_changed(rec, capsys, tmp_path):
 def test_describe_shows_the_composition(capsys):
     out = _describe(capsys, "gradient-descent")
     assert "composition" in out and "estimator: poisson-quat" in out and "correctors: gradient-descent" in out
+    assert "    alignment: fixed (3.0 s, heading auto)\n" in out
     assert "composition" not in _describe(capsys, "rest", "--kind", "detector")
+    # an alignment that is off has no duration nor heading (it printed "none (10.0 s, heading zero)")
+    assert "    alignment: none\n" in _describe(capsys, "recommended")
 
 
 def test_a_detector_has_no_runnable_config(capsys):
     assert main(["describe", "rest", "--kind", "detector", "--toml"]) == 2
     assert "only filters" in capsys.readouterr().err
+
+
+def test_compose_says_a_monolithic_filters_config_is_for_make(tmp_path):
+    """``fk.compose(fk.describe("ekf").config())`` was pydantic's "estimator: Field required ...
+    filter: unknown parameter": now a ConfigError saying what the config is and to use make."""
+    cfg = fk.describe("ekf").config()
+    path = tmp_path / "ekf.json"
+    path.write_text(json.dumps(cfg))
+    for src in (cfg, path):
+        with pytest.raises(fk.ConfigError, match=r"a monolithic filter's config \(\{'filter': 'ekf'.*build this filter "
+                           r"with fk.make\('ekf', \*\*params\)") as exc:
+            fk.compose(src)
+        assert "Field required" not in str(exc.value)
+    assert isinstance(fk.make("ekf", **cfg["params"]), fk.Filter)  # what the message says works
 
 
 def test_toml_writer_round_trips_and_says_where_null_was():

@@ -119,6 +119,15 @@ def test_filterpy_shapes_are_checked():
         f._check("update")
 
 
+def test_a_state_that_is_no_array_is_an_input_error():
+    """``set_state({"a": 1})`` (a dict: another filter's state, say) was numpy's TypeError from
+    np.asarray; it says what a state is, as the pipelines do."""
+    for bad in ({"a": 1}, "state"):
+        with pytest.raises(fk.InputError, match=r"state must be Result.diagnostics\['state'\] of an earlier ekf run "
+                                                r"\(or its .state\), an array of \d+ numbers; got (dict|str)"):
+            fk.make("ekf").set_state(bad)
+
+
 def test_magnetometer_reaches_tilt_only_through_correlations():
     """A constant magnetic offset moves heading a lot and tilt only a little (the heading
     measurement's H has no tilt part; the covariance's correlations carry a small share)."""

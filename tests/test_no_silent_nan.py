@@ -10,7 +10,7 @@ import fusionkit as fk
 from fusionkit import sim
 from fusionkit.errors import InputError, PluginError
 from fusionkit.pipeline import Pipeline
-from fusionkit.protocols import Correction, Corrector
+from fusionkit.protocols import Correction, Corrector, Detector
 from fusionkit.registry import Registry
 
 NAN_RATE = Correction(np.array([np.nan, 0.0, 0.0]), 0)
@@ -80,6 +80,36 @@ def test_a_corrector_that_returns_the_wrong_thing_is_named(returned, what):
     with pytest.raises(PluginError, match=rf"corrector 'test-wrong': correct\(\) returned {what}; it must return "
                                           r"Correction\(rate, flags\)"):
         p.run(sim.demo_recordings()[0].slice(0, 50))
+
+
+@pytest.mark.parametrize("returned, what", [("yes", "str 'yes'"), (-1, "int -1"), (1.0, "float 1.0")])
+def test_a_detector_that_returns_no_bitmask_is_named(returned, what):
+    """A detector whose step() returned "yes" gave "invalid literal for int() with base 10: 'yes'" (a
+    negative number numpy's OverflowError), in a pipeline and on its own: a PluginError naming the
+    detector and what it must return, as for a corrector."""
+
+    class Says(Detector):
+        name = "test-says"
+        flag = fk.Flag.MOTION
+
+        def initial_state(self, dt):
+            return np.zeros(1)
+
+        def step(self, state, sample):
+            return returned
+
+    reg = Registry()
+    reg.register(Says)
+    rec = sim.demo_recordings()[0].slice(0, 50)
+    message = (rf"detector 'test-says': step\(\) returned {what}; it must return its criteria bitmask, an int >= 0 "
+               r"\(bit b: criteria_names\[b\]; 0: not fired\)")
+    p = Pipeline({"estimator": "poisson-quat", "detectors": ["test-says"], "alignment": {"mode": "none"}}, registry=reg)
+    with pytest.raises(PluginError, match=message):
+        p.run(rec)
+    with pytest.raises(PluginError, match=message):
+        p.update(rec.gyr[0], rec.acc[0], dt=0.005)
+    with pytest.raises(PluginError, match=message):
+        Says().run(rec)
 
 
 def test_the_offline_mode_warns_of_a_gap_once_at_the_recordings_index():

@@ -72,6 +72,25 @@ def test_unknown_names_list_close_matches():
         fk.make("moton", kind="detector")
 
 
+def test_a_plugin_in_the_wrong_list_is_named_with_its_kind():
+    """"rest" under correctors said "unknown corrector plugin 'rest'; did you mean 'rest-bias'" without
+    saying that 'rest' is a registered detector (likewise a corrector given as the estimator)."""
+    base = {"estimator": "poisson-quat", "alignment": {"mode": "fixed"}}
+    for cfg, message in (
+            ({**base, "correctors": ["rest"]}, r"unknown corrector plugin 'rest' \('rest' is a detector: in a "
+                                               r"composition list it under detectors\); did you mean 'rest-bias'"),
+            ({**base, "estimator": {"name": "dcm-vertical"}},
+             r"unknown estimator plugin 'dcm-vertical' \('dcm-vertical' is a corrector: in a composition list it "
+             r"under correctors"),
+            ({**base, "detectors": ["calibration"]}, r"'calibration' is a sensor model: .* list it under models"),
+            ({**base, "estimator": "poisson"}, r"'poisson' is a filter, not a part of a composition: build it with "
+                                               r"make\('poisson'\)")):
+        with pytest.raises(PluginError, match=message):
+            fk.compose(cfg)
+    with pytest.raises(PluginError, match=r"unknown detector plugin 'moton'; did you mean"):  # no kind has it
+        fk.make("moton", kind="detector")
+
+
 def test_a_name_or_kind_that_is_not_a_string_is_named():
     """Before: difflib's TypeError from the close-match hint, and AttributeError ``endswith`` for the
     parameters passed as a dict where the kind goes."""
@@ -275,6 +294,42 @@ def test_cli_list_reports_a_duplicate_and_a_plugin_that_exits(on_path, capsys):
     assert "DUPLICATE: filter 'vqf': fake_dup_mod:Other from fake-dup is ignored" in out
     assert re.search(r"detector\s+exiter\s+\[fake-exit\]\s+BROKEN: .*SystemExit: 0", out)
     assert re.search(r"filter\s+poisson\s+\[fusionkit\]", out)
+
+
+def test_registering_a_class_an_entry_point_also_names_is_one_plugin(on_path):
+    """Registering in code the class an installed entry point names (``module:class``, or an alias
+    that loads to it) made the name a "duplicate corrector name" and unusable, though it is the
+    same class; a different class under the name stays an error."""
+    import importlib
+
+    fake_distribution(on_path, "fake-same", """
+        [fusionkit.correctors]
+        same-cor = fake_same_mod:SameCor
+        alias-cor = fake_same_mod:Alias
+        """, "fake_same_mod", """
+        from fusionkit.protocols import Corrector
+
+        class SameCor(Corrector):
+            name = "same-cor"
+            mode = "rate"
+
+        class Alias(SameCor):
+            name = "alias-cor"
+
+        class Other(SameCor):
+            name = "same-cor"
+        """)
+    mod = importlib.import_module("fake_same_mod")
+    mod.Alias.__module__ = "elsewhere"  # named by another module:class than the entry point's: found by loading it
+    reg = Registry()
+    reg.register(mod.SameCor)
+    reg.register(mod.Alias)
+    assert reg.get("same-cor", "corrector") is mod.SameCor and reg.get("alias-cor", "corrector") is mod.Alias
+    assert ("corrector", "same-cor", "fake-same") in reg.info() and reg.check_all() == {} and not reg.duplicates
+    reg.register(mod.Other)  # another class under the same name: still refused, naming both
+    with pytest.raises(PluginError, match=r"duplicate corrector name 'same-cor': fake_same_mod:SameCor from fake-same "
+                                          r"and fake_same_mod:Other from <registered in code>"):
+        reg.get("same-cor", "corrector")
 
 
 def test_register_in_code():

@@ -89,18 +89,92 @@ def test_look_alike_filters_get_different_colours_and_lines():
 
 
 def test_throughput_chart_is_linear_coloured_by_library_with_values():
-    from fusionkit.benchmarking.plots import _plt, library, throughput_bars
+    from fusionkit.benchmarking.plots import _figure, library, throughput_bars
 
-    plt = _plt()
-    fig, ax = plt.subplots()
+    ax = _figure().subplots()
     throughput_bars(ax, ["recommended", "vqf", "ekf"], [5e6, 2.5e6, 2e3], ["numba", "peer:vqf 2.1.2", "reference"])
     assert ax.get_xscale() == "linear"
     assert {t.get_text() for t in ax.texts} == {"5,000,000", "2,500,000", "2,000"}
     colours = [tuple(p.get_facecolor()) for p in ax.patches]
     assert len(set(colours)) == 3  # three libraries
     assert [t.get_text() for t in ax.get_legend().get_texts()] == ["fusionkit", "vqf", "fusionkit (Python reference)"]
-    plt.close(fig)
     assert library("peer:ahrs 0.4.0") == "ahrs" and library("numba") == "fusionkit"
+
+
+def test_plots_leave_the_users_matplotlib_backend_alone(tmp_path):
+    """Drawing a plot does not switch matplotlib's backend: ``matplotlib.use("Agg")`` in every plot
+    switched a notebook's (or a GUI's) backend for the rest of the session. The figure is drawn
+    without pyplot, so nothing is left open in pyplot either."""
+    matplotlib = pytest.importorskip("matplotlib")
+    from fusionkit.benchmarking.plots import plot_throughput
+
+    class Result:  # what plot_throughput reads of a BenchResult
+        records = [{"filter": "poisson", "backend": "numba"}, {"filter": "vqf", "backend": "peer:vqf 2.1.2"}]
+
+        def summary(self):
+            return [{"filter": "poisson", "samples_per_s": 2e6}, {"filter": "vqf", "samples_per_s": 1e6}]
+
+    before = matplotlib.get_backend()
+    pyplot = __import__("sys").modules.get("matplotlib.pyplot")
+    open_before = pyplot.get_fignums() if pyplot else []
+    matplotlib.use("svg")  # the user's choice (a non-interactive one: the tests run headless)
+    try:
+        path = plot_throughput(Result(), tmp_path / "t.png")
+        assert matplotlib.get_backend() == "svg"
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the file's format, whatever the backend
+        pyplot = __import__("sys").modules.get("matplotlib.pyplot")
+        assert (pyplot.get_fignums() if pyplot else []) == open_before
+    finally:
+        matplotlib.use(before)
+
+
+def test_group_bars_are_linear_from_zero_with_values(tmp_path, monkeypatch):
+    """by_group.png drew its bars on a log axis with an automatic lower limit: 1.17 deg looked ten
+    times smaller than 1.74 deg and the ticks read '6x10^0'. Now a linear axis from 0, each value
+    written on its bar (as the throughput chart), a missing value left without a label."""
+    pytest.importorskip("matplotlib")
+    from fusionkit.benchmarking import plots
+
+    class Result:  # what plot_by_group reads of a BenchResult
+        filters = ["poisson", "vqf"]
+        records = [{"groups": ["slow"]}, {"groups": ["fast"]}]
+
+        def metrics(self):
+            return ["inclination"]
+
+        def by_group(self, metric):
+            return {"poisson": {"slow": 1.17, "fast": 6.5}, "vqf": {"slow": 1.74}}
+
+        def not_applicable(self, metric):
+            return {}
+
+    figures = []
+    monkeypatch.setattr(plots, "_figure", lambda _new=plots._figure, **kw: figures.append(_new(**kw)) or figures[-1])
+    plots.plot_by_group(Result(), tmp_path / "g.png")
+    ax = figures[0].axes[0]
+    assert ax.get_yscale() == "linear" and ax.get_ylim()[0] == 0 and ax.get_ylim()[1] > 6.5
+    assert sorted(t.get_text() for t in ax.texts if t.get_text()) == ["1.17", "1.74", "6.50"]
+    assert (tmp_path / "g.png").stat().st_size > 5000
+
+
+def test_a_6d_reason_says_what_is_true_of_the_recording(capsys, tmp_path):
+    """"6D: no magnetometer, heading unobservable" was printed for a 6D filter on a recording that has
+    one: the reason now tells a filter that does not read it from a recording without one."""
+    import dataclasses
+
+    from fusionkit.benchmarking.report import not_applicable
+    from fusionkit.cli import main
+
+    rec = sim.demo_recordings()[0].slice(0, 10)
+    six = fk.make("recommended", use_mag=False)
+    cases = ((rec, "6D: the filter does not read the magnetometer, heading unobservable"),
+             (dataclasses.replace(rec, mag=None), "6D: no magnetometer in the recording, heading unobservable"))
+    for r, why in cases:
+        assert not_applicable(six.aiding(r), rec=r) == {"total": why, "heading": why}
+    assert not_applicable("6D")["total"] == "6D: no magnetometer used, heading unobservable"  # recording unknown
+    assert not_applicable("9D", rec=rec) == {} and "gyro-only" in not_applicable("gyro-only", rec=rec)["total"]
+    assert main(["run", "gst", "sim:slow-rotation", "-o", str(tmp_path / "o.csv"), "--backend", "reference"]) == 0
+    assert "total n/a (6D: the filter does not read the magnetometer" in capsys.readouterr().out
 
 
 def test_readme_streaming_snippet_works_with_timestamps():

@@ -61,12 +61,23 @@ def aiding(f, rec) -> str:
     return f.aiding(rec)
 
 
-def not_applicable(kind: str, gnss_heading: bool = False) -> dict[str, str]:
+def not_applicable(kind: str, gnss_heading: bool = False, rec=None) -> dict[str, str]:
     """``{metric: reason}`` for the metrics a filter of ``kind`` (:func:`aiding`) cannot have.
 
-    ``gnss_heading``: the filter takes its heading from GNSS (its heading is then measured)."""
+    ``gnss_heading``: the filter takes its heading from GNSS (its heading is then measured).
+    ``rec``: the recording it ran on, so that a 6D reason says what is true: the filter does not
+    read the recording's magnetometer, or the recording has none (or none with a finite sample).
+    "6D: no magnetometer" was printed for 6D filters on recordings with one."""
     if kind == "9D" or gnss_heading:
         return {}
-    why = ("gyro-only: no correction, heading stays the start's arbitrary one" if kind == "gyro-only"
-           else "6D: no magnetometer, heading unobservable")
+    if kind == "gyro-only":
+        why = "gyro-only: no correction, heading stays the start's arbitrary one"
+    elif rec is None:
+        why = "6D: no magnetometer used, heading unobservable"
+    elif rec.mag is None:
+        why = "6D: no magnetometer in the recording, heading unobservable"
+    elif not has_finite(rec.mag):
+        why = "6D: the recording's magnetometer has no finite sample, heading unobservable"
+    else:
+        why = "6D: the filter does not read the magnetometer, heading unobservable"
     return {"total": why, "heading": why}

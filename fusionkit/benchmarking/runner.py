@@ -195,7 +195,7 @@ def evaluate(spec: FilterSpec, trial: Trial, warmup: bool = True) -> dict[str, A
         rec_out["samples_per_s"] = len(rec) / rec_out["seconds"]
         rec_out["backend"] = res.diagnostics.get("backend")
         rec_out["metrics"] = trial_metrics(res, rec, rec_out["dimension"])
-        na = not_applicable(rec_out["aiding"], gnss_heading=bool(f.requires_gnss))
+        na = not_applicable(rec_out["aiding"], gnss_heading=bool(f.requires_gnss), rec=rec)
         rec_out["not_applicable"] = {k: why for k, why in na.items() if k in rec_out["metrics"]}
         for k in rec_out["not_applicable"]:  # a number it cannot have (e.g. a 96 deg "total") is not reported
             rec_out["metrics"][k] = None
@@ -490,8 +490,8 @@ class BenchResult:
         for f in self.filters:
             rs = [r for r in self.records if r["filter"] == f and r["metrics"]]  # run, with a reference
             why = [(r.get("not_applicable") or {}).get(metric) for r in rs]
-            if rs and all(why):
-                out[f] = why[0]
+            if rs and all(why):  # (trials with and without a magnetometer: each reason once)
+                out[f] = "; ".join(dict.fromkeys(why))
         return out
 
     def _cell(self, r: dict | None, metric: str) -> str:

@@ -11,13 +11,23 @@ from typing import Any
 import numpy as np
 
 from .._numba import njit, resolve_backend
-from ..errors import InputError
+from ..errors import InputError, PluginError
 from ..gnss_rows import NO_GNSS, gnss_sample_rows
 from ..protocols import DetectionResult, Detector, Sample
 from ..types import Recording
 from ..validation import check_finite_all
 
-__all__ = ["run_detector"]
+__all__ = ["run_detector", "checked_bits"]
+
+
+def checked_bits(det: Detector, bits: Any) -> Any:
+    """``bits``, what ``det.step()`` returned, when it is a criteria bitmask (an int from 0 to
+    2**32 - 1), else a PluginError naming the detector and what it must return, as for a corrector
+    (a string gave "invalid literal for int()", a negative number numpy's OverflowError)."""
+    if isinstance(bits, (int, np.integer)) and 0 <= bits <= 0xFFFFFFFF:
+        return bits
+    raise PluginError(f"detector {det.name!r}: step() returned {type(bits).__name__} {bits!r:.40}; it must return "
+                      "its criteria bitmask, an int >= 0 (bit b: criteria_names[b]; 0: not fired)")
 
 
 # ---- detectors on their own -------------------------------------------------------------------
@@ -75,6 +85,7 @@ def run_detector(det: Detector, rec: Recording, *, nan_policy: str = "raise", ba
         for k in range(n):
             if ok[k]:
                 m = mag[k] if rec.mag is not None else None
-                out[k] = det.step(s, Sample(rec.gyr[k], rec.acc[k], m, dt[k], None if gn is None else gn[k]))
+                out[k] = checked_bits(det, det.step(s, Sample(rec.gyr[k], rec.acc[k], m, dt[k],
+                                                              None if gn is None else gn[k])))
     fired = np.flatnonzero(out)
     return DetectionResult(out, int(fired[0]) if fired.size else None, det.criteria_names, used)

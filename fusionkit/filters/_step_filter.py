@@ -133,7 +133,13 @@ class StepFilter(Filter):
         return Result(q, flags, self.config.frame, diag)
 
     def _checked_state(self, x) -> np.ndarray:
-        x = np.asarray(x, dtype=float)
+        """``x`` as this filter's state vector, or an InputError saying what a state is (a dict or a
+        string, e.g. another filter's state, was numpy's TypeError or ValueError)."""
+        try:
+            x = np.asarray(x, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError(f"state must be Result.diagnostics['state'] of an earlier {self.name} run (or its "
+                             f".state), an array of {self.state_size} numbers; got {type(x).__name__}") from None
         if x.shape != (self.state_size,):
             raise InputError(f"state has shape {x.shape}, expected ({self.state_size},): "
                              "pass Result.diagnostics['state'] of the same filter")

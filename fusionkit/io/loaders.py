@@ -24,6 +24,7 @@ A magnetometer or a reference is all its columns or none. Arguments of :func:`lo
 
 from __future__ import annotations
 
+import os
 import warnings
 from pathlib import Path
 
@@ -43,7 +44,11 @@ _QUAT = ["qw", "qx", "qy", "qz"]
 def check_path(path) -> Path:
     """``path`` as a :class:`~pathlib.Path` when it is a file of a kind :func:`load` reads, else
     the :class:`InputError` that :func:`load` gives, before anything is read (a command checks
-    its inputs before it prints a table's header)."""
+    its inputs before it prints a table's header). Anything but a str or a path is an InputError
+    naming the argument (``load(42)`` was pathlib's TypeError)."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"path must be a file name (str or pathlib.Path) or 'sim:NAME', got {type(path).__name__} "
+                         f"{path!r:.60}")
     p = Path(path)
     if not p.exists():
         raise InputError(f"no such file: {str(p)!r}")
