@@ -37,10 +37,19 @@ def _build_filter(spec: str, params: dict):
     case; a name that looks like a file, with a suffix or a folder, but is none of these is an
     error naming the file: ``GD.TOML`` was "unknown plugin 'GD.TOML'")."""
     from . import compose, make
-    from .config import config_file, load_config
+    from .config import CONFIG_SUFFIXES, config_file, load_config
     from .registry import default_registry
 
-    p = None if spec in default_registry().names("filter") else config_file(spec)
+    try:
+        p = None if spec in default_registry().names("filter") else config_file(spec)
+    except FusionkitError as exc:  # a mistyped name with a dot (ahrs.madgwick) is no file: the registry's hint
+        path = Path(spec)
+        if path.exists() or "/" in spec or "\\" in spec or path.suffix.lower() in CONFIG_SUFFIXES:
+            raise
+        try:
+            return make(spec, **params)
+        except FusionkitError as unknown:
+            raise FusionkitError(f"{unknown} (nor is it a config file: {exc})") from None
     if p is not None:
         cfg = _merge(load_config(p), params)
         if "filter" in cfg:  # {"filter": "poisson", "params": {...}}: other keys are parameters too

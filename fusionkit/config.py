@@ -268,18 +268,20 @@ CONFIG_SUFFIXES = (".toml", ".json")
 
 
 def _looks_like_path(text: str) -> bool:
-    """Whether a string given as a config names a file rather than holding config text: one line,
-    not JSON (``{``, ``[``), a TOML table or comment, nor a ``key = value`` line, and it names an
-    existing file, has a path separator or has a suffix. Such a string can never be a valid config
-    text, so reading it as one only gave "not valid TOML" for a file name."""
+    """Whether a string given as a config names a file rather than holding config text: one line
+    that names an existing file (``run=3/gd.toml`` too), or else is not JSON (``{``, ``[``), a TOML
+    table or comment, nor a ``key = value`` line, and has a path separator or a suffix. Such a string
+    can never be a valid config text, so reading it as one only gave "not valid TOML" for a file name."""
     t = text.strip()
-    if not t or "\n" in text or t[0] in "{[#" or "=" in t:
+    if not t or "\n" in text:
         return False
     p = Path(t)
     try:
         if p.expanduser().is_file():
             return True
     except (OSError, ValueError):  # a name too long, a NUL byte: not a file
+        return False
+    if t[0] in "{[#" or "=" in t:
         return False
     return bool(p.suffix) or any(sep and sep in t for sep in (os.sep, os.altsep, "/"))
 

@@ -435,7 +435,8 @@ class Pipeline(Filter):
         # reference a read-only view of it per sample
         mag_row = rec.mag if has_mag else np.zeros((1, 3))
         mag = rec.mag if has_mag else np.broadcast_to(mag_row, (n, 3))
-        gyr, dt, gaps = hold_gaps(rec.gyr, rec.dt, rec.nominal_dt, self.spec.max_gap)
+        intervals, first_known = rec.run_intervals(continued=state is not None)
+        gyr, dt, gaps = hold_gaps(rec.gyr, intervals, rec.nominal_dt, self.spec.max_gap, first_known)
         # the GNSS rows: the reference's samples carry them; compiled, only kernels that take them
         want = used != "numba" or any(k.gnss for k in kernels[2] + kernels[3])
         gn = gnss_sample_rows(rec) if rec.gnss is not None and want else None

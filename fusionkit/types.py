@@ -145,14 +145,17 @@ def gap_threshold(nominal_dt: float, max_gap: float | None) -> float:
     return math.inf if max_gap is None else max(float(max_gap), GAP_INTERVALS * float(nominal_dt))
 
 
-def hold_gaps(gyr: np.ndarray, dt: np.ndarray, nominal_dt: float, max_gap: float | None):
+def hold_gaps(gyr: np.ndarray, dt: np.ndarray, nominal_dt: float, max_gap: float | None, first_known: bool = False):
     """``(gyr, dt, gaps)`` for a run: at a timestamp gap (an interval above :func:`gap_threshold`)
     the gyro sample is replaced by NaN (the state is held across the gap, not integrated with a
     rate known only at its end) and its interval by the nominal one (so that no time constant
     sees the gap as one step); the sample's other sensors are used as usual. Without gaps the
-    arrays are returned as they are. :func:`mark_gaps` turns the flags back."""
+    arrays are returned as they are. :func:`mark_gaps` turns the flags back. ``first_known``: ``dt[0]``
+    is the real interval before the first sample (:meth:`Recording.run_intervals`), judged as the
+    others; else a copy of ``dt[1]``, never a gap."""
     gaps = dt > gap_threshold(nominal_dt, max_gap)
-    gaps[:1] = False  # dt[0] is a copy of dt[1], not an interval before the first sample
+    if not first_known:
+        gaps[:1] = False
     if not gaps.any():
         return gyr, dt, gaps
     gyr = gyr.copy()
@@ -428,9 +431,9 @@ class Recording:
 
     @property
     def dt(self) -> np.ndarray:
-        """(N,) sample intervals in s: ``dt[k] = t[k] - t[k-1]`` (``dt[0] = dt[1]``; in a
-        :meth:`slice` that does not start at the first sample, the interval before its first
-        sample in the recording it was cut from, so that a run split in two equals one run).
+        """(N,) sample intervals in s: ``dt[k] = t[k] - t[k-1]`` (``dt[0] = dt[1]``: a run that
+        starts here has nothing before its first sample; one that continues an earlier run's state
+        takes :attr:`interval_before` where the recording is a slice that knows it).
 
         Sample ``k``'s rate is held over the interval that ends at ``t[k]``, the way a
         streaming filter sees it.
@@ -438,11 +441,34 @@ class Recording:
         n = len(self)
         if self.rate is not None:
             return np.full(n, 1.0 / self.rate)
-        before = self.__dict__.get("_dt_before")
         if n == 1:
-            return np.array([0.01 if before is None else before])
+            return np.array([0.01])
         d = np.diff(self.t)
-        return np.concatenate([d[:1] if before is None else [before], d])
+        return np.concatenate([d[:1], d])
+
+    @property
+    def interval_before(self) -> float | None:
+        """The interval (s) from the sample before this recording's first to its first, where it is
+        a :meth:`slice` of a recording with timestamps that did not start at its first sample (else
+        None: ``1 / rate`` with a rate). A run continued from an earlier run's state integrates its
+        first sample over it, so that a run split in two equals one run on any clock (a gap there is
+        held as any other). Tied to ``t``: a copy with other timestamps does not carry it."""
+        if self.rate is not None:
+            return 1.0 / self.rate
+        kept = self.__dict__.get("_interval_before")
+        return kept[1] if kept is not None and kept[0] is self.t else None
+
+    def run_intervals(self, continued: bool) -> tuple[np.ndarray, bool]:
+        """``(dt, first_known)`` for a run over this recording: :attr:`dt`, with its first entry the
+        :attr:`interval_before` where the run ``continued`` an earlier run's state and it is known
+        (then ``first_known``: the first interval is a real one, judged for a gap as any other)."""
+        dt = self.dt
+        before = self.interval_before if continued and self.t is not None else None
+        if before is None:
+            return dt, False
+        dt = dt.copy()
+        dt[0] = before
+        return dt, True
 
     @property
     def nominal_dt(self) -> float:
@@ -484,11 +510,11 @@ class Recording:
             meta=meta, body=self.body,
         )
         idx = range(n)[s]
-        if idx and out.t is not None:  # a clock of its own: the interval before its first sample kept (dt)
+        if idx and out.t is not None:  # a clock of its own: the interval before its first sample kept
             i = idx.start
-            before = float(self.time[i] - self.time[i - 1]) if i > 0 else self.__dict__.get("_dt_before")
+            before = float(self.time[i] - self.time[i - 1]) if i > 0 else self.interval_before
             if before is not None:
-                out.__dict__["_dt_before"] = before
+                out.__dict__["_interval_before"] = (out.t, before)
         if keep_clock:  # the epoch current at the first sample, and those up to the last one
             g, t = self.gnss, out.time
             first = max(0, int(np.searchsorted(g.t, t[0], side="right")) - 1)

@@ -185,6 +185,12 @@ def test_a_config_file_name_in_another_case_or_with_another_suffix(tmp_path, mon
             err = capsys.readouterr().err
             assert len(err.strip().splitlines()) == 1 and f"config file '{src}'" in err, err
     assert load_config('estimator = "poisson.dcm"') == {"estimator": "poisson.dcm"}  # one line of TOML: text
+    (tmp_path / "run=3").mkdir()  # an existing file is a file, whatever its name holds
+    (tmp_path / "run=3" / "gd.toml").write_text('[estimator]\nname = "poisson-dcm"\n[alignment]\nmode = "fixed"\n')
+    assert fk.compose("run=3/gd.toml").config.estimator.name == "poisson-dcm"
+    # a mistyped filter name with a dot is no file name: the registry's hint
+    assert main(["run", "ahrs.madgwick", "sim:slow-rotation", "-o", str(tmp_path / "o.csv")]) == 2
+    assert "did you mean 'ahrs-madgwick'" in capsys.readouterr().err
 
 
 def test_too_many_correctors_run_the_reference_path_or_refuse_numba():

@@ -324,6 +324,9 @@ def test_a_stream_continues_a_run_and_its_state_is_saved():
         np.testing.assert_array_equal(feed(g, k), feed(f, k))
     with pytest.raises(InputError, match="state must be the diagnostics"):
         g.set_state({"x": 1})
+    old = dict(first.diagnostics["state"], align=first.diagnostics["state"]["align"][:19])  # before stop 33
+    with pytest.raises(InputError, match="state must be the diagnostics"):  # (numba read past its end)
+        g.set_state(old)
 
 
 def test_a_state_keeps_the_body_axes_of_its_run():

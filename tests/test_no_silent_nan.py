@@ -112,6 +112,16 @@ def test_a_detector_that_returns_no_bitmask_is_named(returned, what):
         Says().run(rec)
 
 
+def test_a_detector_that_returns_a_comparison_fires_bit_0():
+    """A detector's step() returning a comparison (numpy's bool: ``norm(g) > threshold``) is bit 0, as
+    Python's bool is; the bitmask check of the stop refused it."""
+    from fusionkit.detectors._run import checked_bits
+
+    det = fk.get("motion")
+    assert checked_bits(det, np.float64(2.0) > 1.0) == 1 and checked_bits(det, np.float64(0.0) > 1.0) == 0
+    assert checked_bits(det, True) is True and checked_bits(det, np.uint32(5)) == 5
+
+
 def test_the_offline_mode_warns_of_a_gap_once_at_the_recordings_index():
     """A 5 s gap gave six GapWarnings from the offline passes, half naming the reversed pass's sample index."""
     from fusionkit.types import GapWarning

@@ -114,14 +114,47 @@ def test_a_stream_over_jittered_timestamps_equals_the_run(moving):
 
 
 def test_a_run_split_in_two_equals_one_run_on_a_jittered_clock(moving):
-    """A slice keeps the interval before its first sample (it was its second interval, copied)."""
+    """A slice keeps the interval before its first sample, and a run continued from a state takes it
+    (it took the slice's second interval, copied)."""
     rec = _jittered(moving)
-    assert rec.slice(700).dt[0] == rec.t[700] - rec.t[699] and rec.slice(700).slice(0, 5).dt[0] == rec.dt[700]
+    assert rec.slice(700).interval_before == rec.t[700] - rec.t[699] == rec.slice(700).slice(0, 5).interval_before
     f = fk.make("gradient-descent")
     one = f.run(rec, backend="reference")
     a = f.run(rec.slice(0, 1300), backend="reference")
     b = f.run(rec.slice(1300), backend="reference", state=a.diagnostics["state"])
     assert np.max(quat_angle(np.vstack([a.quat, b.quat]), one.quat)) < 1e-12
+
+
+def test_a_run_split_at_a_gap_equals_one_run_and_a_slice_after_a_gap_aligns_in_full(moving):
+    """The interval before a slice's first sample is used where a run continues an earlier run's
+    state, and there a gap is held as any other (it was integrated as one 2 s step: 22 deg off the
+    one run); a run that starts on the slice has nothing before it, and its alignment is its own
+    300 samples (the 2 s gap had ended it after one)."""
+    rec = drop(moving, 1300, 1500)
+    f = fk.make("gradient-descent")
+    with pytest.warns(GapWarning):
+        one = f.run(rec, backend="reference")
+    a = f.run(rec.slice(0, 1300), backend="reference")
+    with pytest.warns(GapWarning, match="before sample 0"):
+        b = f.run(rec.slice(1300), backend="reference", state=a.diagnostics["state"])
+    assert np.max(quat_angle(np.vstack([a.quat, b.quat]), one.quat)) < 1e-12
+    assert b.flags[0] & Flag.GAP
+    fresh = f.run(drop(moving, 300, 500).slice(300), backend="reference")
+    assert fresh.diagnostics["alignment_end_index"] == 300 and fresh.diagnostics["gaps"] == 0
+    # tied to the timestamps: a copy on another clock does not carry the interval
+    part = rec.slice(1300)
+    assert part.interval_before > 1.0
+    assert dataclasses.replace(part, t=part.t + 1.0).interval_before is None
+
+
+@pytest.mark.parametrize("rate, duration, end", [(50.0, 0.25, 12), (25.0, 0.3, 7), (25.0, 0.5, 12), (100.0, 3.0, 300)])
+def test_the_alignment_ends_at_round_duration_over_dt_a_half_rounded_down(rate, duration, end):
+    """At a fixed rate the timed alignment ends after ``round(duration * rate)`` samples, a half
+    rounded down whatever the sum's rounding (12.5 -> 12 and 7.5 -> 7)."""
+    rec = sim.simulate([sim.Rest(4.0)], rate=rate, noise=sim.Noise.mems(), seed=1, gnss_rate=None)
+    f = fk.compose({"estimator": {"name": "poisson-quat"}, "alignment": {"mode": "fixed", "duration": duration}})
+    for backend in ("reference", "numba"):
+        assert f.run(rec, backend=backend).diagnostics["alignment_end_index"] == end
 
 
 def test_gap_handling_can_be_turned_off(moving):

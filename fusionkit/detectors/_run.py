@@ -23,7 +23,10 @@ __all__ = ["run_detector", "checked_bits"]
 def checked_bits(det: Detector, bits: Any) -> Any:
     """``bits``, what ``det.step()`` returned, when it is a criteria bitmask (an int from 0 to
     2**32 - 1), else a PluginError naming the detector and what it must return, as for a corrector
-    (a string gave "invalid literal for int()", a negative number numpy's OverflowError)."""
+    (a string gave "invalid literal for int()", a negative number numpy's OverflowError). A bool
+    (Python's or numpy's: a comparison, "fired or not") is bit 0."""
+    if isinstance(bits, np.bool_):
+        return int(bits)
     if isinstance(bits, (int, np.integer)) and 0 <= bits <= 0xFFFFFFFF:
         return bits
     raise PluginError(f"detector {det.name!r}: step() returned {type(bits).__name__} {bits!r:.40}; it must return "

@@ -72,7 +72,8 @@ from ..config import AlignmentConfig, FilterConfig, param
 from ..conventions import body_matrix, frame_matrix
 from ..detectors.motion import MotionConfig, MotionDetector, _motion_step
 from ..errors import InputError
-from ..navigation.alignment import ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, NGYR, PHASE, Aligner, align_step
+from ..navigation.alignment import (ALIGN_SIZE, ALIGNED_BEFORE, ALIGNED_NOW, ALIGNING, BIAS, END, NGYR, PHASE, Aligner,
+                                     align_step)
 from ..navigation.earth import EARTH_RATE, normal_gravity, radii
 from ..protocols import Filter, Sample
 from ..rotations import cross, matrix_to_quat, quat_mul, quat_to_matrix, rodrigues, skew
@@ -693,7 +694,7 @@ class InsGnssFilter(Filter):
                  "gyr_bias_std", "acc_bias_std")
         diag = {"backend": used, "filter": self.name, "config": self.config.model_dump(), "state": st,
                 "P": x[_COV:_COV + _N * _N].reshape(_N, _N).copy(),
-                "alignment_end_index": None if st["align"][17] < 0 else int(st["align"][17]),
+                "alignment_end_index": None if st["align"][END] < 0 else int(st["align"][END]),
                 "relevel_tilt": x[_PHI0:_PHI0 + 3].copy() if x[_LEVEL] == 1.0 else None,
                 "time_offset": ext[:, 27].copy(), "time_offset_std": ext[:, 28].copy(),
                 **{nm: ext[:, 3 * i:3 * i + 3] for i, nm in enumerate(names)}, "aiding": self.aiding(rec)}
@@ -701,6 +702,7 @@ class InsGnssFilter(Filter):
 
     def _check_state(self, state) -> None:
         if not (isinstance(state, dict) and isinstance(state.get("x"), np.ndarray) and state["x"].shape == (_SIZE,)
+                and isinstance(state.get("align"), np.ndarray) and state["align"].shape == (ALIGN_SIZE,)
                 and state.get("filter") == self.name):
             raise InputError(f"state must be the diagnostics['state'] of an earlier {self.name} run (or its .state)")
 

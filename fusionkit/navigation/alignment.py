@@ -62,6 +62,11 @@ def alignment_quat(acc_mean, mag_mean=None, frame: str = "ENU") -> np.ndarray:
 PHASE, SEEN, NACC, SACC, NGYR, SGYR, NMAG, SMAG, BIAS, END, DISTURBED, ELAPSED = \
     0, 1, 2, 3, 6, 7, 10, 11, 14, 17, 18, 19
 ALIGN_SIZE = 20
+#: the alignment ends with the sample that brings its elapsed time within half an interval of its
+#: duration, less this relative margin: at a fixed rate ``round(duration / dt)`` samples, a half
+#: rounded down whatever the sum's rounding (Python's ``round``, the count before stop 33, took a
+#: half to the even number: 12.5 -> 12 but 7.5 -> 8)
+_TIE = 1.0 - 1e-9
 MODES = {"none": 0.0, "fixed": 1.0, "motion": 2.0}
 #: what :meth:`Aligner.step` / :func:`align_step` say about a sample
 NAVIGATING, ALIGNING, ALIGNED_NOW, ALIGNED_BEFORE = 0, 1, 2, 3
@@ -93,9 +98,11 @@ class Aligner:
 
     The mandatory ``duration`` is counted in time, the sum of the averaged samples' intervals: the
     alignment ends with the sample that brings that sum within half an interval of ``duration`` (at
-    a fixed rate ``round(duration / dt)`` samples, source 000's count). A count of samples fixed from
-    a nominal interval ended it at another sample in a stream (which knows the intervals it has met)
-    than in a run over the whole recording (which knows their median) wherever timestamps jitter.
+    a fixed rate ``round(duration / dt)`` samples, source 000's count, a half rounded down). A count
+    of samples fixed from a nominal interval ended it at another sample in a stream (which knows the
+    intervals it has met) than in a run over the whole recording (which knows their median) wherever
+    timestamps jitter. (The motion detector of mode ``motion`` still sizes its window in samples
+    from the nominal interval: a stream of ``poisson`` or ``gst`` on a jittered clock is not its run.)
     """
 
     def __init__(self, config, frame: str) -> None:
@@ -133,7 +140,7 @@ class Aligner:
                 return ALIGNED_BEFORE, self._finish(al)
             gyr_ok = False  # moving from the first sample: its tilt (and heading), no bias
         if mode == "motion" and motion and al[SEEN] > 0:  # never averaged in: the alignment ends before it
-            if al[ELAPSED] + 0.5 * dt < self.config.duration:  # inside the mandatory time: reported
+            if al[ELAPSED] + 0.5 * dt < self.config.duration * _TIE:  # inside the mandatory time: reported
                 al[DISTURBED] = 1.0
             return ALIGNED_BEFORE, self._finish(al)
         if self.config.attitude == "first":  # only the first valid accelerometer sample (and its field) counts
@@ -151,7 +158,7 @@ class Aligner:
         al[SEEN] += 1.0
         al[ELAPSED] += dt
         q = self.attitude(al)
-        if mode == "fixed" and al[ELAPSED] + 0.5 * dt >= self.config.duration:
+        if mode == "fixed" and al[ELAPSED] + 0.5 * dt >= self.config.duration * _TIE:
             self._finish(al)
             return ALIGNED_NOW, q
         return ALIGNING, q
@@ -208,7 +215,7 @@ def align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_o
             return ALIGNED_BEFORE
         gyr_ok = False
     if mode == 2.0 and motion and al[SEEN] > 0.0:
-        if al[ELAPSED] + 0.5 * dt < ap[1]:
+        if al[ELAPSED] + 0.5 * dt < ap[1] * _TIE:
             al[DISTURBED] = 1.0
         _k_finish(al, ap, q)
         return ALIGNED_BEFORE
@@ -233,7 +240,7 @@ def align_step(al, ap, g0, g1, g2, a0, a1, a2, m0, m1, m2, gyr_ok, acc_ok, mag_o
     al[SEEN] += 1.0
     al[ELAPSED] += dt
     _k_attitude(al, ap, q)
-    if mode == 1.0 and al[ELAPSED] + 0.5 * dt >= ap[1]:
+    if mode == 1.0 and al[ELAPSED] + 0.5 * dt >= ap[1] * _TIE:
         _k_finish(al, ap, q)  # the same sums: the same attitude
         return ALIGNED_NOW
     return ALIGNING
