@@ -129,7 +129,7 @@ import copy
 import math
 import numbers
 import warnings
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -665,6 +665,14 @@ class OfflineFilter(Filter):
 
     def __repr__(self) -> str:
         return f"OfflineFilter({self.inner!r})"
+
+    def options(self) -> dict[str, Any]:
+        """The offline mode's own options (its ``config`` is the inner filter's): what tells this
+        filter from the inner one run online, and from another offline setting (the bench's cache
+        key: an offline row showed the online run's numbers on a re-run)."""
+        return {"disturbance_gap": self.disturbance_gap, "calibration": self.calibration,
+                "mag_timing": self.mag_timing, "calibration_test": self.calibration_test,
+                "inclination": self.inclination, "gyro_timing": self.gyro_timing}
 
     def dimension(self, rec) -> str:
         return self.inner.dimension(rec)

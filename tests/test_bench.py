@@ -275,6 +275,22 @@ def test_cache_key_follows_the_code(data, tmp_path, monkeypatch):
     assert not bench(["poisson"], data, trials=["trial0"], cache_dir=tmp_path).records[0]["cached"]
 
 
+def test_the_offline_mode_and_its_options_are_in_the_cache_key():
+    """The offline mode keeps its inner filter's config: its cache key was the online filter's, and a
+    re-run of the README's ``bench([("recommended", {"offline": True}), "recommended"])`` printed the
+    online numbers in the offline row (both marked cached)."""
+    from fusionkit.benchmarking.runner import _spec_key
+    from fusionkit.offline import OfflineFilter
+
+    class Forward(FilterSpec):  # the same name and params, another offline option
+        def build(self):
+            return OfflineFilter(fk.make("recommended"), inclination="average")
+
+    online, offline = (_spec_key(FilterSpec.of(s)) for s in ("recommended", ("recommended", {"offline": True})))
+    other = _spec_key(Forward(*FilterSpec.of(("recommended", {"offline": True})).__dict__.values()))
+    assert online and offline and other and len({online, offline, other}) == 3
+
+
 def test_a_sweep_report_gives_its_metrics_unit():
     """A navigation metric's sweep says m (or m/s), not deg: the report's header, TAGP, per-trial
     minimum and table all said deg, whatever the metric."""

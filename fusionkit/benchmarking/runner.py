@@ -225,12 +225,15 @@ def _spec_key(spec: FilterSpec) -> str:
         f = spec.build()
         cfg = f.config.model_dump(mode="json")
         code = _plugin_code(f)
+        # a wrapper keeps the inner filter's config (the offline mode): its own options and class count too
+        wrapper = {"class": f"{type(f).__module__}.{type(f).__qualname__}",
+                   "options": f.options() if callable(getattr(f, "options", None)) else None}
     except Exception:  # unbuildable: never cached
         return ""
     if code is None:
         return ""
     blob = json.dumps({"name": spec.name, "config": cfg, "v": _versions(), "plugins": code,
-                       "peer": _peer_version(spec.name)}, sort_keys=True)
+                       "peer": _peer_version(spec.name), "filter": wrapper}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
