@@ -84,6 +84,9 @@ class PluginInfo:
     #: for a filter that is a preset (a pipeline over plugins): its composition with the default
     #: parameters, as a :class:`~fusionkit.config.PipelineConfig` dict; None for other plugins
     composition: dict[str, Any] | None = None
+    #: for a filter: "" when ``make(name, offline=True)`` runs it forward and backward in time
+    #: (:mod:`fusionkit.offline`), else why it cannot; None for other kinds
+    offline: str | None = None
 
     def config(self) -> dict[str, Any] | None:
         """For a filter, a config ``fusionkit run`` and :func:`fusionkit.compose` / ``make`` take:
@@ -111,6 +114,9 @@ class PluginInfo:
             al = c.get("alignment", {})  # mode 'none' starts at once, from initial_quat: no duration, no heading
             timing = "" if al.get("mode") == "none" else f" ({al.get('duration')} s, heading {al.get('heading')})"
             lines.append(f"    alignment: {al.get('mode')}{timing}")
+        if self.offline is not None:
+            lines.append(f"  offline: make({self.name!r}, offline=True) runs it forward and backward in time "
+                         "(fusionkit.offline)" if not self.offline else f"  offline: not supported: {self.offline}")
         if self.parameters:
             lines.append("  parameters:")
             for p in self.parameters:
@@ -313,10 +319,18 @@ class Registry:
         composition = None
         if entry.kind == "filter" and hasattr(cls, "pipeline_config") and entry.name != "pipeline":
             composition = cls(registry=self).pipeline_config().model_dump()
+        offline = None
+        if entry.kind == "filter" and entry.name != "pipeline":
+            from .offline import supports_offline
+
+            try:
+                offline = supports_offline(cls()) or ""
+            except Exception:  # noqa: BLE001 (a filter that does not build with its defaults: not said)
+                offline = None
         return PluginInfo(
             name=entry.name, kind=entry.kind, summary=cls.summary, source=cls.source,
             distribution=entry.distribution, target=entry.target, parameters=describe_config(cls.Config),
-            composition=composition,
+            composition=composition, offline=offline,
         )
 
     def check_all(self) -> dict[str, str]:

@@ -291,6 +291,21 @@ def test_the_offline_mode_and_its_options_are_in_the_cache_key():
     assert online and offline and other and len({online, offline, other}) == 3
 
 
+def test_offline_is_a_parameter_of_bench_and_sweep_and_describe_says_who_has_it(data):
+    """``--param offline=true`` was refused by bench ("match no field of the filters") and a sweep's
+    ``--grid offline=true,false`` ("recommended has no parameter 'offline'"), while ``fusionkit run``
+    took it; ``describe`` never said which filters have the offline mode."""
+    from fusionkit.benchmarking.runner import _apply_params
+
+    (spec,) = _apply_params([FilterSpec.of("recommended")], {"offline": True})
+    assert spec.kwargs == {"offline": True} and spec.build().name == "recommended (offline)"
+    with pytest.raises(ConfigError, match="metric must be one of"):  # the grid passed its check
+        sweep("recommended", {"offline": [True, False]}, data, metric="nope")
+    assert "offline: make('recommended', offline=True)" in str(fk.describe("recommended"))
+    assert "offline: not supported: it needs a GNSS stream" in str(fk.describe("gst-gnss"))
+    assert fk.describe("mag-heading").offline is None
+
+
 def test_a_sweep_report_gives_its_metrics_unit():
     """A navigation metric's sweep says m (or m/s), not deg: the report's header, TAGP, per-trial
     minimum and table all said deg, whatever the metric."""

@@ -324,6 +324,11 @@ def _validate(spec: FilterSpec) -> None:
         pass
 
 
+#: what ``make`` takes beside a filter's config fields, so ``--param offline=true`` (and a sweep's
+#: ``--grid offline=true,false``) reach it: refused as "no field of the filters" before
+MAKE_OPTIONS = {"offline": "run forward and backward in time (fusionkit.offline)"}
+
+
 def _apply_params(specs: list[FilterSpec], params: Mapping[str, Any]) -> list[FilterSpec]:
     from ..registry import get
 
@@ -331,7 +336,7 @@ def _apply_params(specs: list[FilterSpec], params: Mapping[str, Any]) -> list[Fi
     out = []
     used: set[str] = set()
     for s in specs:
-        fields = get(s.name, "filter").Config.model_fields
+        fields = {**get(s.name, "filter").Config.model_fields, **MAKE_OPTIONS}  # (make's offline=: the build checks it)
         p = s.kwargs
         for key, value in params.items():
             head, _, rest = key.partition(".")

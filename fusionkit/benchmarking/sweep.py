@@ -16,7 +16,7 @@ import numpy as np
 from ..config import build_config, set_dotted
 from ..errors import ConfigError
 from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, metric_label, metric_unit
-from .runner import BenchResult, FilterSpec, bench
+from .runner import MAKE_OPTIONS, BenchResult, FilterSpec, bench
 
 __all__ = ["sweep", "SweepResult"]
 
@@ -98,7 +98,7 @@ def sweep(filter_name: str, grid: dict[str, list[Any]], data, *, metric: str = "
     if not grid:
         raise ConfigError("the grid is empty: give at least one field with values")
     cls = get(filter_name, "filter")
-    fields = cls.Config.model_fields
+    fields = {**cls.Config.model_fields, **MAKE_OPTIONS}  # (make's offline=, checked by the build)
     for k in grid:
         if k.split(".")[0] not in fields:
             raise ConfigError(f"{filter_name} has no parameter {k!r}; it has {sorted(fields)}")
@@ -113,7 +113,8 @@ def sweep(filter_name: str, grid: dict[str, list[Any]], data, *, metric: str = "
     combos = [dict(zip(keys, vals)) for vals in itertools.product(*(grid[k] for k in keys))]
     specs = [FilterSpec.of((filter_name, _nest({**fixed, **c}))) for c in combos]
     for s in specs:  # a value the filter refuses is an error now, not a set that "ran on no trial"
-        build_config(cls.Config, None, s.kwargs, f"filter {filter_name!r} ({s.label})")
+        build_config(cls.Config, None, {k: v for k, v in s.kwargs.items() if k not in MAKE_OPTIONS},
+                     f"filter {filter_name!r} ({s.label})")
     res = bench(specs, data, **bench_kwargs)
     return SweepResult(filter_name, grid, metric, res, [dict(s.kwargs) for s in specs])
 
