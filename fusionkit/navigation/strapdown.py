@@ -185,8 +185,9 @@ def strapdown(gyr, acc, dt, *, quat0=None, attitude=None, vel0=(0.0, 0.0, 0.0), 
     vel, pos, quat = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 4))
     c0 = quat_to_matrix(q0 if att is None else att[0]).reshape(9).copy()
     if used == "numba":
-        _strapdown_kernel(gyr if att is None else np.zeros((n, 3)), acc, dts, att if att is not None else np.zeros((n, 4)),
-                          att is not None, c0, v0, p0, g_vec, fix_idx, fix_val, vel, pos, quat)
+        _strapdown_kernel(gyr if att is None else np.zeros((n, 3)), acc, dts,
+                          att if att is not None else np.zeros((n, 4)), att is not None, c0, v0, p0, g_vec, fix_idx,
+                          fix_val, vel, pos, quat)
     else:
         c = c0.reshape(3, 3)
         v, p = v0.copy(), p0.copy()
