@@ -221,6 +221,16 @@ def test_api_errors():
         fk.make("recommended", offline=True, tau_acc=-1.0)
 
 
+def test_a_gnss_filter_is_told_the_real_reason():
+    """ins-gnss (a causal EKF with update()) was told "it is already an offline filter": the
+    streaming check came before the GNSS one. Now every reason that applies is said."""
+    with pytest.raises(PluginError, match="needs a GNSS stream") as exc:
+        fk.make("ins-gnss", offline=True)
+    assert "already an offline" not in str(exc.value) and "does not stream" in str(exc.value)
+    assert "already an offline" in supports_offline(fk.make("vqf-offline"))
+    assert "already an offline" in supports_offline(fk.make("recommended", offline=True))
+
+
 def test_state_continues_an_earlier_run():
     rec = start_in_motion()
     half = len(rec) // 2
