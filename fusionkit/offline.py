@@ -615,6 +615,10 @@ class OfflineFilter(Filter):
     summary: ClassVar[str] = "a filter run forward and backward in time, fused per sample (acausal)"
     source: ClassVar[str] = "fusionkit (after VQF's offline mode, Laidig and Seel 2023)"
 
+    #: the options of the offline mode itself (``__init__``'s keywords): ``make(name, offline=True, ...)``
+    #: passes these to it and the other parameters to the filter
+    OPTIONS: ClassVar[tuple[str, ...]] = ("disturbance_gap", "calibration", "mag_timing", "calibration_test",
+                                          "inclination", "gyro_timing")
     #: default of ``disturbance_gap`` (s): see :func:`disturbance_mask`
     DISTURBANCE_GAP: ClassVar[float] = 1.0
     #: the way (rad: rotation, or at rest time at the model's segment rate) either side of a sample
