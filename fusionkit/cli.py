@@ -359,38 +359,74 @@ def cmd_lags(args) -> int:
     if not args.cutoff > 0:
         raise FusionkitError(f"--cutoff must be a frequency > 0 Hz, got {args.cutoff:g}")
     _check_inputs(args.inputs)
-    todo = list(_recordings(args.inputs))  # (a folder's trials: none found is an error, before the header too)
+    todo = list(_lag_inputs(args.inputs))  # (every file read and a folder's trials found before the header)
     print("| recording | gyr lag (samples) | gyr lag (ms) | gyr residual (rad/s) | acc lag (samples) | acc lag (ms) "
           "| acc residual (m/s^2) | acc model | mag lag (samples) | mag lag (ms) | mag residual |\n"
           "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|", flush=True)
     progress = Progress(len(todo), "lags")  # on stderr: a bar on a terminal, else a line per recording
     failed = 0
-    for name, load in todo:
-        row, ok = _lag_row(name, load, args)
+    gravity_only = False
+    while todo:
+        name, load = todo.pop(0)  # (a file read before the header is let go after its row)
+        row, ok, model = _lag_row(name, load, args)
+        del load
         progress.update(name, "done" if ok else "failed")
         print(row, flush=True)
         failed += not ok
+        gravity_only |= model == "gravity"
     progress.close()
+    if gravity_only:
+        print(_GRAVITY_ONLY_NOTE, flush=True)
     return 1 if failed else 0
 
 
-def _lag_row(name: str, load, args) -> tuple[str, bool]:
-    """One recording's row of the lags table, and whether it could be timed."""
+#: the accelerometer's model where the recording has no reference position (``acc model`` column), and
+#: the note under the table: its lag is gravity's turning alone, which a vehicle's sustained linear
+#: acceleration swamps (heli_cruise: +7.86 samples, read as a measurement), so it is marked, not left
+#: out (which recording's motion allows it cannot be told from the lag; on a rotation trial it is valid)
+_GRAVITY_ONLY = "gravity only*"
+_GRAVITY_ONLY_NOTE = ("* acc lag from gravity alone (the recording has no reference position): a model estimate, "
+                      "not a measurement, and not valid under sustained linear acceleration (a vehicle's, e.g. the "
+                      "GNSS scenarios); see docs/benchmarking.md")
+
+
+def _lag_inputs(specs: list[str]):
+    """(name, loader) for each of ``lags``' inputs, every file read here, before the table's header: a
+    file that is no recording (a CSV without gyro columns) is one error line with no header, as a
+    missing one is (it printed the header, then the error). A folder's trials and ``sim:`` recordings
+    are read at their row (a trial that cannot be read is reported there)."""
+    for spec in specs:
+        if spec.startswith("sim:") or Path(spec).is_dir():
+            yield from _recordings([spec])
+        else:
+            rec = _load_input(spec)
+            yield spec, lambda rec=rec: rec
+
+
+def _lag_row(name: str, load, args) -> tuple[str, bool, str | None]:
+    """One recording's row of the lags table, whether it could be timed, and the accelerometer's
+    model (None: not timed). An accelerometer lag from gravity alone is marked ``*``
+    (:data:`_GRAVITY_ONLY_NOTE`)."""
     from .benchmarking.timing import sensor_lags
 
-    rec = load()
+    try:
+        rec = load()
+    except FusionkitError as exc:  # (a folder's trial: reported in its row; the other recordings go on)
+        return f"| {name} | error: {exc} | | | | | | | | | |", False, None
     if rec.truth is None:
-        return f"| {name} | no reference | | | | | | | | | |", False
+        return f"| {name} | no reference | | | | | | | | | |", False, None
     try:
         r = sensor_lags(rec, max_lag=args.max_lag, cutoff=args.cutoff)
     except FusionkitError as exc:  # reported in its row; the other recordings go on
-        return f"| {name} | error: {exc} | | | | | | | | | |", False
+        return f"| {name} | error: {exc} | | | | | | | | | |", False, None
     cells = ["-" if math.isnan(v) else f"{v:{fmt}}" for v, fmt in (  # NaN (no minimum in the range): "-"
         (r.gyr, "+.2f"), (1e3 * r.gyr_seconds, "+.2f"), (r.gyr_rms, ".3f"), (r.acc, "+.2f"),
         (1e3 * r.acc_seconds, "+.2f"), (r.acc_rms, ".3f"), (r.mag, "+.2f"), (1e3 * r.mag_seconds, "+.2f"),
         (r.mag_rms, ".3f"))]
-    cells.insert(6, r.acc_model)
-    return f"| {name} | " + " | ".join(cells) + " |", True
+    if r.acc_model == "gravity":
+        cells[3:5] = [c if c == "-" else c + "*" for c in cells[3:5]]
+    cells.insert(6, _GRAVITY_ONLY if r.acc_model == "gravity" else r.acc_model)
+    return f"| {name} | " + " | ".join(cells) + " |", True, r.acc_model
 
 
 def cmd_demo(args) -> int:

@@ -177,14 +177,24 @@ _RESTART = int(Flag.GAP)
 
 
 def supports_offline(filt: Filter) -> str | None:
-    """None when ``filt`` can run offline, else why not. A filter can when it streams (it is not
-    itself offline), runs ``run(rec, state=...)``, and declares how it pairs its accelerometer
-    and magnetometer with the gyro's step (``acc_delay`` / ``mag_delay`` in its config): only then
-    is its time-reversed pass exact (:func:`reversed_config`)."""
-    if isinstance(filt, OfflineFilter) or not getattr(type(filt), "streaming", True):
-        return "it is already an offline filter"
+    """None when ``filt`` can run offline, else why not (every reason that applies). A filter can
+    when it is not offline itself (``acausal``: it uses later samples), reads no GNSS, streams
+    (its ``run(rec, state=...)`` is the causal pass each direction of the offline mode is) and
+    declares how it pairs its accelerometer and magnetometer with the gyro's step (``acc_delay`` /
+    ``mag_delay`` in its config): only then is its time-reversed pass exact
+    (:func:`reversed_config`). The GNSS and streaming checks came after "it is already an offline
+    filter", which ``ins-gnss`` (a causal EKF that reads GNSS and does not stream) was told."""
+    if isinstance(filt, OfflineFilter) or getattr(type(filt), "acausal", False):
+        return "it is already an offline filter (it uses later samples)"
+    why = []
     if getattr(filt, "requires_gnss", False):
-        return "it needs a GNSS stream, which is not time-reversible (velocities, epochs)"
+        why.append("it needs a GNSS stream, which the offline mode does not time-reverse (velocities, positions "
+                   "at their epochs)")
+    if not getattr(type(filt), "streaming", True):
+        why.append("it does not stream (streaming = False: its run() is not a causal pass continued from a state, "
+                   "which each of the offline mode's passes is)")
+    if why:
+        return "; ".join(why)
     missing = [k for k in ("acc_delay", "mag_delay", "tau_acc") if not hasattr(filt.config, k)]
     if missing:
         return (f"its config does not declare {', '.join(missing)}: the backward pass needs the sensors' pairing "
@@ -601,9 +611,14 @@ class OfflineFilter(Filter):
 
     name: ClassVar[str] = "offline"
     streaming: ClassVar[bool] = False
+    acausal: ClassVar[bool] = True  #: it uses later samples (:func:`supports_offline`)
     summary: ClassVar[str] = "a filter run forward and backward in time, fused per sample (acausal)"
     source: ClassVar[str] = "fusionkit (after VQF's offline mode, Laidig and Seel 2023)"
 
+    #: the options of the offline mode itself (``__init__``'s keywords): ``make(name, offline=True, ...)``
+    #: passes these to it and the other parameters to the filter
+    OPTIONS: ClassVar[tuple[str, ...]] = ("disturbance_gap", "calibration", "mag_timing", "calibration_test",
+                                          "inclination", "gyro_timing")
     #: default of ``disturbance_gap`` (s): see :func:`disturbance_mask`
     DISTURBANCE_GAP: ClassVar[float] = 1.0
     #: the way (rad: rotation, or at rest time at the model's segment rate) either side of a sample

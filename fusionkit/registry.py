@@ -301,17 +301,37 @@ class Registry:
         is a parameter, refused by the config as unknown, not a second plugin name). ``offline``:
         the filter run forward and backward in time (:class:`fusionkit.offline.OfflineFilter`);
         a PluginError for a plugin that is not a filter or a filter that does not support it, a
-        ConfigError for anything but True or False (``offline="no"`` is a non-empty string: true)."""
+        ConfigError for anything but True or False (``offline="no"`` is a non-empty string: true).
+        With ``offline=True`` the offline mode's own options (``OfflineFilter.OPTIONS``:
+        ``disturbance_gap``, ``inclination``, ...) go to it and the other parameters to the filter
+        (they could be set only as ``OfflineFilter(make(name), option=...)``); a filter parameter
+        of the same name would be ambiguous and is a ConfigError."""
         if type(offline).__name__ not in ("bool", "bool_"):  # Python's or numpy's, without importing numpy
             raise ConfigError(f"offline must be True or False, got {offline!r:.80}")
-        plugin = self.get(name, kind)(config, **params)
+        cls = self.get(name, kind)
+        fields = getattr(getattr(cls, "Config", None), "model_fields", {})
         if not offline:
-            return plugin
+            try:
+                return cls(config, **params)
+            except ConfigError as exc:  # an offline option without offline=True: said where it belongs
+                from .offline import OfflineFilter
+
+                stray = [k for k in params if k in OfflineFilter.OPTIONS and k not in fields]
+                if cls.kind != "filter" or not stray:
+                    raise
+                raise ConfigError(f"{exc}\n  ({stray[0]!r} is an option of the offline mode: "
+                                  f"make({name!r}, offline=True, {stray[0]}=...))") from None
         from .offline import OfflineFilter
 
-        if plugin.kind != "filter":
-            raise PluginError(f"offline=True is for filters; {name!r} is a {plugin.kind}")
-        return OfflineFilter(plugin)
+        options = {k: params.pop(k) for k in OfflineFilter.OPTIONS if k in params}
+        if cls.kind != "filter":
+            raise PluginError(f"offline=True is for filters; {name!r} is a {cls.kind}")
+        both = [k for k in options if k in fields]
+        if both:
+            raise ConfigError(f"{', '.join(map(repr, both))} is both a parameter of {name!r} and an option of the "
+                              f"offline mode: set the offline one as OfflineFilter(make({name!r}, ...), "
+                              f"{both[0]}=...)")
+        return OfflineFilter(cls(config, **params), **options)
 
     def describe(self, name: str, kind: str | None = None) -> PluginInfo:
         entry = self._find(name, kind)
@@ -367,7 +387,8 @@ def make(name: str, /, kind: str | None = None, config: Any = None, *, offline: 
     """Build a plugin by name: ``make("poisson", frame="NED")``. A filter name is resolved first;
     pass ``kind="detector"`` (etc.) for the other kinds. Parameters are validated.
     ``offline=True``: the filter run forward and backward in time, for recordings processed after
-    the fact (:mod:`fusionkit.offline`; filters that support it, e.g. ``recommended``)."""
+    the fact (:mod:`fusionkit.offline`; filters that support it, e.g. ``recommended``); the offline
+    mode's own options go with it: ``make("recommended", offline=True, disturbance_gap=None)``."""
     return _DEFAULT.make(name, kind, config, offline=offline, **params)
 
 

@@ -109,8 +109,8 @@ def test_lags_table(tmp_path, capsys):
     """``fusionkit lags``: the simulator follows fusionkit's convention (half a sample for both
     sensors); a recording without a reference is reported and fails the command."""
     assert main(["lags", "sim:fast-rotation"]) == 0
-    row = capsys.readouterr().out.splitlines()[-1].split("|")
-    assert float(row[2]) == pytest.approx(0.5, abs=0.05) and float(row[5]) == pytest.approx(0.5, abs=0.05)
+    row = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| sim:")][0].split("|")
+    assert float(row[2]) == pytest.approx(0.5, abs=0.05) and float(row[5].rstrip(" *")) == pytest.approx(0.5, abs=0.05)
     from fusionkit import Recording, sim
     from fusionkit.io.loaders import write_csv
 
@@ -131,6 +131,37 @@ def test_lags_checks_its_inputs_before_the_table(tmp_path, capsys):
         assert main(["lags", "sim:fast-rotation", str(bad)]) == 2, bad
         out, err = capsys.readouterr()
         assert out == "" and len(err.strip().splitlines()) == 1 and what in err, (bad, out, err)
+
+
+def test_lags_marks_a_gravity_only_accelerometer_lag(capsys):
+    """Without a reference position the accelerometer is timed against gravity's turning alone:
+    heli_cruise's +7.86 samples read as a measurement. Its cells are marked ``*`` and a note under
+    the table says what it is; a lag with the position in the model is not marked."""
+    import argparse
+
+    from fusionkit import sim
+    from fusionkit.cli import _lag_row
+
+    assert main(["lags", "sim:fast-rotation"]) == 0  # (a rotation scenario: no position in its meta)
+    lines = capsys.readouterr().out.splitlines()
+    row = [c.strip() for c in lines[2].split("|")]
+    assert row[5].endswith("*") and row[6].endswith("*") and row[8] == "gravity only*"
+    assert lines[-1].startswith("* acc lag from gravity alone") and "not valid under sustained linear" in lines[-1]
+    rec = sim.simulate([sim.Rest(0.5), sim.Rotate((0, 1, 1), 1.0, 1.0), sim.Rotate((1, 0, 0), -1.0, 1.0)],
+                       rate=100.0, seed=0, gnss_rate=None)
+    rec.meta["ref_pos"] = np.zeros((len(rec), 3))  # (it stays where it is)
+    text, ok, model = _lag_row("t", lambda: rec, argparse.Namespace(max_lag=8.0, cutoff=20.0))
+    assert ok and model == "position" and "*" not in text
+
+
+def test_lags_reads_every_file_before_the_table(tmp_path, capsys):
+    """A file that is no recording (a CSV without gyro columns, e.g. a result written by ``run``)
+    is one error line and no header, as the docs say: it printed the header, then the error."""
+    bad = tmp_path / "out.csv"
+    bad.write_text("t,qw,qx,qy,qz\n0,1,0,0,0\n0.01,1,0,0,0\n")
+    assert main(["lags", "sim:fast-rotation", str(bad)]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and len(err.strip().splitlines()) == 1 and "missing columns" in err, (out, err)
 
 
 def test_version(capsys):

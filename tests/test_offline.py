@@ -221,6 +221,53 @@ def test_api_errors():
         fk.make("recommended", offline=True, tau_acc=-1.0)
 
 
+def test_a_gnss_filter_is_told_the_real_reason():
+    """ins-gnss (a causal EKF with update()) was told "it is already an offline filter": the
+    streaming check came before the GNSS one. Now every reason that applies is said."""
+    with pytest.raises(PluginError, match="needs a GNSS stream") as exc:
+        fk.make("ins-gnss", offline=True)
+    assert "already an offline" not in str(exc.value) and "does not stream" in str(exc.value)
+    assert "already an offline" in supports_offline(fk.make("vqf-offline"))
+    assert "already an offline" in supports_offline(fk.make("recommended", offline=True))
+
+
+def test_make_offline_takes_the_offline_options():
+    """make(name, offline=True, ...) gives the offline mode its own options and the filter the
+    rest (they could be set only as OfflineFilter(make(name), option=...): "unknown parameter");
+    without offline=True the error says where the option belongs; a filter parameter of the same
+    name is ambiguous and refused."""
+    import inspect
+
+    from fusionkit.config import param
+    from fusionkit.filters.poisson import PoissonConfig, PoissonFilter
+    from fusionkit.registry import Registry
+
+    init = [k for k in inspect.signature(OfflineFilter.__init__).parameters if k not in ("self", "inner")]
+    assert list(OfflineFilter.OPTIONS) == init
+    f = fk.make("recommended", offline=True, disturbance_gap=None, inclination="average", tau_acc=1.5)
+    assert isinstance(f, OfflineFilter) and f.disturbance_gap is None and f.inclination == "average"
+    assert f.inner.config.tau_acc == 1.5
+    with pytest.raises(ConfigError, match=r"disturbance_gap.*option of the offline mode: make\('recommended', "
+                                          r"offline=True, disturbance_gap=\.\.\.\)"):
+        fk.make("recommended", disturbance_gap=None)
+    with pytest.raises(ConfigError, match="inclination must be one of"):
+        fk.make("recommended", offline=True, inclination="nope")
+
+    class Cfg(PoissonConfig):
+        inclination: str = param("x", unit="-", description="a filter's own parameter of that name")
+
+    class Mine(PoissonFilter):
+        name = "mine-offline"
+        Config = Cfg
+
+    reg = Registry(use_entry_points=False)
+    reg.register(Mine)
+    with pytest.raises(ConfigError, match=r"'inclination' is both a parameter of 'mine-offline' and an option of "
+                                          r"the offline mode: .*OfflineFilter\(make\('mine-offline', \.\.\.\), "
+                                          r"inclination=\.\.\.\)"):
+        reg.make("mine-offline", offline=True, inclination="average")
+
+
 def test_state_continues_an_earlier_run():
     rec = start_in_motion()
     half = len(rec) // 2

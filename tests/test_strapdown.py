@@ -129,3 +129,70 @@ def test_bad_input():
         strapdown(None, np.zeros((5, 3)), 0.01)
     with pytest.raises(fk.InputError, match="fix index"):
         strapdown(np.zeros((5, 3)), np.zeros((5, 3)), 0.01, quat0=[1, 0, 0, 0], fixes=[(9, [0, 0, 0], [0, 0, 0])])
+
+
+def _bad(**kw):
+    n = 20
+    args = {"gyr": np.zeros((n, 3)), "acc": np.tile([0.0, 0.0, G], (n, 1)), "dt": 0.01, "quat0": [1, 0, 0, 0],
+            "backend": "reference"}
+    args.update(kw)
+    if "attitude" in kw:
+        args.pop("quat0")
+    return strapdown(args.pop("gyr"), args.pop("acc"), args.pop("dt"), **args)
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"dt": -0.01}, r"dt must be a finite number > 0"),  # ran backwards to a finite position
+    ({"dt": 0}, r"dt must be a finite number > 0"),  # all zeros
+    ({"dt": np.nan}, r"dt must be a finite number > 0"),
+    ({"dt": np.inf}, r"dt must be a finite number > 0"),
+    ({"dt": np.r_[np.full(10, 0.01), -0.01, np.full(9, 0.01)]}, r"dt\[10\] is -0.01"),
+    ({"acc": np.where(np.arange(20)[:, None] == 5, np.nan, np.tile([0.0, 0.0, G], (20, 1)))},
+     r"acc\[5\] is not finite"),
+    ({"gyr": np.where(np.arange(20)[:, None] == 7, np.inf, np.zeros((20, 3)))}, r"gyr\[7\] is not finite"),
+    ({"attitude": np.zeros((20, 4))}, r"attitude\[0\] is a zero quaternion"),
+    ({"attitude": np.where(np.arange(20)[:, None] == 3, np.nan, [1.0, 0, 0, 0])}, r"attitude\[3\] is not finite"),
+    ({"quat0": [0, 0, 0, 0]}, r"quat0 is a zero quaternion"),  # NaN and a RuntimeWarning
+    ({"fixes": [(3, [0, 0], [0, 0, 0])]}, r"fixes\[0\] velocity must have shape \(3,\)"),  # numpy's reshape error
+    ({"fixes": [(3, [0, 0, 0])]}, r"fixes\[0\] must be \(index, vel"),
+    ({"fixes": [(3.5, [0, 0, 0], [0, 0, 0])]}, r"fixes\[0\]'s index must be an integer"),  # was taken as 3
+    ({"vel0": [np.nan, 0, 0]}, r"vel0 is not finite"),
+])
+def test_bad_input_is_named(kw, match):
+    """Each of a new user's inputs that ran silently to a wrong (or NaN) answer, or failed in numpy
+    naming nothing, is an InputError naming the argument (and the first bad sample)."""
+    with pytest.raises(fk.InputError, match=match):
+        _bad(**kw)
+
+
+def test_interval_array_first_entry_and_scaled_quaternions():
+    """dt[0] is not used (np.diff with a 0 prepended is fine); a scaled quaternion is normalised, as
+    quat0 always was (the matrix of 3 q is no rotation: gravity was not removed)."""
+    from fusionkit.rotations import quat_from_rotvec, quat_to_matrix
+
+    n = 20
+    q = np.tile(quat_from_rotvec([0.5, 0.2, 0.0]), (n, 1))
+    acc = np.tile(quat_to_matrix(q[0]).T @ [0.0, 0.0, G], (n, 1))  # at rest, tilted
+    r = _bad(acc=acc, dt=np.r_[0.0, np.full(n - 1, 0.01)], attitude=3 * q)
+    np.testing.assert_allclose(r.pos, 0.0, atol=1e-12)
+    np.testing.assert_allclose(r.quat, q, atol=1e-12)
+
+
+def test_a_result_is_taken_in_its_own_frame():
+    """A filter's Result as ``attitude``: re-expressed in ``frame`` (an ENU result read as NED
+    quaternions was 62 m off on heli_cruise); ``frame`` left out is the Result's."""
+    rng = np.random.default_rng(1)
+    n = 50
+    from fusionkit.conventions import change_frame
+    from fusionkit.rotations import quat_from_rotvec
+
+    q_enu = quat_from_rotvec(0.3 * rng.normal(size=(n, 3)))
+    acc = rng.normal(size=(n, 3)) + [0, 0, G]
+    res = fk.Result(quat=q_enu, flags=np.zeros(n, np.uint32), frame="ENU")
+    ned = strapdown(None, acc, 0.01, attitude=change_frame(q_enu, "ENU", "NED"), frame="NED", backend="reference")
+    got = strapdown(None, acc, 0.01, attitude=res, frame="NED", backend="reference")
+    assert got.frame == "NED"
+    np.testing.assert_allclose(got.pos, ned.pos, atol=1e-12)
+    own = strapdown(None, acc, 0.01, attitude=res, backend="reference")
+    assert own.frame == "ENU"
+    np.testing.assert_allclose(own.pos, strapdown(None, acc, 0.01, attitude=q_enu, backend="reference").pos, atol=1e-12)

@@ -28,15 +28,18 @@ position.
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .._kernels import dcm_to_quat, matmul3_into, quat_to_dcm, rodrigues_into
 from .._numba import njit, resolve_backend
-from ..conventions import up_vector
+from ..conventions import check_frame, up_vector
 from ..errors import InputError
 from ..rotations import matrix_to_quat, quat_to_matrix, rodrigues
+from ..types import Result
+from ..validation import _no_bool, as_vector, as_vectors, check_positive, finite_rows
 
 __all__ = ["velocity_increment", "design_prefilter", "prefilter", "highpass", "strapdown", "StrapdownResult"]
 
@@ -130,55 +133,64 @@ class StrapdownResult:
 
 
 def strapdown(gyr, acc, dt, *, quat0=None, attitude=None, vel0=(0.0, 0.0, 0.0), pos0=(0.0, 0.0, 0.0),
-              gravity: float = 9.81, frame: str = "ENU", fixes=None, backend: str = "auto") -> StrapdownResult:
+              gravity: float = 9.81, frame: str | None = None, fixes=None, backend: str = "auto") -> StrapdownResult:
     """Integrate specific force ``acc`` (N, 3, m/s^2, body) to velocity and position.
 
     Attitude: integrate ``gyr`` (N, 3, rad/s) from ``quat0`` (body->``frame``), or take
-    ``attitude`` (N, 4) as given. ``dt`` is the sample interval (s) or an (N,) array.
-    ``fixes``: optional ``(index, vel (3,), pos (3,))`` rows (e.g. GNSS epochs mapped to samples):
-    at those samples velocity and position are reset to the fix (NaN components are kept).
+    ``attitude`` as given: an (N, 4) array body->``frame``, or a filter's :class:`~fusionkit.Result`.
+    A Result states its own frame, so it is re-expressed in ``frame`` (exact; an ENU result
+    integrated as NED quaternions was 62 m off on heli_cruise instead of 8 m), and ``frame``
+    left out is the Result's (else ENU). Quaternions (``quat0``, ``attitude``'s rows) are
+    normalised as everywhere in fusionkit; a zero or non-finite one is an :class:`InputError`.
+    ``dt`` is the sample interval (s, finite, > 0) or an (N,) array of ``t[k] - t[k-1]`` (its
+    first entry is not used: nothing is integrated before sample 0).
+    ``fixes``: optional ``(index, vel (3,), pos (3,))`` rows (e.g. GNSS epochs mapped to samples,
+    ``index`` an integer sample number): at those samples velocity and position are reset to the
+    fix (NaN components are kept). There is no ``nan_policy`` here: a non-finite ``acc`` or
+    ``gyr`` sample would make every later velocity and position NaN, so it is an
+    :class:`InputError` naming the first such sample.
     """
-    acc = np.ascontiguousarray(acc, dtype=float)
+    acc = as_vectors("acc", acc)
     n = acc.shape[0]
-    if acc.ndim != 2 or acc.shape[1] != 3:
-        raise InputError(f"acc must have shape (N, 3), got {acc.shape}")
-    dts = np.full(n, float(dt)) if np.ndim(dt) == 0 else np.ascontiguousarray(dt, dtype=float)
-    if dts.shape != (n,):
-        raise InputError(f"dt must be a number or have shape ({n},), got {np.shape(dt)}")
+    if n == 0:
+        raise InputError("acc has no samples: give at least one (N, 3) row")
+    dts = _intervals(dt, n)
     if attitude is None:
         if quat0 is None or gyr is None:
             raise InputError("give attitude=(N, 4), or gyr and quat0 to integrate it")
-        gyr = np.ascontiguousarray(gyr, dtype=float)
+        gyr = as_vectors("gyr", gyr)
         if gyr.shape != acc.shape:
             raise InputError(f"gyr has shape {gyr.shape}, acc {acc.shape}: they must match")
+        _finite_rows("gyr", gyr)
+        q0 = _unit_quats("quat0", as_vector("quat0", quat0, 4)[None, :], one=True)[0]
         att = None
+        frame = "ENU" if frame is None else frame
     else:
-        att = np.ascontiguousarray(attitude, dtype=float)
+        if isinstance(attitude, Result):  # (float() of a Result raised a TypeError naming nothing)
+            frame = attitude.frame if frame is None else frame
+            att = np.ascontiguousarray(attitude.to_frame(check_frame(frame)), dtype=float)
+        else:
+            att = as_vectors("attitude", attitude, width=4)
         if att.shape != (n, 4):
-            raise InputError(f"attitude must have shape ({n}, 4), got {att.shape}")
-    g_vec = -gravity * up_vector(frame)
-    fix_idx = np.full(n, -1, dtype=np.int64)
-    fix_val = np.full((0, 6), np.nan)
-    if fixes is not None:
-        rows = list(fixes)
-        fix_val = np.array([np.concatenate([np.asarray(v, float), np.asarray(p, float)]) for _, v, p in rows]).reshape(-1, 6)
-        for j, (i, _, _) in enumerate(rows):
-            if not 0 <= int(i) < n:
-                raise InputError(f"fix index {i} outside 0..{n - 1}")
-            fix_idx[int(i)] = j
+            raise InputError(f"attitude must have shape ({n}, 4), one quaternion per acc sample, got {att.shape}")
+        att = _unit_quats("attitude", att)
+        frame = "ENU" if frame is None else frame
+    _finite_rows("acc", acc)
+    v0, p0 = as_vector("vel0", vel0), as_vector("pos0", pos0)
+    _finite_rows("vel0", v0[None, :], one=True)
+    _finite_rows("pos0", p0[None, :], one=True)
+    g_vec = -check_positive("gravity", gravity) * up_vector(check_frame(frame))
+    fix_idx, fix_val = _fixes(fixes, n)
     used = resolve_backend(backend, True)
     vel, pos, quat = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 4))
-    if att is None:
-        c0 = quat_to_matrix(np.asarray(quat0, dtype=float) / np.linalg.norm(quat0)).reshape(9).copy()
-    else:
-        c0 = quat_to_matrix(att[0]).reshape(9).copy()
+    c0 = quat_to_matrix(q0 if att is None else att[0]).reshape(9).copy()
     if used == "numba":
-        _strapdown_kernel(gyr if att is None else np.zeros((n, 3)), acc, dts, att if att is not None else np.zeros((n, 4)),
-                          att is not None, c0, np.asarray(vel0, float), np.asarray(pos0, float), g_vec, fix_idx,
+        _strapdown_kernel(gyr if att is None else np.zeros((n, 3)), acc, dts,
+                          att if att is not None else np.zeros((n, 4)), att is not None, c0, v0, p0, g_vec, fix_idx,
                           fix_val, vel, pos, quat)
     else:
         c = c0.reshape(3, 3)
-        v, p = np.asarray(vel0, float).copy(), np.asarray(pos0, float).copy()
+        v, p = v0.copy(), p0.copy()
         a_prev = None
         for k in range(n):
             if k > 0:  # the attitude at sample k: Rodrigues step over (t[k-1], t[k]] with sample k's rate
@@ -239,3 +251,80 @@ def _strapdown_kernel(gyr, acc, dts, att, given, c0, v0, p0, g_vec, fix_idx, fix
             pos[k, i] = p[i]
         dcm_to_quat(c, q)
         quat[k, 0], quat[k, 1], quat[k, 2], quat[k, 3] = q[0], q[1], q[2], q[3]
+
+
+def _finite_rows(name: str, x: np.ndarray, one: bool = False) -> None:
+    """An :class:`InputError` naming the first row of ``x`` with a NaN or inf (``one``: ``x`` is
+    one vector, named without an index): one such sample makes every later velocity and position
+    NaN (or inf), silently."""
+    ok = finite_rows(x)
+    if not ok.all():
+        i = int(np.argmin(ok))
+        raise InputError(f"{name if one else f'{name}[{i}]'} is not finite ({x[i].tolist()}): strapdown "
+                         "integrates it into every later velocity and position; clean or cut the data first")
+
+
+def _unit_quats(name: str, q: np.ndarray, one: bool = False) -> np.ndarray:
+    """``q`` (N, 4) with unit rows (normalised where off by more than rounding, as ``quat0`` always
+    was and a Recording's truth is); a non-finite or zero row is an :class:`InputError` by index
+    (``quat_to_matrix`` of a zero quaternion is all zeros: no gravity removed; of ``3 q`` nine
+    times the rotation)."""
+    _finite_rows(name, q, one)
+    n2 = np.einsum("ij,ij->i", q, q)
+    if (n2 == 0.0).any():
+        i = int(np.argmax(n2 == 0.0))
+        raise InputError(f"{name if one else f'{name}[{i}]'} is a zero quaternion: no orientation")
+    off = np.abs(n2 - 1.0) > 2e-9
+    if off.any():
+        q = q.copy()
+        q[off] /= np.sqrt(n2[off])[:, None]
+    return q
+
+
+def _intervals(dt, n: int) -> np.ndarray:
+    """``dt`` (a number or (N,) array of s) as (N,) intervals; every interval used (a scalar, or an
+    array's entries from 1 on) finite and > 0: a negative one ran the integration backwards, a
+    zero one stood still, a NaN one made every later sample NaN."""
+    if np.ndim(dt) == 0:
+        return np.full(n, check_positive("dt", dt))
+    _no_bool("dt", dt, " (sample intervals in s)")
+    try:
+        dts = np.ascontiguousarray(dt, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"dt must be a number or an ({n},) array of intervals in s: {exc}") from None
+    if dts.shape != (n,):
+        raise InputError(f"dt must be a number or have shape ({n},), got {np.shape(dt)}")
+    bad = ~(np.isfinite(dts[1:]) & (dts[1:] > 0))
+    if bad.any():
+        i = int(np.argmax(bad)) + 1
+        raise InputError(f"dt[{i}] is {float(dts[i])!r}: every sample interval must be a finite number > 0 s "
+                         "(dt[0] is not used)")
+    return dts
+
+
+def _fixes(fixes, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``fixes`` as (per-sample row number or -1, (M, 6) velocity and position), each row checked:
+    an integer index in ``0..n-1``, a velocity and a position of 3 numbers each (NaN: kept)."""
+    fix_idx = np.full(n, -1, dtype=np.int64)
+    if fixes is None:
+        return fix_idx, np.full((0, 6), np.nan)
+    rows = list(fixes)
+    fix_val = np.empty((len(rows), 6))
+    for j, row in enumerate(rows):
+        try:
+            i, v, p = row
+        except (TypeError, ValueError):
+            raise InputError(f"fixes[{j}] must be (index, vel (3,), pos (3,)), got {row!r:.80}") from None
+        if isinstance(i, (bool, np.bool_)):
+            raise InputError(f"fixes[{j}]'s index must be an integer sample number, got {i!r}")
+        try:
+            k = operator.index(i)
+        except TypeError:
+            raise InputError(f"fixes[{j}]'s index must be an integer sample number, got {i!r:.40} "
+                             "(map times to samples with np.searchsorted)") from None
+        if not 0 <= k < n:
+            raise InputError(f"fixes[{j}]: fix index {k} outside 0..{n - 1}")
+        fix_val[j, :3] = as_vector(f"fixes[{j}] velocity", v)
+        fix_val[j, 3:] = as_vector(f"fixes[{j}] position", p)
+        fix_idx[k] = j
+    return fix_idx, fix_val

@@ -64,6 +64,7 @@ class VqfFilter(PeerFilter):
 class VqfOffline(VqfFilter):
     name: ClassVar[str] = "vqf-offline"
     streaming: ClassVar[bool] = False
+    acausal: ClassVar[bool] = True  #: it uses later samples: already offline (fusionkit.offline.supports_offline)
     summary: ClassVar[str] = "peer: VQF offline (acausal, uses future samples)"
 
     def _batch(self, obj, gyr, acc, mag, rate):
