@@ -685,9 +685,7 @@ class OfflineFilter(Filter):
         """The offline mode's own options (its ``config`` is the inner filter's): what tells this
         filter from the inner one run online, and from another offline setting (the bench's cache
         key: an offline row showed the online run's numbers on a re-run)."""
-        return {"disturbance_gap": self.disturbance_gap, "calibration": self.calibration,
-                "mag_timing": self.mag_timing, "calibration_test": self.calibration_test,
-                "inclination": self.inclination, "gyro_timing": self.gyro_timing}
+        return {k: getattr(self, k) for k in self.OPTIONS}
 
     def dimension(self, rec) -> str:
         return self.inner.dimension(rec)

@@ -40,6 +40,7 @@ import numpy as np
 from .._sources import fusionkit_hash, source_hash
 from ..config import set_dotted
 from ..errors import ConfigError, FusionkitError
+from ..offline import OfflineFilter
 from .datasets import Trial, discover
 from .metrics import trial_metrics
 from .report import HIDDEN_BY_DEFAULT, METRIC_LABELS, aiding, dimension, metric_label, not_applicable
@@ -325,8 +326,10 @@ def _validate(spec: FilterSpec) -> None:
 
 
 #: what ``make`` takes beside a filter's config fields, so ``--param offline=true`` (and a sweep's
-#: ``--grid offline=true,false``) reach it: refused as "no field of the filters" before
-MAKE_OPTIONS = {"offline": "run forward and backward in time (fusionkit.offline)"}
+#: ``--grid offline=true,false``, the offline mode's own options with it) reach it: refused as "no
+#: field of the filters" before
+MAKE_OPTIONS = {"offline": "run forward and backward in time (fusionkit.offline)",
+                **{k: "an option of the offline mode (with offline=True)" for k in OfflineFilter.OPTIONS}}
 
 
 def _apply_params(specs: list[FilterSpec], params: Mapping[str, Any]) -> list[FilterSpec]:
