@@ -592,7 +592,9 @@ class Result:
         if time is not None:
             cols.insert(0, time.astype(float)[:, None])
             names.insert(0, "t")
-        fmt = ["%.9g"] * (len(names) - 1) + ["%d"]
+        # the time to the last bit (%.17g): at 9 digits an epoch time (1.7e9 s) lost its seconds, every row
+        # the same t; the quaternions and angles to 9 digits (1e-9, far below any filter's error)
+        fmt = ["%.17g"] * (time is not None) + ["%.9g"] * (len(names) - 1 - (time is not None)) + ["%d"]
         axes = [a.lower() for a in self.frame]  # (ENU: e, n, u; NED: n, e, d; NWU: n, w, u)
         for key, unit in (("velocity", "mps"), ("position", "m")):  # a navigation result's (ins-gnss): it wrote
             v = self.diagnostics.get(key)  # the attitude alone, its velocity and position only in diagnostics

@@ -249,6 +249,19 @@ def test_csv_round_trip(tmp_path):
     assert load_csv(tmp_path / "rate.csv").rate == 200.0
 
 
+def test_epoch_timestamps_survive_a_csv_round_trip(tmp_path):
+    """Timestamps of a logger's epoch clock (1.7e9 s) are written to the last bit: at 9-10 digits
+    every row of a Result's CSV had the same t, and write_csv's file no longer loaded ("t must be
+    strictly increasing")."""
+    r = sim.simulate([sim.Rest(1.0)], rate=200.0, seed=0)
+    rec = fk.Recording(gyr=r.gyr, acc=r.acc, mag=r.mag, t=1.7e9 + r.time)
+    write_csv(rec, tmp_path / "r.csv")
+    back = fk.load(tmp_path / "r.csv")
+    np.testing.assert_array_equal(back.t, rec.t)
+    fk.make("poisson").run(rec, backend="reference").to_csv(tmp_path / "o.csv", time=rec.t)
+    np.testing.assert_array_equal(np.loadtxt(tmp_path / "o.csv", delimiter=",", skiprows=1)[:, 0], rec.t)
+
+
 def test_a_csv_rate_does_not_replace_its_t_column(tmp_path):
     """A rate (argument or '# rate=' line) with a 't' column only confirms it: 't' stays the clock
     (its gap kept), and a rate that contradicts it is an error naming both. The rate once replaced

@@ -254,4 +254,7 @@ def write_csv(rec: Recording, path) -> None:
         cols.append(change_frame(rec.truth, rec.truth_frame, "ENU"))
         names += _QUAT
     header = ("" if rec.body is None else f"# body={rec.body}\n") + ",".join(names)
-    np.savetxt(path, np.hstack(cols), delimiter=",", header=header, comments="", fmt="%.10g")
+    # the time to the last bit: at 10 digits an epoch time (1.7e9 s) kept whole seconds, and load_csv then
+    # refused the file ("t must be strictly increasing"); the samples to 10 digits
+    fmt = ["%.17g"] + ["%.10g"] * (sum(c.shape[1] for c in cols) - 1)
+    np.savetxt(path, np.hstack(cols), delimiter=",", header=header, comments="", fmt=fmt)
