@@ -93,6 +93,13 @@ def test_linear_accelerations_from_the_reference_position():
     ned = dataclasses.replace(rec, truth=change_frame(rec.truth, "ENU", "NED"), truth_frame="NED",
                               meta={"ref_pos": pos[:, [1, 0, 2]] * [1, 1, -1]})
     assert sensor_lags(ned).acc == pytest.approx(with_pos.acc, abs=1e-9)  # "auto" reads meta["ref_pos"]
+    # and meta["ref_pos_ned"] (the GNSS scenarios, simulated flights), in any truth frame: read as gravity alone
+    # before, their vehicles' accelerations gave the GNSS flights +7.86 / -1.52 "samples" of lag
+    flight = dataclasses.replace(ned, meta={"ref_pos_ned": ned.meta["ref_pos"]})
+    assert sensor_lags(flight).acc_model == "position"
+    assert sensor_lags(flight).acc == pytest.approx(with_pos.acc, abs=1e-9)
+    enu = dataclasses.replace(rec, meta={"ref_pos_ned": ned.meta["ref_pos"]})
+    assert sensor_lags(enu).acc == pytest.approx(with_pos.acc, abs=1e-9)
     part = ned.slice(100, 1500)  # per-sample arrays in meta are sliced with the samples
     assert part.meta["ref_pos"].shape == (1400, 3)
     assert sensor_lags(part).acc == pytest.approx(0.5, abs=0.05)

@@ -158,7 +158,8 @@ def sensor_lags(rec, max_lag: float = 8.0, step: float = 0.05, cutoff: float = 2
     ``cutoff``: the low-pass (Hz) applied to both sides; ``outlier``: residuals above this many
     times the median are left out after a first pass; ``position``: (N, 3) reference positions
     (m, in ``rec.truth_frame``, NaN where missing) for the accelerometer's model, ``"auto"``
-    (default) ``rec.meta["ref_pos"]`` when the loader kept one, or None (gravity alone).
+    (default) ``rec.meta["ref_pos"]`` when the loader kept one (BROAD), else ``rec.meta["ref_pos_ned"]``
+    (the GNSS scenarios and simulated flights, their local NED), or None (gravity alone).
     """
     if rec.truth is None:
         raise InputError(f"recording {rec.name!r} has no reference orientation (truth) to time the sensors against")
@@ -183,6 +184,9 @@ def sensor_lags(rec, max_lag: float = 8.0, step: float = 0.05, cutoff: float = 2
         if position != "auto":
             raise InputError(f"position must be an (N, 3) array, 'auto' or None, got {position!r}")
         position = rec.meta.get("ref_pos")
+        ned = rec.meta.get("ref_pos_ned")  # (the GNSS scenarios, fusionkit.sim.flight: their local NED)
+        if position is None and isinstance(ned, np.ndarray) and ned.shape == (n, 3):
+            position = ned @ frame_matrix("NED", rec.truth_frame).T
     if position is not None:
         position = np.asarray(position, dtype=float)
         if position.shape != (n, 3):
