@@ -193,13 +193,11 @@ def supports_offline(filt: Filter) -> str | None:
     if not getattr(type(filt), "streaming", True):
         why.append("it does not stream (streaming = False: its run() is not a causal pass continued from a state, "
                    "which each of the offline mode's passes is)")
-    if why:
-        return "; ".join(why)
     missing = [k for k in ("acc_delay", "mag_delay", "tau_acc") if not hasattr(filt.config, k)]
     if missing:
-        return (f"its config does not declare {', '.join(missing)}: the backward pass needs the sensors' pairing "
-                "with the gyro's step (acc_delay, mag_delay) and the inclination time constant (tau_acc)")
-    return None
+        why.append(f"its config does not declare {', '.join(missing)}: the backward pass needs the sensors' pairing "
+                   "with the gyro's step (acc_delay, mag_delay) and the inclination time constant (tau_acc)")
+    return "; ".join(why) if why else None
 
 
 def reversed_config(filt: Filter, dt: float) -> FilterConfig:
@@ -778,7 +776,10 @@ class OfflineFilter(Filter):
         c = self.config
         # the intervals the passes integrated: a gap's is the nominal one (the state was held across it; its
         # own 5 s gave the pass that had just restarted there 0.93 of full information, the weights 0.5 / 0.5)
-        dt = hold_gaps(rec.gyr, rec.dt, rec.nominal_dt, getattr(c, "max_gap", None))[1]
+        _, dt, gaps = hold_gaps(rec.gyr, rec.dt, rec.nominal_dt, getattr(c, "max_gap", None))
+        if n > 1 and gaps[1]:  # dt[0] is a copy of dt[1]: the held one's (a gap at sample 1 gave sample 0 its 5 s)
+            dt = dt.copy()
+            dt[0] = dt[1]
         # information of each pass in its own time order; the backward one's sample j is input
         # sample N-1-j and its output is the orientation at sample N-2-j
         i_f = self._info(fwd.flags, dt, c.tau_acc, _ACC_UNUSED, 0.0, used)

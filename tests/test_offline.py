@@ -227,6 +227,7 @@ def test_a_gnss_filter_is_told_the_real_reason():
     with pytest.raises(PluginError, match="needs a GNSS stream") as exc:
         fk.make("ins-gnss", offline=True)
     assert "already an offline" not in str(exc.value) and "does not stream" in str(exc.value)
+    assert "does not declare acc_delay, mag_delay, tau_acc" in str(exc.value)  # (every reason: review rev33b)
     assert "already an offline" in supports_offline(fk.make("vqf-offline"))
     assert "already an offline" in supports_offline(fk.make("recommended", offline=True))
 

@@ -157,12 +157,24 @@ def _bad(**kw):
     ({"fixes": [(3, [0, 0, 0])]}, r"fixes\[0\] must be \(index, vel"),
     ({"fixes": [(3.5, [0, 0, 0], [0, 0, 0])]}, r"fixes\[0\]'s index must be an integer"),  # was taken as 3
     ({"vel0": [np.nan, 0, 0]}, r"vel0 is not finite"),
+    ({"gravity": -9.81}, r"gravity must be one finite number >= 0"),
+    ({"attitude": [1.0, 0, 0, 0]}, r"attitude must have shape \(20, 4\), one quaternion per acc sample, got \(4,\)"),
 ])
 def test_bad_input_is_named(kw, match):
     """Each of a new user's inputs that ran silently to a wrong (or NaN) answer, or failed in numpy
     naming nothing, is an InputError naming the argument (and the first bad sample)."""
     with pytest.raises(fk.InputError, match=match):
         _bad(**kw)
+
+
+def test_gravity_removed_and_a_whole_float_fix_index_are_taken():
+    """gravity=0 integrates an acceleration with gravity already removed (a phone's linear
+    acceleration); a fix index that is a whole float (np.round's 3.0) is that sample (review rev33b:
+    the input checks of the stop refused both)."""
+    r = _bad(acc=np.tile([0.5, 0.0, 0.0], (20, 1)), gravity=0)
+    assert r.vel[-1, 0] == pytest.approx(0.5 * 19 * 0.01)
+    a, b = (_bad(fixes=[(k, [1.0, 0, 0], [0, 0, 0])]) for k in (3, np.float64(3.0)))
+    np.testing.assert_array_equal(a.pos, b.pos)
 
 
 def test_interval_array_first_entry_and_scaled_quaternions():

@@ -228,13 +228,13 @@ def _spec_key(spec: FilterSpec) -> str:
         code = _plugin_code(f)
         # a wrapper keeps the inner filter's config (the offline mode): its own options and class count too
         wrapper = {"class": f"{type(f).__module__}.{type(f).__qualname__}",
-                   "options": f.options() if callable(getattr(f, "options", None)) else None}
+                   "options": f.options() if isinstance(f, OfflineFilter) else None}
     except Exception:  # unbuildable: never cached
         return ""
     if code is None:
         return ""
     blob = json.dumps({"name": spec.name, "config": cfg, "v": _versions(), "plugins": code,
-                       "peer": _peer_version(spec.name), "filter": wrapper}, sort_keys=True, default=str)
+                       "peer": _peer_version(spec.name), "filter": wrapper}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 

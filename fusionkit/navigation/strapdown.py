@@ -170,16 +170,18 @@ def strapdown(gyr, acc, dt, *, quat0=None, attitude=None, vel0=(0.0, 0.0, 0.0), 
             frame = attitude.frame if frame is None else frame
             att = np.ascontiguousarray(attitude.to_frame(check_frame(frame)), dtype=float)
         else:
+            shape = np.shape(attitude)  # (as_vectors makes one quaternion (4,) a row: named as given)
             att = as_vectors("attitude", attitude, width=4)
         if att.shape != (n, 4):
-            raise InputError(f"attitude must have shape ({n}, 4), one quaternion per acc sample, got {att.shape}")
+            given = att.shape if isinstance(attitude, Result) else shape
+            raise InputError(f"attitude must have shape ({n}, 4), one quaternion per acc sample, got {given}")
         att = _unit_quats("attitude", att)
         frame = "ENU" if frame is None else frame
     _finite_rows("acc", acc)
     v0, p0 = as_vector("vel0", vel0), as_vector("pos0", pos0)
     _finite_rows("vel0", v0[None, :], one=True)
     _finite_rows("pos0", p0[None, :], one=True)
-    g_vec = -check_positive("gravity", gravity) * up_vector(check_frame(frame))
+    g_vec = -_gravity(gravity) * up_vector(check_frame(frame))
     fix_idx, fix_val = _fixes(fixes, n)
     used = resolve_backend(backend, True)
     vel, pos, quat = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 4))
@@ -302,6 +304,20 @@ def _intervals(dt, n: int) -> np.ndarray:
     return dts
 
 
+def _gravity(gravity) -> float:
+    """``gravity`` (m/s^2) checked: a finite number >= 0. Zero is an acceleration with gravity
+    already removed (a phone's linear acceleration), integrated as it is."""
+    if isinstance(gravity, (bool, np.bool_, str, bytes)) or np.ndim(gravity) != 0:
+        raise InputError(f"gravity must be one finite number >= 0 (m/s^2), got {gravity!r:.80}")
+    try:
+        g = float(gravity)
+    except (TypeError, ValueError):
+        raise InputError(f"gravity must be one finite number >= 0 (m/s^2), got {gravity!r:.80}") from None
+    if not (math.isfinite(g) and g >= 0.0):
+        raise InputError(f"gravity must be one finite number >= 0 (m/s^2), got {gravity!r:.80}")
+    return g
+
+
 def _fixes(fixes, n: int) -> tuple[np.ndarray, np.ndarray]:
     """``fixes`` as (per-sample row number or -1, (M, 6) velocity and position), each row checked:
     an integer index in ``0..n-1``, a velocity and a position of 3 numbers each (NaN: kept)."""
@@ -319,9 +335,11 @@ def _fixes(fixes, n: int) -> tuple[np.ndarray, np.ndarray]:
             raise InputError(f"fixes[{j}]'s index must be an integer sample number, got {i!r}")
         try:
             k = operator.index(i)
-        except TypeError:
-            raise InputError(f"fixes[{j}]'s index must be an integer sample number, got {i!r:.40} "
-                             "(map times to samples with np.searchsorted)") from None
+        except TypeError:  # a float that is a whole number (np.round's 3.0) is that sample; 3.5 is none
+            if not (isinstance(i, (float, np.floating)) and math.isfinite(i) and float(i).is_integer()):
+                raise InputError(f"fixes[{j}]'s index must be an integer sample number, got {i!r:.40} "
+                                 "(map times to samples with np.searchsorted)") from None
+            k = int(i)
         if not 0 <= k < n:
             raise InputError(f"fixes[{j}]: fix index {k} outside 0..{n - 1}")
         fix_val[j, :3] = as_vector(f"fixes[{j}] velocity", v)
