@@ -68,7 +68,12 @@ class Sample(NamedTuple):
     """One input sample as the reference paths see it (``mag`` is None when absent or invalid;
     correctors get ``gyr`` with the alignment's bias removed;
     ``gnss`` is the latest GNSS epoch as a row ``vn, ve, valid, age, new, t_epoch``, see
-    :func:`fusionkit.detectors.gnss_gap.gnss_sample_rows`, or None without a GNSS stream)."""
+    :func:`fusionkit.detectors.gnss_gap.gnss_sample_rows`, or None without a GNSS stream).
+
+    A plugin must not change the arrays it is given: they are the recording's rows (or the
+    arrays passed to ``update()``), handed over as read-only views, so writing into one raises a
+    :class:`~fusionkit.errors.PluginError` naming the plugin (it changed the user's recording
+    silently); a sensor model returns its corrected sample as new arrays (``sample._replace``)."""
 
     gyr: np.ndarray
     acc: np.ndarray | None
