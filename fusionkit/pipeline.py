@@ -119,6 +119,48 @@ def _bad_correction(cor, out) -> None:
                       "Correction(rate, flags), rate an array of shape (3,) in rad/s or None")
 
 
+def _is_vec3(v) -> bool:
+    """Whether ``v`` is a sample's vector as the pipeline reads it: a numeric array of shape (3,)."""
+    return isinstance(v, np.ndarray) and v.shape == (3,) and v.dtype.kind in "fiu"
+
+
+def _model_output_ok(out) -> bool:
+    """Whether a sensor model's ``apply`` returned ``(Sample, flags)``: a Sample whose ``gyr`` is a
+    vector of 3 and ``acc`` / ``mag`` one or None, and flags an int from 0 to 2**32 - 1."""
+    if type(out) is not tuple or len(out) != 2:
+        return False
+    sample, f = out
+    return (type(sample) is Sample and isinstance(f, (int, np.integer)) and not isinstance(f, bool)
+            and 0 <= f <= 0xFFFFFFFF and _is_vec3(sample.gyr) and (sample.acc is None or _is_vec3(sample.acc))
+            and (sample.mag is None or _is_vec3(sample.mag)))
+
+
+def _bad_model_output(mod, out) -> None:
+    """A sensor model's ``apply`` returned something else than ``(Sample, flags)`` (see
+    :func:`_model_output_ok`): a PluginError naming it and what is wrong, as for a corrector
+    (:func:`_bad_correction`). Python's or numpy's error named neither: "too many values to
+    unpack" for a Sample alone, an IndexError for a gyr of shape (2,), an AttributeError for a
+    list, a TypeError for flags None."""
+    if type(out) is Sample:
+        what = "a Sample alone, not (sample, flags)"
+    elif type(out) is not tuple or len(out) != 2:
+        what = f"{type(out).__name__} {out!r:.60}"
+    elif type(out[0]) is not Sample:
+        what = f"({type(out[0]).__name__}, ...): the first item is not a fusionkit.protocols.Sample"
+    else:
+        sample, f = out
+        bad = [f"sample.{k} of type {type(v).__name__}" + (f", shape {v.shape}, dtype {v.dtype}"
+                                                          if isinstance(v, np.ndarray) else "")
+               for k, v in (("gyr", sample.gyr), ("acc", sample.acc), ("mag", sample.mag))
+               if not _is_vec3(v) and (k == "gyr" or v is not None)]
+        if not (isinstance(f, (int, np.integer)) and not isinstance(f, bool) and 0 <= f <= 0xFFFFFFFF):
+            bad.append(f"flags {f!r:.40} ({type(f).__name__})")
+        what = "(sample, flags) with " + ", ".join(bad)
+    raise PluginError(f"sensor model {mod.name!r}: apply() returned {what}; it must return (sample, flags): a "
+                      "Sample whose gyr is an array of shape (3,) and acc / mag arrays of shape (3,) or None, and "
+                      "flags an int of flag bits from 0 to 2**32 - 1 (0 for none)")
+
+
 class Pipeline(Filter):
     """A filter composed from registered plugins by a :class:`~fusionkit.config.PipelineConfig`.
 
@@ -252,7 +294,10 @@ class Pipeline(Filter):
             mflags = 0
             try:  # (the arrays are read-only views: a plugin that writes into them is named, see wrote_input)
                 for i, mod in enumerate(self.models):
-                    sample, f = mod.apply(st["mod"][i], sample, al[_QPREV:_QPREV + 4].copy())
+                    out = mod.apply(st["mod"][i], sample, al[_QPREV:_QPREV + 4].copy())
+                    if not _model_output_ok(out):
+                        _bad_model_output(mod, out)  # (a plugin's mistake, named: Python's or numpy's error was not)
+                    sample, f = out
                     mflags |= f
             except ValueError as exc:
                 wrote_input("sensor model", mod, exc)

@@ -215,3 +215,40 @@ def test_a_plugin_that_edits_its_sample_in_place_is_named_and_the_recording_kept
         with pytest.raises(PluginError, match=message):
             cls().run(rec, backend="reference")
         assert np.array_equal(rec.acc, acc0)
+
+
+def _with_model(name, apply):
+    """A poisson-quat pipeline with one sensor model ``name`` (registered for it alone) whose ``apply``
+    returns ``apply(sample)``."""
+
+    class Returns(SensorModel):
+        def apply(self, state, sample, quat):
+            return apply(sample)
+
+    Returns.name = name
+    reg = Registry()
+    reg.register(Returns)
+    return Pipeline({"estimator": "poisson-quat", "models": [name], "correctors": ["gradient-descent"],
+                     "alignment": {"mode": "none"}}, registry=reg)
+
+
+@pytest.mark.parametrize("apply, what", [
+    (lambda s: s, r"a Sample alone, not \(sample, flags\)"),
+    (lambda s: (s._replace(gyr=np.zeros(2)), 0), r"\(sample, flags\) with sample.gyr of type ndarray, shape \(2,\)"),
+    (lambda s: (s._replace(acc=list(s.acc)), 0), r"\(sample, flags\) with sample.acc of type list"),
+    (lambda s: (s, None), r"\(sample, flags\) with flags None \(NoneType\)"),
+    (lambda s: (s, 1.5), r"\(sample, flags\) with flags 1.5 \(float\)"),
+    (lambda s: [s, 0], r"list \["),
+])
+def test_a_sensor_model_that_returns_the_wrong_thing_is_named(apply, what):
+    """A sensor model returning ``sample`` instead of ``(sample, flags)`` gave "too many values to unpack",
+    a gyr of shape (2,) an IndexError from types._largest, an acc list an AttributeError ('tolist'), flags
+    None or 1.5 a TypeError: none named the model. Now a PluginError says which and what it must return,
+    as for a corrector; on run() and update()."""
+    p = _with_model("test-wrong-model", apply)
+    rec = sim.demo_recordings()[0].slice(0, 20)
+    message = rf"sensor model 'test-wrong-model': apply\(\) returned {what}.*; it must return \(sample, flags\)"
+    with pytest.raises(PluginError, match=message):
+        p.run(rec)
+    with pytest.raises(PluginError, match=message):
+        p.update(rec.gyr[0], rec.acc[0], dt=0.01)
