@@ -355,7 +355,7 @@ class Pipeline(Filter):
         q = None
         if self.correctors:
             rate = np.zeros(3)
-            measured, sample = sample, sample._replace(gyr=gyr - bias)
+            measured, sample = sample, sample._replace(gyr=read_only(gyr - bias))  # (read-only, as the others)
             try:
                 for i, cor in enumerate(self.correctors):
                     if cor.mode == "factor":

@@ -41,6 +41,8 @@ __all__ = [
     "SensorModelKernel",
     "DetectionResult",
     "KINDS",
+    "KIND_BASES",
+    "plugin_class_problem",
 ]
 
 KINDS = ("filter", "estimator", "corrector", "detector", "model")
@@ -465,3 +467,29 @@ class Filter(Plugin, ABC):
         buf.append(np.concatenate([gyr, acc]))
         arr = np.array(buf)
         check_units(arr[:, :3], arr[:, 3:], check_range=False)  # (a share of a few samples is no unit's proof)
+
+
+#: the protocol class a plugin of each kind subclasses
+KIND_BASES: dict[str, type[Plugin]] = {"filter": Filter, "estimator": Estimator, "corrector": Corrector,
+                                       "detector": Detector, "model": SensorModel}
+
+
+def plugin_class_problem(cls: Any) -> str | None:
+    """Why ``cls`` is not a usable plugin class (None when it is): a :class:`Plugin` subclass with a
+    name, a kind of :data:`KINDS`, subclassing that kind's protocol (:data:`KIND_BASES`) and
+    implementing its abstract methods. A ``Plugin`` subclass that only said ``kind = "filter"`` was
+    registered and made, and had no ``run()`` (an AttributeError on use)."""
+    if not (isinstance(cls, type) and issubclass(cls, Plugin)):
+        return f"{cls!r} is not a plugin class (a subclass of fusionkit.protocols.Plugin)"
+    if cls.kind not in KINDS:
+        return f"{cls.__name__}.kind must be one of {KINDS}, got {cls.kind!r}"
+    if not cls.name:
+        return f"{cls.__name__} has no name"
+    base = KIND_BASES[cls.kind]
+    if not issubclass(cls, base):
+        return (f"{cls.__name__} says kind={cls.kind!r} but does not subclass fusionkit.protocols.{base.__name__}, "
+                f"the {cls.kind} protocol")
+    missing = sorted(getattr(cls, "__abstractmethods__", ()))
+    if missing:
+        return f"{cls.__name__} does not implement {', '.join(m + '()' for m in missing)} ({cls.kind} protocol)"
+    return None
