@@ -46,11 +46,15 @@ def test_bad_errors_are_refused_by_name():
     for kw, name in ((dict(mag_matrix=np.zeros((3, 3))), "mag_matrix"), (dict(gyr_lowpass=-1.0), "gyr_lowpass"),
                      (dict(drop_rate=1.0), "drop_rate"), (dict(gyr_bias_rw=-1e-3), "gyr_bias_rw"),
                      (dict(gyr_misalignment=np.eye(3)), "gyr_misalignment"), (dict(mag_offset=(1, 2)), "mag_offset"),
-                     (dict(gaps=((1.0, 0.0),)), "gaps"), (dict(taps=(1.0,)), "taps")):
+                     (dict(gaps=((1.0, 0.0),)), "gaps"), (dict(taps=(1.0,)), "taps"),
+                     (dict(lowpass_order=True), "lowpass_order"), (dict(drop_rate="x"), "drop_rate")):
         with pytest.raises(InputError, match=name):
             sim.SensorErrors(**kw)
     with pytest.raises(InputError, match="errors"):
         sim.simulate([sim.Rest(1.0)], errors={"gyr_delay": 0.01})
+    # (ignored: a magnetometer read faster than the IMU gave the IMU's samples)
+    with pytest.raises(InputError, match=r"SensorErrors.mag_rate \(500.0 Hz\) is above the IMU's rate \(100.0 Hz\)"):
+        sim.simulate([sim.Rest(1.0)], rate=100.0, errors=sim.SensorErrors(mag_rate=500.0))
 
 
 # ---- magnetometer -------------------------------------------------------------------------------

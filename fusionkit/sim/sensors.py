@@ -34,11 +34,17 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
              sampling: str = "mean", errors: SensorErrors | None = None) -> Recording:
     """Simulate ``segments`` at ``rate`` Hz (see module doc); ``seed`` makes the noise repeatable.
 
+    Each segment lasts ``round(duration * rate)`` samples, at least one: durations are rounded to
+    the sample grid (``Rotate(axis, angle, 0.015)`` at 100 Hz lasts 0.02 s, its angle in full), so
+    the recording lasts the rounded durations' sum.
+
     ``sampling``: ``"mean"`` (the specific force and the field averaged over each sample's
     interval, like the gyro's rate) or ``"point"`` (their values at the sample's time).
 
-    With ``gnss_rate`` (Hz) the recording carries a GNSS velocity stream (ENU, white noise of
-    ``gnss_vel_noise`` m/s per axis) sampled from the true velocity.
+    With ``gnss_rate`` (Hz; None: no GNSS) the recording carries a GNSS velocity stream (ENU,
+    white noise of ``gnss_vel_noise`` m/s per axis) sampled from the true velocity, which starts at
+    ``initial_velocity`` (m/s, ENU): an epoch every ``round(rate / gnss_rate)`` samples (every
+    sample at a rate above the IMU's).
 
     ``errors``: a :class:`~fusionkit.sim.SensorErrors` (hard and soft iron, earth-fixed magnetic
     disturbances, delays and low-passes, scale factors and misalignments, bias random walks,
@@ -48,15 +54,30 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     ``acc_bias`` (the true biases per sample) and ``kept`` (the indices of the rows kept out of
     the uniform grid).
     """
-    if rate <= 0:
-        raise InputError(f"rate must be > 0, got {rate}")
+    rate = _err._positive("rate", rate, "Hz")  # (NaN, "100": numpy's or Python's error)
     if sampling not in ("mean", "point"):
         raise InputError(f"sampling must be 'mean' or 'point', got {sampling!r}")
     if errors is not None and not isinstance(errors, SensorErrors):
         raise InputError(f"errors must be a fusionkit.sim.SensorErrors or None, got {type(errors).__name__}")
+    if not isinstance(noise, Noise):
+        raise InputError(f"noise must be a fusionkit.sim.Noise, got {noise!r:.80}")
+    if gnss_rate is not None:  # (-5 gave an epoch every sample)
+        gnss_rate = _err._positive("gnss_rate", gnss_rate, "Hz (None: no GNSS)")
+    gnss_vel_noise = _err._nonneg("gnss_vel_noise", gnss_vel_noise)
+    mag_field = _err._vec("mag_field", mag_field)
+    initial_velocity = _err._vec("initial_velocity", initial_velocity)
+    if errors is not None and errors.mag_rate is not None and errors.mag_rate > rate:
+        raise InputError(f"SensorErrors.mag_rate ({errors.mag_rate} Hz) is above the IMU's rate ({rate} Hz): a "
+                         "magnetometer read faster than the IMU is sampled cannot be simulated (use mag_rate <= rate, "
+                         "or None)")
+    if isinstance(segments, (Rest, Rotate, Translate)) or not hasattr(segments, "__iter__"):
+        raise InputError(f"segments must be a list of Rest, Rotate and Translate, got {segments!r:.80}")
     segments = list(segments)
     if not segments:
         raise InputError("segments is empty")
+    for seg in segments:
+        if not isinstance(seg, (Rest, Rotate, Translate)):
+            raise InputError(f"unknown segment {seg!r}: use Rest, Rotate or Translate")
     dt = 1.0 / rate
     counts = [max(1, int(round(s.duration * rate))) for s in segments]
     n = sum(counts) + 1
@@ -64,7 +85,10 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     acc_e = np.zeros((n, 3))
     moving = np.zeros(n, bool)
     gyr = np.zeros((n, 3))
-    q = quat_normalize(np.asarray(initial, dtype=float))
+    initial = _err._vec("initial", initial, 4)
+    if not any(initial):
+        raise InputError("initial must be a quaternion (w, x, y, z), not all zero")
+    q = quat_normalize(np.asarray(initial))
     quat[0] = q
     g_e = np.array([0.0, 0.0, gravity])
     m_e = np.asarray(mag_field, dtype=float)
@@ -79,8 +103,6 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     p = np.zeros(3)
     k = 1
     for seg, m in zip(segments, counts):
-        if not isinstance(seg, (Rest, Rotate, Translate)):
-            raise InputError(f"unknown segment {seg!r}: use Rest, Rotate or Translate")
         u = np.arange(1, m + 1) / m  # progress at the segment's samples
         quat[k:k + m], acc_e[k:k + m] = _segment_motion(seg, q, u, m * dt)
         if isinstance(seg, Rotate):
