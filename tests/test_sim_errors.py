@@ -110,6 +110,19 @@ def test_an_earth_fixed_magnet_does_not_turn_with_the_body():
     assert np.ptp(hard[turning], axis=0).max() > 5.0  # a body-fixed offset turns with the body
 
 
+def test_ref_pos_and_the_magnets_field_move_with_the_initial_velocity():
+    """``ref_pos`` ignored ``initial_velocity`` (3 m east, 4 m north and 4 s at 1 m/s east ended at
+    [3, 4, 0], not [7, 4, 0]) while the GNSS velocity had it; the earth-fixed disturbances were felt
+    where the body would have been without it. Both now follow the drifting body."""
+    magnet = sim.MagneticDipole(position=(2.0, 0.5, 0.0), moment=(0.0, 0.0, 2.0))
+    rec = sim.simulate([sim.Rest(1.0), sim.Translate((3, 4, 0), 5.0, 2.0), sim.Rest(1.0)], rate=100.0,
+                       initial_velocity=(1.0, 0.0, 0.0), sampling="point", errors=sim.SensorErrors(dipoles=(magnet,)))
+    pos = rec.meta["ref_pos"]
+    np.testing.assert_allclose(pos[[100, -1]], [[1.0, 0.0, 0.0], [7.0, 4.0, 0.0]], atol=1e-12)
+    np.testing.assert_allclose(rec.gnss.vel[-1], [1.0, 0.0, 0.0], atol=1e-9)  # (it had it)
+    np.testing.assert_allclose(_earth(rec, rec.mag), FIELD + magnet.field(pos), atol=1e-9)
+
+
 @pytest.mark.parametrize("sampling", ["mean", "point"])
 def test_a_field_patch_is_added_in_the_earth_frame_while_it_lasts(sampling):
     patch = sim.FieldPatch(field=(5.0, -3.0, 8.0), start=1.0, stop=2.0)

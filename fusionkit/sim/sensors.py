@@ -50,7 +50,8 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     disturbances, delays and low-passes, scale factors and misalignments, bias random walks,
     vibration, taps, dropped samples, timestamp gaps; :mod:`fusionkit.sim.errors`); None or an
     empty one simulates exactly what it did without. With errors, ``meta`` also holds
-    ``errors``, ``ref_pos`` (the true position, m, ENU, from the start), ``gyr_bias`` and
+    ``errors``, ``ref_pos`` (the true position, m, ENU, from the start: the segments'
+    displacements plus ``initial_velocity`` times the time), ``gyr_bias`` and
     ``acc_bias`` (the true biases per sample) and ``kept`` (the indices of the rows kept out of
     the uniform grid).
     """
@@ -99,8 +100,9 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     weights = 0.5 * weights
     disturbed = errors is not None and bool(errors.dipoles or errors.patches)
     lever = None if errors is None or not any(errors.lever_arm) else errors.lever_arm
-    pos = np.zeros((n, 3))  # the true position (m, ENU) from the start
+    pos = np.zeros((n, 3))  # the segments' displacement (m, ENU) from the start; + v0 t: the true position
     p = np.zeros(3)
+    v0 = np.asarray(initial_velocity)
     k = 1
     for seg, m in zip(segments, counts):
         u = np.arange(1, m + 1) / m  # progress at the segment's samples
@@ -113,7 +115,8 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
         pos[k:k + m] = _segment_position(seg, p, u)
         if disturbed:
             def field(v, seg=seg, p=p, k=k, m=m):  # the earth's field plus its disturbances at progress v
-                return m_e + _err.earth_disturbance(errors, _segment_position(seg, p, v), (k - 1 + v * m) * dt)
+                t = (k - 1 + v * m) * dt
+                return m_e + _err.earth_disturbance(errors, _segment_position(seg, p, v) + t[:, None] * v0, t)
         else:
             def field(v):
                 return m_e
@@ -146,8 +149,7 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
         mag = mag[_err.held_source(n, errors.mag_rate, rate)]
     gnss = None
     if gnss_rate:
-        vel = np.asarray(initial_velocity, dtype=float) + np.concatenate(
-            [np.zeros((1, 3)), np.cumsum(0.5 * (acc_e[1:] + acc_e[:-1]) * dt, axis=0)])
+        vel = v0 + np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (acc_e[1:] + acc_e[:-1]) * dt, axis=0)])
         step = max(1, int(round(rate / gnss_rate)))
         idx = np.arange(0, n, step)
         gnss = Gnss(t=idx * dt, vel=vel[idx] + gnss_vel_noise * rng.standard_normal((idx.size, 3)), frame="ENU")
@@ -155,6 +157,7 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     if errors is None:
         return Recording(gyr=gyr, acc=acc, mag=mag, rate=rate, truth=quat, truth_frame="ENU", movement=moving,
                          gnss=gnss, name=name, meta=meta)
+    pos += np.arange(n)[:, None] * dt * v0  # (the GNSS velocity had the initial velocity, ref_pos did not)
     meta.update(errors=errors, ref_pos=pos, gyr_bias=extra["gyr_bias"] + np.asarray(noise.gyr_bias),
                 acc_bias=extra["acc_bias"] + np.asarray(noise.acc_bias))
     kept = _err.kept_rows(errors, np.arange(n) * dt, extra["rng"])
