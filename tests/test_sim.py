@@ -77,3 +77,16 @@ def test_durations_are_rounded_to_the_sample_grid():
     rec = sim.simulate([sim.Rotate((0, 0, 1), 0.3, 0.015), sim.Rest(0.001)], rate=100.0, gnss_rate=None)
     assert len(rec) == 1 + 2 + 1
     np.testing.assert_allclose(rec.gyr[1:3, 2].sum() * 0.01, 0.3, atol=1e-12)
+
+
+def test_gnss_epochs_are_at_the_imus_sample_times():
+    """The epochs were stamped ``idx * dt``, which rounds past the recording's ``k / rate``: the last one
+    fell after the last sample and was dropped with a false warning ("GNSS epochs ... dropped", also for
+    sim:hand-held), and about one in six took effect a sample late. They are now the sample times."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rec = sim.simulate([sim.Rest(2.3)], rate=200.0)
+    assert rec.gnss.t.size == 24 and rec.gnss.t[-1] == rec.time[-1]
+    np.testing.assert_array_equal(rec.gnss.t, rec.time[::20])

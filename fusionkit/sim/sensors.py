@@ -147,16 +147,16 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     mag = mag + noise.mag_noise * rng.standard_normal((n, 3))
     if errors is not None and errors.mag_rate is not None:  # sample and hold: the reading, noise and all
         mag = mag[_err.held_source(n, errors.mag_rate, rate)]
-    gnss = None
+    epochs = None  # the GNSS epochs: (sample indices, velocities)
     if gnss_rate:
         vel = v0 + np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (acc_e[1:] + acc_e[:-1]) * dt, axis=0)])
         step = max(1, int(round(rate / gnss_rate)))
         idx = np.arange(0, n, step)
-        gnss = Gnss(t=idx * dt, vel=vel[idx] + gnss_vel_noise * rng.standard_normal((idx.size, 3)), frame="ENU")
+        epochs = idx, vel[idx] + gnss_vel_noise * rng.standard_normal((idx.size, 3))
     meta = {"simulated": True, "noise": noise, "gravity": gravity}
     if errors is None:
         return Recording(gyr=gyr, acc=acc, mag=mag, rate=rate, truth=quat, truth_frame="ENU", movement=moving,
-                         gnss=gnss, name=name, meta=meta)
+                         gnss=_gnss(epochs, np.arange(n) / rate), name=name, meta=meta)
     pos += np.arange(n)[:, None] * dt * v0  # (the GNSS velocity had the initial velocity, ref_pos did not)
     meta.update(errors=errors, ref_pos=pos, gyr_bias=extra["gyr_bias"] + np.asarray(noise.gyr_bias),
                 acc_bias=extra["acc_bias"] + np.asarray(noise.acc_bias))
@@ -164,12 +164,20 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     if len(kept) == n:
         meta["kept"] = kept
         return Recording(gyr=gyr, acc=acc, mag=mag, rate=rate, truth=quat, truth_frame="ENU", movement=moving,
-                         gnss=gnss, name=name, meta=meta)
+                         gnss=_gnss(epochs, np.arange(n) / rate), name=name, meta=meta)
     for key in ("ref_pos", "gyr_bias", "acc_bias"):
         meta[key] = meta[key][kept]
     meta["kept"] = kept
     return Recording(gyr=gyr[kept], acc=acc[kept], mag=mag[kept], t=kept * dt, truth=quat[kept], truth_frame="ENU",
-                     movement=moving[kept], gnss=gnss, name=name, meta=meta)
+                     movement=moving[kept], gnss=_gnss(epochs, np.arange(n) * dt), name=name, meta=meta)
+
+
+def _gnss(epochs, clock: np.ndarray) -> Gnss | None:
+    """The GNSS stream of ``epochs`` (sample indices, ENU velocities; None: none) on the IMU's
+    clock: ``clock`` holds its sample times as the recording computes them (``k / rate``, or the
+    timestamps ``k * dt`` of a recording with lost rows). Epoch times ``idx * dt`` rounded past
+    ``(n - 1) / rate``, the last sample's, and its epoch was dropped with a false warning."""
+    return None if epochs is None else Gnss(t=clock[epochs[0]], vel=epochs[1], frame="ENU")
 
 
 def _apply_errors(errors: SensorErrors, gyr, acc, mag, rate, sampling, seed):
