@@ -194,10 +194,10 @@ class SensorErrors:
     Timing: ``gyr_delay`` / ``acc_delay`` / ``mag_delay`` (s): sample ``k`` holds what the sensor
     would have reported at ``t[k] - delay`` (a cubic spline through the samples, the ends held).
     ``gyr_lowpass`` / ``acc_lowpass`` / ``mag_lowpass`` (Hz): a causal Butterworth low-pass of
-    order ``lowpass_order`` (an int, 1 to 4) at that cutoff (started at steady state), as a sensor's digital
-    filter; its low-frequency group delay is :func:`lowpass_delay`. ``mag_rate`` (Hz, below the
-    IMU's rate; :func:`~fusionkit.sim.simulate` refuses one above it): the magnetometer is read at this rate (readings at ``j / mag_rate``) and every
-    sample reports the newest reading, taken at the first sample at or after its instant, so a
+    order ``lowpass_order`` (an int, 1 to 4) at that cutoff (started at steady state), as a
+    sensor's digital filter; its low-frequency group delay is :func:`lowpass_delay`. ``mag_rate``
+    (Hz, at most the IMU's rate: :func:`~fusionkit.sim.simulate` refuses one above it): the
+    magnetometer is read at this rate (readings at ``j / mag_rate``) and every sample reports the newest reading, taken at the first sample at or after its instant, so a
     sample is either fresh (on time) or repeats an older one exactly, as many samples old as
     have passed since (:func:`held_source`).
 
