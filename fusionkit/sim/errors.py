@@ -197,9 +197,10 @@ class SensorErrors:
     order ``lowpass_order`` (an int, 1 to 4) at that cutoff (started at steady state), as a
     sensor's digital filter; its low-frequency group delay is :func:`lowpass_delay`. ``mag_rate``
     (Hz, at most the IMU's rate: :func:`~fusionkit.sim.simulate` refuses one above it): the
-    magnetometer is read at this rate (readings at ``j / mag_rate``) and every sample reports the newest reading, taken at the first sample at or after its instant, so a
-    sample is either fresh (on time) or repeats an older one exactly, as many samples old as
-    have passed since (:func:`held_source`).
+    magnetometer is read at this rate (readings at ``j / mag_rate``) and every sample reports
+    the newest reading, taken at the first sample at or after its instant, so a sample is either
+    fresh (on time) or repeats an older one exactly, as many samples old as have passed since
+    (:func:`held_source`).
 
     Geometry: ``gyr_scale`` / ``acc_scale`` (3 fractions, ``S = diag``) and
     ``gyr_misalignment`` / ``acc_misalignment`` (3x3 ``M``, its diagonal must be 0): the sensor
