@@ -9,7 +9,9 @@ Per sample, in this fixed order:
    not used). Across a timestamp gap (GAP) the state is held (:func:`fusionkit.types.hold_gaps`).
    **sensor models** (``models``, in order; :class:`~fusionkit.protocols.SensorModel`) then
    correct the sample (calibration, time offsets), reading the previous output orientation;
-   validity is judged again on what they return.
+   validity is judged again on what they return. Every plugin gets the recording's rows as
+   read-only views: one that writes into its input is a PluginError naming it (it changed the
+   user's recording).
 2. **detectors** (each on samples with valid gyr and acc): a nonzero criteria mask sets the
    detector's flag.
 3. **alignment** while it runs (source 000): the sample is added to the means and the output is
@@ -68,7 +70,7 @@ import numpy as np
 from . import _loopgen
 from ._numba import HAVE_NUMBA, resolve_backend
 from .config import PipelineConfig
-from .detectors._run import checked_bits, run_detector
+from .detectors._run import checked_bits, read_only, run_detector, wrote_input
 from .detectors.gnss_gap import NO_GNSS, gnss_sample_rows
 from .errors import ConfigError, InputError, PluginError
 from .navigation.alignment import (
@@ -115,6 +117,48 @@ def _bad_correction(cor, out) -> None:
             else f"{type(out).__name__}")
     raise PluginError(f"corrector {cor.name!r}: correct() returned {what}; it must return "
                       "Correction(rate, flags), rate an array of shape (3,) in rad/s or None")
+
+
+def _is_vec3(v) -> bool:
+    """Whether ``v`` is a sample's vector as the pipeline reads it: a numeric array of shape (3,)."""
+    return isinstance(v, np.ndarray) and v.shape == (3,) and v.dtype.kind in "fiu"
+
+
+def _model_output_ok(out) -> bool:
+    """Whether a sensor model's ``apply`` returned ``(Sample, flags)``: a Sample whose ``gyr`` is a
+    vector of 3 and ``acc`` / ``mag`` one or None, and flags an int from 0 to 2**32 - 1."""
+    if type(out) is not tuple or len(out) != 2:
+        return False
+    sample, f = out
+    return (type(sample) is Sample and isinstance(f, (int, np.integer)) and not isinstance(f, bool)
+            and 0 <= f <= 0xFFFFFFFF and _is_vec3(sample.gyr) and (sample.acc is None or _is_vec3(sample.acc))
+            and (sample.mag is None or _is_vec3(sample.mag)))
+
+
+def _bad_model_output(mod, out) -> None:
+    """A sensor model's ``apply`` returned something else than ``(Sample, flags)`` (see
+    :func:`_model_output_ok`): a PluginError naming it and what is wrong, as for a corrector
+    (:func:`_bad_correction`). Python's or numpy's error named neither: "too many values to
+    unpack" for a Sample alone, an IndexError for a gyr of shape (2,), an AttributeError for a
+    list, a TypeError for flags None."""
+    if type(out) is Sample:
+        what = "a Sample alone, not (sample, flags)"
+    elif type(out) is not tuple or len(out) != 2:
+        what = f"{type(out).__name__} {out!r:.60}"
+    elif type(out[0]) is not Sample:
+        what = f"({type(out[0]).__name__}, ...): the first item is not a fusionkit.protocols.Sample"
+    else:
+        sample, f = out
+        bad = [f"sample.{k} of type {type(v).__name__}" + (f", shape {v.shape}, dtype {v.dtype}"
+                                                          if isinstance(v, np.ndarray) else "")
+               for k, v in (("gyr", sample.gyr), ("acc", sample.acc), ("mag", sample.mag))
+               if not _is_vec3(v) and (k == "gyr" or v is not None)]
+        if not (isinstance(f, (int, np.integer)) and not isinstance(f, bool) and 0 <= f <= 0xFFFFFFFF):
+            bad.append(f"flags {f!r:.40} ({type(f).__name__})")
+        what = "(sample, flags) with " + ", ".join(bad)
+    raise PluginError(f"sensor model {mod.name!r}: apply() returned {what}; it must return (sample, flags): a "
+                      "Sample whose gyr is an array of shape (3,) and acc / mag arrays of shape (3,) or None, and "
+                      "flags an int of flag bits from 0 to 2**32 - 1 (0 for none)")
 
 
 class Pipeline(Filter):
@@ -246,11 +290,18 @@ class Pipeline(Filter):
         gyr_ok, acc_ok, mag_ok, flags = sample_validity(gyr, acc, mag if has_mag else None, cfg.gyr_range,
                                                         cfg.acc_range)
         if self.models:  # 1b. sensor models; validity judged again on what they give
-            sample = Sample(np.array(gyr, dtype=float), acc if acc_ok else None, mag if mag_ok else None, dt, gnss)
+            sample = Sample(gyr, acc if acc_ok else None, mag if mag_ok else None, dt, gnss)
             mflags = 0
-            for i, mod in enumerate(self.models):
-                sample, f = mod.apply(st["mod"][i], sample, al[_QPREV:_QPREV + 4].copy())
-                mflags |= f
+            try:  # (the arrays are read-only views: a plugin that writes into them is named, see wrote_input)
+                for i, mod in enumerate(self.models):
+                    out = mod.apply(st["mod"][i], sample, al[_QPREV:_QPREV + 4].copy())
+                    if not _model_output_ok(out):
+                        _bad_model_output(mod, out)  # (a plugin's mistake, named: Python's or numpy's error was not)
+                    sample, f = out
+                    mflags |= f
+            except ValueError as exc:
+                wrote_input("sensor model", mod, exc)
+                raise
             gyr = sample.gyr
             acc = sample.acc if sample.acc is not None else np.zeros(3)
             mag = sample.mag if sample.mag is not None else np.zeros(3)
@@ -263,13 +314,17 @@ class Pipeline(Filter):
 
         # 2. detectors
         crit0 = 0
-        for i, det in enumerate(self.detectors):
-            if gyr_ok and acc_ok:
-                bits = checked_bits(det, det.step(st["det"][i], sample))  # (a plugin's mistake, named)
-                if i == 0:
-                    crit0 = bits
-                if bits:
-                    flags |= det.flag
+        try:
+            for i, det in enumerate(self.detectors):
+                if gyr_ok and acc_ok:
+                    bits = checked_bits(det, det.step(st["det"][i], sample))  # (a plugin's mistake, named)
+                    if i == 0:
+                        crit0 = bits
+                    if bits:
+                        flags |= det.flag
+        except ValueError as exc:
+            wrote_input("detector", det, exc)
+            raise
         # 3. alignment
         status, q = self.aligner().step(al, gyr, acc, mag, gyr_ok, acc_ok, mag_ok, bool(flags & Flag.MOTION), dt)
         if status in (ALIGNED_NOW, ALIGNED_BEFORE):
@@ -285,9 +340,13 @@ class Pipeline(Filter):
         bias = al[BIAS:BIAS + 3]  # a view: bias and factor correctors update it in place
         chan = {"channel": al[_CHAN:_CHAN + CHANNEL_SIZE]}  # a view: the correctors' channel
         # 4. bias correctors (the gyroscope as measured)
-        for i, cor in enumerate(self.correctors):
-            if cor.mode == "bias":
-                flags |= cor.update_bias(st["cor"][i], bias, sample, flags, **(chan if cor.uses_channel else {}))
+        try:
+            for i, cor in enumerate(self.correctors):
+                if cor.mode == "bias":
+                    flags |= cor.update_bias(st["cor"][i], bias, sample, flags, **(chan if cor.uses_channel else {}))
+        except ValueError as exc:
+            wrote_input("corrector", cor, exc)
+            raise
         # 5. propagation
         w = gyr - bias + al[_RCORR:_RCORR + 3]
         if gyr_ok:
@@ -296,20 +355,24 @@ class Pipeline(Filter):
         q = None
         if self.correctors:
             rate = np.zeros(3)
-            measured, sample = sample, sample._replace(gyr=gyr - bias)
-            for i, cor in enumerate(self.correctors):
-                if cor.mode == "factor":
-                    q, f = cor.compose(st["cor"][i], self.estimator.quat(st["x"]) if q is None else q, measured,
-                                       bias, w, flags, **(chan if cor.uses_channel else {}))
-                    flags |= f
-                elif cor.mode != "bias":
-                    out = cor.correct(self.estimator, st["x"], st["cor"][i], sample, flags,
-                                      **(chan if cor.uses_channel else {}))
-                    if type(out) is not Correction or (out.rate is not None and np.shape(out.rate) != (3,)):
-                        _bad_correction(cor, out)  # (a plugin's mistake, named: numpy's broadcast error was not)
-                    flags |= out.flags
-                    if out.rate is not None:
-                        rate += out.rate
+            measured, sample = sample, sample._replace(gyr=read_only(gyr - bias))  # (read-only, as the others)
+            try:
+                for i, cor in enumerate(self.correctors):
+                    if cor.mode == "factor":
+                        q, f = cor.compose(st["cor"][i], self.estimator.quat(st["x"]) if q is None else q, measured,
+                                           bias, w, flags, **(chan if cor.uses_channel else {}))
+                        flags |= f
+                    elif cor.mode != "bias":
+                        out = cor.correct(self.estimator, st["x"], st["cor"][i], sample, flags,
+                                          **(chan if cor.uses_channel else {}))
+                        if type(out) is not Correction or (out.rate is not None and np.shape(out.rate) != (3,)):
+                            _bad_correction(cor, out)  # (a plugin's mistake, named: numpy's broadcast error was not)
+                        flags |= out.flags
+                        if out.rate is not None:
+                            rate += out.rate
+            except ValueError as exc:
+                wrote_input("corrector", cor, exc)
+                raise
             al[_RCORR:_RCORR + 3] = rate
         if q is None:
             q = self.estimator.quat(st["x"])
@@ -451,14 +514,14 @@ class Pipeline(Filter):
                                             models.append(self._inclination_model(s)))) if probe_ends else None
             self._run_compiled(st, kernels, gyr, rec.acc, mag_row, dt, has_mag, out_q, out_f, out_c, restart, cuts, gn,
                                bar, probe)
-        else:
+        else:  # the plugins get read-only rows of the recording (one that edits its input is named, not obeyed)
+            gyr, acc, mag = read_only(gyr), read_only(rec.acc), read_only(mag)
             for start in range(0, n, _CHUNK):
                 stop = min(n, start + _CHUNK)
                 for k in range(start, stop):
                     if restart[k]:
                         self._restart(st)
-                    q, f, c = self._step(st, gyr[k], rec.acc[k], mag[k], dt[k], has_mag,
-                                         None if gn is None else gn[k])
+                    q, f, c = self._step(st, gyr[k], acc[k], mag[k], dt[k], has_mag, None if gn is None else gn[k])
                     out_q[k], out_f[k], out_c[k] = q, f, c
                     if probe_ends and len(biases) < len(probe_ends) and k + 1 == probe_ends[len(biases)]:
                         biases.append(st["align"][BIAS:BIAS + 3].copy())
@@ -588,7 +651,8 @@ class Pipeline(Filter):
                 self._fast_dt = gap_threshold(self._stream["dt"], self.spec.max_gap)  # the fast path may run
             return q.copy()
         gn = None if gnss is None else as_vector("gnss", gnss, width=6, allow_bool=True)
-        q, f, _ = self._step(self._stream, g, a, m, dt, has_mag, gn)
+        # read-only: as_vector may return the caller's own arrays, which a plugin must not change
+        q, f, _ = self._step(self._stream, read_only(g), read_only(a), read_only(m), dt, has_mag, gn)
         self.last_flags = gap_flags(f, gap)
         if not (math.isfinite(q[0]) and math.isfinite(q[1]) and math.isfinite(q[2]) and math.isfinite(q[3])):
             self._check_finite_output(q[None])  # (the stream's sample, as run() names it: sample 0 of this call)

@@ -41,6 +41,8 @@ __all__ = [
     "SensorModelKernel",
     "DetectionResult",
     "KINDS",
+    "KIND_BASES",
+    "plugin_class_problem",
 ]
 
 KINDS = ("filter", "estimator", "corrector", "detector", "model")
@@ -68,7 +70,12 @@ class Sample(NamedTuple):
     """One input sample as the reference paths see it (``mag`` is None when absent or invalid;
     correctors get ``gyr`` with the alignment's bias removed;
     ``gnss`` is the latest GNSS epoch as a row ``vn, ve, valid, age, new, t_epoch``, see
-    :func:`fusionkit.detectors.gnss_gap.gnss_sample_rows`, or None without a GNSS stream)."""
+    :func:`fusionkit.detectors.gnss_gap.gnss_sample_rows`, or None without a GNSS stream).
+
+    A plugin must not change the arrays it is given: they are the recording's rows (or the
+    arrays passed to ``update()``), handed over as read-only views, so writing into one raises a
+    :class:`~fusionkit.errors.PluginError` naming the plugin (it changed the user's recording
+    silently); a sensor model returns its corrected sample as new arrays (``sample._replace``)."""
 
     gyr: np.ndarray
     acc: np.ndarray | None
@@ -460,3 +467,29 @@ class Filter(Plugin, ABC):
         buf.append(np.concatenate([gyr, acc]))
         arr = np.array(buf)
         check_units(arr[:, :3], arr[:, 3:], check_range=False)  # (a share of a few samples is no unit's proof)
+
+
+#: the protocol class a plugin of each kind subclasses
+KIND_BASES: dict[str, type[Plugin]] = {"filter": Filter, "estimator": Estimator, "corrector": Corrector,
+                                       "detector": Detector, "model": SensorModel}
+
+
+def plugin_class_problem(cls: Any) -> str | None:
+    """Why ``cls`` is not a usable plugin class (None when it is): a :class:`Plugin` subclass with a
+    name, a kind of :data:`KINDS`, subclassing that kind's protocol (:data:`KIND_BASES`) and
+    implementing its abstract methods. A ``Plugin`` subclass that only said ``kind = "filter"`` was
+    registered and made, and had no ``run()`` (an AttributeError on use)."""
+    if not (isinstance(cls, type) and issubclass(cls, Plugin)):
+        return f"{cls!r} is not a plugin class (a subclass of fusionkit.protocols.Plugin)"
+    if cls.kind not in KINDS:
+        return f"{cls.__name__}.kind must be one of {KINDS}, got {cls.kind!r}"
+    if not cls.name:
+        return f"{cls.__name__} has no name"
+    base = KIND_BASES[cls.kind]
+    if not issubclass(cls, base):
+        return (f"{cls.__name__} says kind={cls.kind!r} but does not subclass fusionkit.protocols.{base.__name__}, "
+                f"the {cls.kind} protocol")
+    missing = sorted(getattr(cls, "__abstractmethods__", ()))
+    if missing:
+        return f"{cls.__name__} does not implement {', '.join(m + '()' for m in missing)} ({cls.kind} protocol)"
+    return None

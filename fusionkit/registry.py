@@ -23,7 +23,7 @@ from typing import Any
 
 from .config import describe_config
 from .errors import ConfigError, PluginError, PluginWarning
-from .protocols import KINDS, Plugin
+from .protocols import KINDS, Plugin, plugin_class_problem
 
 __all__ = ["Registry", "PluginInfo", "default_registry", "available", "make", "describe", "register", "get"]
 
@@ -210,8 +210,9 @@ class Registry:
 
     def register(self, cls: type[Plugin], distribution: str = "<registered in code>") -> type[Plugin]:
         """Register a plugin class without packaging it (also usable as a decorator)."""
-        if not (isinstance(cls, type) and issubclass(cls, Plugin)) or cls.kind not in KINDS or not cls.name:
-            raise PluginError(f"{cls!r} is not a plugin class with a name and a kind in {KINDS}")
+        problem = plugin_class_problem(cls)  # (one that only said kind="filter" had no run(): taken, failed on use)
+        if problem is not None:
+            raise PluginError(f"cannot register {cls!r}: {problem}")
         self._extra.append(_Entry(cls.name, cls.kind, f"{cls.__module__}:{cls.__qualname__}", distribution, None, cls))
         self._entries = None
         return cls
@@ -282,10 +283,11 @@ class Registry:
                 f"({entry.target}) failed to load: {type(exc).__name__}: {exc}"
             )
             raise PluginError(entry.error) from exc
-        if not (isinstance(cls, type) and issubclass(cls, Plugin)) or cls.kind != entry.kind:
+        problem = plugin_class_problem(cls)
+        if problem is not None or cls.kind != entry.kind:
             entry.error = (
                 f"{entry.kind} plugin {entry.name!r} from distribution {entry.distribution!r} "
-                f"({entry.target}) is not a fusionkit {entry.kind} class"
+                f"({entry.target}) is not a fusionkit {entry.kind} class" + (f": {problem}" if problem else "")
             )
             raise PluginError(entry.error)
         entry.cls = cls

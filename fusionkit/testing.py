@@ -3,15 +3,20 @@
 Each check raises ``AssertionError`` with a message saying which rule broke. They run on a
 seeded simulated recording (:mod:`fusionkit.sim`) and take a few seconds.
 
-Rules for every plugin: a name and a kind, a ``Config`` that rejects unknown keys and documents
-every field (description and unit), default construction works. Filters: one unit quaternion
-per input sample, ``run`` equals a loop of ``update``, a run split in two with the state carried
-over equals one run, a NaN sample raises ``InputError`` naming it (``nan_policy="raise"``) or
-is held and flagged (``"skip"``), a wrong shape raises ``InputError``, and the numba backend
-(when the filter has one) matches the reference to 1e-9. Estimators: the state round-trips a
-quaternion and the kernel matches the reference. Detectors: one criteria value per sample and
-kernel == reference. Correctors: they run inside a pipeline with finite unit output, and the
-pipeline compiled with their kernel (when they have one) matches the reference to 1e-9.
+Rules for every plugin: a name and a kind, subclassing that kind's protocol class and
+implementing its abstract methods (a ``Plugin`` that only says ``kind = "filter"`` has no
+``run``), a ``Config`` that rejects unknown keys and documents every field (description and
+unit), default construction works. Filters: one unit quaternion per input sample, ``run`` equals
+a loop of ``update``, a run split in two with the state carried over equals one run, a NaN
+sample raises ``InputError`` naming it (``nan_policy="raise"``) or is held and flagged
+(``"skip"``), a wrong shape raises ``InputError``, and the numba backend (when the filter has
+one) matches the reference to 1e-9. Estimators: the state round-trips a quaternion, the
+quaternion stays unit norm over steps of propagation, and the kernel matches the reference.
+Detectors: one criteria value per sample and kernel == reference. Correctors and sensor models:
+they run inside a pipeline with finite unit output, and the pipeline compiled with their kernel
+(when they have one) matches the reference to 1e-9. Estimators, detectors, sensor models and
+correctors leave the arrays they are given unchanged (one that edited a sample in place changed
+the user's recording).
 """
 
 from __future__ import annotations
@@ -24,8 +29,8 @@ import numpy as np
 
 from ._numba import HAVE_NUMBA
 from .config import PluginConfig
-from .errors import ConfigError, InputError
-from .protocols import KINDS, Corrector, Detector, Estimator, Filter, Plugin, Sample, SensorModel
+from .errors import ConfigError, InputError, PluginError
+from .protocols import Corrector, Detector, Estimator, Filter, Plugin, Sample, SensorModel, plugin_class_problem
 from .registry import default_registry
 from .types import Flag, Recording
 
@@ -64,16 +69,43 @@ def check_plugin(plugin, params: dict[str, Any] | None = None, rec: Recording | 
     params = params or {}
     _check_common(cls, params)
     rec = rec or contract_recording()
-    if issubclass(cls, Filter):
-        _check_filter(cls, params, rec)
-    elif issubclass(cls, Estimator):
-        _check_estimator(cls(**params))
-    elif issubclass(cls, Detector):
-        _check_detector(cls(**params), rec)
-    elif issubclass(cls, Corrector):
-        _check_corrector(cls, params, rec, within)
-    elif issubclass(cls, SensorModel):
-        _check_model(cls, params, rec, within)
+    before = _arrays(rec)
+    try:
+        if issubclass(cls, Filter):
+            _check_filter(cls, params, rec)
+        elif issubclass(cls, Estimator):
+            _check_estimator(cls(**params))
+        elif issubclass(cls, Detector):
+            _check_detector(cls(**params), rec)
+        elif issubclass(cls, Corrector):
+            _check_corrector(cls, params, rec, within)
+        elif issubclass(cls, SensorModel):
+            _check_model(cls, params, rec, within)
+    except PluginError as exc:  # the pipeline's read-only samples: a plugin that wrote into one, as this rule
+        if "wrote into an array of the sample" not in str(exc):
+            raise
+        raise AssertionError(f"{cls.name}: it changes the sample it is given: {exc}") from exc
+    changed = [k for k, a in _arrays(rec).items() if not np.array_equal(a, before[k], equal_nan=True)]
+    assert not changed, f"{cls.name}: the recording's {', '.join(changed)} changed: a plugin must not change its input"
+
+
+def _arrays(rec: Recording) -> dict[str, np.ndarray]:
+    """Copies of the recording's sensor arrays (to tell whether a plugin changed them)."""
+    return {k: np.array(getattr(rec, k)) for k in ("gyr", "acc", "mag") if getattr(rec, k) is not None}
+
+
+def _assert_unchanged(name: str, what: str, given: Sample, kept: Sample) -> None:
+    """The arrays of ``given`` (a plugin's input sample after its call) equal ``kept`` (copies made
+    before): a plugin editing its sample in place changed the user's recording."""
+    for k in ("gyr", "acc", "mag"):
+        a, b = getattr(given, k), getattr(kept, k)
+        if a is not None:
+            assert np.array_equal(a, b, equal_nan=True), f"{name}: {what} changed sample.{k} in place ({b} -> {a})"
+
+
+def _copied(sample: Sample) -> Sample:
+    return sample._replace(**{k: np.array(getattr(sample, k)) for k in ("gyr", "acc", "mag")
+                              if getattr(sample, k) is not None})
 
 
 def _within(within, key: str, name: str, params: dict[str, Any]) -> dict[str, Any]:
@@ -88,9 +120,8 @@ def _within(within, key: str, name: str, params: dict[str, Any]) -> dict[str, An
 
 
 def _check_common(cls, params) -> None:
-    assert isinstance(cls, type) and issubclass(cls, Plugin), f"{cls!r} is not a fusionkit Plugin subclass"
-    assert cls.name, f"{cls.__name__} has no name"
-    assert cls.kind in KINDS, f"{cls.__name__}.kind must be one of {KINDS}, got {cls.kind!r}"
+    problem = plugin_class_problem(cls)  # (a Plugin that only said kind="filter", with no run(), passed)
+    assert problem is None, problem
     assert issubclass(cls.Config, PluginConfig), f"{cls.__name__}.Config must subclass PluginConfig"
     for fname, f in cls.Config.model_fields.items():
         assert f.description, f"{cls.name}: config field {fname!r} has no description"
@@ -204,9 +235,15 @@ def _check_estimator(est: Estimator) -> None:
     k = est.kernel()
     y = x.copy()
     out = np.empty(4)
-    for _ in range(500):
+    for i in range(500):
         w = rng.normal(scale=2.0, size=3)
-        est.propagate(x, w, 0.01)
+        given = w.copy()
+        est.propagate(x, given, 0.01)
+        assert np.array_equal(given, w), f"{est.name}: propagate() changed the rate it was given in place"
+        q = est.quat(x)
+        # (only the initial round trip was checked: one whose quaternion drifted off unit norm passed)
+        err = abs(float(np.linalg.norm(q)) - 1.0)
+        assert err < 1e-6, f"{est.name}: quat() is off unit norm by {err:.2e} after {i + 1} steps of propagate()"
         if k is not None and HAVE_NUMBA:
             k.propagate(y, w[0], w[1], w[2], 0.01, k.params)
     if k is not None and HAVE_NUMBA:
@@ -222,14 +259,26 @@ def _check_detector(det: Detector, rec: Recording) -> None:
         fast = det.run(rec, backend="numba")
         assert np.array_equal(fast.criteria, ref.criteria), f"{det.name}: kernel and reference criteria differ"
     s = det.initial_state(rec.nominal_dt)
-    bits = det.step(s, Sample(rec.gyr[0], rec.acc[0], None, rec.nominal_dt))
+    kept = Sample(rec.gyr[0].copy(), rec.acc[0].copy(), None, rec.nominal_dt)
+    given = _copied(kept)
+    bits = det.step(s, given)
     assert isinstance(bits, (int, np.integer)), f"{det.name}: step() must return an int bitmask"
+    _assert_unchanged(det.name, "step()", given, kept)
 
 
 def _check_model(cls, params, rec, within=None) -> None:
     """A sensor model in a pipeline: the kernel equals the reference on every sample, states too."""
     from .pipeline import Pipeline
 
+    model = cls(**params)  # its own input, called directly: unchanged
+    s = model.initial_state(rec.nominal_dt)
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    mag = rec.mag
+    for k in range(min(len(rec), 20)):
+        kept = Sample(rec.gyr[k].copy(), rec.acc[k].copy(), None if mag is None else mag[k].copy(), rec.nominal_dt)
+        given = _copied(kept)
+        model.apply(s, given, q)
+        _assert_unchanged(cls.name, "apply()", given, kept)
     if within is not None:
         p = Pipeline(_within(within, "models", cls.name, params))
     else:

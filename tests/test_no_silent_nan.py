@@ -10,7 +10,7 @@ import fusionkit as fk
 from fusionkit import sim
 from fusionkit.errors import InputError, PluginError
 from fusionkit.pipeline import Pipeline
-from fusionkit.protocols import Correction, Corrector, Detector
+from fusionkit.protocols import Correction, Corrector, Detector, SensorModel
 from fusionkit.registry import Registry
 
 NAN_RATE = Correction(np.array([np.nan, 0.0, 0.0]), 0)
@@ -157,3 +157,107 @@ def test_a_stream_through_a_plugin_that_returns_nan_is_refused_too():
     p.update(g, a, dt=0.01)  # the first sample: the correction enters the next propagation
     with pytest.raises(PluginError, match=r"not finite .* \(poisson-quat, test-nany-stream\)"):
         p.update(g, a, dt=0.01)
+
+
+# -- a third probe (stop 33): a plugin that changed the user's recording, a sensor model returning the wrong thing
+
+
+def _scaled_in_place(sample):
+    """What the probe's plugins did: ``a = sample.acc; a *= 1.001`` (the sample's array changed in place)."""
+    a = sample.acc
+    a *= 1.001
+
+
+class _EditsModel(SensorModel):
+    name = "test-edits"
+
+    def apply(self, state, sample, quat):
+        _scaled_in_place(sample)
+        return sample, 0
+
+
+class _EditsCorrector(Corrector):
+    name = "test-edits"
+    mode = "rate"
+
+    def correct(self, estimator, est_state, state, sample, flags):
+        if sample.acc is not None:
+            _scaled_in_place(sample)
+        return Correction(None, 0)
+
+
+class _EditsDetector(Detector):
+    name = "test-edits"
+    flag = fk.Flag.MOTION
+
+    def initial_state(self, dt):
+        return np.zeros(0)
+
+    def step(self, state, sample):
+        _scaled_in_place(sample)
+        return 0
+
+
+@pytest.mark.parametrize("cls, key, kind", [(_EditsModel, "models", "sensor model"),
+                                            (_EditsCorrector, "correctors", "corrector"),
+                                            (_EditsDetector, "detectors", "detector")])
+def test_a_plugin_that_edits_its_sample_in_place_is_named_and_the_recording_kept(cls, key, kind):
+    """A model, corrector or detector editing ``sample.acc`` in place changed the user's Recording (its
+    rows were handed over as views: rec.acc came back 1.001 times larger, on the auto and reference
+    backends) and update()'s caller's array. The plugins now get read-only views; writing into one is a
+    PluginError naming the plugin, and nothing of the user's changes."""
+    reg = Registry()
+    reg.register(cls)
+    rec = sim.demo_recordings()[0].slice(0, 30)
+    acc0 = rec.acc.copy()
+    p = Pipeline({"estimator": "poisson-quat", key: ["test-edits"], "alignment": {"mode": "none"}}, registry=reg)
+    message = rf"{kind} 'test-edits' wrote into an array of the sample it was given .*must not change its input"
+    for backend in ("reference", "auto"):  # (auto: the reference, the plugin has no kernel)
+        with pytest.raises(PluginError, match=message):
+            p.run(rec, backend=backend)
+        assert np.array_equal(rec.acc, acc0)
+    a = rec.acc[0].copy()
+    with pytest.raises(PluginError, match=message):
+        p.update(rec.gyr[0], a, dt=0.01)
+    assert np.array_equal(a, acc0[0])
+    if cls is _EditsDetector:  # on its own too
+        with pytest.raises(PluginError, match=message):
+            cls().run(rec, backend="reference")
+        assert np.array_equal(rec.acc, acc0)
+
+
+def _with_model(name, apply):
+    """A poisson-quat pipeline with one sensor model ``name`` (registered for it alone) whose ``apply``
+    returns ``apply(sample)``."""
+
+    class Returns(SensorModel):
+        def apply(self, state, sample, quat):
+            return apply(sample)
+
+    Returns.name = name
+    reg = Registry()
+    reg.register(Returns)
+    return Pipeline({"estimator": "poisson-quat", "models": [name], "correctors": ["gradient-descent"],
+                     "alignment": {"mode": "none"}}, registry=reg)
+
+
+@pytest.mark.parametrize("apply, what", [
+    (lambda s: s, r"a Sample alone, not \(sample, flags\)"),
+    (lambda s: (s._replace(gyr=np.zeros(2)), 0), r"\(sample, flags\) with sample.gyr of type ndarray, shape \(2,\)"),
+    (lambda s: (s._replace(acc=list(s.acc)), 0), r"\(sample, flags\) with sample.acc of type list"),
+    (lambda s: (s, None), r"\(sample, flags\) with flags None \(NoneType\)"),
+    (lambda s: (s, 1.5), r"\(sample, flags\) with flags 1.5 \(float\)"),
+    (lambda s: [s, 0], r"list \["),
+])
+def test_a_sensor_model_that_returns_the_wrong_thing_is_named(apply, what):
+    """A sensor model returning ``sample`` instead of ``(sample, flags)`` gave "too many values to unpack",
+    a gyr of shape (2,) an IndexError from types._largest, an acc list an AttributeError ('tolist'), flags
+    None or 1.5 a TypeError: none named the model. Now a PluginError says which and what it must return,
+    as for a corrector; on run() and update()."""
+    p = _with_model("test-wrong-model", apply)
+    rec = sim.demo_recordings()[0].slice(0, 20)
+    message = rf"sensor model 'test-wrong-model': apply\(\) returned {what}.*; it must return \(sample, flags\)"
+    with pytest.raises(PluginError, match=message):
+        p.run(rec)
+    with pytest.raises(PluginError, match=message):
+        p.update(rec.gyr[0], rec.acc[0], dt=0.01)

@@ -46,11 +46,15 @@ def test_bad_errors_are_refused_by_name():
     for kw, name in ((dict(mag_matrix=np.zeros((3, 3))), "mag_matrix"), (dict(gyr_lowpass=-1.0), "gyr_lowpass"),
                      (dict(drop_rate=1.0), "drop_rate"), (dict(gyr_bias_rw=-1e-3), "gyr_bias_rw"),
                      (dict(gyr_misalignment=np.eye(3)), "gyr_misalignment"), (dict(mag_offset=(1, 2)), "mag_offset"),
-                     (dict(gaps=((1.0, 0.0),)), "gaps"), (dict(taps=(1.0,)), "taps")):
+                     (dict(gaps=((1.0, 0.0),)), "gaps"), (dict(taps=(1.0,)), "taps"),
+                     (dict(lowpass_order=True), "lowpass_order"), (dict(drop_rate="x"), "drop_rate")):
         with pytest.raises(InputError, match=name):
             sim.SensorErrors(**kw)
     with pytest.raises(InputError, match="errors"):
         sim.simulate([sim.Rest(1.0)], errors={"gyr_delay": 0.01})
+    # (ignored: a magnetometer read faster than the IMU gave the IMU's samples)
+    with pytest.raises(InputError, match=r"SensorErrors.mag_rate \(500.0 Hz\) is above the IMU's rate \(100.0 Hz\)"):
+        sim.simulate([sim.Rest(1.0)], rate=100.0, errors=sim.SensorErrors(mag_rate=500.0))
 
 
 # ---- magnetometer -------------------------------------------------------------------------------
@@ -104,6 +108,19 @@ def test_an_earth_fixed_magnet_does_not_turn_with_the_body():
     hard = _earth(rec, sim.simulate(segs, rate=100.0, gnss_rate=None, sampling="point",
                                     errors=sim.SensorErrors(mag_offset=tuple(near))).mag)
     assert np.ptp(hard[turning], axis=0).max() > 5.0  # a body-fixed offset turns with the body
+
+
+def test_ref_pos_and_the_magnets_field_move_with_the_initial_velocity():
+    """``ref_pos`` ignored ``initial_velocity`` (3 m east, 4 m north and 4 s at 1 m/s east ended at
+    [3, 4, 0], not [7, 4, 0]) while the GNSS velocity had it; the earth-fixed disturbances were felt
+    where the body would have been without it. Both now follow the drifting body."""
+    magnet = sim.MagneticDipole(position=(2.0, 0.5, 0.0), moment=(0.0, 0.0, 2.0))
+    rec = sim.simulate([sim.Rest(1.0), sim.Translate((3, 4, 0), 5.0, 2.0), sim.Rest(1.0)], rate=100.0,
+                       initial_velocity=(1.0, 0.0, 0.0), sampling="point", errors=sim.SensorErrors(dipoles=(magnet,)))
+    pos = rec.meta["ref_pos"]
+    np.testing.assert_allclose(pos[[100, -1]], [[1.0, 0.0, 0.0], [7.0, 4.0, 0.0]], atol=1e-12)
+    np.testing.assert_allclose(rec.gnss.vel[-1], [1.0, 0.0, 0.0], atol=1e-9)  # (it had it)
+    np.testing.assert_allclose(_earth(rec, rec.mag), FIELD + magnet.field(pos), atol=1e-9)
 
 
 @pytest.mark.parametrize("sampling", ["mean", "point"])

@@ -17,7 +17,28 @@ from ..protocols import DetectionResult, Detector, Sample
 from ..types import Recording
 from ..validation import check_finite_all
 
-__all__ = ["run_detector", "checked_bits"]
+__all__ = ["run_detector", "checked_bits", "read_only", "wrote_input"]
+
+
+def read_only(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a`` (``a`` itself stays writable): what the reference paths hand a
+    plugin of the user's arrays, so that one editing a sample in place (``acc = sample.acc;
+    acc *= k``) raises instead of silently changing the user's recording. One view per array, not
+    per sample: its rows are read-only views too."""
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
+def wrote_input(kind: str, plugin: Any, exc: ValueError) -> None:
+    """Called with the ValueError a plugin's call raised: a PluginError naming the plugin when it
+    is numpy's refusal to write into a :func:`read_only` array ("assignment destination is
+    read-only", "output array is read-only"), which named neither the plugin nor the rule; returns
+    (the caller re-raises) for any other error."""
+    if type(exc) is ValueError and "read-only" in str(exc):
+        raise PluginError(f"{kind} {plugin.name!r} wrote into an array of the sample it was given ({exc}): a "
+                          "plugin must not change its input (the arrays are the recording's or the caller's); "
+                          "compute on a copy, e.g. acc = sample.acc * k, not sample.acc *= k") from exc
 
 
 def checked_bits(det: Detector, bits: Any) -> Any:
@@ -85,10 +106,15 @@ def run_detector(det: Detector, rec: Recording, *, nan_policy: str = "raise", ba
         _get_det_loop(kernel.step, kernel.gnss)(rec.gyr, rec.acc, mag, dt, ok, s, kernel.params, out,
                                                 gn if gn is not None else NO_GNSS[None, :])
     else:
+        gyr, acc, mag = read_only(rec.gyr), read_only(rec.acc), read_only(mag)  # (the recording's: never written)
         for k in range(n):
             if ok[k]:
                 m = mag[k] if rec.mag is not None else None
-                out[k] = checked_bits(det, det.step(s, Sample(rec.gyr[k], rec.acc[k], m, dt[k],
-                                                              None if gn is None else gn[k])))
+                try:
+                    bits = det.step(s, Sample(gyr[k], acc[k], m, dt[k], None if gn is None else gn[k]))
+                except ValueError as exc:
+                    wrote_input("detector", det, exc)
+                    raise
+                out[k] = checked_bits(det, bits)
     fired = np.flatnonzero(out)
     return DetectionResult(out, int(fired[0]) if fired.size else None, det.criteria_names, used)

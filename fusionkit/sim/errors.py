@@ -39,7 +39,10 @@ _MU0_4PI = 1e-7  # mu_0 / (4 pi), T m / A
 
 
 def _vec(name: str, v, size: int = 3) -> tuple[float, ...]:
-    a = np.asarray(v, dtype=float).reshape(-1)
+    try:
+        a = np.asarray(v, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        a = np.full(0, np.nan)  # (refused below, by name)
     if a.shape != (size,) or not np.isfinite(a).all():
         raise InputError(f"{name} must be {size} finite numbers, got {v!r}")
     return tuple(float(x) for x in a)
@@ -54,9 +57,36 @@ def _mat(name: str, v) -> np.ndarray | None:
     return a
 
 
-def _nonneg(name: str, v: float) -> float:
+def _real(name: str, v, what: str = "a finite number") -> float:
+    """``v`` as a finite float, or an InputError naming ``name`` (also for text and booleans, which
+    ``float`` would take: ``"100"`` parses, True is 1)."""
+    if isinstance(v, (bool, np.bool_, str, bytes)) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise InputError(f"{name} must be {what}, got {v!r:.80}")
     v = float(v)
-    if not (math.isfinite(v) and v >= 0.0):
+    if not math.isfinite(v):
+        raise InputError(f"{name} must be {what}, got {v}")
+    return v
+
+
+def _positive(name: str, v, unit: str) -> float:
+    """``v`` as a finite float > 0 (in ``unit``), or an InputError naming ``name``."""
+    v = _real(name, v, f"a finite number > 0 ({unit})")
+    if not v > 0.0:
+        raise InputError(f"{name} must be > 0 {unit}, got {v}")
+    return v
+
+
+def _direction(name: str, v) -> tuple[float, ...]:
+    """``v`` as 3 finite numbers, not all zero (a direction), or an InputError naming ``name``."""
+    d = _vec(name, v)
+    if not any(d):
+        raise InputError(f"{name} must be a direction (3 finite numbers, not all zero), got {v!r}")
+    return d
+
+
+def _nonneg(name: str, v: float) -> float:
+    v = _real(name, v, "finite and >= 0")
+    if not v >= 0.0:
         raise InputError(f"{name} must be finite and >= 0, got {v}")
     return v
 
@@ -164,12 +194,13 @@ class SensorErrors:
     Timing: ``gyr_delay`` / ``acc_delay`` / ``mag_delay`` (s): sample ``k`` holds what the sensor
     would have reported at ``t[k] - delay`` (a cubic spline through the samples, the ends held).
     ``gyr_lowpass`` / ``acc_lowpass`` / ``mag_lowpass`` (Hz): a causal Butterworth low-pass of
-    order ``lowpass_order`` at that cutoff (started at steady state), as a sensor's digital
-    filter; its low-frequency group delay is :func:`lowpass_delay`. ``mag_rate`` (Hz, below the
-    IMU's rate): the magnetometer is read at this rate (readings at ``j / mag_rate``) and every
-    sample reports the newest reading, taken at the first sample at or after its instant, so a
-    sample is either fresh (on time) or repeats an older one exactly, as many samples old as
-    have passed since (:func:`held_source`).
+    order ``lowpass_order`` (an int, 1 to 4) at that cutoff (started at steady state), as a
+    sensor's digital filter; its low-frequency group delay is :func:`lowpass_delay`. ``mag_rate``
+    (Hz, at most the IMU's rate: :func:`~fusionkit.sim.simulate` refuses one above it): the
+    magnetometer is read at this rate (readings at ``j / mag_rate``) and every sample reports
+    the newest reading, taken at the first sample at or after its instant, so a sample is either
+    fresh (on time) or repeats an older one exactly, as many samples old as have passed since
+    (:func:`held_source`).
 
     Geometry: ``gyr_scale`` / ``acc_scale`` (3 fractions, ``S = diag``) and
     ``gyr_misalignment`` / ``acc_misalignment`` (3x3 ``M``, its diagonal must be 0): the sensor
@@ -238,11 +269,13 @@ class SensorErrors:
                 raise InputError(f"{name} must be None or a cutoff > 0 Hz, got {v}")
         if self.mag_rate is not None and not (math.isfinite(self.mag_rate) and self.mag_rate > 0):
             raise InputError(f"mag_rate must be None or a rate > 0 Hz, got {self.mag_rate}")
-        if self.lowpass_order not in (1, 2, 3, 4):
-            raise InputError(f"lowpass_order must be 1, 2, 3 or 4, got {self.lowpass_order}")
+        order = self.lowpass_order  # (an int: True == 1 and 2.0 == 2 passed the range test)
+        if isinstance(order, (bool, np.bool_)) or not isinstance(order, (int, np.integer)) or order not in (1, 2, 3, 4):
+            raise InputError(f"lowpass_order must be 1, 2, 3 or 4 (an int), got {order!r}")
+        s(self, "lowpass_order", int(order))
         for name in ("gyr_bias_rw", "acc_bias_rw"):
             s(self, name, _nonneg(name, getattr(self, name)))
-        if not 0.0 <= float(self.drop_rate) < 1.0:
+        if not 0.0 <= _real("drop_rate", self.drop_rate, "in [0, 1)") < 1.0:
             raise InputError(f"drop_rate must be in [0, 1), got {self.drop_rate}")
         vib = self.vibration
         vib = () if vib is None else (vib,) if isinstance(vib, Vibration) else tuple(vib)

@@ -8,27 +8,52 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rotations import quat_from_axis_angle, quat_mul, quat_to_matrix
+from .errors import _direction, _positive, _real
 
 __all__ = ["Rest", "Rotate", "Translate"]
+
+# A segment's duration is rounded to the sample grid by :func:`~fusionkit.sim.simulate`: it lasts
+# round(duration * rate) samples, at least one (Rotate(axis, angle, 0.015) at 100 Hz lasts 0.02 s).
 
 
 @dataclass(frozen=True)
 class Rest:
+    """No motion for ``duration`` s (finite, > 0; rounded to the sample grid, at least one sample)."""
+
     duration: float
+
+    def __post_init__(self) -> None:  # (a negative or zero duration was one sample; NaN, inf numpy's error)
+        object.__setattr__(self, "duration", _positive("Rest.duration", self.duration, "s"))
 
 
 @dataclass(frozen=True)
 class Rotate:
+    """A rotation about the fixed body ``axis`` (3 numbers, not all zero) by ``angle`` rad in
+    ``duration`` s (finite, > 0; rounded to the sample grid, at least one sample)."""
+
     axis: tuple[float, float, float]
     angle: float
     duration: float
 
+    def __post_init__(self) -> None:  # (a zero axis or a NaN angle made a NaN truth)
+        object.__setattr__(self, "axis", _direction("Rotate.axis", self.axis))
+        object.__setattr__(self, "angle", _real("Rotate.angle", self.angle, "a finite number (rad)"))
+        object.__setattr__(self, "duration", _positive("Rotate.duration", self.duration, "s"))
+
 
 @dataclass(frozen=True)
 class Translate:
+    """A translation along the ENU ``direction`` (3 numbers, not all zero) by ``distance`` m in
+    ``duration`` s (finite, > 0; rounded to the sample grid, at least one sample), no rotation."""
+
     direction: tuple[float, float, float]
     distance: float
     duration: float
+
+    def __post_init__(self) -> None:  # (a zero direction made a NaN acceleration)
+        object.__setattr__(self, "direction", _direction("Translate.direction", self.direction))
+        object.__setattr__(self, "distance", _real("Translate.distance", self.distance, "a finite number (m)"))
+        object.__setattr__(self, "duration", _positive("Translate.duration", self.duration, "s"))
 
 
 _QUADRATURE_NODES = 5  # Gauss-Legendre nodes per sample for the interval means (sampling="mean")

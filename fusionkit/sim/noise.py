@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .errors import _nonneg, _vec
+
 __all__ = ["Noise"]
 
 
@@ -16,6 +18,12 @@ class Noise:
     acc_noise: float = 0.0
     acc_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mag_noise: float = 0.0
+
+    def __post_init__(self) -> None:  # (a bias of 2 numbers was numpy's broadcast error; a negative noise taken)
+        for name in ("gyr_noise", "acc_noise", "mag_noise"):
+            object.__setattr__(self, name, _nonneg(f"Noise.{name}", getattr(self, name)))
+        for name in ("gyr_bias", "acc_bias"):
+            object.__setattr__(self, name, _vec(f"Noise.{name}", getattr(self, name)))
 
     @classmethod
     def mems(cls) -> "Noise":

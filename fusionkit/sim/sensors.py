@@ -34,29 +34,51 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
              sampling: str = "mean", errors: SensorErrors | None = None) -> Recording:
     """Simulate ``segments`` at ``rate`` Hz (see module doc); ``seed`` makes the noise repeatable.
 
+    Each segment lasts ``round(duration * rate)`` samples, at least one: durations are rounded to
+    the sample grid (``Rotate(axis, angle, 0.015)`` at 100 Hz lasts 0.02 s, its angle in full), so
+    the recording lasts the rounded durations' sum.
+
     ``sampling``: ``"mean"`` (the specific force and the field averaged over each sample's
     interval, like the gyro's rate) or ``"point"`` (their values at the sample's time).
 
-    With ``gnss_rate`` (Hz) the recording carries a GNSS velocity stream (ENU, white noise of
-    ``gnss_vel_noise`` m/s per axis) sampled from the true velocity.
+    With ``gnss_rate`` (Hz; None: no GNSS) the recording carries a GNSS velocity stream (ENU,
+    white noise of ``gnss_vel_noise`` m/s per axis) sampled from the true velocity, which starts at
+    ``initial_velocity`` (m/s, ENU): an epoch every ``round(rate / gnss_rate)`` samples (every
+    sample at a rate above the IMU's).
 
     ``errors``: a :class:`~fusionkit.sim.SensorErrors` (hard and soft iron, earth-fixed magnetic
     disturbances, delays and low-passes, scale factors and misalignments, bias random walks,
     vibration, taps, dropped samples, timestamp gaps; :mod:`fusionkit.sim.errors`); None or an
     empty one simulates exactly what it did without. With errors, ``meta`` also holds
-    ``errors``, ``ref_pos`` (the true position, m, ENU, from the start), ``gyr_bias`` and
+    ``errors``, ``ref_pos`` (the true position, m, ENU, from the start: the segments'
+    displacements plus ``initial_velocity`` times the time), ``gyr_bias`` and
     ``acc_bias`` (the true biases per sample) and ``kept`` (the indices of the rows kept out of
     the uniform grid).
     """
-    if rate <= 0:
-        raise InputError(f"rate must be > 0, got {rate}")
+    rate = _err._positive("rate", rate, "Hz")  # (NaN, "100": numpy's or Python's error)
     if sampling not in ("mean", "point"):
         raise InputError(f"sampling must be 'mean' or 'point', got {sampling!r}")
     if errors is not None and not isinstance(errors, SensorErrors):
         raise InputError(f"errors must be a fusionkit.sim.SensorErrors or None, got {type(errors).__name__}")
+    if not isinstance(noise, Noise):
+        raise InputError(f"noise must be a fusionkit.sim.Noise, got {noise!r:.80}")
+    if gnss_rate is not None:  # (-5 gave an epoch every sample)
+        gnss_rate = _err._positive("gnss_rate", gnss_rate, "Hz (None: no GNSS)")
+    gnss_vel_noise = _err._nonneg("gnss_vel_noise", gnss_vel_noise)
+    mag_field = _err._vec("mag_field", mag_field)
+    initial_velocity = _err._vec("initial_velocity", initial_velocity)
+    if errors is not None and errors.mag_rate is not None and errors.mag_rate > rate:
+        raise InputError(f"SensorErrors.mag_rate ({errors.mag_rate} Hz) is above the IMU's rate ({rate} Hz): a "
+                         "magnetometer read faster than the IMU is sampled cannot be simulated (use mag_rate <= rate, "
+                         "or None)")
+    if isinstance(segments, (Rest, Rotate, Translate)) or not hasattr(segments, "__iter__"):
+        raise InputError(f"segments must be a list of Rest, Rotate and Translate, got {segments!r:.80}")
     segments = list(segments)
     if not segments:
         raise InputError("segments is empty")
+    for seg in segments:
+        if not isinstance(seg, (Rest, Rotate, Translate)):
+            raise InputError(f"unknown segment {seg!r}: use Rest, Rotate or Translate")
     dt = 1.0 / rate
     counts = [max(1, int(round(s.duration * rate))) for s in segments]
     n = sum(counts) + 1
@@ -64,7 +86,10 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     acc_e = np.zeros((n, 3))
     moving = np.zeros(n, bool)
     gyr = np.zeros((n, 3))
-    q = quat_normalize(np.asarray(initial, dtype=float))
+    initial = _err._vec("initial", initial, 4)
+    if not any(initial):
+        raise InputError("initial must be a quaternion (w, x, y, z), not all zero")
+    q = quat_normalize(np.asarray(initial))
     quat[0] = q
     g_e = np.array([0.0, 0.0, gravity])
     m_e = np.asarray(mag_field, dtype=float)
@@ -75,12 +100,11 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     weights = 0.5 * weights
     disturbed = errors is not None and bool(errors.dipoles or errors.patches)
     lever = None if errors is None or not any(errors.lever_arm) else errors.lever_arm
-    pos = np.zeros((n, 3))  # the true position (m, ENU) from the start
+    pos = np.zeros((n, 3))  # the segments' displacement (m, ENU) from the start; + v0 t: the true position
     p = np.zeros(3)
+    v0 = np.asarray(initial_velocity)
     k = 1
     for seg, m in zip(segments, counts):
-        if not isinstance(seg, (Rest, Rotate, Translate)):
-            raise InputError(f"unknown segment {seg!r}: use Rest, Rotate or Translate")
         u = np.arange(1, m + 1) / m  # progress at the segment's samples
         quat[k:k + m], acc_e[k:k + m] = _segment_motion(seg, q, u, m * dt)
         if isinstance(seg, Rotate):
@@ -91,7 +115,8 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
         pos[k:k + m] = _segment_position(seg, p, u)
         if disturbed:
             def field(v, seg=seg, p=p, k=k, m=m):  # the earth's field plus its disturbances at progress v
-                return m_e + _err.earth_disturbance(errors, _segment_position(seg, p, v), (k - 1 + v * m) * dt)
+                t = (k - 1 + v * m) * dt
+                return m_e + _err.earth_disturbance(errors, _segment_position(seg, p, v) + t[:, None] * v0, t)
         else:
             def field(v):
                 return m_e
@@ -122,29 +147,37 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
     mag = mag + noise.mag_noise * rng.standard_normal((n, 3))
     if errors is not None and errors.mag_rate is not None:  # sample and hold: the reading, noise and all
         mag = mag[_err.held_source(n, errors.mag_rate, rate)]
-    gnss = None
+    epochs = None  # the GNSS epochs: (sample indices, velocities)
     if gnss_rate:
-        vel = np.asarray(initial_velocity, dtype=float) + np.concatenate(
-            [np.zeros((1, 3)), np.cumsum(0.5 * (acc_e[1:] + acc_e[:-1]) * dt, axis=0)])
+        vel = v0 + np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (acc_e[1:] + acc_e[:-1]) * dt, axis=0)])
         step = max(1, int(round(rate / gnss_rate)))
         idx = np.arange(0, n, step)
-        gnss = Gnss(t=idx * dt, vel=vel[idx] + gnss_vel_noise * rng.standard_normal((idx.size, 3)), frame="ENU")
+        epochs = idx, vel[idx] + gnss_vel_noise * rng.standard_normal((idx.size, 3))
     meta = {"simulated": True, "noise": noise, "gravity": gravity}
     if errors is None:
         return Recording(gyr=gyr, acc=acc, mag=mag, rate=rate, truth=quat, truth_frame="ENU", movement=moving,
-                         gnss=gnss, name=name, meta=meta)
+                         gnss=_gnss(epochs, np.arange(n) / rate), name=name, meta=meta)
+    pos += np.arange(n)[:, None] * dt * v0  # (the GNSS velocity had the initial velocity, ref_pos did not)
     meta.update(errors=errors, ref_pos=pos, gyr_bias=extra["gyr_bias"] + np.asarray(noise.gyr_bias),
                 acc_bias=extra["acc_bias"] + np.asarray(noise.acc_bias))
     kept = _err.kept_rows(errors, np.arange(n) * dt, extra["rng"])
     if len(kept) == n:
         meta["kept"] = kept
         return Recording(gyr=gyr, acc=acc, mag=mag, rate=rate, truth=quat, truth_frame="ENU", movement=moving,
-                         gnss=gnss, name=name, meta=meta)
+                         gnss=_gnss(epochs, np.arange(n) / rate), name=name, meta=meta)
     for key in ("ref_pos", "gyr_bias", "acc_bias"):
         meta[key] = meta[key][kept]
     meta["kept"] = kept
     return Recording(gyr=gyr[kept], acc=acc[kept], mag=mag[kept], t=kept * dt, truth=quat[kept], truth_frame="ENU",
-                     movement=moving[kept], gnss=gnss, name=name, meta=meta)
+                     movement=moving[kept], gnss=_gnss(epochs, np.arange(n) * dt), name=name, meta=meta)
+
+
+def _gnss(epochs, clock: np.ndarray) -> Gnss | None:
+    """The GNSS stream of ``epochs`` (sample indices, ENU velocities; None: none) on the IMU's
+    clock: ``clock`` holds its sample times as the recording computes them (``k / rate``, or the
+    timestamps ``k * dt`` of a recording with lost rows). Epoch times ``idx * dt`` rounded past
+    ``(n - 1) / rate``, the last sample's, and its epoch was dropped with a false warning."""
+    return None if epochs is None else Gnss(t=clock[epochs[0]], vel=epochs[1], frame="ENU")
 
 
 def _apply_errors(errors: SensorErrors, gyr, acc, mag, rate, sampling, seed):
