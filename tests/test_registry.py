@@ -313,6 +313,9 @@ def test_registering_a_class_an_entry_point_also_names_is_one_plugin(on_path):
             name = "same-cor"
             mode = "rate"
 
+            def correct(self, estimator, est_state, state, sample, flags):  # (a corrector implements it)
+                return None
+
         class Alias(SameCor):
             name = "alias-cor"
 
