@@ -1045,8 +1045,11 @@ def _model_reference(model, s, gyr, acc, mag, dt, gyr_range, acc_range, out=None
     magnetometer it gives, an invalid sample passed on unchanged; None: not kept)."""
     from .protocols import Sample
 
+    from .detectors._run import read_only
+
     q = np.array([1.0, 0.0, 0.0, 0.0])
     nan3 = np.full(3, np.nan)
+    acc, mag = read_only(acc), read_only(mag)  # (the recording's rows, as the pipeline hands them)
     for k in range(gyr.shape[0]):
         g_ok, a_ok, m_ok, _ = sample_validity(gyr[k], acc[k], mag[k], gyr_range, acc_range)
         smp, _ = model.apply(s, Sample(gyr[k].copy() if g_ok else nan3, acc[k] if a_ok else None,

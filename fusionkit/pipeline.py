@@ -127,12 +127,16 @@ def _is_vec3(v) -> bool:
 def _model_output_ok(out) -> bool:
     """Whether a sensor model's ``apply`` returned ``(Sample, flags)``: a Sample whose ``gyr`` is a
     vector of 3 and ``acc`` / ``mag`` one or None, and flags an int from 0 to 2**32 - 1."""
-    if type(out) is not tuple or len(out) != 2:
+    if not isinstance(out, (tuple, list)) or isinstance(out, Sample) or len(out) != 2:
         return False
     sample, f = out
-    return (type(sample) is Sample and isinstance(f, (int, np.integer)) and not isinstance(f, bool)
-            and 0 <= f <= 0xFFFFFFFF and _is_vec3(sample.gyr) and (sample.acc is None or _is_vec3(sample.acc))
-            and (sample.mag is None or _is_vec3(sample.mag)))
+    return (isinstance(sample, Sample) and _flags_ok(f) and _is_vec3(sample.gyr)
+            and (sample.acc is None or _is_vec3(sample.acc)) and (sample.mag is None or _is_vec3(sample.mag)))
+
+
+def _flags_ok(f) -> bool:
+    """Flag bits as a model returns them: an int (numpy's too, a bool's 0 / 1) from 0 to 2**32 - 1."""
+    return isinstance(f, (int, np.integer, np.bool_)) and 0 <= int(f) <= 0xFFFFFFFF
 
 
 def _bad_model_output(mod, out) -> None:
@@ -141,11 +145,11 @@ def _bad_model_output(mod, out) -> None:
     (:func:`_bad_correction`). Python's or numpy's error named neither: "too many values to
     unpack" for a Sample alone, an IndexError for a gyr of shape (2,), an AttributeError for a
     list, a TypeError for flags None."""
-    if type(out) is Sample:
+    if isinstance(out, Sample):
         what = "a Sample alone, not (sample, flags)"
-    elif type(out) is not tuple or len(out) != 2:
+    elif not isinstance(out, (tuple, list)) or len(out) != 2:
         what = f"{type(out).__name__} {out!r:.60}"
-    elif type(out[0]) is not Sample:
+    elif not isinstance(out[0], Sample):
         what = f"({type(out[0]).__name__}, ...): the first item is not a fusionkit.protocols.Sample"
     else:
         sample, f = out
@@ -153,7 +157,7 @@ def _bad_model_output(mod, out) -> None:
                                                           if isinstance(v, np.ndarray) else "")
                for k, v in (("gyr", sample.gyr), ("acc", sample.acc), ("mag", sample.mag))
                if not _is_vec3(v) and (k == "gyr" or v is not None)]
-        if not (isinstance(f, (int, np.integer)) and not isinstance(f, bool) and 0 <= f <= 0xFFFFFFFF):
+        if not _flags_ok(f):
             bad.append(f"flags {f!r:.40} ({type(f).__name__})")
         what = "(sample, flags) with " + ", ".join(bad)
     raise PluginError(f"sensor model {mod.name!r}: apply() returned {what}; it must return (sample, flags): a "
@@ -290,14 +294,16 @@ class Pipeline(Filter):
         gyr_ok, acc_ok, mag_ok, flags = sample_validity(gyr, acc, mag if has_mag else None, cfg.gyr_range,
                                                         cfg.acc_range)
         if self.models:  # 1b. sensor models; validity judged again on what they give
-            sample = Sample(gyr, acc if acc_ok else None, mag if mag_ok else None, dt, gnss)
+            # gyr a copy of its own, as before: a model correcting it in place changes nobody's array (acc and
+            # mag are the recording's rows, read-only)
+            sample = Sample(np.array(gyr, dtype=float), acc if acc_ok else None, mag if mag_ok else None, dt, gnss)
             mflags = 0
             try:  # (the arrays are read-only views: a plugin that writes into them is named, see wrote_input)
                 for i, mod in enumerate(self.models):
                     out = mod.apply(st["mod"][i], sample, al[_QPREV:_QPREV + 4].copy())
                     if not _model_output_ok(out):
                         _bad_model_output(mod, out)  # (a plugin's mistake, named: Python's or numpy's error was not)
-                    sample, f = out
+                    sample, f = out[0], int(out[1])
                     mflags |= f
             except ValueError as exc:
                 wrote_input("sensor model", mod, exc)
@@ -355,7 +361,7 @@ class Pipeline(Filter):
         q = None
         if self.correctors:
             rate = np.zeros(3)
-            measured, sample = sample, sample._replace(gyr=read_only(gyr - bias))  # (read-only, as the others)
+            measured, sample = sample, sample._replace(gyr=gyr - bias)  # (a temporary of its own: writable)
             try:
                 for i, cor in enumerate(self.correctors):
                     if cor.mode == "factor":

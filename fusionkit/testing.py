@@ -82,7 +82,7 @@ def check_plugin(plugin, params: dict[str, Any] | None = None, rec: Recording | 
         elif issubclass(cls, SensorModel):
             _check_model(cls, params, rec, within)
     except PluginError as exc:  # the pipeline's read-only samples: a plugin that wrote into one, as this rule
-        if "wrote into an array of the sample" not in str(exc):
+        if "wrote into a read-only array" not in str(exc):
             raise
         raise AssertionError(f"{cls.name}: it changes the sample it is given: {exc}") from exc
     changed = [k for k, a in _arrays(rec).items() if not np.array_equal(a, before[k], equal_nan=True)]

@@ -30,14 +30,19 @@ def read_only(a: np.ndarray) -> np.ndarray:
     return v
 
 
+#: numpy's own messages for a write into a read-only array (a plugin's own error that mentions "read-only" is its own)
+_NUMPY_READ_ONLY = ("assignment destination is read-only", "output array is read-only")
+
+
 def wrote_input(kind: str, plugin: Any, exc: ValueError) -> None:
     """Called with the ValueError a plugin's call raised: a PluginError naming the plugin when it
     is numpy's refusal to write into a :func:`read_only` array ("assignment destination is
     read-only", "output array is read-only"), which named neither the plugin nor the rule; returns
     (the caller re-raises) for any other error."""
-    if type(exc) is ValueError and "read-only" in str(exc):
-        raise PluginError(f"{kind} {plugin.name!r} wrote into an array of the sample it was given ({exc}): a "
-                          "plugin must not change its input (the arrays are the recording's or the caller's); "
+    if type(exc) is ValueError and str(exc) in _NUMPY_READ_ONLY:
+        raise PluginError(f"{kind} {plugin.name!r} wrote into a read-only array, likely the sample it was given "
+                          f"({exc}): a plugin must not change its input (the arrays are the recording's or the "
+                          "caller's); "
                           "compute on a copy, e.g. acc = sample.acc * k, not sample.acc *= k") from exc
 
 
