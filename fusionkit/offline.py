@@ -718,6 +718,8 @@ class OfflineFilter(Filter):
         per-sample weights of the backward pass (``inclination``, ``heading``);
         ``diagnostics["mag_disturbed"]`` the magnetometer samples left out (:func:`disturbance_mask`;
         None without a magnetometer or with ``disturbance_gap=None``);
+        ``diagnostics["models"]`` the forward pass's sensor models' reports at its end (with
+        ``calibration="recording"`` the mag-calibration's the forward model's over the recording);
         ``diagnostics["mag_calibration"]`` per sample the magnetometer stream both passes used (0 raw,
         1 calibrated by the forward model, 2 by the backward one; None where the filter has no
         calibration model or ``calibration="per-pass"``); ``diagnostics["mag_timing"]`` the
@@ -813,6 +815,8 @@ class OfflineFilter(Filter):
         flags = _fused_flags(fwd.flags, bwd.flags[::-1])
         if choice is not None and isinstance(fwd.diagnostics.get("state"), dict):
             fwd.diagnostics["state"]["mod"].insert(index, model_end)  # it fits the filter with the model again
+            # the forward pass ran without the model: its reports again, the forward model's among them
+            fwd.diagnostics["models"] = self.inner.model_reports(fwd.diagnostics["state"])
         diag = dict(fwd.diagnostics)
         diag.update({"filter": self.name, "fusion_backend": used, "offline": True, "config": self.config.model_dump(),
                      "backward_weight": {"inclination": w_i, "heading": w_h}, "mag_disturbed": disturbed,

@@ -598,8 +598,34 @@ class Pipeline(Filter):
             d["criteria"] = crit
             d["criteria_names"] = self.detectors[0].criteria_names
             d["onset_index"] = first if fired[first] else None
+        if self.models:  # (a pipeline without models has no "models" key, as one without detectors no "criteria")
+            d["models"] = self.model_reports(st)
         d["state"] = copy.deepcopy(st)
         return d
+
+    def model_reports(self, state: dict[str, Any] | None = None) -> dict[str, dict[str, Any]]:
+        """Each sensor model's :meth:`~fusionkit.protocols.SensorModel.report` of ``state`` (a run
+        state: ``Result.diagnostics["state"]``, or by default the stream's after ``update()``), by the
+        model's name, in the pipeline's order (a name that repeats gets ``#2``, ``#3``, ...); what
+        ``run()`` puts in ``diagnostics["models"]``. The estimates by name and in physical units,
+        where the state holds raw arrays in each model's private layout. Empty without models."""
+        if state is None:
+            state = self.state
+            if state is None:
+                raise InputError("model_reports() without a state reads the stream's: call update() first, or pass "
+                                 "Result.diagnostics['state']")
+        out: dict[str, dict[str, Any]] = {}
+        for mod, s in zip(self.models, state["mod"]):
+            rep = mod.report(s)
+            if not isinstance(rep, dict):  # (a plugin's mistake, named)
+                raise PluginError(f"sensor model {mod.name!r}: report() returned {type(rep).__name__}; it must "
+                                  "return a dict (name -> value; {} for nothing to report)")
+            key, k = mod.name, 1
+            while key in out:
+                k += 1
+                key = f"{mod.name}#{k}"
+            out[key] = rep
+        return out
 
     def update(self, gyr, acc, mag=None, dt: float | None = None, gnss=None) -> np.ndarray:
         """Process one sample of a stream (``dt`` in s is required; ``gnss`` the latest epoch's

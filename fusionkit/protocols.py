@@ -348,6 +348,16 @@ class SensorModel(Plugin, ABC):
     def kernel(self) -> SensorModelKernel | None:
         return None
 
+    def report(self, state: np.ndarray) -> dict[str, Any]:
+        """The model's estimate at the end of a run, named, in physical units: what it learned (an
+        offset, a lever arm, a time offset), how well it is known and whether it is applied, read
+        from ``state`` (its state array after the run's last sample). A pipeline puts it in
+        ``Result.diagnostics["models"][name]``, so a user reads the estimate by name instead of
+        indexing the raw state. Empty by default (a model with nothing to report); the built-ins'
+        fields and units are in docs/algorithms/models.md. It only reads ``state``, and the
+        compiled path's state equals the reference's, so both backends report the same."""
+        return {}
+
 
 @dataclass
 class DetectionResult:

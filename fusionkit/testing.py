@@ -14,7 +14,8 @@ one) matches the reference to 1e-9. Estimators: the state round-trips a quaterni
 quaternion stays unit norm over steps of propagation, and the kernel matches the reference.
 Detectors: one criteria value per sample and kernel == reference. Correctors and sensor models:
 they run inside a pipeline with finite unit output, and the pipeline compiled with their kernel
-(when they have one) matches the reference to 1e-9. Estimators, detectors, sensor models and
+(when they have one) matches the reference to 1e-9; a sensor model's ``report()`` is a dict, the
+same from both paths (:func:`assert_reports_equal`). Estimators, detectors, sensor models and
 correctors leave the arrays they are given unchanged (one that edited a sample in place changed
 the user's recording).
 """
@@ -34,7 +35,7 @@ from .protocols import Corrector, Detector, Estimator, Filter, Plugin, Sample, S
 from .registry import default_registry
 from .types import Flag, Recording
 
-__all__ = ["check_plugin", "contract_recording"]
+__all__ = ["check_plugin", "contract_recording", "assert_reports_equal"]
 
 TOL = 1e-9
 
@@ -286,6 +287,7 @@ def _check_model(cls, params, rec, within=None) -> None:
                       "correctors": ["gradient-descent"], "alignment": {"mode": "fixed", "duration": 1.0}})
     res = p.run(rec, backend="reference")
     _assert_unit_quats(cls.name + " in a pipeline", res.quat, len(rec))
+    assert isinstance(res.diagnostics.get("models"), dict), f"{cls.name}: no diagnostics['models'] in its pipeline"
     if all(m.kernel() is not None for m in p.models) and HAVE_NUMBA:
         fast = p.run(rec, backend="numba")
         d = np.abs(fast.quat - res.quat).max()
@@ -293,6 +295,25 @@ def _check_model(cls, params, rec, within=None) -> None:
         assert np.array_equal(fast.flags, res.flags), f"{cls.name}: kernel and reference flags differ"
         for a, b in zip(fast.diagnostics["state"]["mod"], res.diagnostics["state"]["mod"]):
             assert np.allclose(a, b, rtol=0, atol=TOL, equal_nan=True), f"{cls.name}: kernel and reference states differ"
+        assert_reports_equal(fast.diagnostics["models"], res.diagnostics["models"], what=f"{cls.name}: the reports")
+
+
+def assert_reports_equal(a: dict, b: dict, tol: float = TOL, what: str = "reports") -> None:
+    """Two :meth:`~fusionkit.protocols.SensorModel.report` dicts (or ``diagnostics["models"]``, a
+    dict of them) are the same: the same keys, numbers and arrays within ``tol`` (NaN equal to NaN,
+    an infinity to itself), anything else (a bool, a string, None) equal. What the compiled and
+    the reference paths report must agree as their states do (1e-9)."""
+    assert isinstance(a, dict) and isinstance(b, dict), f"{what}: not dicts ({type(a).__name__}, {type(b).__name__})"
+    assert a.keys() == b.keys(), f"{what}: different keys ({sorted(a)} against {sorted(b)})"
+    for k in a:
+        x, y, at = a[k], b[k], f"{what}[{k!r}]"
+        if isinstance(x, dict):
+            assert_reports_equal(x, y, tol, at)
+        elif x is None or isinstance(x, (str, bool, np.bool_)):
+            assert x == y, f"{at}: {x!r} against {y!r}"
+        else:
+            assert np.shape(x) == np.shape(y), f"{at}: shapes {np.shape(x)} and {np.shape(y)}"
+            assert np.allclose(x, y, rtol=0, atol=tol, equal_nan=True), f"{at}: {x} against {y} (beyond {tol:g})"
 
 
 def _check_corrector(cls, params, rec, within=None) -> None:

@@ -524,13 +524,24 @@ class Recording:
         return out
 
 
+def _model_said(item) -> str:
+    """``name applied`` / ``name not applied`` for a ``(name, report)`` of ``diagnostics["models"]``
+    (:meth:`Result.__repr__`), the name alone where the report has no boolean ``applied``."""
+    name, rep = item
+    applied = rep.get("applied") if isinstance(rep, dict) else None
+    if isinstance(applied, (bool, np.bool_)):
+        return f"{name} {'applied' if applied else 'not applied'}"
+    return name
+
+
 @dataclass
 class Result:
     """Output of a filter run: one row per input sample.
 
     ``quat`` (N, 4) ``[w, x, y, z]`` body -> ``frame``; ``flags`` (N,) ``uint32`` :class:`Flag`
     bits; ``diagnostics`` holds the run's extras (``backend``, ``onset_index``, the gyro bias,
-    ...).
+    ``models``: a pipeline's sensor models' estimates at the end, by name, see
+    :meth:`~fusionkit.protocols.SensorModel.report`; ...).
     """
 
     quat: np.ndarray
@@ -542,13 +553,16 @@ class Result:
         return self.quat.shape[0]
 
     def __repr__(self) -> str:
-        """A one-line summary (samples, frame, flagged samples, diagnostics' keys), never the arrays."""
+        """A one-line summary (samples, frame, flagged samples, the sensor models and whether each
+        applied its estimate at the end, diagnostics' keys), never the arrays."""
         flagged = int(np.count_nonzero(self.flags))
         keys = ", ".join(sorted(self.diagnostics))
         aiding = self.diagnostics.get("aiding")  # (what corrected the run: a 6D or gyro-only heading is arbitrary)
+        models = self.diagnostics.get("models")  # (an estimate not applied changed nothing: worth a glance)
+        said = "; models: " + ", ".join(map(_model_said, models.items())) if isinstance(models, dict) and models else ""
         return (f"Result({len(self)} samples, body -> {self.frame}, {aiding + ', ' if aiding else ''}"
                 f"{flagged} flagged; "
-                f"backend {self.diagnostics.get('backend', '?')}; diagnostics: {keys})")
+                f"backend {self.diagnostics.get('backend', '?')}{said}; diagnostics: {keys})")
 
     def euler(self, frame: str | None = None) -> np.ndarray:
         """(N, 3) heading, pitch, roll in rad, in ``frame``'s convention (default: the result's)."""

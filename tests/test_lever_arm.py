@@ -16,6 +16,7 @@ from fusionkit.models.lever_arm import BEST, CONF, LEVER, STATE, STD, lever_arm_
 from fusionkit.protocols import Sample
 from fusionkit.rotations import quat_to_matrix
 from fusionkit.sim import Rest, Rotate, SensorErrors, Translate
+from fusionkit.testing import assert_reports_equal
 
 R_TRUE = np.array([0.15, 0.03, -0.05])
 
@@ -124,6 +125,8 @@ def test_lever_arm_kernel_equals_reference():
     assert np.nanmax(np.abs(fast_acc - ref_acc)) < 1e-9
     assert ref[-1, CONF] == 1.0  # it did get confident (the correction was compared too)
     assert fk.make("lever-arm", kind="model").kernel().apply is lever_arm_apply
+    m = fk.make("lever-arm", kind="model")  # its report reads the state alone: the same from either state
+    assert_reports_equal(m.report(fast[-1]), m.report(ref[-1]))
 
 
 def _corrected(rec):
@@ -150,6 +153,24 @@ def test_the_model_removes_the_lever_arms_inclination_error():
     assert abs(e["model"] - e["clean"]) < 0.01
     whole = [rms_errors(f.run(r, backend="numba"), rec)["inclination"] for r in (clean, _corrected(clean))]
     assert abs(whole[1] - whole[0]) < 0.002
+
+
+def test_lever_arm_reports_the_simulated_lever_arm():
+    """``diagnostics["models"]["lever-arm"]`` of ``recommended`` with the model (``hand-held``,
+    15 cm / 3 / -5 cm, 15 s at 100 Hz, reference path): the lever arm in m and body axes within 3%
+    of ``|r|`` (the documented accuracy), each axis within four of its standard deviations, which
+    are below ``max_std`` (2 cm), confident and applied; after 2 s not yet (NaN, inf)."""
+    rec = _hand_held(rate=100.0).slice(0, 1500)
+    f = fk.make("recommended", use_mag=False, lever_arm=True)
+    res = f.run(rec, backend="reference")
+    rep = res.diagnostics["models"]["lever-arm"]
+    err = rep["lever_arm_m"] - R_TRUE
+    assert np.linalg.norm(err) < 0.03 * np.linalg.norm(R_TRUE)
+    assert (np.abs(err) < 4.0 * rep["std_m"]).all() and (rep["std_m"] <= rep["std_max_m"] + 1e-15).all()
+    assert rep["std_max_m"] < 0.02 and rep["confident"] is True and rep["applied"] is True
+    assert list(res.diagnostics["models"]) == ["lever-arm"]  # (use_mag=False: no mag-calibration)
+    early = f.run(rec.slice(0, 200), backend="reference").diagnostics["models"]["lever-arm"]
+    assert np.isnan(early["lever_arm_m"]).all() and early["std_max_m"] == np.inf and early["applied"] is False
 
 
 def test_recommended_composes_the_model():

@@ -16,6 +16,7 @@ from fusionkit.offline import (OfflineFilter, disturbance_mask, fuse_reference, 
                                reversed_config, supports_offline)
 from fusionkit.rotations import quat_conj, quat_from_rotvec, quat_mul, quat_rotate
 from fusionkit.sim.scenarios import _tumbling
+from fusionkit.testing import assert_reports_equal
 from fusionkit.types import Flag, Result
 
 DEG = np.pi / 180
@@ -407,6 +408,11 @@ def test_calibration_passes_kernel_equals_reference():
     fast = OfflineFilter(fk.make("recommended")).run(first)
     np.testing.assert_allclose(res.quat, fast.quat, atol=1e-9)
     assert np.abs(fast.quat - OfflineFilter(fk.make("recommended", mag_calibration=False)).run(first).quat).max() > 0.1
+    # the forward pass's reports, the calibration's that of the model run over the recording (the passes ran
+    # without it): the same from both paths, and applied
+    assert_reports_equal(fast.diagnostics["models"], res.diagnostics["models"])
+    assert list(fast.diagnostics["models"]) == ["mag-calibration"]
+    assert fast.diagnostics["models"]["mag-calibration"]["applied"] is True
 
 
 def test_select_calibration_takes_the_stream_whose_norm_stays_constant_while_turning():

@@ -3,6 +3,7 @@ magnetometer, estimated from the IMU alone (fusionkit/models/time_offset.py), on
 recordings with known offsets (fusionkit.sim's timing error models)."""
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ import fusionkit as fk
 from fusionkit import sim
 from fusionkit.errors import ConfigError
 from fusionkit.models.time_offset import ACC, CONF, EST, MAG, NSEG, OFFSET, retime_recording
+from fusionkit.testing import assert_reports_equal
 
 RATE = 200.0
 DEG = np.pi / 180
@@ -141,6 +143,7 @@ def test_kernel_equals_reference_in_a_pipeline_and_streams(retime):
     assert np.abs(fast.quat - ref.quat).max() < 1e-9
     s_ref, s_fast = ref.diagnostics["state"]["mod"][0], fast.diagnostics["state"]["mod"][0]
     assert np.abs(s_fast - s_ref).max() < 1e-9 and s_ref[ACC + CONF] == 1.0
+    assert_reports_equal(fast.diagnostics["models"], ref.diagnostics["models"])
     half = len(rec) // 2
     first = p.run(rec.slice(0, half), backend="numba")
     second = p.run(rec.slice(half, len(rec)), backend="numba", state=first.diagnostics["state"])
@@ -150,6 +153,26 @@ def test_kernel_equals_reference_in_a_pipeline_and_streams(retime):
     streamed = np.array([p.update(g, a, m, dt=d) for g, a, m, d in zip(rec.gyr[:n], rec.acc[:n], rec.mag[:n],
                                                                          rec.dt[:n])])
     assert np.abs(streamed - ref.quat[:n]).max() < 1e-9
+
+
+def test_the_pipeline_reports_the_offsets():
+    """``diagnostics["models"]["time-offset"]`` on ``late-gyro`` (the gyro one sample, 5 ms, late;
+    reference path): the gyro's delay against the accelerometer and against the magnetometer (on
+    the accelerometer's clock) in s, each within a tenth of a sample, confident and applied, their
+    standard deviations below ``max_std`` (0.05 sample); with ``estimate=False`` no estimate (NaN,
+    inf) and the configured offset applied."""
+    rec = sim.scenario("late-gyro")
+    delay = rec.meta["errors"].gyr_delay
+    rep = _pipeline(["time-offset"]).run(rec, backend="reference").diagnostics["models"]["time-offset"]
+    assert rep["sample_interval_s"] == 1.0 / RATE and rep["applied"] is True
+    for key in ("offset", "mag_offset"):
+        assert abs(rep[f"{key}_s"] - delay) < 0.1 / RATE and rep[f"{key}_applied_s"] == rep[f"{key}_s"]
+        assert 0.0 < rep[f"{key}_std_s"] < 0.05 / RATE and rep[f"{key}_confident"] is True
+        assert rep[f"{key}_segments"] >= 50
+    fixed = _pipeline([{"name": "time-offset", "params": {"estimate": False, "offset": 0.002}}])
+    rep = fixed.run(rec.slice(0, 400), backend="reference").diagnostics["models"]["time-offset"]
+    assert math.isnan(rep["offset_s"]) and rep["offset_std_s"] == math.inf and rep["offset_segments"] == 0
+    assert rep["offset_applied_s"] == 0.002 and rep["offset_confident"] is False and rep["applied"] is True
 
 
 def test_acc_clock_moves_the_accelerometer_not_the_gyro():

@@ -89,6 +89,18 @@ class CalibrationModel(SensorModel):
         mag = None if sample.mag is None else _affine_ref(w, c.hard_iron, sample.mag)
         return sample._replace(gyr=gyr, acc=acc, mag=mag), 0
 
+    def report(self, state: np.ndarray) -> dict:
+        """The constants it applies (``Result.diagnostics["models"]["calibration"]``; nothing is
+        estimated, so the same at every sample), in the body axes of the recording:
+        ``gyr_bias_rad_s`` (3,) and ``gyr_scale`` (3, 3) ``S_g``; ``acc_bias_m_s2`` and ``acc_scale``
+        ``S_a``; ``hard_iron`` (3,, the magnetometer's unit) and ``soft_iron`` (3, 3) ``W``; ``applied``
+        True. Reported so that every model of a pipeline says what it did to the samples."""
+        c = self.config
+        return {"gyr_bias_rad_s": np.array(c.gyr_bias, dtype=float), "gyr_scale": np.array(c.gyr_scale, dtype=float),
+                "acc_bias_m_s2": np.array(c.acc_bias, dtype=float), "acc_scale": np.array(c.acc_scale, dtype=float),
+                "hard_iron": np.array(c.hard_iron, dtype=float), "soft_iron": np.array(c.soft_iron, dtype=float),
+                "applied": True}
+
     def params(self) -> np.ndarray:
         """The kernel's parameters: the three biases, then the three matrices row by row."""
         c = self.config

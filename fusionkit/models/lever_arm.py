@@ -123,6 +123,29 @@ class LeverArmModel(SensorModel):
     def kernel(self) -> SensorModelKernel:
         return SensorModelKernel(lever_arm_apply, self.params())
 
+    def report(self, state: np.ndarray) -> dict:
+        """The lever arm the fit holds at the end of a run (``Result.diagnostics["models"]["lever-arm"]``):
+
+        - ``lever_arm_m``: ``r`` (m, the body axes of the recording: the accelerometer's position from
+          the rotation centre), NaN while the fit is not solved (too little rotation, about one axis
+          only, or fewer than ten ``hp_tau`` of samples);
+        - ``std_m``: its standard deviation per body axis (m), inf while not solved;
+        - ``std_max_m``: along its least-known direction (m), the one compared with ``max_std``;
+        - ``confident`` / ``applied``: whether it is below ``max_std``, so subtracted (``f - K r``)
+          from the accelerometer (the model applies the fit exactly while confident)."""
+        s = state
+        std = float(s[STD])
+        a, inv = s[_A:_A + 9].reshape(3, 3), np.empty((3, 3))
+        if math.isfinite(std) and _inverse3(a, inv):
+            lever = s[BEST:BEST + 3].copy()
+            # std = sqrt(X / lambda_min(A)) with X the residual variance per independent value: per axis,
+            # sqrt(X (A^-1)_ii) = std sqrt(lambda_min (A^-1)_ii)
+            axes = std * np.sqrt(np.maximum(_min_eig_sym3(a) * np.diag(inv), 0.0))
+        else:
+            lever, axes = np.full(3, math.nan), np.full(3, math.inf)
+        confident = bool(s[CONF])
+        return {"lever_arm_m": lever, "std_m": axes, "std_max_m": std, "confident": confident, "applied": confident}
+
     def apply(self, state: np.ndarray, sample: Sample, quat: np.ndarray) -> tuple[Sample, int]:
         s, dt = state, sample.dt
         g = np.asarray(sample.gyr, dtype=float)

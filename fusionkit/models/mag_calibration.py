@@ -316,6 +316,55 @@ class MagCalibrationModel(SensorModel):
         c = self.config
         return SensorModelKernel(mag_calibration_apply, self.params(), static=(c.soft_iron, c.held_readings == "once"))
 
+    def report(self, state: np.ndarray) -> dict:
+        """The calibration at the end of a run (``Result.diagnostics["models"]["mag-calibration"]``),
+        in the magnetometer's unit (the recording's, uT for fusionkit's loaders and simulator) and
+        the body axes of the recording; the calibrated field is ``W (m - b)``:
+
+        - ``hard_iron``: the fit's body-fixed offset ``b`` (3,), NaN while the fit is not solvable
+          (before rotations about two axes, or just after it was learned again);
+        - ``hard_iron_std``: its standard deviation, the least-known direction's (offset alone) or
+          the largest axis's (soft iron, of ``c = W b``): what the confidence compares with
+          ``max_std`` of the field's norm; inf before ``min_segments`` segments;
+        - ``soft_iron``: the fit's ``W = I + E`` (3, 3; ``E`` symmetric with zero trace, so ``W``
+          keeps about the raw field's scale), ``soft_iron_std`` the largest standard deviation of
+          ``E``'s entries (dimensionless); both None with ``soft_iron=False``;
+        - ``confidence``: 1 confident, 0.5 a provisional offset (``provisional_std``), 0 none (also
+          while the gate refuses a confident estimate, and after a misfit restarted the fit);
+        - ``applied``: whether a calibration corrects the samples; ``applied_hard_iron`` /
+          ``applied_soft_iron`` the ``b`` and ``W`` it applies (zeros and the identity for none;
+          the last confident one is kept through a restart; ``applied_soft_iron`` None with
+          ``soft_iron=False``). They differ from the fit where it is not (yet) applied;
+        - ``segments``: the segments in the current fit (from 0 again after a restart)."""
+        c, s = self.config, state
+        n = int(s[_N])
+        var = float(s[_VAR])
+        if c.soft_iron:
+            best = s[_SBEST:_SBEST + _NP]
+            known = s[_SINVOK] != 0.0 and n > 0
+            w = np.eye(3) + _distortion(best)
+            try:
+                hard = np.linalg.solve(w, best[5:8]) if known else np.full(3, math.nan)
+            except np.linalg.LinAlgError:  # (a degenerate fit: W singular)
+                hard = np.full(3, math.nan)
+            soft = w if known else np.full((3, 3), math.nan)
+            if known and n >= c.min_segments:
+                std = np.sqrt(np.maximum(var * np.diag(s[_SINV:_SINV + _NP * _NP].reshape(_NP, _NP)), 0.0))
+                hard_std, soft_std = float(std[5:8].max()), float(std[:5].max())
+            else:
+                hard_std = soft_std = math.inf
+            applied_w = np.eye(3) + _distortion(s[_SAPP:_SAPP + 5])
+        else:
+            a, inv = s[_A:_A + 9].reshape(3, 3), np.empty((3, 3))
+            known = n > 0 and _inverse3(a, inv)
+            hard = s[_BEST:_BEST + 3].copy() if known else np.full(3, math.nan)
+            lmin = _min_eig_sym3(a) if known else 0.0
+            hard_std = math.sqrt(var / lmin) if known and n >= c.min_segments and lmin > 0.0 else math.inf
+            soft = soft_std = applied_w = None
+        return {"hard_iron": hard, "hard_iron_std": hard_std, "soft_iron": soft, "soft_iron_std": soft_std,
+                "confidence": float(s[_CONF]), "applied": _applied(s, c.soft_iron) != 0,
+                "applied_hard_iron": s[_B:_B + 3].copy(), "applied_soft_iron": applied_w, "segments": n}
+
     def apply(self, state: np.ndarray, sample: Sample, quat: np.ndarray) -> tuple[Sample, int]:
         c, s = self.config, state
         gyr_ok = bool(np.isfinite(sample.gyr).all())

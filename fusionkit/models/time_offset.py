@@ -139,6 +139,39 @@ class TimeOffsetModel(SensorModel):
     def kernel(self) -> SensorModelKernel:
         return SensorModelKernel(time_offset_apply, self.params())
 
+    def report(self, state: np.ndarray) -> dict:
+        """The offsets at the end of a run (``Result.diagnostics["models"]["time-offset"]``), in
+        seconds; ``offset_*`` the gyro's delay against the accelerometer (positive: the gyro is the
+        later, as the config's ``offset``), ``mag_offset_*`` against the magnetometer (as
+        ``mag_offset``; negative: the magnetometer is the later):
+
+        - ``offset_s``: the estimate, NaN before a segment with an angular acceleration entered (or
+          with ``estimate=False``); ``offset_std_s`` its standard deviation (inf then);
+        - ``offset_applied_s``: the offset the model re-times with (the configured ``offset`` until an
+          estimate is confident, then the last confident one, clamped to ``max_offset``);
+        - ``offset_confident``: an estimate was confident (``max_std``, ``min_segments``) and applied;
+        - ``offset_segments``: the segments that entered its fit;
+        - the same five for ``mag_offset_`` (``mag_offset_applied_s`` 0 with ``use_mag=False``);
+        - ``sample_interval_s``: the nominal sample interval (the docs state offsets in samples);
+        - ``applied``: whether the re-timing changes a sample now (a nonzero offset in use)."""
+        c, s = self.config, state
+        out: dict = {}
+        for key, b in (("offset", ACC), ("mag_offset", MAG)):
+            known = s[b + _XX] > 0.0
+            out[f"{key}_s"] = float(s[b + EST]) if known else math.nan
+            out[f"{key}_std_s"] = float(s[b + STD]) if known else math.inf
+            out[f"{key}_applied_s"] = float(s[b + OFFSET]) if (b == ACC or c.use_mag) else 0.0
+            out[f"{key}_confident"] = bool(s[b + CONF])
+            out[f"{key}_segments"] = int(s[b + NSEG])
+        out["sample_interval_s"] = float(s[_DT0])
+        da, dm = out["offset_applied_s"], out["mag_offset_applied_s"]
+        if c.retime == "gyro":  # (the conditions of apply's step 3, for the sensors' state at the end)
+            mag_moved = da != dm and (s[ACC + CONF] == s[MAG + CONF] or not c.estimate)
+        else:
+            mag_moved = dm != 0.0
+        out["applied"] = bool(da != 0.0 or mag_moved)
+        return out
+
     # -- the readable reference ---------------------------------------------------------------
     def apply(self, state: np.ndarray, sample: Sample, quat: np.ndarray) -> tuple[Sample, int]:
         c, s = self.config, state
