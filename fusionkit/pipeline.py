@@ -614,8 +614,12 @@ class Pipeline(Filter):
             if state is None:
                 raise InputError("model_reports() without a state reads the stream's: call update() first, or pass "
                                  "Result.diagnostics['state']")
+        mods = state.get("mod") if isinstance(state, dict) else None
+        if mods is None or len(mods) != len(self.models):  # (a zip of another pipeline's state reported fewer)
+            raise InputError(f"state must be a run state of this pipeline (Result.diagnostics['state']), with one "
+                             f"state per sensor model ({len(self.models)})")
         out: dict[str, dict[str, Any]] = {}
-        for mod, s in zip(self.models, state["mod"]):
+        for mod, s in zip(self.models, mods):
             rep = mod.report(s)
             if not isinstance(rep, dict):  # (a plugin's mistake, named)
                 raise PluginError(f"sensor model {mod.name!r}: report() returned {type(rep).__name__}; it must "

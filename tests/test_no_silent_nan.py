@@ -264,6 +264,36 @@ def test_a_sensor_model_that_returns_the_wrong_thing_is_named(apply, what):
         p.update(rec.gyr[0], rec.acc[0], dt=0.01)
 
 
+def test_every_numpy_write_into_a_read_only_sample_is_named():
+    """numpy words a write into a read-only array several ways (``a.sort()``, ``np.put``, ``a.flat``): each
+    is the plugin's write into its sample; a plugin's own error that mentions "read-only" is its own
+    (review rev33d: the exact match of two messages let ``sample.acc.sort()`` through as a raw ValueError)."""
+    from fusionkit.detectors._run import read_only, wrote_input
+
+    class Named:
+        name = "test-writes"
+
+    a = read_only(np.arange(3.0))
+    for write in (lambda: a.sort(), lambda: np.put(a, 0, 1.0), lambda: a.flat.__setitem__(0, 1.0),
+                  lambda: a.__setitem__(0, 1.0), lambda: np.multiply(a, 2.0, out=a)):
+        with pytest.raises(ValueError) as exc:
+            write()
+        with pytest.raises(PluginError, match="'test-writes' wrote into a read-only array"):
+            wrote_input("sensor model", Named(), exc.value)
+    assert wrote_input("sensor model", Named(), ValueError("my table is read-only, sorry")) is None
+
+
+def test_model_reports_refuse_another_pipelines_state():
+    """model_reports(state) zipped the models with the state's: another pipeline's state reported fewer
+    models, or another model's layout, without a word (review rev33d)."""
+    rec = sim.demo_recordings()[0].slice(0, 40)
+    p = _with_model("test-report-model", lambda s: (s, 0))
+    state = p.run(rec, backend="reference").diagnostics["state"]
+    assert list(p.model_reports(state)) == ["test-report-model"]
+    with pytest.raises(fk.InputError, match="one state per sensor model"):
+        p.model_reports({**state, "mod": []})
+
+
 def _debiased(sample):
     sample.gyr[:] -= 0.001  # the gyro corrected in place: a copy of its own, as before (review rev33c)
     return sample

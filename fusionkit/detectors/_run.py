@@ -6,6 +6,7 @@ detectors never import the composition layer.
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import numpy as np
@@ -30,8 +31,10 @@ def read_only(a: np.ndarray) -> np.ndarray:
     return v
 
 
-#: numpy's own messages for a write into a read-only array (a plugin's own error that mentions "read-only" is its own)
-_NUMPY_READ_ONLY = ("assignment destination is read-only", "output array is read-only")
+#: numpy's own messages for a write into a read-only array (``a[...] = x``, ``a *= k``, ``a.sort()``, ``np.put``,
+#: ``a.flat[...] = x``, ``np.place``); a plugin's own error that mentions "read-only" is its own
+_NUMPY_READ_ONLY = re.compile(r"(put: )?(assignment destination|output array|sort array|underlying array|"
+                              r"WRITEBACKIFCOPY base) is read-only")
 
 
 def wrote_input(kind: str, plugin: Any, exc: ValueError) -> None:
@@ -39,7 +42,7 @@ def wrote_input(kind: str, plugin: Any, exc: ValueError) -> None:
     is numpy's refusal to write into a :func:`read_only` array ("assignment destination is
     read-only", "output array is read-only"), which named neither the plugin nor the rule; returns
     (the caller re-raises) for any other error."""
-    if type(exc) is ValueError and str(exc) in _NUMPY_READ_ONLY:
+    if type(exc) is ValueError and _NUMPY_READ_ONLY.fullmatch(str(exc)):
         raise PluginError(f"{kind} {plugin.name!r} wrote into a read-only array, likely the sample it was given "
                           f"({exc}): a plugin must not change its input (the arrays are the recording's or the "
                           "caller's); "

@@ -60,7 +60,11 @@ def _mat(name: str, v) -> np.ndarray | None:
 def _real(name: str, v, what: str = "a finite number") -> float:
     """``v`` as a finite float, or an InputError naming ``name`` (also for text and booleans, which
     ``float`` would take: ``"100"`` parses, True is 1)."""
-    if isinstance(v, (bool, np.bool_, str, bytes)) or np.ndim(v) != 0:
+    try:
+        scalar = np.ndim(v) == 0
+    except ValueError:  # (a ragged list: numpy's own error)
+        scalar = False
+    if isinstance(v, (bool, np.bool_, str, bytes)) or not scalar:
         raise InputError(f"{name} must be {what}, got {v!r:.80}")
     try:  # (a number of any kind: numpy's scalars and 0-d arrays, a Fraction)
         v = float(v)

@@ -62,11 +62,11 @@ def simulate(segments, rate: float = 100.0, noise: Noise = Noise(), initial=(1.0
         raise InputError(f"errors must be a fusionkit.sim.SensorErrors or None, got {type(errors).__name__}")
     if not isinstance(noise, Noise):
         raise InputError(f"noise must be a fusionkit.sim.Noise, got {noise!r:.80}")
-    if gnss_rate is None or (gnss_rate is False or (np.ndim(gnss_rate) == 0 and not isinstance(gnss_rate, (str, bytes))
-                                                    and gnss_rate == 0)):
+    if gnss_rate is None or gnss_rate is False or (isinstance(gnss_rate, (int, float, np.integer, np.floating))
+                                                   and gnss_rate == 0):
         gnss_rate = None  # (None, 0 and False: no GNSS, as always)
-    else:  # (-5 gave an epoch every sample)
-        gnss_rate = _err._positive("gnss_rate", gnss_rate, "Hz (None or 0: no GNSS)")
+    else:  # (-5 gave an epoch every sample; anything else not a number is named by _positive)
+        gnss_rate = _err._positive("gnss_rate", gnss_rate, "Hz; None or 0: no GNSS")
     gnss_vel_noise = _err._nonneg("gnss_vel_noise", gnss_vel_noise)
     mag_field = _err._vec("mag_field", mag_field)
     initial_velocity = _err._vec("initial_velocity", initial_velocity)
