@@ -81,9 +81,6 @@ def flag_names(value: int) -> list[str]:
     return [f.name for f in Flag if f.value and (int(value) & f.value)]
 
 
-_GYR_UNITS, _ACC_UNITS = GYR_UNITS, ACC_UNITS  # (validation's: its unit checks name them)
-
-
 #: A gyroscope axis beyond this (rad/s, about 1600 turns per second: no gyroscope measures that
 #: much) is not a measurement; the sample is GYR_INVALID (and its rate cannot overflow a product).
 GYR_LIMIT = 1.0e4
@@ -308,18 +305,18 @@ class Recording:
         self.acc = as_vectors("acc", self.acc, n)
         if self.mag is not None:
             self.mag = as_vectors("mag", self.mag, n)
-        if self.gyr_unit not in _GYR_UNITS:
-            raise InputError(f"gyr_unit must be one of {list(_GYR_UNITS)}, got {self.gyr_unit!r}")
-        if self.acc_unit not in _ACC_UNITS:
-            raise InputError(f"acc_unit must be one of {list(_ACC_UNITS)}, got {self.acc_unit!r}")
+        if self.gyr_unit not in GYR_UNITS:
+            raise InputError(f"gyr_unit must be one of {list(GYR_UNITS)}, got {self.gyr_unit!r}")
+        if self.acc_unit not in ACC_UNITS:
+            raise InputError(f"acc_unit must be one of {list(ACC_UNITS)}, got {self.acc_unit!r}")
         # converted only when the unit asks for it: C-contiguous float64 input in the library's
         # units is kept, not copied (the Recording shares its memory)
         declared = self.gyr_unit  # (the turning check asks whether a gyro declared in another unit was in rad/s)
-        if _GYR_UNITS[self.gyr_unit] != 1.0:
-            self.gyr = self.gyr * _GYR_UNITS[self.gyr_unit]
-        if _ACC_UNITS[self.acc_unit] != 1.0:
+        if GYR_UNITS[self.gyr_unit] != 1.0:
+            self.gyr = self.gyr * GYR_UNITS[self.gyr_unit]
+        if ACC_UNITS[self.acc_unit] != 1.0:
             check_acc_declared(self.gyr, self.acc, self.acc_unit)
-            self.acc = self.acc * _ACC_UNITS[self.acc_unit]
+            self.acc = self.acc * ACC_UNITS[self.acc_unit]
         self.gyr_unit, self.acc_unit = "rad/s", "m/s^2"
         if (self.rate is None) == (self.t is None):
             raise InputError("give exactly one of rate= (Hz) or t= (timestamps in s)")
