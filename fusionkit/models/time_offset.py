@@ -166,7 +166,7 @@ class TimeOffsetModel(SensorModel):
         out["sample_interval_s"] = float(s[_DT0])
         da, dm = out["offset_applied_s"], out["mag_offset_applied_s"]
         if c.retime == "gyro":  # (the conditions of apply's step 3, for the sensors' state at the end)
-            mag_moved = da != dm and (s[ACC + CONF] == s[MAG + CONF] or not c.estimate)
+            mag_moved = self._moves_mag(s, da, dm)
         else:
             mag_moved = dm != 0.0
         out["applied"] = bool(da != 0.0 or mag_moved)
@@ -216,9 +216,7 @@ class TimeOffsetModel(SensorModel):
         if c.retime == "gyro":
             if cont and da != 0.0:
                 gyr = g + da * (g - s[_PG:_PG + 3]) / (0.5 * (s[_PDT] + dt))
-            # the magnetometer's offset from the accelerometer, da - dm, only from two offsets of
-            # the same standing (both estimated, or both as configured): one alone says nothing
-            if mag is not None and da != dm and (s[ACC + CONF] == s[MAG + CONF] or not c.estimate):
+            if mag is not None and self._moves_mag(s, da, dm):
                 mag = rodrigues(-gyr * (da - dm)) @ mag
         else:
             if acc is not None and da != 0.0:
@@ -229,6 +227,13 @@ class TimeOffsetModel(SensorModel):
         s[_PDT] = dt
         s[_PGOK] = 1.0
         return sample._replace(gyr=gyr, acc=acc, mag=mag), 0
+
+    def _moves_mag(self, s, da, dm) -> bool:
+        """Whether re-timing the gyro (``retime="gyro"``, offsets ``da`` of the accelerometer and ``dm``
+        of the magnetometer in use) moves the magnetometer: by its offset from the accelerometer,
+        ``da - dm``, taken only from two offsets of the same standing (both estimated, or both as
+        configured): one alone says nothing. :meth:`apply`'s step 3 and :meth:`report` ask it."""
+        return da != dm and (s[ACC + CONF] == s[MAG + CONF] or not self.config.estimate)
 
     def _segment(self, s, b, u, g, ok, norm) -> None:
         """A new sample ``u`` (unit direction) of the sensor whose block starts at ``b``: it closes
